@@ -1,0 +1,45 @@
+# Every target does its own set-up: a fresh clone needs only Python 3.11+ and make.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: run test lint typecheck unit bench schema check clean
+
+$(STAMP): pyproject.toml
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "Python 3.11+ is required")'
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+## The simulated bench (io_maps/sim.yaml); Ctrl-C stops it with every output safe.
+run: $(STAMP)
+	$(BIN)/supervisor run io_maps/sim.yaml
+
+## Lint, type-check and the whole test suite.
+test: lint typecheck unit
+
+lint: $(STAMP)
+	$(BIN)/ruff check supervisor tests
+	$(BIN)/ruff format --check supervisor tests
+
+typecheck: $(STAMP)
+	$(BIN)/mypy
+
+unit: $(STAMP)
+	$(BIN)/pytest -q
+
+## Benchmarks: figures are printed, never asserted.
+bench: $(STAMP)
+	$(BIN)/supervisor bench scan --tags 1000 --period-ms 10 --seconds 10
+	$(BIN)/supervisor bench manual --hours 10
+
+schema: $(STAMP)
+	$(BIN)/supervisor schema --out io_maps
+
+check: $(STAMP)
+	$(BIN)/supervisor check io_maps/*.yaml
+
+clean:
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache

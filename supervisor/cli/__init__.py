@@ -1,0 +1,1 @@
+"""Command line: ``supervisor run | check | schema | bench``."""

@@ -1,0 +1,133 @@
+"""Load a bench I/O map: YAML with positions → pydantic model → cross-checks.
+
+Structural errors come from pydantic; the checks here need the whole file (does the
+device have that point? is a board owned twice?). Every error names file:line:col.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from supervisor.config.models import BenchConfig, ChadecheDevice
+from supervisor.config.yamlpos import Positions, load_yaml, validate
+from supervisor.core.errors import ConfigError, ConfigErrors
+
+# Hardware maximum of a Chadèche board (seed 000 §II.C.4: 4.096 V DAC across 10 Ω).
+CHADECHE_MAX_CURRENT_A = 0.4
+DEVICE_STATUS_SUFFIXES = ("connected", "comm_failures")
+RESERVED_PREFIXES = ("scan.", "bench.")
+
+
+def load_bench(path: str | Path) -> BenchConfig:
+    """Load and fully check a bench file; raises ConfigErrors listing every problem."""
+    file = str(path)
+    try:
+        data, pos = load_yaml(path)
+    except ConfigError as exc:
+        raise ConfigErrors([exc]) from None
+    cfg = validate(BenchConfig, data, pos, file)
+    errors = check_bench(cfg, pos, file)
+    if errors:
+        raise ConfigErrors(errors)
+    return cfg
+
+
+def check_bench(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError]:
+    errors: list[ConfigError] = []
+
+    def err(path: tuple[str | int, ...], msg: str, at_key: bool = False) -> None:
+        m = pos.key(path) if at_key else pos.value(path)
+        m = m or pos.nearest(path)
+        errors.append(ConfigError(msg, file, m.line, m.col))
+
+    # Boards: unique addresses per bus.
+    for dname, dev in cfg.devices.items():
+        if isinstance(dev, ChadecheDevice):
+            seen: dict[int, int] = {}
+            for i, b in enumerate(dev.boards):
+                if b.address in seen:
+                    err(
+                        ("devices", dname, "boards", i, "address"),
+                        f"board address {b.address} is already used by boards[{seen[b.address]}]"
+                        f" of device {dname!r}",
+                    )
+                seen.setdefault(b.address, i)
+
+    # Tag mappings: known device and point; unique names; reserved namespaces.
+    channel_names = {c.name for c in cfg.channels}
+    names: dict[str, int] = {}
+    for i, t in enumerate(cfg.tags):
+        tdev = cfg.devices.get(t.device)
+        if tdev is None:
+            err(
+                ("tags", i, "device"),
+                f"unknown device {t.device!r} (devices: {', '.join(sorted(cfg.devices))})",
+            )
+        elif t.point not in tdev.point_names():
+            points = sorted(tdev.point_names())
+            have = ", ".join(points[:12]) + (", ..." if len(points) > 12 else "")
+            err(
+                ("tags", i, "point"),
+                f"device {t.device!r} has no point {t.point!r} (it has: {have})",
+            )
+        if t.name in names:
+            err(("tags", i, "name"), f"duplicate tag name {t.name!r} (also tags[{names[t.name]}])")
+        names.setdefault(t.name, i)
+        head = t.name.split(".", 1)[0]
+        if head in channel_names or t.name.startswith(RESERVED_PREFIXES):
+            err(
+                ("tags", i, "name"),
+                f"tag name {t.name!r} is in a namespace the supervisor generates"
+                f" ({head}.*); choose another name",
+            )
+        if head in cfg.devices and t.name.split(".", 1)[-1] in DEVICE_STATUS_SUFFIXES:
+            err(("tags", i, "name"), f"tag name {t.name!r} is generated for device {head!r}")
+
+    # Channels: unique names; source exists; one owner per board; limits within hardware.
+    owners: dict[tuple[str, int], str] = {}
+    ch_seen: set[str] = set()
+    for i, ch in enumerate(cfg.channels):
+        if ch.name in ch_seen:
+            err(("channels", i, "name"), f"duplicate channel name {ch.name!r}")
+        ch_seen.add(ch.name)
+        if ch.name in cfg.devices:
+            err(("channels", i, "name"), f"channel name {ch.name!r} is also a device name")
+        src = ch.source
+        cdev = cfg.devices.get(src.device)
+        if cdev is None:
+            err(("channels", i, "source", "device"), f"unknown device {src.device!r}")
+            continue
+        if not isinstance(cdev, ChadecheDevice):
+            err(
+                ("channels", i, "source", "device"),
+                f"device {src.device!r} cannot drive a Chadèche channel",
+            )
+            continue
+        if src.board not in {b.address for b in cdev.boards}:
+            err(
+                ("channels", i, "source", "board"),
+                f"device {src.device!r} has no board {src.board}"
+                f" (boards: {', '.join(str(b.address) for b in cdev.boards)})",
+            )
+        key = (src.device, src.board)
+        if key in owners:
+            err(
+                ("channels", i, "source", "board"),
+                f"board {src.board} of {src.device!r} is already owned by channel {owners[key]!r}"
+                " (one owner per board)",
+            )
+        owners.setdefault(key, ch.name)
+        lo, hi = ch.limits.current_a
+        if max(-lo, hi) > CHADECHE_MAX_CURRENT_A:
+            err(
+                ("channels", i, "limits", "current_a"),
+                f"a Chadèche board drives at most {CHADECHE_MAX_CURRENT_A} A;"
+                f" limits [{lo}, {hi}] A exceed it",
+            )
+        if ch.temperature_tag is not None and ch.temperature_tag not in names:
+            err(
+                ("channels", i, "temperature_tag"),
+                f"temperature_tag {ch.temperature_tag!r} is not a tag declared under tags:",
+            )
+    errors.sort(key=lambda e: (e.line or 0, e.col or 0))
+    return errors

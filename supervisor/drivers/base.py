@@ -1,0 +1,156 @@
+"""Common poller: connect with backoff, flush queued writes, read, keep the image honest.
+
+Every concrete driver implements the four ``_`` hooks; this class owns the policy that
+must be the same everywhere: a failed poll never leaves an old value looking GOOD, a
+lost device is logged once and its recovery once (Home Assistant practice), reconnects
+back off exponentially, and the safe state is attempted even when things are failing.
+"""
+
+from __future__ import annotations
+
+import logging
+from abc import ABC, abstractmethod
+from collections import deque
+from collections.abc import Mapping
+
+from supervisor.core.clock import Clock
+from supervisor.core.driver import PointInfo, Sample, Value
+from supervisor.core.errors import SupervisorError
+from supervisor.core.quality import Quality, Reason
+
+log = logging.getLogger(__name__)
+
+BACKOFF_START_S = 0.5
+BACKOFF_MAX_S = 30.0
+
+
+class PolledDriver(ABC):
+    """Base for drivers that poll a device on their own task."""
+
+    def __init__(self, name: str, clock: Clock, poll_period_s: float) -> None:
+        if poll_period_s <= 0:
+            raise ValueError(f"{name}: poll_period_s must be > 0")
+        self.name = name
+        self.clock = clock
+        self.poll_period_s = poll_period_s
+        self._image: dict[str, Sample] = {}
+        self._pending: dict[str, Value] = {}
+        self._connected = False
+        self._lost_logged = False
+        self._backoff_s = BACKOFF_START_S
+        self._next_connect_t = float("-inf")
+        self.polls = 0
+        self.failures = 0
+        self.last_error: str = ""
+        # Last raw exchanges, for diagnostics when a device misbehaves.
+        self.raw_log: deque[str] = deque(maxlen=32)
+        for p in self.points().values():
+            if p.direction == "in":
+                self._image[p.name] = Sample(None, Quality.BAD, Reason.NOT_CONNECTED, 0.0)
+
+    # --- hooks -----------------------------------------------------------------
+    @abstractmethod
+    def points(self) -> Mapping[str, PointInfo]:
+        """Points of this device (inputs and outputs)."""
+
+    @abstractmethod
+    async def _connect(self) -> None:
+        """Open the transport and check the device; raise SupervisorError on failure."""
+
+    @abstractmethod
+    async def _read(self) -> dict[str, Sample]:
+        """Read every input point; raise SupervisorError if the device cannot be read."""
+
+    @abstractmethod
+    async def _write(self, point: str, value: Value) -> None:
+        """Write one output and verify it; raise SupervisorError if it does not verify."""
+
+    @abstractmethod
+    async def _safe(self) -> None:
+        """Drive every output of the device to its safe value."""
+
+    async def _disconnect(self) -> None:  # noqa: B027 - optional hook
+        """Close the transport (optional)."""
+
+    # --- public surface --------------------------------------------------------
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    def image(self) -> Mapping[str, Sample]:
+        return self._image
+
+    def write(self, point: str, value: Value) -> None:
+        """Queue a write; the latest value per point wins. Never blocks."""
+        info = self.points().get(point)
+        if info is None or info.direction != "out":
+            raise KeyError(f"{self.name}: no output point {point!r}")
+        self._pending[point] = value
+
+    async def poll(self) -> None:
+        """One poll cycle: (re)connect if due, flush writes, read inputs."""
+        now = self.clock.now()
+        if not self._connected:
+            if now < self._next_connect_t:
+                return
+            try:
+                await self._connect()
+            except (TimeoutError, SupervisorError, OSError) as exc:
+                self._fail(exc, now)
+                return
+            self._connected = True
+            self._backoff_s = BACKOFF_START_S
+        try:
+            while self._pending:
+                point, value = next(iter(self._pending.items()))
+                del self._pending[point]
+                await self._write(point, value)
+            samples = await self._read()
+        except (TimeoutError, SupervisorError, OSError) as exc:
+            self._fail(exc, now)
+            return
+        self.polls += 1
+        self._image.update(samples)
+        if self._lost_logged:
+            log.info("%s: device recovered", self.name)
+            self._lost_logged = False
+
+    async def run(self) -> None:
+        """Poll forever at ``poll_period_s`` on absolute deadlines (cancel to stop)."""
+        next_t = self.clock.now()
+        while True:
+            await self.poll()
+            next_t += self.poll_period_s
+            now = self.clock.now()
+            if next_t < now:  # overrun: no burst catch-up
+                next_t = now
+            await self.clock.sleep_until(next_t)
+
+    async def safe_state(self) -> None:
+        """Best effort: drop queued writes and drive outputs safe; log and go on on failure."""
+        self._pending.clear()
+        try:
+            await self._safe()
+        except (TimeoutError, SupervisorError, OSError) as exc:
+            log.error("%s: could not reach safe state: %s", self.name, exc)
+
+    async def close(self) -> None:
+        try:
+            await self._disconnect()
+        finally:
+            self._connected = False
+
+    # --- internals -------------------------------------------------------------
+    def _fail(self, exc: BaseException, now: float) -> None:
+        self.failures += 1
+        self.last_error = str(exc)
+        if not self._lost_logged:
+            log.warning("%s: device lost: %s", self.name, exc)
+            self._lost_logged = True
+        self._connected = False
+        self._next_connect_t = now + self._backoff_s
+        self._backoff_s = min(self._backoff_s * 2, BACKOFF_MAX_S)
+        reason = Reason.COMM_FAILURE
+        for name, s in self._image.items():
+            # Keep the last value for diagnostics, but never let it look GOOD.
+            self._image[name] = Sample(s.value, Quality.BAD, reason, s.t)

@@ -1,0 +1,305 @@
+"""Chadèche boards (seed 000): constant current charge/discharge and cell voltage over SPI.
+
+One driver per SPI bus, up to four boards (addresses 0..3). Points per board ``n``:
+
+- ``b{n}.voltage`` (in, V): cell voltage from the MCP3201, calibrated (``-s``/``-o``).
+- ``b{n}.current`` (in, A, + charge): the current the board is commanded to drive after the
+  last successful write. The board has NO current sensor (seed §II.B: the DAC sets a
+  constant current source, only the voltage is measured), so this is a command echo through
+  the ``-1``/``-2`` calibration, not a measurement.
+- ``b{n}.charging`` (in, bool): relay latch position last written.
+- ``b{n}.current_set`` (out, A, + charge / − discharge), ``b{n}.led_duty`` (out, 0..1).
+
+The DAC and the latch are write-only chips: a write is "verified" when its transfers
+completed without error; nothing can be read back.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from supervisor.core.clock import Clock
+from supervisor.core.driver import PointInfo, Sample, Value
+from supervisor.core.errors import DeviceIOError, ProtocolError, SupervisorError
+from supervisor.core.quality import Quality, Reason
+from supervisor.drivers.base import PolledDriver
+from supervisor.drivers.chadeche.bus import BoardClaim, ChadecheBus, SpidevBus, claim_board
+from supervisor.protocols.chadeche import (
+    ADC_MAX_CODE,
+    ADC_READ,
+    BOARD_ADDRESSES,
+    DAC_MAX_CODE,
+    MAX_CURRENT_A,
+    Calibration,
+    Chip,
+    DacChannel,
+    adc_code_to_voltage_v,
+    current_to_dac_command,
+    dac_code_to_current_a,
+    dac_transfer,
+    decode_adc_reply,
+    encode_latch,
+)
+
+log = logging.getLogger(__name__)
+
+RELAY_SETTLE_S = 0.02
+"""Wait between flipping the relay latch and raising the current again, so the 2RT relay
+(seed §II.C.3) has finished moving and never makes contact under current. Small signal
+relays operate in about 10 ms; UNVERIFIED for the board's Finder relay."""
+
+
+@dataclass(slots=True)
+class _Board:
+    address: int
+    cal: Calibration
+    # What the hardware should be (re-asserted on every (re)connect; zeroed by safe state).
+    target_code: int = 0
+    target_charging: bool = False
+    target_led_code: int = 0
+    # What the last successful transfers set.
+    dac_a_code: int = 0
+    charging: bool = False
+    clamped: bool = False
+    sensor_failed: bool = False
+
+    @property
+    def current_a(self) -> float:
+        magnitude = dac_code_to_current_a(self.dac_a_code, self.cal)
+        if magnitude == 0.0:
+            return 0.0
+        return magnitude if self.charging else -magnitude
+
+
+class ChadecheDriver(PolledDriver):
+    """Poll the boards' ADCs; apply current and LED commands safely.
+
+    ``relay_settle_s``: wait after flipping the relay before raising the current (slept on
+    ``clock``, so it advances a virtual clock). ``lock_dir``: claim every board with
+    :func:`claim_board` there; boards are always claimed (default directory) when ``bus`` is
+    a :class:`SpidevBus`. ``close()`` releases the claims but leaves outputs as they are.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        clock: Clock,
+        bus: ChadecheBus,
+        boards: Mapping[int, Calibration],
+        poll_period_s: float = 0.1,
+        *,
+        relay_settle_s: float = RELAY_SETTLE_S,
+        lock_dir: str | Path | None = None,
+    ) -> None:
+        if not boards:
+            raise ValueError(f"{name}: at least one board is needed")
+        for address in boards:
+            if isinstance(address, bool) or address not in BOARD_ADDRESSES:
+                raise ValueError(f"{name}: Chadèche board address must be 0..3, got {address!r}")
+        if relay_settle_s < 0:
+            raise ValueError(f"{name}: relay_settle_s must be >= 0")
+        self._bus = bus
+        # spidev blocks: run it in a worker thread. The simulator is fast and must stay
+        # deterministic on a virtual clock: call it directly.
+        self._blocking_bus = isinstance(bus, SpidevBus)
+        self._relay_settle_s = relay_settle_s
+        self._boards = {a: _Board(a, boards[a]) for a in sorted(boards)}
+        self._points: dict[str, PointInfo] = {}
+        self._outputs: dict[str, tuple[int, str]] = {}
+        for a in self._boards:
+            p = f"b{a}."
+            for info in (
+                PointInfo(p + "voltage", "in", "float", "V", f"board {a} cell voltage"),
+                PointInfo(
+                    p + "current", "in", "float", "A", f"board {a} commanded current, + charge"
+                ),
+                PointInfo(p + "charging", "in", "bool", "", f"board {a} relay in charge"),
+                PointInfo(p + "current_set", "out", "float", "A", f"board {a} current, + charge"),
+                PointInfo(p + "led_duty", "out", "float", "", f"board {a} LED duty 0..1"),
+            ):
+                self._points[info.name] = info
+            self._outputs[p + "current_set"] = (a, "current_set")
+            self._outputs[p + "led_duty"] = (a, "led_duty")
+        # Output sequences (zero, flip, raise) and the safe state must not interleave.
+        self._io_lock = asyncio.Lock()
+        super().__init__(name, clock, poll_period_s)
+        # One owner per board (seed §III.G.2): always on real hardware, or when asked.
+        self._claims: list[BoardClaim] = []
+        if lock_dir is not None or self._blocking_bus:
+            try:
+                for a in self._boards:
+                    self._claims.append(claim_board(a, lock_dir))
+            except DeviceIOError:
+                self._release_claims()
+                raise
+
+    # --- public surface --------------------------------------------------------
+    def points(self) -> Mapping[str, PointInfo]:
+        return self._points
+
+    def write(self, point: str, value: Value) -> None:
+        """Queue a write; refuses non-numbers and NaN/inf at once (the caller's bug)."""
+        if point in self._outputs and (isinstance(value, bool | str) or not math.isfinite(value)):
+            raise ValueError(f"{self.name}: {point} needs a finite number, got {value!r}")
+        super().write(point, value)
+
+    # --- PolledDriver hooks ----------------------------------------------------
+    async def _connect(self) -> None:
+        # The latch powers up in an unknown state and the hardware may have missed commands
+        # while the bus was down: re-assert every board's target in the safe order.
+        async with self._io_lock:
+            for board in self._boards.values():
+                await self._drive(board, board.target_code, board.target_charging, force=True)
+                await self._xfer(
+                    board.address, Chip.DAC, dac_transfer(DacChannel.B, board.target_led_code)
+                )
+
+    async def _disconnect(self) -> None:
+        # Outputs are left as they are: the caller runs safe_state() first if it wants.
+        self._release_claims()
+
+    async def _read(self) -> dict[str, Sample]:
+        samples: dict[str, Sample] = {}
+        async with self._io_lock:
+            for board in self._boards.values():
+                code = decode_adc_reply(await self._xfer(board.address, Chip.ADC, ADC_READ))
+                t = self.clock.now()
+                p = f"b{board.address}."
+                samples[p + "voltage"] = self._voltage_sample(board, code, t)
+                reason = Reason.CLAMPED if board.clamped else Reason.NONE
+                samples[p + "current"] = Sample(board.current_a, Quality.GOOD, reason, t)
+                samples[p + "charging"] = Sample(board.charging, Quality.GOOD, Reason.NONE, t)
+        return samples
+
+    async def _write(self, point: str, value: Value) -> None:
+        address, kind = self._outputs[point]
+        board = self._boards[address]
+        assert not isinstance(value, str)  # checked in write()
+        async with self._io_lock:
+            if kind == "current_set":
+                await self._set_current(board, float(value))
+            else:
+                await self._set_led(board, float(value))
+
+    async def _safe(self) -> None:
+        # Targets first, so a reconnect after a failed attempt also comes back at 0 A.
+        for board in self._boards.values():
+            board.target_code = 0
+        failed: list[int] = []
+        async with self._io_lock:
+            for board in self._boards.values():
+                try:
+                    await self._xfer(board.address, Chip.DAC, dac_transfer(DacChannel.A, 0))
+                except (SupervisorError, OSError) as exc:
+                    log.error(
+                        "%s: board %d: could not zero the current: %s",
+                        self.name,
+                        board.address,
+                        exc,
+                    )
+                    failed.append(board.address)
+                    continue
+                board.dac_a_code = 0
+                board.clamped = False
+        if failed:
+            raise DeviceIOError(self.name, f"current not zeroed on board(s) {failed}")
+
+    # --- internals -------------------------------------------------------------
+    async def _set_current(self, board: _Board, current_a: float) -> None:
+        magnitude = abs(current_a)
+        clamped = magnitude > MAX_CURRENT_A
+        if clamped:
+            # The I/O map and the channel limits clamp first; this is the hardware last line.
+            log.warning(
+                "%s: board %d: %.4f A requested, clamped to %.3f A",
+                self.name,
+                board.address,
+                current_a,
+                MAX_CURRENT_A,
+            )
+            magnitude = MAX_CURRENT_A
+        command = current_to_dac_command(magnitude, board.cal)
+        if command.clamped:
+            log.warning(
+                "%s: board %d: calibrated command for %.4f A exceeds 400 mA, DAC clamped to %d",
+                self.name,
+                board.address,
+                magnitude,
+                command.code,
+            )
+        # 0 A keeps the relay where it is: no needless click.
+        charging = board.target_charging if current_a == 0 else current_a > 0
+        board.target_code = command.code
+        board.target_charging = charging
+        await self._drive(board, command.code, charging)
+        board.clamped = clamped or command.clamped
+
+    async def _set_led(self, board: _Board, duty: float) -> None:
+        if not 0.0 <= duty <= 1.0:
+            log.warning(
+                "%s: board %d: LED duty %.3f clamped to 0..1", self.name, board.address, duty
+            )
+            duty = min(max(duty, 0.0), 1.0)
+        code = round(duty * DAC_MAX_CODE)
+        board.target_led_code = code
+        await self._xfer(board.address, Chip.DAC, dac_transfer(DacChannel.B, code))
+
+    async def _drive(
+        self, board: _Board, code: int, charging: bool, *, force: bool = False
+    ) -> None:
+        """Set DAC A and the relay, never switching the relay under current."""
+        switch = force or charging != board.charging
+        if switch:
+            if force or board.dac_a_code != 0:
+                await self._xfer(board.address, Chip.DAC, dac_transfer(DacChannel.A, 0))
+                board.dac_a_code = 0
+            await self._xfer(board.address, Chip.LATCH, encode_latch(charging))
+            board.charging = charging
+            if code != 0 and self._relay_settle_s > 0:
+                await self.clock.sleep_until(self.clock.now() + self._relay_settle_s)
+        if code != 0 or not switch:
+            await self._xfer(board.address, Chip.DAC, dac_transfer(DacChannel.A, code))
+        board.dac_a_code = code
+
+    async def _xfer(self, address: int, chip: Chip, data: bytes) -> bytes:
+        try:
+            if self._blocking_bus:
+                reply = await asyncio.to_thread(self._bus.transfer, address, chip, data)
+            else:
+                reply = self._bus.transfer(address, chip, data)
+        except OSError as exc:
+            raise DeviceIOError(self.name, f"board {address} {chip.name}: {exc}") from exc
+        self.raw_log.append(f"b{address} {chip.name} >{data.hex()} <{reply.hex()}")
+        if len(reply) != len(data):
+            raise ProtocolError(
+                self.name,
+                f"board {address} {chip.name}: {len(reply)} bytes back for {len(data)} sent",
+                reply,
+            )
+        return reply
+
+    def _voltage_sample(self, board: _Board, code: int, t: float) -> Sample:
+        if code >= ADC_MAX_CODE:
+            # Full scale: open input (no cell, no board: MISO floats high) or over-range.
+            if not board.sensor_failed:
+                log.warning(
+                    "%s: board %d: ADC at full scale (open input or over-range)",
+                    self.name,
+                    board.address,
+                )
+                board.sensor_failed = True
+            return Sample(None, Quality.BAD, Reason.SENSOR_FAILURE, t)
+        if board.sensor_failed:
+            log.info("%s: board %d: ADC back in range", self.name, board.address)
+            board.sensor_failed = False
+        return Sample(adc_code_to_voltage_v(code, board.cal), Quality.GOOD, Reason.NONE, t)
+
+    def _release_claims(self) -> None:
+        for claim in self._claims:
+            claim.release()
+        self._claims.clear()

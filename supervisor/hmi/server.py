@@ -1,0 +1,99 @@
+"""A small JSON API: read tags, write operator tags. Listens on loopback by default.
+
+Writes go through ``TagDB.write`` so access level, type and range are checked in one
+place; the scan picks the new value up at its next start.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from aiohttp import web
+
+from supervisor.core.clock import Clock
+from supervisor.core.errors import OperatorError
+from supervisor.tags import Access, Tag, TagDB
+
+log = logging.getLogger(__name__)
+
+
+def tag_json(tag: Tag, clock: Clock) -> dict[str, Any]:
+    s = tag.spec
+    return {
+        "name": tag.name,
+        "value": tag.value,
+        "unit": s.unit,
+        "quality": tag.quality.name,
+        "reason": str(tag.reason),
+        "forced": tag.forced,
+        "access": s.access.name.lower(),
+        "source_time": clock.to_wall(tag.source_t) if tag.source_t else None,
+        "version": tag.version,
+    }
+
+
+class HttpApi:
+    def __init__(self, db: TagDB, clock: Clock, host: str = "127.0.0.1", port: int = 8080):
+        self.db = db
+        self.clock = clock
+        self.host = host
+        self.port = port
+        self._runner: web.AppRunner | None = None
+        app = web.Application()
+        app.add_routes(
+            [
+                web.get("/api/tags", self._list),
+                web.get("/api/tags/{name}", self._get),
+                web.put("/api/tags/{name}", self._put),
+            ]
+        )
+        self.app = app
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}/api"
+
+    async def start(self) -> None:
+        self._runner = web.AppRunner(self.app, access_log=None)
+        await self._runner.setup()
+        site = web.TCPSite(self._runner, self.host, self.port)
+        await site.start()
+        server = site._server
+        if server is not None and self.port == 0:
+            sockets = getattr(server, "sockets", None) or []
+            if sockets:
+                self.port = sockets[0].getsockname()[1]
+
+    async def stop(self) -> None:
+        if self._runner is not None:
+            await self._runner.cleanup()
+            self._runner = None
+
+    async def _list(self, request: web.Request) -> web.Response:
+        prefix = request.query.get("prefix", "")
+        tags = [tag_json(t, self.clock) for t in self.db if t.name.startswith(prefix)]
+        return web.json_response(tags)
+
+    async def _get(self, request: web.Request) -> web.Response:
+        tag = self.db.get(request.match_info["name"])
+        if tag is None:
+            return web.json_response({"error": "unknown tag"}, status=404)
+        return web.json_response(tag_json(tag, self.clock))
+
+    async def _put(self, request: web.Request) -> web.Response:
+        name = request.match_info["name"]
+        if name not in self.db:
+            return web.json_response({"error": f"unknown tag {name!r}"}, status=404)
+        try:
+            body = await request.json()
+        except ValueError:
+            return web.json_response({"error": 'body must be JSON {"value": ...}'}, status=400)
+        if not isinstance(body, dict) or "value" not in body:
+            return web.json_response({"error": 'body must be JSON {"value": ...}'}, status=400)
+        try:
+            tag = self.db.write(name, body["value"], Access.OPERATOR)
+        except OperatorError as exc:
+            return web.json_response({"error": str(exc)}, status=403)
+        log.info("http: %s := %r", name, tag.value)
+        return web.json_response(tag_json(tag, self.clock))

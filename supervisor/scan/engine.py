@@ -1,0 +1,293 @@
+"""One scan, as a PLC does it (DESIGN.md "One scan"; docs/adr/0002-scan-timing.md).
+
+1. Inputs: copy every driver image into the tag database in one synchronous step, so
+   logic sees one consistent snapshot; an input older than its stale limit turns BAD.
+2. Logic: phases in order (derived values, interlocks and alarms, step chains). An
+   exception in a phase is counted and logged; the phase's owner decides what goes safe.
+3. Outputs: output tags whose value changed are queued to their driver (never awaited).
+4. Publish: every publisher gets the scan end; publishers never block the scan.
+
+Deadlines are absolute (start + k·period). After an overrun the engine does not burst
+to catch up: missed deadlines are skipped and counted.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from supervisor.core.clock import Clock
+from supervisor.core.driver import Driver, Value
+from supervisor.core.quality import Quality, Reason
+from supervisor.tags.db import Tag, TagDB
+from supervisor.tags.spec import Scaling, TagSpec
+
+log = logging.getLogger(__name__)
+
+STATS_WINDOW = 10_000
+
+
+@dataclass(slots=True)
+class InputBinding:
+    tag: Tag
+    driver: Driver
+    point: str
+    scaling: Scaling | None = None
+    stale_after_s: float | None = None
+
+
+@dataclass(slots=True)
+class OutputBinding:
+    tag: Tag
+    driver: Driver
+    point: str
+    scaling: Scaling | None = None
+    sent_version: int = -1
+
+
+class Publisher(Protocol):
+    name: str
+
+    def on_scan(self, db: TagDB, t: float) -> None:
+        """Called at scan end; must return quickly (queue, never wait)."""
+        ...
+
+
+@dataclass(slots=True)
+class LogicPhase:
+    name: str
+    run: Callable[[float, float], None]  # (now_s, dt_s)
+
+
+@dataclass
+class ScanStats:
+    count: int = 0
+    overruns: int = 0
+    skipped: int = 0
+    logic_errors: int = 0
+    durations_s: deque[float] = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
+    jitters_s: deque[float] = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
+
+    @staticmethod
+    def percentile(values: Sequence[float], q: float) -> float:
+        if not values:
+            return 0.0
+        s = sorted(values)
+        k = min(len(s) - 1, max(0, round(q / 100 * (len(s) - 1))))
+        return s[k]
+
+
+class ScanEngine:
+    def __init__(
+        self,
+        clock: Clock,
+        db: TagDB,
+        period_s: float,
+        drivers: Sequence[Driver] = (),
+        inputs: Sequence[InputBinding] = (),
+        outputs: Sequence[OutputBinding] = (),
+        phases: Sequence[LogicPhase] = (),
+        publishers: Sequence[Publisher] = (),
+    ) -> None:
+        if period_s <= 0:
+            raise ValueError("period_s must be > 0")
+        self.clock = clock
+        self.db = db
+        self.period_s = period_s
+        self.drivers = list(drivers)
+        self.inputs = list(inputs)
+        self.outputs = list(outputs)
+        self.phases = list(phases)
+        self.publishers = list(publishers)
+        self.stats = ScanStats()
+        self._last_t: float | None = None
+        self._next_t: float | None = None
+        self._next_poll: dict[int, float] = {}
+        self._stats_tags = self._declare_stats_tags()
+        self._conn_tags = self._declare_driver_tags()
+
+    # --- declarations ------------------------------------------------------------
+    def _declare_stats_tags(self) -> dict[str, Tag]:
+        specs = [
+            TagSpec("scan.period_s", unit="s", description="Configured scan period"),
+            TagSpec("scan.duration_s", unit="s", description="Duration of the last scan"),
+            TagSpec("scan.duration_max_s", unit="s", description="Longest scan so far"),
+            TagSpec("scan.jitter_s", unit="s", description="Start lateness of the last scan"),
+            TagSpec("scan.overruns", dtype="int", description="Scans longer than the period"),
+            TagSpec("scan.count", dtype="int", description="Scans since start"),
+            TagSpec("scan.logic_errors", dtype="int", description="Exceptions caught in logic"),
+        ]
+        out = {}
+        for s in specs:
+            out[s.name] = self.db.get(s.name) or self.db.add(s)
+        self.db.update(out["scan.period_s"], self.period_s)
+        return out
+
+    def _declare_driver_tags(self) -> list[tuple[Driver, Tag, Tag]]:
+        out = []
+        for d in self.drivers:
+            c = self.db.get(f"{d.name}.connected") or self.db.add(
+                TagSpec(f"{d.name}.connected", dtype="bool", description="Device answers")
+            )
+            f = self.db.get(f"{d.name}.comm_failures") or self.db.add(
+                TagSpec(f"{d.name}.comm_failures", dtype="int", description="Failed polls")
+            )
+            out.append((d, c, f))
+        return out
+
+    # --- one scan ----------------------------------------------------------------
+    async def poll_due_drivers(self) -> None:
+        """Lockstep mode (virtual clock): poll drivers whose period is due, in order."""
+        now = self.clock.now()
+        for d in self.drivers:
+            due = self._next_poll.get(id(d), now)
+            if now >= due:
+                await d.poll()
+                nxt = due + d.poll_period_s
+                self._next_poll[id(d)] = nxt if nxt > now else now + d.poll_period_s
+
+    def scan_once(self) -> None:
+        """Inputs, logic, outputs, publish — synchronous: the scan never awaits I/O."""
+        t0 = time.perf_counter()
+        now = self.clock.now()
+        dt = 0.0 if self._last_t is None else now - self._last_t
+        self._last_t = now
+        db = self.db
+        db.set_scan_time(now)
+        self._copy_inputs(now)
+        for phase in self.phases:
+            try:
+                phase.run(now, dt)
+            except Exception:  # an exception in logic is an alarm, not a crash
+                self.stats.logic_errors += 1
+                log.exception("scan: logic phase %r failed", phase.name)
+        self._queue_outputs()
+        for pub in self.publishers:
+            try:
+                pub.on_scan(db, now)
+            except Exception:
+                log.exception("scan: publisher %r failed", pub.name)
+        duration = time.perf_counter() - t0
+        st = self.stats
+        st.count += 1
+        st.durations_s.append(duration)
+        if duration > self.period_s:
+            st.overruns += 1
+        tags = self._stats_tags
+        db.update(tags["scan.duration_s"], duration)
+        if duration > (tags["scan.duration_max_s"].value or 0.0):  # type: ignore[operator]
+            db.update(tags["scan.duration_max_s"], duration)
+        db.update(tags["scan.overruns"], st.overruns)
+        db.update(tags["scan.count"], st.count)
+        db.update(tags["scan.logic_errors"], st.logic_errors)
+
+    def _copy_inputs(self, now: float) -> None:
+        db = self.db
+        for d, ctag, ftag in self._conn_tags:
+            db.update(ctag, d.connected)
+            db.update(ftag, getattr(d, "failures", 0))
+        for b in self.inputs:
+            s = b.driver.image().get(b.point)
+            if s is None:
+                db.update(b.tag, None, Quality.BAD, Reason.NOT_CONNECTED)
+                continue
+            value: Value | None = s.value
+            quality, reason = s.quality, s.reason
+            if b.scaling is not None and isinstance(value, int | float) and value is not True:
+                value = b.scaling.to_eu(float(value))
+            if (
+                b.stale_after_s is not None
+                and quality is not Quality.BAD
+                and now - s.t > b.stale_after_s
+            ):
+                quality, reason = Quality.BAD, Reason.STALE
+            db.update(b.tag, value, quality, reason, s.t)
+
+    def _queue_outputs(self) -> None:
+        for b in self.outputs:
+            tag = b.tag
+            if tag.version == b.sent_version or tag.value is None:
+                continue
+            b.sent_version = tag.version
+            value = tag.value
+            if b.scaling is not None and isinstance(value, int | float):
+                value = b.scaling.to_raw(float(value))
+            try:
+                b.driver.write(b.point, value)
+            except Exception:
+                log.exception("scan: write %s → %s.%s failed", tag.name, b.driver.name, b.point)
+
+    # --- loops ---------------------------------------------------------------------
+    async def run(
+        self, stop: asyncio.Event, max_scans: int | None = None, until_t: float | None = None
+    ) -> None:
+        """Scan until ``stop`` is set, ``max_scans`` are done or the clock passes ``until_t``.
+
+        On a real clock every driver polls on its own task; on a virtual clock drivers
+        are polled in lockstep before each scan so runs are deterministic.
+        """
+        tasks: list[asyncio.Task[None]] = []
+        if not self.clock.virtual:
+            for d in self.drivers:
+                run = getattr(d, "run", None)
+                if run is not None:
+                    tasks.append(asyncio.create_task(run(), name=f"driver:{d.name}"))
+        try:
+            await self._loop(stop, max_scans, until_t)
+        finally:
+            for t in tasks:
+                t.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+
+    async def _loop(
+        self, stop: asyncio.Event, max_scans: int | None, until_t: float | None
+    ) -> None:
+        clock = self.clock
+        if clock.virtual and self._next_t is not None:
+            # Continue the virtual timeline where the previous run stopped.
+            await clock.sleep_until(self._next_t)
+        start = clock.now()
+        k = 0
+        done = 0
+        jtag = self._stats_tags["scan.jitter_s"]
+        while not stop.is_set():
+            scheduled = start + k * self.period_s
+            if until_t is not None and scheduled >= until_t - 1e-9:
+                self._next_t = scheduled
+                return
+            if clock.virtual:
+                await self.poll_due_drivers()
+            else:
+                jitter = max(0.0, clock.now() - scheduled)
+                self.stats.jitters_s.append(jitter)
+                self.db.update(jtag, jitter)
+            self.scan_once()
+            done += 1
+            k += 1
+            nxt = start + k * self.period_s
+            now = clock.now()
+            if nxt <= now and not clock.virtual:
+                # Overrun: skip the deadlines already missed instead of bursting.
+                missed = int((now - nxt) / self.period_s) + 1
+                self.stats.skipped += missed
+                k += missed
+                nxt = start + k * self.period_s
+            self._next_t = nxt
+            if max_scans is not None and done >= max_scans:
+                return
+            await clock.sleep_until(nxt)
+
+    async def run_for(self, duration_s: float) -> None:
+        """Run the scans due in ``[now, now + duration_s)`` (virtual: as fast as the CPU allows).
+
+        On a virtual clock the clock stands at ``now + duration_s`` afterwards and the
+        next run continues the same timeline.
+        """
+        start = self._next_t if (self.clock.virtual and self._next_t is not None) else None
+        t0 = self.clock.now() if start is None else start
+        await self.run(asyncio.Event(), until_t=t0 + duration_s)

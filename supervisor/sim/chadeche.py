@@ -1,0 +1,183 @@
+"""Simulated Chadèche boards answering SPI transfers, decoded with the driver's own codecs.
+
+``SimChadecheBus`` has the same surface as the real bus (``transfer(board, chip, data)``,
+``close()``), so the driver cannot tell them apart. Cells are integrated lazily: on each
+transfer (or ``advance()``) a board first steps its cell from its last update to
+``clock.now()`` with the current that was flowing, then applies the new command. Fast and
+deterministic on a virtual clock.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Protocol
+
+from supervisor.core.clock import Clock
+from supervisor.core.errors import DeviceIOError, ProtocolError
+from supervisor.protocols.chadeche import (
+    DAC_LSB_MA,
+    Chip,
+    DacChannel,
+    DacWord,
+    dac_word_from_bytes,
+    decode_dac_word,
+    decode_latch,
+    encode_adc_reply,
+    voltage_to_adc_code,
+)
+
+NO_BOARD_BYTE = 0xFF
+"""What MISO reads when no board answers (assumed pulled up / floating high)."""
+
+
+class Cell(Protocol):
+    """What a board needs from a battery model (supervisor/sim/battery.py)."""
+
+    def step(self, current_a: float, dt_s: float) -> None:
+        """Advance by ``dt_s`` at ``current_a`` (positive current CHARGES)."""
+        ...
+
+    def voltage_at(self, current_a: float) -> float: ...
+
+    @property
+    def terminal_voltage_v(self) -> float: ...
+
+
+@dataclass(frozen=True, slots=True)
+class SimTransfer:
+    """One transfer seen by the simulated bus, for tests and diagnostics."""
+
+    t: float
+    board: int
+    chip: Chip
+    data: bytes
+    reply: bytes
+
+
+class SimBoard:
+    """One board: DAC A/B, the relay latch and the cell it is wired to.
+
+    ``true_current_*`` make the current source differ from nominal (what calibration
+    §III.F.1 corrects); ``adc_*`` do the same for the voltage chain (§III.F.2).
+    """
+
+    def __init__(
+        self,
+        cell: Cell,
+        true_current_gain: float = 1.0,
+        true_current_offset_ma: float = 0.0,
+        adc_gain: float = 1.0,
+        adc_offset_v: float = 0.0,
+    ) -> None:
+        self.cell = cell
+        self.true_current_gain = true_current_gain
+        self.true_current_offset_ma = true_current_offset_ma
+        self.adc_gain = adc_gain
+        self.adc_offset_v = adc_offset_v
+        # Power-up: both channels shut down (MCP4922 POR), latch state unknown -> discharge.
+        self.dac_a = DacWord(DacChannel.A, 0, active=False)
+        self.dac_b = DacWord(DacChannel.B, 0, active=False)
+        self.charging = False
+        self.transfers = 0
+        self.hot_switches = 0
+        """Relay flips made while current was flowing (the driver must keep this at 0)."""
+        self._last_t: float | None = None
+
+    @property
+    def current_a(self) -> float:
+        """Current through the cell now, + charging, − discharging."""
+        word = self.dac_a
+        if not word.active or word.code == 0:
+            return 0.0
+        gain = 1.0 if word.gain_1x else 2.0
+        i_ma = word.code * gain * DAC_LSB_MA * self.true_current_gain + self.true_current_offset_ma
+        # The current source cannot reverse: below zero it simply turns off.
+        i_a = max(i_ma, 0.0) / 1000.0
+        return i_a if self.charging else -i_a
+
+    @property
+    def led_duty(self) -> float:
+        word = self.dac_b
+        return word.code / 4095 if word.active else 0.0
+
+    def advance(self, now: float) -> None:
+        """Step the cell from the last update to ``now`` at the current that was flowing."""
+        if self._last_t is not None and now > self._last_t:
+            self.cell.step(self.current_a, now - self._last_t)
+        if self._last_t is None or now > self._last_t:
+            self._last_t = now
+
+    def adc_code(self) -> int:
+        v = self.cell.voltage_at(self.current_a)
+        return voltage_to_adc_code(self.adc_gain * v + self.adc_offset_v)
+
+    def handle(self, chip: Chip, data: bytes) -> bytes:
+        """Apply one transfer (after :meth:`advance`) and return what MISO carried."""
+        self.transfers += 1
+        if chip == Chip.DAC:
+            word = decode_dac_word(dac_word_from_bytes(data))
+            if word.channel == DacChannel.A:
+                self.dac_a = word
+            else:
+                self.dac_b = word
+            return bytes(len(data))  # the MCP4922 has no data output
+        if chip == Chip.ADC:
+            if len(data) != 2:  # the driver must clock exactly 16 bits
+                raise ProtocolError("chadeche-sim", "ADC read must be 2 bytes", data)
+            return encode_adc_reply(self.adc_code())
+        charging = decode_latch(data)
+        if charging != self.charging and self.current_a != 0.0:
+            self.hot_switches += 1
+        self.charging = charging
+        return bytes(len(data))
+
+
+class SimChadecheBus:
+    """A simulated SPI bus with up to four boards; same surface as the real ``ChadecheBus``."""
+
+    def __init__(
+        self, clock: Clock, boards: Mapping[int, SimBoard], history_len: int = 256
+    ) -> None:
+        for address in boards:
+            if address not in range(4):
+                raise ValueError(f"Chadèche board address must be 0..3, got {address!r}")
+        self.clock = clock
+        self.boards: dict[int, SimBoard] = dict(boards)
+        self.history: deque[SimTransfer] = deque(maxlen=history_len)
+        """The last transfers in order (bounded: dry runs last hours)."""
+        self.closed = False
+        self.fault: Exception | None = None
+        """Fault injection: while set, every transfer raises it (cable pulled, bus error)."""
+        self._lock = threading.Lock()
+
+    def transfer(self, board: int, chip: Chip, data: bytes) -> bytes:
+        with self._lock:
+            if self.closed:
+                raise DeviceIOError("chadeche-sim", "bus closed")
+            if self.fault is not None:
+                raise self.fault
+            now = self.clock.now()
+            sim = self.boards.get(board)
+            if sim is None:
+                reply = bytes([NO_BOARD_BYTE]) * len(data)
+            else:
+                sim.advance(now)
+                reply = sim.handle(chip, bytes(data))
+            self.history.append(SimTransfer(now, board, chip, bytes(data), reply))
+            return reply
+
+    def advance(self) -> None:
+        """Bring every cell up to ``clock.now()`` without a transfer."""
+        with self._lock:
+            now = self.clock.now()
+            for sim in self.boards.values():
+                sim.advance(now)
+
+    def close(self) -> None:
+        self.closed = True
+
+
+__all__ = ["Cell", "SimBoard", "SimChadecheBus", "SimTransfer"]

@@ -1,0 +1,143 @@
+"""The simulated seed-002 bench: one battery behind the EA supply, ADAM, BMS and e-stop.
+
+Every protocol simulator (ADAM Modbus server, EA SCPI server, BMS CAN sender) reads and
+writes this one object, so a current set on the supply shows up in the LEM sensor
+voltage, the voltage board, the BMS frames and the thermocouples alike.
+
+Physics is integrated lazily: every access first calls ``advance()``, which steps the
+battery from the last update to ``clock.now()`` with the current that was flowing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from supervisor.core.clock import Clock
+from supervisor.sim.battery import BatteryModel
+
+# The EA unit's own bounds on how hard it regulates (its internal R is irrelevant here:
+# it is an ideal CV source with a source and a sink current limit).
+_BISECT_ITERATIONS = 40
+
+
+@dataclass
+class SupplyState:
+    """What the EA supply has been told (SCPI ``OUTP``, ``VOLT``, ``CURR``, ``SINK:CURR``)."""
+
+    output_on: bool = False
+    remote: bool = False
+    volt_set_v: float = 0.0
+    curr_set_a: float = 0.0
+    sink_curr_set_a: float = 0.0
+    pow_set_w: float = float("inf")
+    sink_pow_set_w: float = float("inf")
+
+
+@dataclass
+class BenchPlant:
+    clock: Clock
+    battery: BatteryModel
+    ambient_c: float = 25.0
+    supply: SupplyState = field(default_factory=SupplyState)
+    # Battery contactor, closed by the ADAM 5060 relay (the software e-stop, seed 002 §1.5).
+    contactor_closed: bool = False
+    # Hardware e-stop: cuts the supply's mains through its own contactor (seed 002 §1.5).
+    estop_pressed: bool = False
+    # Supply mains present (False while the e-stop is pressed).
+    _t: float | None = None
+    _current_a: float = 0.0
+
+    # --- time ------------------------------------------------------------------------
+    def advance(self) -> None:
+        now = self.clock.now()
+        if self._t is None:
+            self._t = now
+        dt = now - self._t
+        if dt > 0:
+            self.battery.step(self._current_a, dt)
+            self._t = now
+        self._current_a = self._regulate()
+
+    # --- what the sensors see --------------------------------------------------------
+    @property
+    def pack_current_a(self) -> float:
+        """Current into the pack (+ charges), as the LEM sensor and the BMS see it."""
+        self.advance()
+        return self._current_a
+
+    @property
+    def pack_voltage_v(self) -> float:
+        self.advance()
+        return self.battery.voltage_at(self._current_a)
+
+    @property
+    def pack_temperature_c(self) -> float:
+        self.advance()
+        return self.battery.temperature_c
+
+    @property
+    def supply_energised(self) -> bool:
+        return self.supply.output_on and not self.estop_pressed
+
+    @property
+    def supply_voltage_v(self) -> float:
+        """What the supply measures at its terminals."""
+        self.advance()
+        if self.contactor_closed:
+            return self.battery.voltage_at(self._current_a)
+        return self.supply.volt_set_v if self.supply_energised else 0.0
+
+    # --- commands ----------------------------------------------------------------------
+    def set_supply(self, **changes: float | bool) -> None:
+        """Apply new supply settings at the current instant (integrates first)."""
+        self.advance()
+        for k, v in changes.items():
+            if not hasattr(self.supply, k):
+                raise AttributeError(f"supply has no setting {k!r}")
+            setattr(self.supply, k, v)
+        self._current_a = self._regulate()
+
+    def set_contactor(self, closed: bool) -> None:
+        self.advance()
+        self.contactor_closed = closed
+        self._current_a = self._regulate()
+
+    def set_estop(self, pressed: bool) -> None:
+        self.advance()
+        self.estop_pressed = pressed
+        if pressed:
+            # Losing mains drops the supply's output; it stays off until commanded on.
+            self.supply.output_on = False
+        self._current_a = self._regulate()
+
+    # --- the supply's regulation ---------------------------------------------------------
+    def _regulate(self) -> float:
+        """Current the EA unit drives: CV at ``volt_set`` bounded by its current limits.
+
+        No mode command exists on the unit: it sinks when its voltage set value is below
+        the terminal voltage and sources when above (reference devices.md, EA section).
+        """
+        s = self.supply
+        if not (self.supply_energised and self.contactor_closed):
+            return 0.0
+        v_pack = self.battery.voltage_at
+        i_src = max(0.0, s.curr_set_a)
+        i_sink = max(0.0, s.sink_curr_set_a)
+        if v_pack(0.0) <= 0:
+            return 0.0
+        # Power limits reduce the current limits at the present voltage.
+        v0 = max(v_pack(0.0), 1e-3)
+        i_src = min(i_src, s.pow_set_w / v0)
+        i_sink = min(i_sink, s.sink_pow_set_w / v0)
+        if v_pack(i_src) <= s.volt_set_v:
+            return i_src  # constant-current charge
+        if v_pack(-i_sink) >= s.volt_set_v:
+            return -i_sink  # constant-current discharge (sink)
+        lo, hi = -i_sink, i_src
+        for _ in range(_BISECT_ITERATIONS):  # constant voltage: find I with V(I) = set
+            mid = (lo + hi) / 2
+            if v_pack(mid) < s.volt_set_v:
+                lo = mid
+            else:
+                hi = mid
+        return (lo + hi) / 2

@@ -1,0 +1,216 @@
+"""The tag database: values with quality, timestamps and a cheap change feed.
+
+Every change bumps a global version and records (version, tag) in a bounded change
+log, so a publisher asks "what changed since version N" each scan in O(changes).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterable, Iterator
+
+from supervisor.core.driver import Value
+from supervisor.core.errors import OperatorError
+from supervisor.core.quality import Quality, Reason
+from supervisor.tags.spec import Access, TagSpec
+
+CHANGE_LOG_LEN = 65_536
+
+
+class Tag:
+    """Live state of one tag. Mutated only through ``TagDB`` so versions stay right."""
+
+    __slots__ = (
+        "forced",
+        "index",
+        "quality",
+        "reason",
+        "server_t",
+        "source_t",
+        "spec",
+        "value",
+        "version",
+    )
+
+    def __init__(self, spec: TagSpec, index: int) -> None:
+        self.spec = spec
+        self.index = index
+        self.value: Value | None = spec.initial
+        self.quality = Quality.UNCERTAIN if spec.initial is not None else Quality.BAD
+        self.reason = Reason.INITIAL
+        self.source_t = 0.0
+        self.server_t = 0.0
+        self.version = 0
+        self.forced = False
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def good(self) -> bool:
+        return self.quality is Quality.GOOD
+
+    def as_float(self, default: float = 0.0) -> float:
+        """The value as a float (``default`` when it is not a number)."""
+        v = self.value
+        if isinstance(v, int | float) and not isinstance(v, bool):
+            return float(v)
+        return default
+
+    def __repr__(self) -> str:
+        forced = " FORCED" if self.forced else ""
+        return f"<Tag {self.name}={self.value!r} {self.quality.name}({self.reason}){forced}>"
+
+
+class TagDB:
+    def __init__(self) -> None:
+        self._tags: dict[str, Tag] = {}
+        self._list: list[Tag] = []
+        self.version = 0
+        self._log: deque[tuple[int, Tag]] = deque(maxlen=CHANGE_LOG_LEN)
+        self._now = 0.0
+
+    # --- declaration -----------------------------------------------------------
+    def add(self, spec: TagSpec) -> Tag:
+        if spec.name in self._tags:
+            raise ValueError(f"duplicate tag name {spec.name!r}")
+        tag = Tag(spec, len(self._list))
+        self._tags[spec.name] = tag
+        self._list.append(tag)
+        self._bump(tag)
+        return tag
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._tags
+
+    def __getitem__(self, name: str) -> Tag:
+        try:
+            return self._tags[name]
+        except KeyError:
+            raise KeyError(f"unknown tag {name!r}") from None
+
+    def get(self, name: str) -> Tag | None:
+        return self._tags.get(name)
+
+    def __iter__(self) -> Iterator[Tag]:
+        return iter(self._list)
+
+    def __len__(self) -> int:
+        return len(self._list)
+
+    def names(self) -> list[str]:
+        return list(self._tags)
+
+    # --- time ------------------------------------------------------------------
+    def set_scan_time(self, t: float) -> None:
+        """Server timestamp given to every change in this scan (``Clock.now()`` axis)."""
+        self._now = t
+
+    # --- updates ---------------------------------------------------------------
+    def update(
+        self,
+        tag: Tag,
+        value: Value | None,
+        quality: Quality = Quality.GOOD,
+        reason: Reason = Reason.NONE,
+        source_t: float | None = None,
+    ) -> bool:
+        """Set value and quality from the process side; returns True if anything changed.
+
+        A forced tag ignores the process value (commissioning override) but keeps
+        its forced value and says so.
+        """
+        if tag.forced:
+            return False
+        if value is not None and tag.spec.dtype == "float":
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                # A driver or logic handing over the wrong type is a fault, not a crash.
+                value, quality, reason = None, Quality.BAD, Reason.CONFIG_ERROR
+            else:
+                if not math.isfinite(value):
+                    quality, reason = Quality.BAD, Reason.OUT_OF_RANGE
+        changed = value != tag.value or quality is not tag.quality or reason is not tag.reason
+        tag.source_t = self._now if source_t is None else source_t
+        if changed:
+            tag.value = value
+            tag.quality = quality
+            tag.reason = reason
+            tag.server_t = self._now
+            self._bump(tag)
+        return changed
+
+    def set_quality(self, tag: Tag, quality: Quality, reason: Reason) -> bool:
+        return self.update(tag, tag.value, quality, reason, tag.source_t)
+
+    def write(self, name: str, value: Value, access: Access = Access.OPERATOR) -> Tag:
+        """A write from a person or client: checks access level, type and range."""
+        tag = self[name]
+        if tag.spec.access is Access.READ_ONLY:
+            raise OperatorError(f"{name} is read-only")
+        if access < tag.spec.access:
+            raise OperatorError(f"{name} needs {tag.spec.access.name.lower()} access")
+        try:
+            v = tag.spec.coerce(value)
+        except (TypeError, ValueError) as exc:
+            raise OperatorError(str(exc)) from None
+        choices = tag.spec.choices
+        if choices is not None and v not in choices:
+            raise OperatorError(f"{name}: {v!r} is not one of {', '.join(choices)}")
+        rng = tag.spec.range
+        if rng is not None and isinstance(v, int | float) and not isinstance(v, bool):
+            lo, hi = rng
+            if not lo <= v <= hi:
+                raise OperatorError(
+                    f"{name}: {v} {tag.spec.unit} is outside its range [{lo}, {hi}]".strip()
+                )
+        self.update(tag, v, Quality.GOOD, Reason.NONE)
+        return tag
+
+    def force(self, name: str, value: Value) -> Tag:
+        """Override a tag's value for commissioning; shown as forced everywhere."""
+        tag = self[name]
+        v = tag.spec.coerce(value)
+        tag.forced = False
+        self.update(tag, v, Quality.GOOD, Reason.FORCED)
+        tag.forced = True
+        return tag
+
+    def unforce(self, name: str) -> Tag:
+        tag = self[name]
+        if tag.forced:
+            tag.forced = False
+            # Until the process writes again the value is only the last forced one.
+            self.update(tag, tag.value, Quality.UNCERTAIN, Reason.LAST_KNOWN)
+        return tag
+
+    # --- change feed -----------------------------------------------------------
+    def changed_since(self, version: int) -> list[Tag]:
+        """Tags changed after ``version`` (each once), oldest change first."""
+        if version >= self.version:
+            return []
+        if not self._log or self._log[0][0] > version + 1:
+            # The log no longer reaches back that far: resend everything.
+            return list(self._list)
+        seen: set[int] = set()
+        out: list[Tag] = []
+        for v, tag in reversed(self._log):
+            if v <= version:
+                break
+            if tag.index not in seen:
+                seen.add(tag.index)
+                out.append(tag)
+        out.reverse()
+        return out
+
+    def snapshot(self, names: Iterable[str] | None = None) -> dict[str, Value | None]:
+        tags = self._list if names is None else [self[n] for n in names]
+        return {t.name: t.value for t in tags}
+
+    def _bump(self, tag: Tag) -> None:
+        self.version += 1
+        tag.version = self.version
+        self._log.append((self.version, tag))

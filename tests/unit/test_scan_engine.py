@@ -1,0 +1,178 @@
+"""The scan: process image, staleness, outputs on change, faults contained, time."""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Mapping
+
+from supervisor.core.clock import VirtualClock
+from supervisor.core.driver import PointInfo, Sample, Value
+from supervisor.core.errors import DeviceIOError
+from supervisor.core.quality import Quality, Reason
+from supervisor.drivers.base import PolledDriver
+from supervisor.scan import InputBinding, LogicPhase, OutputBinding, ScanEngine
+from supervisor.tags import Scaling, TagDB, TagSpec
+
+
+class FakeDevice(PolledDriver):
+    """Records every write in order; its inputs are whatever the test puts in ``values``."""
+
+    def __init__(self, clock: VirtualClock, poll_period_s: float = 0.1) -> None:
+        self.values: dict[str, float] = {"ai0": 1.0, "ai1": 2.0}
+        self.writes: list[tuple[str, Value]] = []
+        self.fail = False
+        self.safe_calls = 0
+        super().__init__("dev", clock, poll_period_s)
+
+    def points(self) -> Mapping[str, PointInfo]:
+        return {
+            "ai0": PointInfo("ai0", "in"),
+            "ai1": PointInfo("ai1", "in"),
+            "ao0": PointInfo("ao0", "out"),
+        }
+
+    async def _connect(self) -> None:
+        if self.fail:
+            raise DeviceIOError("dev", "connection refused")
+
+    async def _read(self) -> dict[str, Sample]:
+        if self.fail:
+            raise DeviceIOError("dev", "no answer")
+        t = self.clock.now()
+        return {k: Sample(v, t=t) for k, v in self.values.items()}
+
+    async def _write(self, point: str, value: Value) -> None:
+        self.writes.append((point, value))
+
+    async def _safe(self) -> None:
+        self.safe_calls += 1
+
+
+def make(period_s: float = 0.1, stale_after_s: float = 0.5):  # type: ignore[no-untyped-def]
+    clock = VirtualClock()
+    db = TagDB()
+    dev = FakeDevice(clock)
+    a = db.add(TagSpec("a", unit="V"))
+    b = db.add(TagSpec("b", unit="A"))
+    out = db.add(TagSpec("out", unit="A"))
+    inputs = [
+        InputBinding(a, dev, "ai0", None, stale_after_s),
+        InputBinding(b, dev, "ai1", Scaling(10.0, 0.5), stale_after_s),
+    ]
+    outputs = [OutputBinding(out, dev, "ao0")]
+    return clock, db, dev, inputs, outputs
+
+
+async def test_inputs_are_copied_and_scaled_into_tags_at_scan_start() -> None:
+    clock, db, dev, inputs, outputs = make()
+    engine = ScanEngine(clock, db, 0.1, [dev], inputs, outputs)
+    await engine.run_for(0.1)
+    assert db["a"].value == 1.0 and db["a"].good
+    assert db["b"].value == 20.5
+
+
+async def test_logic_sees_one_snapshot_even_if_the_device_image_changes_mid_scan() -> None:
+    clock, db, dev, inputs, outputs = make()
+    seen: list[float] = []
+
+    def logic(now: float, dt: float) -> None:
+        dev._image["ai0"] = Sample(99.0, t=now)  # the device moves on during logic
+        seen.append(float(db["a"].value))  # type: ignore[arg-type]
+
+    engine = ScanEngine(clock, db, 0.1, [dev], inputs, outputs, [LogicPhase("l", logic)])
+    await engine.run_for(0.1)
+    assert seen == [1.0]
+
+
+async def test_an_input_older_than_its_stale_limit_turns_bad_stale() -> None:
+    clock, db, dev, inputs, outputs = make(stale_after_s=0.5)
+    engine = ScanEngine(clock, db, 0.1, [], inputs, outputs)  # nobody polls the device
+    dev._image["ai0"] = Sample(1.0, t=0.0)
+    dev._image["ai1"] = Sample(1.0, t=0.0)
+    await engine.run_for(0.4)
+    assert db["a"].good
+    await engine.run_for(0.3)
+    assert db["a"].quality is Quality.BAD and db["a"].reason is Reason.STALE
+
+
+async def test_a_lost_device_makes_its_inputs_bad_and_they_recover_by_themselves() -> None:
+    clock, db, dev, inputs, outputs = make()
+    engine = ScanEngine(clock, db, 0.1, [dev], inputs, outputs)
+    await engine.run_for(0.2)
+    assert db["a"].good and db["dev.connected"].value is True
+    dev.fail = True
+    await engine.run_for(0.2)
+    assert db["a"].quality is Quality.BAD and db["a"].reason is Reason.COMM_FAILURE
+    assert db["dev.connected"].value is False
+    dev.fail = False
+    await engine.run_for(5.0)  # past the reconnect backoff
+    assert db["a"].good and db["dev.connected"].value is True
+
+
+async def test_outputs_are_written_only_when_their_tag_changes() -> None:
+    clock, db, dev, inputs, outputs = make()
+    setpoints = iter([1.0, 1.0, 1.0, 2.0, 2.0])
+
+    def logic(now: float, dt: float) -> None:
+        db.update(db["out"], next(setpoints, 2.0))
+
+    engine = ScanEngine(clock, db, 0.1, [dev], inputs, outputs, [LogicPhase("l", logic)])
+    await engine.run_for(0.7)
+    assert dev.writes == [("ao0", 1.0), ("ao0", 2.0)]
+
+
+async def test_an_exception_in_one_phase_is_counted_and_later_phases_still_run() -> None:
+    clock, db, dev, inputs, outputs = make()
+    ran: list[float] = []
+
+    def broken(now: float, dt: float) -> None:
+        raise ZeroDivisionError("boom")
+
+    engine = ScanEngine(
+        clock,
+        db,
+        0.1,
+        [dev],
+        inputs,
+        outputs,
+        [LogicPhase("broken", broken), LogicPhase("ok", lambda now, dt: ran.append(now))],
+    )
+    await engine.run_for(0.3)
+    assert len(ran) == 3
+    assert db["scan.logic_errors"].value == 3
+
+
+async def test_virtual_time_advances_one_period_per_scan_and_runs_continue_seamlessly() -> None:
+    clock, db, dev, inputs, outputs = make()
+    times: list[float] = []
+    engine = ScanEngine(
+        clock, db, 0.1, [dev], inputs, outputs, [LogicPhase("t", lambda n, d: times.append(n))]
+    )
+    await engine.run_for(1.0)
+    await engine.run_for(1.0)
+    assert len(times) == 20
+    steps = {round(b - a, 9) for a, b in itertools.pairwise(times)}
+    assert steps == {0.1}
+    assert clock.now() == 2.0
+    assert db["scan.count"].value == 20
+
+
+async def test_a_scan_longer_than_the_period_counts_as_an_overrun() -> None:
+    clock, db, dev, inputs, outputs = make()
+
+    def slow(now: float, dt: float) -> None:
+        time.sleep(0.003)  # certainly longer than the 1 ms period
+
+    engine = ScanEngine(clock, db, 0.001, [dev], inputs, outputs, [LogicPhase("slow", slow)])
+    await engine.run_for(0.003)
+    assert engine.stats.overruns == 3
+    assert db["scan.overruns"].value == 3
+
+
+async def test_drivers_are_polled_at_their_own_period_in_lockstep() -> None:
+    clock, db, dev, inputs, outputs = make()
+    dev.poll_period_s = 0.5
+    engine = ScanEngine(clock, db, 0.1, [dev], inputs, outputs)
+    await engine.run_for(2.0)
+    assert dev.polls == 4  # t = 0, 0.5, 1.0, 1.5
