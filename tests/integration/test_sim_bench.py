@@ -57,7 +57,7 @@ async def test_300_ma_charge_raises_the_cell_voltage_and_the_ah_counter_matches_
 
 
 async def test_an_out_of_range_manual_setpoint_is_clamped_before_it_reaches_the_board() -> None:
-    clock, bench = sim_bench()
+    _clock, bench = sim_bench()
     bench.db.write("ch2.manual_current", 1.0)  # ch2 is limited to 0.2 A in sim.yaml
     bench.db.write("ch2.enable", True)
     await bench.engine.run_for(2.0)
@@ -67,7 +67,7 @@ async def test_an_out_of_range_manual_setpoint_is_clamped_before_it_reaches_the_
 
 
 async def test_discharge_sets_the_relay_to_discharge_and_counts_discharged_ah() -> None:
-    clock, bench = sim_bench()
+    _clock, bench = sim_bench()
     bench.db.write("ch1.manual_current", -0.2)
     bench.db.write("ch1.enable", True)
     await bench.engine.run_for(600.0)
@@ -80,7 +80,7 @@ async def test_discharge_sets_the_relay_to_discharge_and_counts_discharged_ah() 
 
 
 async def test_shutdown_puts_every_board_to_zero_current() -> None:
-    clock, bench = sim_bench()
+    _clock, bench = sim_bench()
     for n in range(4):
         bench.db.write(f"ch{n}.manual_current", 0.1 if n % 2 else -0.1)
         bench.db.write(f"ch{n}.enable", True)
@@ -91,7 +91,7 @@ async def test_shutdown_puts_every_board_to_zero_current() -> None:
 
 
 async def test_a_bus_failure_makes_the_channel_inputs_bad_and_trips_a_driving_channel() -> None:
-    clock, bench = sim_bench()
+    _clock, bench = sim_bench()
     bench.db.write("ch0.manual_current", 0.3)
     bench.db.write("ch0.enable", True)
     await bench.engine.run_for(5.0)
