@@ -54,8 +54,8 @@ async def scan_benchmark(n_tags: int, period_s: float, seconds: float) -> int:
         inputs.append(InputBinding(ch.current, src, f"ai{2 * k + 1}", None, 1.0))
     outputs = [OutputBinding(ch.current_cmd, gen, f"ao{k}") for k, ch in enumerate(channels)]
     engine = ScanEngine(clock, db, period_s, [gen, src], inputs, outputs, phases)
-    for d in (gen, src):  # first images in place, so no channel trips on "not connected"
-        await d.poll()
+    for drv in (gen, src):  # first images in place, so no channel trips on "not connected"
+        await drv.poll()
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     loop.call_later(seconds, stop.set)
