@@ -36,10 +36,10 @@ bench: $(STAMP)
 	$(BIN)/supervisor bench manual --hours 10
 
 schema: $(STAMP)
-	$(BIN)/supervisor schema --out io_maps
+	$(BIN)/supervisor schema --out .
 
 check: $(STAMP)
-	$(BIN)/supervisor check io_maps/*.yaml
+	$(BIN)/supervisor check io_maps/*.yaml recipes/*.yaml
 
 clean:
 	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache

@@ -4,21 +4,46 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import can
+
+from supervisor.app.simulation import SimulatedBench, build_simulation
+from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target
+from supervisor.chains.engine import ChainRunner
 from supervisor.channels import Channel, ChannelLimits
-from supervisor.config.models import BenchConfig, ChadecheDevice, LinearScaling, TagMapping
+from supervisor.config.models import (
+    AdamDevice,
+    BenchConfig,
+    BmsDevice,
+    ChadecheDevice,
+    ChannelConfig,
+    EaDevice,
+    LinearScaling,
+    SimSupplyDevice,
+    SimulationConfig,
+    TagMapping,
+)
 from supervisor.core.clock import Clock
-from supervisor.core.driver import Driver
+from supervisor.core.driver import Driver, DType
+from supervisor.core.units import UNITS, Dim
+from supervisor.drivers.adam import AdamDriver, AdamModule
+from supervisor.drivers.bms import BmsDriver, socketcand_bus_factory
 from supervisor.drivers.chadeche import ChadecheDriver
 from supervisor.drivers.chadeche.bus import ChadecheBus, SpidevBus
+from supervisor.drivers.ea import EaDriver
 from supervisor.protocols.chadeche import Calibration
 from supervisor.scan import InputBinding, LogicPhase, OutputBinding, Publisher, ScanEngine
 from supervisor.sim.battery import BatteryModel, make_model
 from supervisor.sim.chadeche import SimBoard, SimChadecheBus
+from supervisor.sim.plant import BenchPlant
+from supervisor.sim.supply import PlantSupplyDriver
 from supervisor.tags import AlarmLimits, HistorySettings, Scaling, TagDB, TagSpec
 
 log = logging.getLogger(__name__)
+
+UNIT_DIMS = {u: d for u, (d, f) in UNITS.items() if f == 1.0}
 
 
 @dataclass
@@ -33,8 +58,42 @@ class Bench:
     channels: dict[str, Channel]
     cells: dict[str, BatteryModel] = field(default_factory=dict)  # simulation only
     buses: list[ChadecheBus] = field(default_factory=list)
+    sim: SimulatedBench | None = None
+    runners: dict[str, ChainRunner] = field(default_factory=dict)
+    plant: BenchPlant | None = None  # the dry-run supply's battery
+    _started: bool = False
+
+    def target(self, channel: str) -> Target:
+        """What a recipe may ask of this channel (checked before start)."""
+        c = next(c for c in self.cfg.channels if c.name == channel)
+        dev = self.cfg.devices[c.source.device]
+        cv = not isinstance(dev, ChadecheDevice)
+        return Target(
+            channel=channel,
+            capabilities=WITH_CV if cv else CC_ONLY,
+            no_cv_reason="a Chadèche board drives a constant current only (no voltage regulation)",
+            capacity_ah=c.capacity_ah,
+            current_limits_a=c.limits.current_a,
+            tags=self.tag_dims(),
+        )
+
+    def tag_dims(self) -> dict[str, Dim]:
+        out: dict[str, Dim] = {}
+        for t in self.db:
+            if t.spec.dtype == "bool":
+                out[t.name] = Dim.BOOL
+            elif t.spec.dtype in ("float", "int"):
+                out[t.name] = UNIT_DIMS.get(t.spec.unit, Dim.NONE)
+        return out
+
+    async def start(self) -> None:
+        """Start the in-process simulators (if the I/O map has any) before scanning."""
+        if self.sim is not None and not self._started:
+            await self.sim.start()
+        self._started = True
 
     async def run(self, stop: asyncio.Event) -> None:
+        await self.start()
         await self.engine.run(stop)
 
     async def shutdown(self) -> None:
@@ -57,10 +116,13 @@ class Bench:
                 bus.close()
             except Exception:
                 log.exception("bus close failed")
+        if self.sim is not None and self._started:
+            await self.sim.stop()
+            self._started = False
         log.info("bench %s: all outputs safe", self.cfg.bench)
 
 
-def _tag_spec(m: TagMapping) -> TagSpec:
+def _tag_spec(m: TagMapping, dtype: DType) -> TagSpec:
     alarms = None
     if m.alarms is not None:
         a = m.alarms
@@ -68,6 +130,7 @@ def _tag_spec(m: TagMapping) -> TagSpec:
     h = m.history
     return TagSpec(
         name=m.name,
+        dtype=dtype,
         unit=m.unit,
         description=m.description,
         range=m.range,
@@ -92,12 +155,17 @@ def build_bench(
     cfg: BenchConfig,
     clock: Clock,
     publishers: list[Publisher] | None = None,
+    *,
+    simulate: bool = True,
 ) -> Bench:
+    """Wire a bench. ``simulate=False`` skips the in-process simulators of ``sim: true``
+    devices (another process, e.g. ``supervisor sim``, serves them)."""
     db = TagDB()
     drivers: dict[str, Driver] = {}
     cells: dict[str, BatteryModel] = {}
     buses: list[ChadecheBus] = []
     stale: dict[str, float] = {}
+    plant: BenchPlant | None = None
     for name, dev in cfg.devices.items():
         if isinstance(dev, ChadecheDevice):
             cal = {
@@ -136,39 +204,117 @@ def build_bench(
                 name, clock, bus, cal, poll_period_s=dev.poll_period_s, lock_dir=dev.lock_dir
             )
             stale[name] = dev.stale_after_s
+        elif isinstance(dev, AdamDevice):
+            drivers[name] = AdamDriver(
+                name,
+                clock,
+                dev.host,
+                dev.port,
+                {slot: AdamModule(m.kind, m.raw_format) for slot, m in sorted(dev.modules.items())},
+                unit_id=dev.unit_id,
+                poll_period_s=dev.poll_period_s,
+                timeout_s=dev.timeout_s,
+            )
+            stale[name] = dev.stale_after_s
+        elif isinstance(dev, EaDevice):
+            owner = _owner(cfg, name)
+            lo, hi = owner.limits.current_a
+            drivers[name] = EaDriver(
+                name,
+                clock,
+                dev.host,
+                dev.port,
+                v_min=owner.limits.voltage_v[0],
+                v_max=owner.limits.voltage_v[1],
+                i_charge_max_a=hi,
+                i_discharge_max_a=-lo,
+                expected_model=dev.expected_model,
+                poll_period_s=dev.poll_period_s,
+                watchdog_s=dev.watchdog_s,
+                timeout_s=dev.timeout_s,
+            )
+            stale[name] = dev.stale_after_s
+        elif isinstance(dev, SimSupplyDevice):
+            owner = _owner(cfg, name)
+            if plant is None:
+                plant = _plant(cfg, clock)
+            drivers[name] = PlantSupplyDriver(
+                name,
+                clock,
+                plant,
+                v_min=owner.limits.voltage_v[0],
+                v_max=owner.limits.voltage_v[1],
+                poll_period_s=dev.poll_period_s,
+            )
+            stale[name] = dev.stale_after_s
+        elif isinstance(dev, BmsDevice):
+            drivers[name] = BmsDriver(
+                name,
+                clock,
+                _can_factory(dev),
+                poll_period_s=dev.poll_period_s,
+                stale_factor=dev.stale_factor,
+            )
+            stale[name] = dev.stale_after_s
 
     inputs: list[InputBinding] = []
     outputs: list[OutputBinding] = []
     for m in cfg.tags:
-        spec = _tag_spec(m)
-        tag = db.add(spec)
         drv = drivers[m.device]
         info = drv.points()[m.point]
+        spec = _tag_spec(m, "bool" if m.threshold is not None else info.dtype)
+        tag = db.add(spec)
         if info.direction == "in":
             inputs.append(
-                InputBinding(tag, drv, m.point, spec.scaling, m.stale_after_s or stale[m.device])
+                InputBinding(
+                    tag,
+                    drv,
+                    m.point,
+                    spec.scaling,
+                    m.stale_after_s or stale[m.device],
+                    threshold=m.threshold,
+                )
             )
         else:
             outputs.append(OutputBinding(tag, drv, m.point, spec.scaling))
 
     channels: dict[str, Channel] = {}
     for c in cfg.channels:
+        dev = cfg.devices[c.source.device]
+        is_ea = isinstance(dev, EaDevice | SimSupplyDevice)
         ch = Channel(
             c.name,
             db,
             ChannelLimits(c.limits.current_a, c.limits.voltage_v, c.limits.temperature_c),
             capacity_ah=c.capacity_ah,
             temperature_tag=c.temperature_tag,
+            voltage_tag=c.voltage_tag,
+            current_tag=c.current_tag,
+            contactor_tag=c.contactor_tag,
+            permissives=tuple(c.permissives),
+            has_output_switch=is_ea,
+            has_voltage_setpoint=is_ea,
         )
         drv = drivers[c.source.device]
-        n = c.source.board
+        prefix = "" if is_ea else f"b{c.source.board}."
         st = stale[c.source.device]
-        inputs.append(InputBinding(ch.voltage, drv, f"b{n}.voltage", None, st))
-        inputs.append(InputBinding(ch.current, drv, f"b{n}.current", None, st))
-        outputs.append(OutputBinding(ch.current_cmd, drv, f"b{n}.current_set"))
+        if c.voltage_tag is None:
+            inputs.append(InputBinding(ch.voltage, drv, f"{prefix}voltage", None, st))
+        if c.current_tag is None:
+            inputs.append(InputBinding(ch.current, drv, f"{prefix}current", None, st))
+        outputs.append(OutputBinding(ch.current_cmd, drv, f"{prefix}current_set"))
+        if ch.output_cmd is not None:
+            outputs.append(OutputBinding(ch.output_cmd, drv, "output"))
+        if ch.voltage_cmd is not None:
+            outputs.append(OutputBinding(ch.voltage_cmd, drv, "voltage_set"))
         channels[c.name] = ch
 
-    phases = [LogicPhase(f"channel:{ch.name}", ch.run) for ch in channels.values()]
+    runners = {name: ChainRunner(ch, db, clock) for name, ch in channels.items()}
+    phases = []
+    for name, ch in channels.items():
+        # The chain requests, then the channel protects: a chain never overrides a trip.
+        phases.append(LogicPhase(f"chain:{name}", runners[name].run))
+        phases.append(LogicPhase(f"channel:{name}", ch.run))
     engine = ScanEngine(
         clock,
         db,
@@ -179,4 +325,33 @@ def build_bench(
         phases=phases,
         publishers=publishers or [],
     )
-    return Bench(cfg, clock, db, engine, drivers, channels, cells, buses)
+    sim = build_simulation(cfg, clock) if simulate else None
+    bench = Bench(cfg, clock, db, engine, drivers, channels, cells, buses, sim, runners)
+    bench.plant = plant
+    return bench
+
+
+def _plant(cfg: BenchConfig, clock: Clock) -> BenchPlant:
+    sc = cfg.simulation or SimulationConfig()
+    params: dict[str, float] = {
+        "capacity_ah": sc.pack.capacity_ah,
+        "soc": sc.pack.soc,
+        "temperature_c": sc.pack.temperature_c,
+    }
+    if sc.pack.cells_series is not None:
+        params["cells_series"] = sc.pack.cells_series
+    return BenchPlant(clock, make_model(sc.pack.model, **params), ambient_c=sc.ambient_c)
+
+
+def _owner(cfg: BenchConfig, device: str) -> ChannelConfig:
+    for c in cfg.channels:
+        if c.source.device == device:
+            return c
+    raise ValueError(f"device {device!r} drives no channel")  # refused by check_bench
+
+
+def _can_factory(dev: BmsDevice) -> Callable[[], can.BusABC]:
+    if dev.interface == "socketcand":
+        # Probes the server first: python-can's client otherwise spins while it is down.
+        return socketcand_bus_factory(dev.host, dev.port, dev.channel)
+    return lambda: can.Bus(interface=dev.interface, channel=dev.channel)

@@ -42,6 +42,13 @@ class Channel:
         limits: ChannelLimits,
         capacity_ah: float,
         temperature_tag: str | None = None,
+        *,
+        voltage_tag: str | None = None,
+        current_tag: str | None = None,
+        contactor_tag: str | None = None,
+        permissives: tuple[str, ...] = (),
+        has_output_switch: bool = False,
+        has_voltage_setpoint: bool = False,
     ) -> None:
         self.name = name
         self.db = db
@@ -62,6 +69,14 @@ class Channel:
         )
         self.temperature = add(_spec(f"{n}.temperature", unit="degC", description="Cell temp."))
         self._temp_src = temperature_tag
+        # Measurements taken from other tags (e.g. LEM sensor, voltage board on the ADAM).
+        self._copies = [
+            (self.voltage, voltage_tag),
+            (self.current, current_tag),
+            (self.temperature, temperature_tag),
+        ]
+        self._contactor = db[contactor_tag] if contactor_tag else None
+        self._permissives = [db[p] for p in permissives]
         # Derived values.
         self.power = add(_spec(f"{n}.power", unit="W", history=hist_fast))
         self.charge_ah = add(
@@ -95,10 +110,31 @@ class Channel:
         self.auto_current = add(
             _spec(f"{n}.auto_current", unit="A", initial=0.0, description="Step chain request")
         )
+        self.auto_voltage = add(
+            _spec(
+                f"{n}.auto_voltage",
+                unit="V",
+                initial=0.0,
+                description="CV target asked by the step chain (0: none)",
+            )
+        )
+        self.auto_active = add(
+            _spec(f"{n}.auto_active", dtype="bool", initial=False, description="Chain running")
+        )
         self.ack = add(_spec(f"{n}.ack", dtype="bool", access=Access.OPERATOR, initial=False))
         # Outputs and status.
         self.current_cmd = add(
             _spec(f"{n}.current_cmd", unit="A", initial=0.0, description="Sent to the source")
+        )
+        self.output_cmd = (
+            add(_spec(f"{n}.output_cmd", dtype="bool", initial=False, description="Output on"))
+            if has_output_switch
+            else None
+        )
+        self.voltage_cmd = (
+            add(_spec(f"{n}.voltage_cmd", unit="V", initial=limits.voltage_v[1]))
+            if has_voltage_setpoint
+            else None
         )
         self.clamped = add(_spec(f"{n}.clamped", dtype="bool", initial=False))
         self.fault = add(_spec(f"{n}.fault", dtype="str", initial=""))
@@ -107,8 +143,19 @@ class Channel:
             db.update(t, 0.0)
         for t in (self.energy_wh, self.charged_wh, self.discharged_wh):
             db.update(t, 0.0)
-        for t in (self.mode, self.enable, self.manual_current, self.auto_current, self.ack):
+        for t in (
+            self.mode,
+            self.enable,
+            self.manual_current,
+            self.auto_current,
+            self.auto_active,
+            self.ack,
+        ):
             db.update(t, t.value)
+        if self.output_cmd is not None:
+            db.update(self.output_cmd, False)
+        if self.voltage_cmd is not None:
+            db.update(self.voltage_cmd, limits.voltage_v[1])
         db.update(self.current_cmd, 0.0)
         db.update(self.clamped, False)
         db.update(self.fault, "")
@@ -128,9 +175,10 @@ class Channel:
     def _scan(self, dt: float) -> None:
         db = self.db
         v, i = self.voltage, self.current
-        if self._temp_src is not None:
-            src = db[self._temp_src]
-            db.update(self.temperature, src.value, src.quality, src.reason, src.source_t)
+        for dst, name in self._copies:
+            if name is not None:
+                src = db[name]
+                db.update(dst, src.value, src.quality, src.reason, src.source_t)
         self._integrate(dt)
         # Power: a value computed from a Bad input is Bad.
         if v.good and i.good:
@@ -142,12 +190,24 @@ class Channel:
             self._prev_p = None
 
         request = self._request()
+        active = self._active()
+        if active:
+            self._check_permissives()
         self._protect(request)
         if self.ack.value:
             self._acknowledge()
         if self.fault.value:
-            request = 0.0
+            request, active = 0.0, False
         db.update(self.current_cmd, self._clamp(request))
+        if self.voltage_cmd is not None:
+            vlo, vhi = self.limits.voltage_v
+            target = self.auto_voltage.as_float() if self.mode.value == Mode.AUTO.value else 0.0
+            db.update(self.voltage_cmd, min(max(target, vlo), vhi) if target > 0 else vhi)
+        # Power stage: output and contactor follow "active"; current is already 0 when not.
+        if self.output_cmd is not None:
+            db.update(self.output_cmd, active)
+        if self._contactor is not None:
+            db.update(self._contactor, active)
         db.update(self.state, self._state_name())
 
     def _integrate(self, dt: float) -> None:
@@ -166,12 +226,25 @@ class Channel:
                 db.update(eside, eside.as_float() + abs(de))
         self._prev_i = self.current.as_float() if self.current.good else None
 
+    def _active(self) -> bool:
+        """Whether the channel's power stage should be energised (before trips)."""
+        if self.mode.value == Mode.MANUAL.value:
+            return bool(self.enable.value)
+        return bool(self.auto_active.value)
+
+    def _check_permissives(self) -> None:
+        for p in self._permissives:
+            if not (p.good and p.value is True):
+                why = "is false" if p.good else f"is {p.quality.name} ({p.reason})"
+                self._trip(f"permissive {p.name} {why}")
+                return
+
     def _request(self) -> float:
         if self.mode.value == Mode.MANUAL.value:
             if not self.enable.value:
                 return 0.0
             return self.manual_current.as_float()
-        if self.mode.value == Mode.AUTO.value:
+        if self.mode.value == Mode.AUTO.value and self.auto_active.value:
             return self.auto_current.as_float()
         return 0.0
 
@@ -246,4 +319,9 @@ class Channel:
         """Request zero current (used at shutdown before the drivers' own safe state)."""
         self.db.update(self.enable, False)
         self.db.update(self.auto_current, 0.0)
+        self.db.update(self.auto_active, False)
         self.db.update(self.current_cmd, 0.0)
+        if self.output_cmd is not None:
+            self.db.update(self.output_cmd, False)
+        if self._contactor is not None:
+            self.db.update(self._contactor, False)

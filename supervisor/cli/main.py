@@ -48,9 +48,10 @@ async def _run(args: argparse.Namespace) -> int:
 
     cfg = load_bench(args.io_map)
     clock = RealClock()
-    bench = build_bench(cfg, clock)
+    bench = build_bench(cfg, clock, simulate=not args.no_sim)
     port = cfg.hmi.port if args.http_port is None else args.http_port
-    api = HttpApi(bench.db, clock, cfg.hmi.host, port)
+    estop = bench.sim.press_estop if bench.sim is not None else None
+    api = HttpApi(bench.db, clock, cfg.hmi.host, port, estop=estop)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -84,12 +85,67 @@ def cmd_run(args: argparse.Namespace) -> int:
     return asyncio.run(_run(args))
 
 
+# --- sim -----------------------------------------------------------------------------
+async def _sim(args: argparse.Namespace) -> int:
+    from supervisor.app.simulation import build_simulation
+    from supervisor.config.bench import load_bench
+    from supervisor.core.clock import RealClock
+    from supervisor.hmi import HttpApi
+    from supervisor.tags import TagDB
+
+    cfg = load_bench(args.io_map)
+    clock = RealClock()
+    sim = build_simulation(cfg, clock)
+    if sim is None:
+        _err(f"{args.io_map}: no device has sim: true; nothing to serve")
+        return EXIT_USAGE
+    control = HttpApi(TagDB(), clock, "127.0.0.1", args.control_port, estop=sim.press_estop)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        await sim.start()
+        await control.start()
+    except OSError as exc:
+        _err(f"supervisor sim: cannot listen: {exc.strerror or exc} ({exc})")
+        await sim.stop()
+        await control.stop()
+        return EXIT_USAGE
+    for line in sim.addresses():
+        _out(line)
+    _out(f'e-stop button: PUT {control.url}/sim/estop {{"pressed": true}}')
+    try:
+        await stop.wait()
+    finally:
+        await control.stop()
+        await sim.stop()
+    _out("simulators stopped")
+    return EXIT_OK
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    _setup_logging(args.log_level)
+    if not Path(args.io_map).exists():
+        _err(f"{args.io_map}: no such I/O map")
+        return EXIT_USAGE
+    return asyncio.run(_sim(args))
+
+
 # --- check ---------------------------------------------------------------------------
 def _check_one(path: Path) -> list[ConfigError]:
+    from supervisor.chains.compiler import compile_recipe
     from supervisor.config.bench import load_bench
+    from supervisor.config.recipe import load_recipe
+    from supervisor.config.yamlpos import load_yaml
 
     try:
-        load_bench(path)
+        data, _ = load_yaml(path)
+        if isinstance(data, dict) and "recipe" in data:
+            recipe, pos = load_recipe(path)
+            compile_recipe(recipe, pos, str(path))
+        else:
+            load_bench(path)
     except ConfigErrors as exc:
         return exc.errors
     except ConfigError as exc:
@@ -119,6 +175,43 @@ def cmd_schema(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+# --- dry-run -------------------------------------------------------------------------
+def _params(items: list[str]) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for item in items:
+        if "=" not in item:
+            raise ConfigError(f"--param {item!r}: expected NAME=VALUE, e.g. v_max=1.8V")
+        k, v = item.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+def cmd_dry_run(args: argparse.Namespace) -> int:
+    from supervisor.app.dryrun import dry_run, format_report
+
+    _setup_logging("warning")
+    if not Path(args.recipe).exists():
+        _err(f"{args.recipe}: no such recipe")
+        return EXIT_USAGE
+    res = asyncio.run(
+        dry_run(
+            args.recipe,
+            model=args.model,
+            params=_params(args.param),
+            capacity_ah=args.capacity_ah,
+            soc=args.soc,
+            cells=args.cells,
+            period_s=args.period_s,
+            start=args.start,
+            max_hours=args.max_hours,
+            results_dir=Path(args.results) if args.results else None,
+        )
+    )
+    for line in format_report(res):
+        _out(line)
+    return EXIT_OK
+
+
 # --- bench ---------------------------------------------------------------------------
 def cmd_bench(args: argparse.Namespace) -> int:
     from supervisor.app import benchmarks
@@ -139,15 +232,39 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("io_map", nargs="?", default=str(DEFAULT_IO_MAP))
     r.add_argument("--http-port", type=int, default=None, help="override hmi.port (0 = any)")
     r.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+    r.add_argument(
+        "--no-sim",
+        action="store_true",
+        help="do not start the simulators of sim: true devices (supervisor sim serves them)",
+    )
     r.set_defaults(func=cmd_run)
 
-    c = sub.add_parser("check", help="validate I/O maps; exit 2 on error")
+    sm = sub.add_parser("sim", help="serve the simulated devices of an I/O map, alone")
+    sm.add_argument("io_map", nargs="?", default=str(DEFAULT_IO_MAP))
+    sm.add_argument("--control-port", type=int, default=8081, help="e-stop button API port")
+    sm.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+    sm.set_defaults(func=cmd_sim)
+
+    c = sub.add_parser("check", help="validate I/O maps and recipes; exit 2 on error")
     c.add_argument("files", nargs="+")
     c.set_defaults(func=cmd_check)
 
     s = sub.add_parser("schema", help="write the JSON Schemas editors use")
-    s.add_argument("--out", default="io_maps", help="folder to write bench.schema.json into")
+    s.add_argument("--out", default=".", help="project root: writes io_maps/ and recipes/ schemas")
     s.set_defaults(func=cmd_schema)
+
+    d = sub.add_parser("dry-run", help="run a recipe against the battery model, virtual time")
+    d.add_argument("recipe")
+    d.add_argument("--model", choices=["nimh-aa", "liion-pack"], default=None)
+    d.add_argument("--param", action="append", default=[], metavar="NAME=VALUE")
+    d.add_argument("--capacity-ah", type=float, default=None, help="rated capacity of the cell")
+    d.add_argument("--soc", type=float, default=None, help="state of charge at start, 0..1")
+    d.add_argument("--cells", type=int, default=1, help="Li-ion cells in series")
+    d.add_argument("--period-s", type=float, default=1.0, help="scan period of the dry run")
+    d.add_argument("--start", default="08:00", help="local time of day the test starts")
+    d.add_argument("--max-hours", type=float, default=1000.0)
+    d.add_argument("--results", default=None, help="write result files under this folder")
+    d.set_defaults(func=cmd_dry_run)
 
     b = sub.add_parser("bench", help="benchmarks that print figures")
     b.add_argument("what", choices=["scan", "manual"])

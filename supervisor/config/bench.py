@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from supervisor.config.models import BenchConfig, ChadecheDevice
+from supervisor.config.models import BenchConfig, ChadecheDevice, EaDevice, SimSupplyDevice
 from supervisor.config.yamlpos import Positions, load_yaml, validate
 from supervisor.core.errors import ConfigError, ConfigErrors
 
@@ -97,26 +97,55 @@ def check_bench(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError
         if cdev is None:
             err(("channels", i, "source", "device"), f"unknown device {src.device!r}")
             continue
-        if not isinstance(cdev, ChadecheDevice):
+        key: tuple[str, int]
+        if isinstance(cdev, ChadecheDevice):
+            if src.board is None:
+                err(("channels", i, "source"), f"device {src.device!r} needs a board: 0..3")
+                continue
+            if src.board not in {b.address for b in cdev.boards}:
+                err(
+                    ("channels", i, "source", "board"),
+                    f"device {src.device!r} has no board {src.board}"
+                    f" (boards: {', '.join(str(b.address) for b in cdev.boards)})",
+                )
+            key = (src.device, src.board)
+        elif isinstance(cdev, EaDevice | SimSupplyDevice):
+            if src.board is not None:
+                err(("channels", i, "source", "board"), "an EA supply has no boards")
+            key = (src.device, -1)
+        else:
             err(
                 ("channels", i, "source", "device"),
-                f"device {src.device!r} cannot drive a Chadèche channel",
+                f"device {src.device!r} ({cdev.driver}) cannot drive a channel;"
+                " use a Chadèche board or an EA supply",
             )
             continue
-        if src.board not in {b.address for b in cdev.boards}:
-            err(
-                ("channels", i, "source", "board"),
-                f"device {src.device!r} has no board {src.board}"
-                f" (boards: {', '.join(str(b.address) for b in cdev.boards)})",
-            )
-        key = (src.device, src.board)
         if key in owners:
             err(
-                ("channels", i, "source", "board"),
-                f"board {src.board} of {src.device!r} is already owned by channel {owners[key]!r}"
-                " (one owner per board)",
+                ("channels", i, "source"),
+                f"{src.device!r}{'' if key[1] < 0 else f' board {key[1]}'} is already owned"
+                f" by channel {owners[key]!r} (one owner per board)",
             )
         owners.setdefault(key, ch.name)
+        for field in ("temperature_tag", "voltage_tag", "current_tag", "contactor_tag"):
+            ref = getattr(ch, field)
+            if ref is not None and ref not in names:
+                err(
+                    ("channels", i, field),
+                    f"{field} {ref!r} is not a tag declared under tags:",
+                )
+        if ch.contactor_tag in names:
+            m = cfg.tags[names[ch.contactor_tag]]
+            if not m.point.split(".")[-1].startswith("do") or m.point.endswith("_fb"):
+                err(
+                    ("channels", i, "contactor_tag"),
+                    f"contactor_tag {ch.contactor_tag!r} must map a relay output (slotN.doK)",
+                )
+        for k, ref in enumerate(ch.permissives):
+            if ref not in names:
+                err(("channels", i, "permissives", k), f"permissive {ref!r} is not a declared tag")
+        if not isinstance(cdev, ChadecheDevice):
+            continue
         lo, hi = ch.limits.current_a
         if max(-lo, hi) > CHADECHE_MAX_CURRENT_A:
             err(
@@ -124,10 +153,47 @@ def check_bench(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError
                 f"a Chadèche board drives at most {CHADECHE_MAX_CURRENT_A} A;"
                 f" limits [{lo}, {hi}] A exceed it",
             )
-        if ch.temperature_tag is not None and ch.temperature_tag not in names:
+    for dname, dev in cfg.devices.items():
+        if isinstance(dev, EaDevice | SimSupplyDevice) and (dname, -1) not in owners:
             err(
-                ("channels", i, "temperature_tag"),
-                f"temperature_tag {ch.temperature_tag!r} is not a tag declared under tags:",
+                ("devices", dname),
+                f"EA supply {dname!r} drives no channel; a channel gives it its limits",
+                at_key=True,
             )
+    errors.extend(_check_simulation(cfg, pos, file))
     errors.sort(key=lambda e: (e.line or 0, e.col or 0))
+    return errors
+
+
+def _check_simulation(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError]:
+    errors: list[ConfigError] = []
+    sim = cfg.simulation
+    if sim is None:
+        return errors
+
+    def check(path: tuple[str | int, ...], sp: object, relay: bool) -> None:
+        device = getattr(sp, "device", "")
+        point = getattr(sp, "point", "")
+        m = pos.value(path) or pos.nearest(path)
+        dev = cfg.devices.get(device)
+        if dev is None:
+            errors.append(ConfigError(f"unknown device {device!r}", file, m.line, m.col))
+        elif not getattr(dev, "sim", False):
+            errors.append(
+                ConfigError(f"device {device!r} is not simulated (sim: true)", file, m.line, m.col)
+            )
+        elif point not in dev.point_names():
+            errors.append(
+                ConfigError(f"device {device!r} has no point {point!r}", file, m.line, m.col)
+            )
+        elif relay != point.split(".")[-1].startswith("do"):
+            what = "a relay output (slotN.doK)" if relay else "an analog input"
+            errors.append(ConfigError(f"{point!r} must be {what}", file, m.line, m.col))
+
+    for name in ("lem_current", "voltage_board", "estop_sense", "contactor"):
+        sp = getattr(sim, name)
+        if sp is not None:
+            check(("simulation", name), sp, relay=name == "contactor")
+    for k, sp in enumerate(sim.thermocouples):
+        check(("simulation", "thermocouples", k), sp, relay=False)
     return errors

@@ -111,6 +111,9 @@ class TagMapping(Strict):
     alarms: AlarmConfig | None = None
     history: HistoryConfig = HistoryConfig()
     retain: bool = False
+    threshold: float | None = Field(
+        None, description="make a boolean tag: true when the scaled value >= threshold"
+    )
 
 
 # --- devices -----------------------------------------------------------------------------
@@ -166,13 +169,155 @@ class ChadecheDevice(Strict):
         return {p for p in self.point_names() if p.endswith(("_set", "led_duty"))}
 
 
-Device = Annotated[ChadecheDevice, Field(discriminator="driver")]
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+
+
+class NetworkDevice(Strict):
+    host: str
+    poll_period_s: float = Field(0.2, gt=0)
+    stale_after_s: float = Field(1.0, gt=0)
+    timeout_s: float = Field(1.0, gt=0, le=30)
+    sim: bool = Field(False, description="serve a simulator of this device on host:port")
+
+    @model_validator(mode="after")
+    def _sim_on_loopback(self) -> NetworkDevice:
+        if self.sim and self.host not in LOOPBACK_HOSTS:
+            raise ValueError(
+                f"a simulated device listens on loopback only; host {self.host!r}"
+                " must be 127.0.0.1 (or set sim: false)"
+            )
+        return self
+
+
+class AdamModuleConfig(Strict):
+    kind: Literal["5017", "5018", "5060", "5069"]
+    raw_format: Literal["offset", "twos"] = "offset"
+
+
+ADAM_POINTS = {"5017": ("ai", 8), "5018": ("tc", 7), "5060": ("do", 6), "5069": ("do", 8)}
+
+
+class AdamDevice(NetworkDevice):
+    """ADAM-5000/TCP over Modbus TCP (seed 002 §1.1): modules by slot."""
+
+    driver: Literal["adam5000tcp"]
+    port: int = Field(502, ge=1, le=65535)
+    unit_id: int = Field(1, ge=0, le=255)
+    modules: dict[int, AdamModuleConfig] = Field(min_length=1)
+
+    @field_validator("modules")
+    @classmethod
+    def _slots(cls, v: dict[int, AdamModuleConfig]) -> dict[int, AdamModuleConfig]:
+        for slot in v:
+            if not 0 <= slot <= 7:
+                raise ValueError(f"slot {slot} does not exist (ADAM-5000/TCP slots are 0..7)")
+        return v
+
+    def point_names(self) -> set[str]:
+        out: set[str] = set()
+        for slot, m in self.modules.items():
+            prefix, n = ADAM_POINTS[m.kind]
+            for k in range(n):
+                out.add(f"slot{slot}.{prefix}{k}")
+                if prefix == "do":
+                    out.add(f"slot{slot}.do{k}_fb")
+        return out
+
+
+class EaDevice(NetworkDevice):
+    """EA-PSB 10000 bidirectional supply over SCPI/TCP (seed 002 §2.2)."""
+
+    driver: Literal["ea-psb"]
+    port: int = Field(5025, ge=1, le=65535)
+    expected_model: str | None = Field(None, description="refuse any other model")
+    watchdog_s: float = Field(2.0, gt=0, description="interface monitoring timeout")
+    sim_model: str = "PSB 10060-60"
+    sim_nominal_v: float = Field(60.0, gt=0)
+    sim_nominal_a: float = Field(60.0, gt=0)
+    sim_nominal_w: float = Field(1500.0, gt=0)
+
+    @model_validator(mode="after")
+    def _keepalive(self) -> EaDevice:
+        if self.watchdog_s < 3 * self.poll_period_s - 1e-9:
+            raise ValueError(
+                f"watchdog_s ({self.watchdog_s}) must be at least 3 x poll_period_s"
+                f" ({self.poll_period_s}) so the keep-alive beats the supply's timeout"
+            )
+        return self
+
+    def point_names(self) -> set[str]:
+        return {
+            "voltage",
+            "current",
+            "power",
+            "output_on",
+            "remote",
+            "ques",
+            "error",
+            "output",
+            "current_set",
+            "voltage_set",
+        }
+
+
+class BmsDevice(Strict):
+    """BMS over CAN (seed 002 §2.1): frames 0x1B0, 0x2B0, 0x3B0 decoded with the DBC."""
+
+    driver: Literal["bms-can"]
+    interface: Literal["socketcand", "socketcan", "virtual"] = "socketcand"
+    channel: str = "can0"
+    host: str = "127.0.0.1"
+    port: int = Field(29536, ge=1, le=65535)
+    poll_period_s: float = Field(0.05, gt=0)
+    stale_factor: float = Field(3.0, ge=1.0, description="a value is stale after k x period")
+    stale_after_s: float = Field(3.0, gt=0)
+    sim: bool = False
+
+    @model_validator(mode="after")
+    def _sim_on_loopback(self) -> BmsDevice:
+        if self.sim and self.interface == "socketcand" and self.host not in LOOPBACK_HOSTS:
+            raise ValueError(f"a simulated BMS serves on loopback only; host {self.host!r}")
+        if self.sim and self.interface == "socketcan":
+            raise ValueError("a simulated BMS uses interface socketcand or virtual")
+        return self
+
+    def point_names(self) -> set[str]:
+        return {
+            "pack_voltage",
+            "min_cell_voltage",
+            "max_cell_voltage",
+            "pack_current",
+            "min_temp",
+            "max_temp",
+            "avg_temp",
+            "frames_unknown",
+            "frames_bad",
+        }
+
+
+class SimSupplyDevice(Strict):
+    """An ideal bidirectional supply acting directly on the simulated pack (dry runs)."""
+
+    driver: Literal["sim-supply"]
+    poll_period_s: float = Field(0.1, gt=0)
+    stale_after_s: float = Field(1.0, gt=0)
+
+    def point_names(self) -> set[str]:
+        return {"voltage", "current", "power", "output_on", "output", "current_set", "voltage_set"}
+
+
+Device = Annotated[
+    ChadecheDevice | AdamDevice | EaDevice | BmsDevice | SimSupplyDevice,
+    Field(discriminator="driver"),
+]
 
 
 # --- channels ----------------------------------------------------------------------------
-class ChadecheSource(Strict):
+class ChannelSource(Strict):
+    """The device that drives the channel: a Chadèche board or an EA supply."""
+
     device: str
-    board: int = Field(ge=0, le=3)
+    board: int | None = Field(None, ge=0, le=3, description="Chadèche board address")
 
 
 class ChannelLimits(Strict):
@@ -198,11 +343,42 @@ class ChannelLimits(Strict):
 class ChannelConfig(Strict):
     name: str = Field(pattern=NAME_PATTERN)
     description: str = ""
-    source: ChadecheSource
+    source: ChannelSource
     chemistry: Literal["nimh", "liion", "lfp", "lead-acid", "other"] = "nimh"
     capacity_ah: float = Field(gt=0, description="Rated capacity (C-rates, progress).")
     limits: ChannelLimits
     temperature_tag: str | None = Field(None, pattern=TAG_PATTERN)
+    voltage_tag: str | None = Field(
+        None, pattern=TAG_PATTERN, description="measure voltage here instead of the source"
+    )
+    current_tag: str | None = Field(
+        None, pattern=TAG_PATTERN, description="measure current here instead of the source"
+    )
+    contactor_tag: str | None = Field(
+        None, pattern=TAG_PATTERN, description="relay output tag closing the battery contactor"
+    )
+    permissives: list[str] = Field(
+        [], description="boolean tags that must all be true and GOOD to drive current"
+    )
+
+
+class SimPoint(Strict):
+    device: str
+    point: str
+
+
+class SimulationConfig(Strict):
+    """The simulated seed-002 plant: one pack behind the EA supply, seen by ADAM and BMS."""
+
+    pack: SimCell = SimCell(model="liion-pack", capacity_ah=10.0, soc=0.5, cells_series=4)
+    ambient_c: float = 25.0
+    lem_current: SimPoint | None = None
+    lem_volts_per_amp: float = Field(4.0 / 300.0, description="LEM HAL 300-S: 4 V at 300 A")
+    voltage_board: SimPoint | None = None
+    voltage_board_ratio: float = Field(0.1, gt=0, description="1:10 divider board")
+    estop_sense: SimPoint | None = None
+    thermocouples: list[SimPoint] = []
+    contactor: SimPoint | None = None
 
 
 class BenchConfig(Strict):
@@ -216,6 +392,7 @@ class BenchConfig(Strict):
     devices: dict[str, Device] = Field(min_length=1)
     tags: list[TagMapping] = []
     channels: list[ChannelConfig] = []
+    simulation: SimulationConfig | None = None
 
     @field_validator("devices")
     @classmethod

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 from supervisor.config.models import BenchConfig
+from supervisor.config.recipe import Recipe
 
 
 def bench_schema() -> dict[str, object]:
@@ -15,8 +16,21 @@ def bench_schema() -> dict[str, object]:
     return schema
 
 
-def write_schemas(out_dir: Path) -> list[Path]:
-    out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / "bench.schema.json"
-    path.write_text(json.dumps(bench_schema(), indent=2, sort_keys=True) + "\n", encoding="utf-8")
-    return [path]
+def recipe_schema() -> dict[str, object]:
+    schema = Recipe.model_json_schema()
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = "Bench supervisor recipe"
+    return schema
+
+
+def write_schemas(root: Path) -> list[Path]:
+    out = []
+    for folder, name, schema in (
+        ("io_maps", "bench.schema.json", bench_schema()),
+        ("recipes", "recipe.schema.json", recipe_schema()),
+    ):
+        (root / folder).mkdir(parents=True, exist_ok=True)
+        path = root / folder / name
+        path.write_text(json.dumps(schema, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+        out.append(path)
+    return out

@@ -7,6 +7,7 @@ place; the scan picks the new value up at its next start.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from aiohttp import web
@@ -34,8 +35,16 @@ def tag_json(tag: Tag, clock: Clock) -> dict[str, Any]:
 
 
 class HttpApi:
-    def __init__(self, db: TagDB, clock: Clock, host: str = "127.0.0.1", port: int = 8080):
+    def __init__(
+        self,
+        db: TagDB,
+        clock: Clock,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        estop: Callable[[bool], None] | None = None,
+    ):
         self.db = db
+        self._estop = estop
         self.clock = clock
         self.host = host
         self.port = port
@@ -48,6 +57,9 @@ class HttpApi:
                 web.put("/api/tags/{name}", self._put),
             ]
         )
+        if estop is not None:
+            # Simulation only: the e-stop button of the simulated bench.
+            app.add_routes([web.put("/api/sim/estop", self._sim_estop)])
         self.app = app
 
     @property
@@ -80,6 +92,18 @@ class HttpApi:
         if tag is None:
             return web.json_response({"error": "unknown tag"}, status=404)
         return web.json_response(tag_json(tag, self.clock))
+
+    async def _sim_estop(self, request: web.Request) -> web.Response:
+        try:
+            body = await request.json()
+        except ValueError:
+            body = None
+        if not isinstance(body, dict) or not isinstance(body.get("pressed"), bool):
+            return web.json_response({"error": 'body must be {"pressed": true|false}'}, status=400)
+        assert self._estop is not None
+        self._estop(body["pressed"])
+        log.warning("simulation: e-stop %s", "PRESSED" if body["pressed"] else "released")
+        return web.json_response({"pressed": body["pressed"]})
 
     async def _put(self, request: web.Request) -> web.Response:
         name = request.match_info["name"]

@@ -39,6 +39,7 @@ class InputBinding:
     point: str
     scaling: Scaling | None = None
     stale_after_s: float | None = None
+    threshold: float | None = None  # analog → boolean (e.g. the e-stop sense voltage)
 
 
 @dataclass(slots=True)
@@ -200,6 +201,8 @@ class ScanEngine:
             quality, reason = s.quality, s.reason
             if b.scaling is not None and isinstance(value, int | float) and value is not True:
                 value = b.scaling.to_eu(float(value))
+            if b.threshold is not None and isinstance(value, int | float):
+                value = value >= b.threshold
             if (
                 b.stale_after_s is not None
                 and quality is not Quality.BAD

@@ -119,6 +119,9 @@ def test_auto_mode_follows_the_step_chain_request_not_the_manual_setpoint() -> N
     db.write("ch0.mode", "auto")
     db.update(ch.auto_current, -0.1)
     scan(ch, 1)
+    assert ch.current_cmd.value == 0.0  # no chain running
+    db.update(ch.auto_active, True)
+    scan(ch, 1)
     assert ch.current_cmd.value == -0.1
 
 

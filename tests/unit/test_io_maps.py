@@ -31,7 +31,7 @@ CASES = [
     ("zero_span.yaml", 11, 14, "raw span is zero"),
     ("unknown_driver.yaml", 4, 13, "unknown value 'siemens-s7'"),
     ("unknown_key.yaml", 3, 3, "did you mean 'period_s'"),
-    ("board_owned_twice.yaml", 13, 39, "one owner per board"),
+    ("board_owned_twice.yaml", 13, 13, "one owner per board"),
     ("limit_beyond_hardware.yaml", 11, 25, "at most 0.4 A"),
     ("board_not_on_bus.yaml", 7, 18, "board address 0 is already used"),
     ("bad_yaml.yaml", 5, 12, "YAML syntax error"),

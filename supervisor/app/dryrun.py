@@ -1,0 +1,201 @@
+"""``supervisor dry-run``: a recipe against the battery model, on the virtual clock.
+
+The same compiler, step-chain engine, channel logic and drivers as on a bench; only the
+source is simulated (a Chadèche board with a NiMH cell, or an ideal bidirectional supply
+with a Li-ion pack when the recipe needs constant voltage) and time is virtual.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from supervisor.app.bench import Bench, build_bench
+from supervisor.chains.compiler import compile_recipe
+from supervisor.chains.engine import State
+from supervisor.chains.program import Program
+from supervisor.config.models import BenchConfig
+from supervisor.config.recipe import load_recipe
+from supervisor.core.clock import VirtualClock
+from supervisor.core.units import parse_quantity
+from supervisor.publish.results import ResultCollector
+
+TERMINAL = (State.COMPLETE, State.STOPPED, State.ABORTED, State.HELD)
+DEFAULT_START = "08:00"
+
+
+@dataclass
+class DryRunResult:
+    program: Program
+    state: State
+    end_reason: str
+    simulated_s: float
+    wall_s: float
+    summary: dict[str, Any]
+    step_sequence: list[tuple[str, str]] = field(default_factory=list)  # (step id, cause)
+
+    @property
+    def ratio(self) -> float:
+        return self.simulated_s / self.wall_s if self.wall_s > 0 else float("inf")
+
+
+def _epoch(start: str) -> float:
+    """Local wall time of today's (2026-01-01) HH:MM, for reproducible sleeps."""
+    hh, mm = (int(x) for x in start.split(":"))
+    return time.mktime((2026, 1, 1, hh, mm, 0, 0, 0, -1))
+
+
+def dry_run_config(
+    model: str, capacity_ah: float, soc: float, period_s: float, cells: int = 1
+) -> BenchConfig:
+    if model == "nimh-aa":
+        return BenchConfig.model_validate(
+            {
+                "bench": "dry_run",
+                "scan": {"period_s": period_s},
+                "devices": {
+                    "chadeche": {
+                        "driver": "chadeche",
+                        "poll_period_s": period_s,
+                        "stale_after_s": max(1.0, 3 * period_s),
+                        "boards": [
+                            {
+                                "address": 0,
+                                "sim": {"model": model, "capacity_ah": capacity_ah, "soc": soc},
+                            }
+                        ],
+                    }
+                },
+                "channels": [
+                    {
+                        "name": "ch0",
+                        "source": {"device": "chadeche", "board": 0},
+                        "capacity_ah": capacity_ah,
+                        "limits": {"current_a": [-0.4, 0.4], "voltage_v": [0.2, 2.0]},
+                    }
+                ],
+            }
+        )
+    return BenchConfig.model_validate(
+        {
+            "bench": "dry_run",
+            "scan": {"period_s": period_s},
+            "devices": {
+                "supply": {
+                    "driver": "sim-supply",
+                    "poll_period_s": period_s,
+                    "stale_after_s": max(1.0, 3 * period_s),
+                }
+            },
+            "channels": [
+                {
+                    "name": "ch0",
+                    "source": {"device": "supply"},
+                    "chemistry": "liion",
+                    "capacity_ah": capacity_ah,
+                    "limits": {
+                        "current_a": [-10 * capacity_ah, 10 * capacity_ah],
+                        "voltage_v": [2.0 * cells, 4.35 * cells],
+                    },
+                }
+            ],
+            "simulation": {
+                "pack": {
+                    "model": "liion-pack",
+                    "cells_series": cells,
+                    "capacity_ah": capacity_ah,
+                    "soc": soc,
+                }
+            },
+        }
+    )
+
+
+async def dry_run(
+    recipe_path: str | Path,
+    *,
+    model: str | None = None,
+    params: dict[str, str] | None = None,
+    capacity_ah: float | None = None,
+    soc: float | None = None,
+    cells: int = 1,
+    period_s: float = 1.0,
+    start: str = DEFAULT_START,
+    max_hours: float = 1000.0,
+    results_dir: Path | None = None,
+) -> DryRunResult:
+    recipe, pos = load_recipe(recipe_path)
+    needs_cv = any(s.kind in ("cv", "cccv") for s in recipe.steps)
+    if model is None:
+        model = "liion-pack" if needs_cv or recipe.chemistry in ("liion", "lfp") else "nimh-aa"
+    cap = capacity_ah
+    if cap is None and recipe.capacity is not None:
+        cap = parse_quantity(recipe.capacity).value
+    cap = cap if cap is not None else 2.0
+    if soc is None:
+        soc = 0.9 if model == "nimh-aa" else 0.5
+    clock = VirtualClock(wall_epoch_s=_epoch(start))
+    bench: Bench = build_bench(dry_run_config(model, cap, soc, period_s, cells), clock)
+    runner = bench.runners["ch0"]
+    runner.display_period_s = float("inf")
+    program = compile_recipe(recipe, pos, str(recipe_path), bench.target("ch0"), params or {})
+    runner.load(program, test_id=f"dryrun-{program.name}")
+    collector = ResultCollector(
+        "ch0", program.name, runner.test_id, results_dir / runner.test_id if results_dir else None
+    )
+    runner.listeners.append(collector.on_event)
+    runner.recorders.append(collector.on_record)
+    sequence: list[tuple[str, str]] = []
+
+    def steps(ev: Any) -> None:
+        text = ev.text
+        if ev.kind == "step" and text.startswith("starting step"):
+            cause = text[text.rfind("(") + 1 : -1]
+            sequence.append((ev.step_id, cause))
+
+    runner.listeners.append(steps)
+    await bench.engine.run_for(3 * period_s)  # first images in
+    runner.command("start", actor="dry-run")
+    t0 = time.perf_counter()
+    sim0 = clock.now()
+    limit = sim0 + max_hours * 3600
+    while runner.state not in TERMINAL and clock.now() < limit:
+        await bench.engine.run_for(600.0)
+    wall = time.perf_counter() - t0
+    end = runner.end_reason or (
+        f"dry run stopped after {max_hours:g} h" if runner.state not in TERMINAL else ""
+    )
+    if runner.state is State.HELD:
+        end = str(bench.db["ch0.chain.alarm"].value or bench.db["ch0.fault"].value or end)
+    summary = collector.close(end, runner.state.value)
+    await bench.shutdown()
+    # The test ends at its last event, not at the end of the last simulated chunk.
+    timeline = summary["timeline"]
+    simulated = float(timeline[-1]["test_time_s"]) if timeline else clock.now() - sim0
+    return DryRunResult(program, runner.state, end, simulated, wall, summary, sequence)
+
+
+def format_report(res: DryRunResult) -> list[str]:
+    def hms(s: float) -> str:
+        s = round(s)
+        return f"{s // 3600:d}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+    lines = [f"dry run of recipe {res.program.name!r} ({res.program.file})", "timeline:"]
+    for e in res.summary["timeline"]:
+        if e["kind"] in ("step", "alarm"):
+            lines.append(f"  {hms(e['test_time_s']):>10}  cycle {e['cycle']}  {e['text']}")
+    lines.append("per cycle:")
+    for c in res.summary["cycles"]:
+        ce = c["coulombic_efficiency"]
+        lines.append(
+            f"  cycle {c['cycle']}: charged {c['charge_capacity_ah'] * 1000:.1f} mAh"
+            f" ({c['charge_energy_wh']:.3f} Wh), discharged {c['discharge_capacity_ah'] * 1000:.1f}"
+            f" mAh ({c['discharge_energy_wh']:.3f} Wh)"
+            + (f", coulombic efficiency {ce:.3f}" if ce is not None else "")
+        )
+    lines.append(f"predicted duration: {hms(res.simulated_s)} ({res.simulated_s / 3600:.2f} h)")
+    lines.append(f"end: {res.state.value}: {res.end_reason}")
+    lines.append(f"computed in {res.wall_s:.2f} s: simulated/wall ratio {res.ratio:,.0f}x")
+    return lines

@@ -1,0 +1,353 @@
+"""Validated model of a recipe file (``recipes/*.yaml``): a step chain in YAML.
+
+This layer checks the *shape* (keys, kinds, units of literals); the compiler in
+``supervisor.chains`` checks meaning (goto targets, expressions, loops) and turns it
+into something executable. Current sign follows BDF: positive charges the cell.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from supervisor.core.errors import ConfigError, ConfigErrors
+from supervisor.core.units import Dim, UnitError, parse_quantity
+
+if TYPE_CHECKING:
+    from supervisor.config.yamlpos import Positions
+
+ID_PATTERN = r"^[A-Za-z_][A-Za-z0-9_\-]*$"
+HHMM = re.compile(r"^([01]?\d|2[0-3]):([0-5]\d)$")
+
+STEP_KINDS = (
+    "rest",
+    "charge",
+    "discharge",
+    "cv",
+    "cccv",
+    "power",
+    "pulse",
+    "profile",
+    "sleep",
+    "sleep_until",
+    "goto",
+    "end_cycle",
+    "end",
+)
+
+Q = str | float | int  # a quantity as written: "4.2 V", "300 mA", "0.5 C"
+
+
+def _q(v: Q | None, *dims: Dim) -> Q | None:
+    if v is None:
+        return None
+    try:
+        parse_quantity(v, dims)
+    except UnitError as exc:
+        raise ValueError(str(exc)) from None
+    return v
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class LogSettings(Strict):
+    """When to record a result line: every Δt, ΔV or ΔI (and always at a step change)."""
+
+    period: Q | None = None
+    delta_v: Q | None = None
+    delta_i: Q | None = None
+
+    @field_validator("period")
+    @classmethod
+    def _p(cls, v: Q | None) -> Q | None:
+        return _q(v, Dim.TIME)
+
+    @field_validator("delta_v")
+    @classmethod
+    def _dv(cls, v: Q | None) -> Q | None:
+        return _q(v, Dim.VOLTAGE)
+
+    @field_validator("delta_i")
+    @classmethod
+    def _di(cls, v: Q | None) -> Q | None:
+        return _q(v, Dim.CURRENT)
+
+
+class Supervision(Strict):
+    """S7-GRAPH supervision: exceeding ``max_time`` or meeting ``error`` halts the chain
+    with a latched alarm until acknowledged."""
+
+    max_time: Q | None = None
+    error: str | None = None
+
+    @field_validator("max_time")
+    @classmethod
+    def _t(cls, v: Q | None) -> Q | None:
+        return _q(v, Dim.TIME)
+
+
+class CvSpec(Strict):
+    voltage: Q
+    current_limit: Q
+
+    @field_validator("voltage")
+    @classmethod
+    def _v(cls, v: Q) -> Q | None:
+        return _q(v, Dim.VOLTAGE)
+
+    @field_validator("current_limit")
+    @classmethod
+    def _i(cls, v: Q) -> Q | None:
+        return _q(v, Dim.CURRENT, Dim.C_RATE)
+
+
+class CccvSpec(Strict):
+    current: Q
+    voltage: Q
+
+    @field_validator("voltage")
+    @classmethod
+    def _v(cls, v: Q) -> Q | None:
+        return _q(v, Dim.VOLTAGE)
+
+    @field_validator("current")
+    @classmethod
+    def _i(cls, v: Q) -> Q | None:
+        return _q(v, Dim.CURRENT, Dim.C_RATE)
+
+
+class PulseSpec(Strict):
+    """Pulse / DC internal resistance: ``count`` pulses of ``current`` for ``on``, rest ``off``."""
+
+    current: Q
+    on: Q
+    off: Q
+    count: int = Field(1, ge=1, le=100_000)
+
+    @field_validator("current")
+    @classmethod
+    def _i(cls, v: Q) -> Q | None:
+        return _q(v, Dim.CURRENT, Dim.C_RATE)
+
+    @field_validator("on", "off")
+    @classmethod
+    def _t(cls, v: Q) -> Q | None:
+        return _q(v, Dim.TIME)
+
+
+class ProfileRow(Strict):
+    """One row of a load profile (seed 002 §2.3): time, current, per-row V/I/T window."""
+
+    t: float = Field(ge=0, description="seconds from the step start")
+    current: float = Field(description="A, + charges")
+    v_min: float | None = None
+    v_max: float | None = None
+    i_min: float | None = None
+    i_max: float | None = None
+    t_min: float | None = None
+    t_max: float | None = None
+
+
+class ProfileSpec(Strict):
+    file: str | None = Field(None, description="CSV relative to the recipe file")
+    rows: list[ProfileRow] | None = None
+    repeat: int = Field(1, ge=1)
+
+    @model_validator(mode="after")
+    def _one(self) -> ProfileSpec:
+        if (self.file is None) == (self.rows is None):
+            raise ValueError("a profile needs exactly one of 'file' or 'rows'")
+        if self.rows is not None:
+            ts = [r.t for r in self.rows]
+            if not ts or ts != sorted(ts) or len(set(ts)) != len(ts):
+                raise ValueError("profile rows need strictly increasing times")
+        return self
+
+
+class Step(Strict):
+    id: str = Field(pattern=ID_PATTERN)
+    comment: str = ""
+    # The step kind: exactly one of these.
+    rest: Q | bool | None = None
+    charge: Q | None = None
+    discharge: Q | None = None
+    cv: CvSpec | None = None
+    cccv: CccvSpec | None = None
+    power: Q | None = None
+    pulse: PulseSpec | None = None
+    profile: ProfileSpec | None = None
+    sleep: Q | None = None
+    sleep_until: str | None = None
+    goto: str | None = None
+    end_cycle: bool | None = None
+    end: bool | None = None
+    # Common settings.
+    duration: Q | None = None
+    until: list[dict[str, str]] = []
+    advance: str | bool = Field(
+        "next", description="what the operator's advance does here (false: refused)"
+    )
+    interlock: str | None = None
+    supervision: Supervision | None = None
+    log: LogSettings | None = None
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> Step:
+        kinds = [k for k in STEP_KINDS if getattr(self, k) is not None]
+        if len(kinds) != 1:
+            have = ", ".join(kinds) if kinds else "none"
+            raise ValueError(
+                f"step {self.id!r} needs exactly one kind among {', '.join(STEP_KINDS)}"
+                f" (has: {have})"
+            )
+        return self
+
+    @property
+    def kind(self) -> str:
+        return next(k for k in STEP_KINDS if getattr(self, k) is not None)
+
+    @field_validator("charge", "discharge")
+    @classmethod
+    def _current(cls, v: Q | None) -> Q | None:
+        q = _q(v, Dim.CURRENT, Dim.C_RATE)
+        if v is not None and parse_quantity(v).value < 0:
+            raise ValueError("give a positive magnitude; the step kind says the direction")
+        return q
+
+    @field_validator("rest")
+    @classmethod
+    def _rest(cls, v: Q | bool | None) -> Q | bool | None:
+        if isinstance(v, bool):
+            if not v:
+                raise ValueError("rest: false is not a step; remove the step")
+            return v
+        return _q(v, Dim.TIME)
+
+    @field_validator("power")
+    @classmethod
+    def _power(cls, v: Q | None) -> Q | None:
+        return _q(v, Dim.POWER)
+
+    @field_validator("sleep", "duration")
+    @classmethod
+    def _time(cls, v: Q | None) -> Q | None:
+        q = _q(v, Dim.TIME)
+        if v is not None and parse_quantity(v).value < 0:
+            raise ValueError(f"{v!r}: a duration cannot be negative")
+        return q
+
+    @field_validator("sleep_until")
+    @classmethod
+    def _hhmm(cls, v: str | None) -> str | None:
+        if v is not None and not HHMM.match(str(v)):
+            raise ValueError(f"sleep_until needs a time of day HH:MM, got {v!r}")
+        return v
+
+    @field_validator("end_cycle", "end")
+    @classmethod
+    def _true(cls, v: bool | None) -> bool | None:
+        if v is False:
+            raise ValueError("write 'true' or remove the key")
+        return v
+
+    @field_validator("until")
+    @classmethod
+    def _until(cls, v: list[dict[str, str]]) -> list[dict[str, str]]:
+        for item in v:
+            if len(item) != 1:
+                raise ValueError("each 'until' entry is one 'condition: action' pair")
+        return v
+
+
+class Group(Strict):
+    """Steps sharing a time limit or conditions (limits across several steps)."""
+
+    id: str = Field(pattern=ID_PATTERN)
+    steps: list[str] = Field(min_length=1)
+    duration: Q | None = None
+    until: list[dict[str, str]] = []
+
+    @field_validator("duration")
+    @classmethod
+    def _time(cls, v: Q | None) -> Q | None:
+        return _q(v, Dim.TIME)
+
+
+class Limits(Strict):
+    """Recipe-level limits (a crossing holds the chain with an alarm)."""
+
+    voltage: tuple[Q | None, Q | None] | None = None
+    current: tuple[Q | None, Q | None] | None = None
+    temperature: tuple[Q | None, Q | None] | None = None
+
+    @field_validator("voltage")
+    @classmethod
+    def _v(cls, v: tuple[Q | None, Q | None] | None) -> Any:
+        return v and tuple(_q(x, Dim.VOLTAGE) for x in v)
+
+    @field_validator("current")
+    @classmethod
+    def _i(cls, v: tuple[Q | None, Q | None] | None) -> Any:
+        return v and tuple(_q(x, Dim.CURRENT, Dim.C_RATE) for x in v)
+
+    @field_validator("temperature")
+    @classmethod
+    def _t(cls, v: tuple[Q | None, Q | None] | None) -> Any:
+        return v and tuple(_q(x, Dim.TEMPERATURE) for x in v)
+
+
+class Recipe(Strict):
+    recipe: str = Field(pattern=ID_PATTERN, description="Recipe name")
+    description: str = ""
+    chemistry: str | None = None
+    capacity: Q | None = Field(None, description="rated capacity, for C-rates and progress")
+    parameters: dict[str, Q] = {}
+    initial_charge: Q | None = Field(None, description="charge the Ah counter starts from")
+    limits: Limits = Limits()
+    cycles: int = Field(1, ge=1, le=1_000_000)
+    logging: LogSettings = LogSettings(period="120 s")
+    groups: list[Group] = []
+    steps: list[Step] = Field(min_length=1)
+
+    @field_validator("capacity")
+    @classmethod
+    def _cap(cls, v: Q | None) -> Q | None:
+        return _q(v, Dim.CHARGE)
+
+    @field_validator("parameters")
+    @classmethod
+    def _params(cls, v: dict[str, Q]) -> dict[str, Q]:
+        for name, val in v.items():
+            if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", name):
+                raise ValueError(f"parameter name {name!r} must be an identifier")
+            try:
+                parse_quantity(val)
+            except UnitError as exc:
+                raise ValueError(f"parameter {name}: {exc}") from None
+        return v
+
+
+def load_recipe(path: str | Path) -> tuple[Recipe, Positions]:
+    """Load a recipe file; shape errors as ConfigErrors with file:line:col."""
+    from supervisor.config.yamlpos import load_yaml, validate
+
+    try:
+        data, pos = load_yaml(path)
+    except ConfigError as exc:
+        raise ConfigErrors([exc]) from None
+    return validate(Recipe, data, pos, str(path)), pos
+
+
+def load_recipe_text(text: str, file: str = "<recipe>") -> tuple[Recipe, Positions]:
+    from supervisor.config.yamlpos import load_yaml_text, validate
+
+    try:
+        data, pos = load_yaml_text(text, file)
+    except ConfigError as exc:
+        raise ConfigErrors([exc]) from None
+    return validate(Recipe, data, pos, file), pos

@@ -1,0 +1,304 @@
+"""BMS driver against the BMS simulator: python-can ``virtual`` bus in one process, and the
+socketcand server with python-can's own socketcand client over 127.0.0.1."""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import math
+from collections.abc import AsyncIterator, Callable, Iterator
+
+import can
+import pytest
+
+from supervisor.core.clock import Clock, RealClock, VirtualClock
+from supervisor.core.quality import Quality, Reason
+from supervisor.drivers import base
+from supervisor.drivers.bms import POINTS, BmsDriver, socketcand_bus_factory
+from supervisor.protocols.bms import BmsValues
+from supervisor.sim.bms import BmsSimulator, SocketcandServer
+
+pytestmark = pytest.mark.integration
+
+VALUES = BmsValues(
+    pack_voltage_v=13.104,
+    min_cell_v=3.271,
+    max_cell_v=3.285,
+    pack_current_a=-2.5,  # discharging
+    min_temp_c=21.5,
+    max_temp_c=24.0,
+    avg_temp_c=-0.7,
+)
+EXPECTED = {
+    "pack_voltage": 13.104,
+    "min_cell_voltage": 3.271,
+    "max_cell_voltage": 3.285,
+    "pack_current": -2.5,
+    "min_temp": 21.5,
+    "max_temp": 24.0,
+    "avg_temp": -0.7,
+}
+MAX_POLLS = 500
+"""Bound of every wait loop (each poll is followed by a short real sleep)."""
+
+_channels = itertools.count()
+
+
+async def poll_until(driver: BmsDriver, done: Callable[[], bool]) -> None:
+    for _ in range(MAX_POLLS):
+        await driver.poll()
+        if done():
+            return
+        await asyncio.sleep(0.02)
+    pytest.fail(f"condition not reached; image: {dict(driver.image())}")
+
+
+def all_good(driver: BmsDriver) -> bool:
+    return all(s.quality is Quality.GOOD for s in driver.image().values())
+
+
+def values_of(driver: BmsDriver) -> dict[str, object]:
+    return {name: driver.image()[name].value for name in EXPECTED}
+
+
+@pytest.fixture
+def channel(request: pytest.FixtureRequest) -> str:
+    return f"bms-{request.node.name}-{next(_channels)}"
+
+
+@pytest.fixture
+def sim_bus(channel: str) -> Iterator[can.BusABC]:
+    bus = can.Bus(interface="virtual", channel=channel)
+    yield bus
+    bus.shutdown()
+
+
+@pytest.fixture
+async def sim(sim_bus: can.BusABC) -> AsyncIterator[BmsSimulator]:
+    """Simulator on real time, not started (start it once the driver listens)."""
+    simulator = BmsSimulator(sim_bus, RealClock(), lambda: VALUES)
+    yield simulator
+    await simulator.stop()
+
+
+def make_driver(channel: str, clock: Clock, silence_timeout_s: float | None = None) -> BmsDriver:
+    return BmsDriver(
+        "bms",
+        clock,
+        lambda: can.Bus(interface="virtual", channel=channel),
+        silence_timeout_s=silence_timeout_s,
+    )
+
+
+@pytest.fixture
+async def driver(channel: str) -> AsyncIterator[BmsDriver]:
+    drv = make_driver(channel, RealClock())
+    yield drv
+    await drv.close()
+
+
+@pytest.fixture
+async def virtual_clock_driver(channel: str) -> AsyncIterator[tuple[BmsDriver, VirtualClock]]:
+    clock = VirtualClock()
+    drv = make_driver(channel, clock, silence_timeout_s=math.inf)
+    yield drv, clock
+    await drv.close()
+
+
+async def test_driver_exposes_the_bms_points() -> None:
+    assert set(POINTS) == {*EXPECTED, "frames_unknown", "frames_bad"}
+    assert all(p.direction == "in" for p in POINTS.values())
+    assert POINTS["pack_current"].unit == "A"
+    assert POINTS["frames_bad"].dtype == "int"
+
+
+async def test_driver_sees_the_simulator_values(driver: BmsDriver, sim: BmsSimulator) -> None:
+    await driver.poll()
+    assert driver.connected
+    await sim.start()
+    await poll_until(driver, lambda: all_good(driver))
+    assert values_of(driver) == pytest.approx(EXPECTED)
+    assert driver.image()["frames_unknown"].value == 0
+    assert driver.image()["frames_bad"].value == 0
+
+
+async def test_a_value_carries_the_arrival_time_of_its_frame(
+    virtual_clock_driver: tuple[BmsDriver, VirtualClock], sim: BmsSimulator
+) -> None:
+    driver, clock = virtual_clock_driver
+    clock.advance(7.0)
+    await driver.poll()
+    await sim.start()
+    await poll_until(driver, lambda: all_good(driver))
+    clock.advance(0.05)
+    await driver.poll()
+    assert driver.image()["pack_voltage"].t == 7.0
+    assert driver.image()["frames_bad"].t == 7.05
+
+
+async def test_wrong_length_frames_are_counted_as_bad_and_leave_the_value(
+    driver: BmsDriver, sim: BmsSimulator
+) -> None:
+    await driver.poll()
+    await sim.start()
+    await poll_until(driver, lambda: all_good(driver))
+    sim.send_raw(0x2B0, bytes.fromhex("42C800"))  # short
+    sim.send_raw(0x2B0, bytes.fromhex("42C8000000000000"))  # longer than the DBC
+    sim.send_raw(0x1B0, b"")
+    await poll_until(driver, lambda: driver.image()["frames_bad"].value == 3)
+    assert driver.image()["pack_current"].value == pytest.approx(-2.5)
+    assert driver.image()["frames_unknown"].value == 0
+    assert any("42c800" in line.replace(" ", "") for line in driver.raw_log)
+
+
+async def test_unknown_ids_are_counted_not_fatal(driver: BmsDriver, sim: BmsSimulator) -> None:
+    await driver.poll()
+    await sim.start()
+    sim.send_raw(0x123, b"\x01\x02")
+    sim.send_raw(0x1B0, bytes(8), extended=True)  # same number, extended: not a DBC frame
+    await poll_until(
+        driver, lambda: all_good(driver) and driver.image()["frames_unknown"].value == 2
+    )
+    assert driver.connected
+    assert driver.image()["frames_bad"].value == 0
+    assert values_of(driver) == pytest.approx(EXPECTED)
+
+
+async def test_pausing_the_simulator_makes_each_value_stale_after_its_own_period(
+    virtual_clock_driver: tuple[BmsDriver, VirtualClock], sim: BmsSimulator
+) -> None:
+    driver, clock = virtual_clock_driver
+    await driver.poll()
+    await sim.start()
+    await poll_until(driver, lambda: all_good(driver))
+    sim.paused = True
+    await driver.poll()  # drain what was sent before the pause
+
+    clock.advance(0.5)  # > 3 × 100 ms, < 3 × 1000 ms
+    await driver.poll()
+    image = driver.image()
+    assert (image["pack_current"].quality, image["pack_current"].reason) == (
+        Quality.BAD,
+        Reason.STALE,
+    )
+    assert image["pack_current"].value == pytest.approx(-2.5)  # kept for diagnostics
+    assert image["pack_voltage"].quality is Quality.GOOD
+    assert image["avg_temp"].quality is Quality.GOOD
+
+    clock.advance(3.0)
+    await driver.poll()
+    for name in EXPECTED:
+        assert (driver.image()[name].quality, driver.image()[name].reason) == (
+            Quality.BAD,
+            Reason.STALE,
+        ), name
+    assert driver.connected  # stale, not a lost link (silence timeout disabled here)
+
+    sim.paused = False
+    await poll_until(driver, lambda: all_good(driver))
+
+
+async def test_a_silent_bus_is_a_lost_link_and_is_reopened(
+    channel: str, sim: BmsSimulator, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(base, "BACKOFF_START_S", 0.05)
+    clock = VirtualClock()
+    driver = make_driver(channel, clock)  # default silence timeout: 3 × 1 s
+    try:
+        await driver.poll()
+        await sim.start()
+        await poll_until(driver, lambda: all_good(driver))
+        sim.paused = True
+        await driver.poll()
+        clock.advance(3.5)
+        await driver.poll()
+        assert not driver.connected
+        for name in EXPECTED:
+            assert driver.image()[name].reason is Reason.COMM_FAILURE, name
+
+        sim.paused = False
+        clock.advance(0.1)  # past the backoff
+        for _ in range(MAX_POLLS):
+            clock.advance(0.01)
+            await driver.poll()
+            if all_good(driver):
+                break
+            await asyncio.sleep(0.02)
+        assert all_good(driver)
+        assert driver.connected
+    finally:
+        await driver.close()
+
+
+async def test_write_is_refused_the_bms_has_no_outputs(driver: BmsDriver) -> None:
+    with pytest.raises(KeyError):
+        driver.write("pack_current", 1.0)
+
+
+# --- socketcand ---------------------------------------------------------------------------
+
+
+@pytest.fixture
+async def socketcand_server() -> AsyncIterator[SocketcandServer]:
+    server = SocketcandServer("127.0.0.1", 0)
+    await server.start()
+    yield server
+    await server.stop()
+    server.bus.shutdown()
+
+
+async def test_socketcand_values_arrive_survive_a_server_restart(
+    socketcand_server: SocketcandServer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(base, "BACKOFF_START_S", 0.05)
+    server = socketcand_server
+    simulator = BmsSimulator(server.bus, RealClock(), lambda: VALUES)
+    driver = BmsDriver(
+        "bms",
+        RealClock(),
+        socketcand_bus_factory("127.0.0.1", server.port),
+        silence_timeout_s=0.5,
+    )
+    try:
+        await simulator.start()
+        await poll_until(driver, lambda: all_good(driver))
+        assert values_of(driver) == pytest.approx(EXPECTED)
+
+        port = server.port
+        await server.stop()
+        await poll_until(
+            driver, lambda: driver.image()["pack_voltage"].reason is Reason.COMM_FAILURE
+        )
+        assert all(s.quality is Quality.BAD for s in driver.image().values())
+
+        await server.start()
+        assert server.port == port
+        await poll_until(driver, lambda: all_good(driver))
+        assert values_of(driver) == pytest.approx(EXPECTED)
+    finally:
+        await driver.close()
+        await simulator.stop()
+
+
+async def test_socketcand_client_frames_reach_the_server_bus(
+    socketcand_server: SocketcandServer,
+) -> None:
+    client = await asyncio.to_thread(socketcand_bus_factory("127.0.0.1", socketcand_server.port))
+    try:
+        client.send(
+            can.Message(arbitration_id=0x2B0, data=bytes.fromhex("42C80000"), is_extended_id=False)
+        )
+        msg = None
+        for _ in range(MAX_POLLS):
+            msg = socketcand_server.bus.recv(timeout=0)
+            if msg is not None:
+                break
+            await asyncio.sleep(0.01)
+        assert msg is not None
+        assert (msg.arbitration_id, bytes(msg.data), msg.is_extended_id) == (
+            0x2B0,
+            bytes.fromhex("42C80000"),
+            False,
+        )
+    finally:
+        client.shutdown()

@@ -1,0 +1,245 @@
+"""The seed 002 bench over real protocols on loopback: ADAM (Modbus TCP), EA (SCPI/TCP),
+BMS (CAN via socketcand), all simulated around one battery, driven by the real drivers."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from collections.abc import AsyncIterator, Callable
+from pathlib import Path
+
+import pytest
+import yaml
+
+from supervisor.app import Bench, build_bench
+from supervisor.config.bench import load_bench
+from supervisor.core.clock import RealClock
+from supervisor.core.quality import Quality
+from supervisor.drivers import base
+from supervisor.sim.battery import make_model
+from supervisor.sim.ea import EaSimulator
+from supervisor.sim.plant import BenchPlant
+
+ROOT = Path(__file__).resolve().parents[2]
+pytestmark = pytest.mark.integration
+
+# Generous upper bounds for a loaded machine; these are not timing claims.
+SETTLE_S = 15.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def seed002_map(tmp_path: Path) -> Path:
+    """sim.yaml without the Chadèche stack, on free loopback ports."""
+    data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
+    del data["devices"]["chadeche"]
+    data["channels"] = [c for c in data["channels"] if c["source"]["device"] == "ea"]
+    for name in ("adam", "ea", "bms"):
+        data["devices"][name]["port"] = free_port()
+    data["hmi"]["port"] = 0
+    path = tmp_path / "seed002.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    return path
+
+
+async def wait_for(pred: Callable[[], bool], what: str, limit_s: float = SETTLE_S) -> None:
+    deadline = time.monotonic() + limit_s
+    while not pred():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"gave up waiting: {what}")
+        await asyncio.sleep(0.05)
+
+
+@pytest.fixture
+async def bench(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> AsyncIterator[Bench]:
+    monkeypatch.setattr(base, "BACKOFF_START_S", 0.2)
+    monkeypatch.setattr(base, "BACKOFF_MAX_S", 1.0)
+    b = build_bench(load_bench(seed002_map(tmp_path)), RealClock())
+    stop = asyncio.Event()
+    await b.start()
+    task = asyncio.create_task(b.run(stop))
+    try:
+        db = b.db
+        await wait_for(
+            lambda: (
+                all(db[f"{d}.connected"].value is True for d in ("adam", "ea", "bms"))
+                and db["bms.current"].good
+                and db["bms.voltage"].good
+                and db["pack.voltage"].good
+                and db["estop.ok"].value is True
+            ),
+            "all devices connected",
+        )
+        yield b
+    finally:
+        stop.set()
+        await task
+        await b.shutdown()
+
+
+def v(b: Bench, name: str) -> float:
+    return b.db[name].as_float()
+
+
+async def test_2_a_charge_on_the_ea_channel_agrees_in_adam_voltage_board_and_bms(
+    bench: Bench,
+) -> None:
+    db = bench.db
+    db.write("ch4.manual_current", 2.0)
+    db.write("ch4.enable", True)
+    assert bench.sim is not None
+    await wait_for(
+        lambda: (
+            abs(v(bench, "pack.current") - 2.0) < 0.1
+            and abs(v(bench, "bms.current") - 2.0) < 0.01
+            and abs(v(bench, "ch4.current") - 2.0) < 0.01
+        ),
+        "2 A seen by the LEM sensor, the BMS and the supply",
+    )
+    assert bench.sim.plant.contactor_closed
+    assert db["contactor.fb"].value is True
+    # LEM HAL 300-S: ±1 % of 300 A; ADAM 5017 16-bit on ±10 V: about 0.02 A per count.
+    assert v(bench, "pack.current") == pytest.approx(v(bench, "bms.current"), abs=0.1)
+    # Voltage board (1:10) vs BMS vs the supply's own measurement; the BMS sends its
+    # voltages once a second, so wait for a frame sent after the current settled.
+    t_settled = bench.clock.now()
+    await wait_for(lambda: db["bms.voltage"].source_t > t_settled, "a fresh 0x1B0 frame")
+    assert v(bench, "pack.voltage") == pytest.approx(v(bench, "bms.voltage"), abs=0.02)
+    assert v(bench, "ch4.voltage") == pytest.approx(v(bench, "bms.voltage"), abs=0.02)
+    assert v(bench, "bms.voltage") > bench.sim.plant.battery.ocv_v  # charging lifts the terminal
+
+
+async def test_pressing_the_estop_trips_the_channel_opens_the_contactor_and_kills_the_supply(
+    bench: Bench,
+) -> None:
+    db = bench.db
+    db.write("ch4.manual_current", 2.0)
+    db.write("ch4.enable", True)
+    await wait_for(lambda: abs(v(bench, "bms.current") - 2.0) < 0.01, "charging")
+    assert bench.sim is not None
+    bench.sim.press_estop(True)
+    await wait_for(lambda: db["ch4.state"].value == "faulted", "channel tripped")
+    assert "estop.ok" in str(db["ch4.fault"].value)
+    await wait_for(lambda: not bench.sim.plant.contactor_closed, "contactor open")  # type: ignore[union-attr]
+    assert bench.sim.plant.pack_current_a == 0.0
+    assert db["ch4.current_cmd"].value == 0.0
+
+
+@pytest.mark.parametrize(
+    ("device", "tags"),
+    [
+        ("adam", ["pack.current", "pack.voltage", "pack.temp", "contactor.fb"]),
+        ("ea", ["ch4.voltage", "ch4.current"]),
+        ("bms", ["bms.voltage", "bms.current", "bms.cell_min"]),
+    ],
+)
+async def test_a_stopped_simulator_turns_its_tags_bad_and_a_restart_brings_them_back(
+    bench: Bench, device: str, tags: list[str]
+) -> None:
+    sim = bench.sim
+    assert sim is not None
+    server = {**sim.adam, **sim.ea, **sim.socketcand}[device]
+    db = bench.db
+    assert all(db[t].good for t in tags)
+    await server.stop()
+    await wait_for(lambda: all(db[t].quality is Quality.BAD for t in tags), f"{device} BAD")
+    await wait_for(lambda: db[f"{device}.connected"].value is False, f"{device} disconnected")
+    await server.start()
+    await wait_for(lambda: all(db[t].good for t in tags), f"{device} GOOD again")
+    assert db[f"{device}.connected"].value is True
+
+
+async def test_losing_the_supply_while_charging_trips_the_channel_safe(bench: Bench) -> None:
+    db = bench.db
+    db.write("ch4.manual_current", 2.0)
+    db.write("ch4.enable", True)
+    await wait_for(lambda: abs(v(bench, "ch4.current") - 2.0) < 0.01, "charging")
+    assert bench.sim is not None
+    await bench.sim.ea["ea"].stop()
+    await wait_for(lambda: db["ch4.state"].value == "faulted", "channel tripped on comm loss")
+    assert db["contactor.cmd"].value is False
+    await wait_for(lambda: not bench.sim.plant.contactor_closed, "contactor open")  # type: ignore[union-attr]
+
+
+def _http(method: str, url: str, body: object) -> None:
+    req = urllib.request.Request(url, data=json.dumps(body).encode(), method=method)
+    with urllib.request.urlopen(req, timeout=5) as resp:
+        resp.read()
+
+
+async def test_sigkill_of_the_supervisor_lets_the_supply_watchdog_switch_the_output_off(
+    tmp_path: Path,
+) -> None:
+    clock = RealClock()
+    plant = BenchPlant(clock, make_model("liion-pack", cells_series=4, capacity_ah=10.0))
+    plant.set_contactor(True)  # the contactor is not part of this test
+    ea = EaSimulator(plant)
+    await ea.start()
+    io_map = {
+        "bench": "watchdog",
+        "hmi": {"port": 0},
+        "devices": {
+            "ea": {
+                "driver": "ea-psb",
+                "host": "127.0.0.1",
+                "port": ea.port,
+                "poll_period_s": 0.1,
+                "watchdog_s": 1.0,
+            }
+        },
+        "channels": [
+            {
+                "name": "ch0",
+                "source": {"device": "ea"},
+                "chemistry": "liion",
+                "capacity_ah": 10.0,
+                "limits": {"current_a": [-5, 5], "voltage_v": [12.0, 16.8]},
+            }
+        ],
+    }
+    path = tmp_path / "watchdog.yaml"
+    path.write_text(yaml.safe_dump(io_map), encoding="utf-8")
+    proc = subprocess.Popen(  # noqa: ASYNC220 - Popen only starts it; waits go to threads
+        [sys.executable, "-m", "supervisor.cli.main", "run", str(path)],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
+    try:
+        assert proc.stdout is not None
+        line = await asyncio.to_thread(proc.stdout.readline)
+        while "HTTP API listening" not in line:
+            assert line, "supervisor exited before listening"
+            line = await asyncio.to_thread(proc.stdout.readline)
+        m = re.search(r"(http://127\.0\.0\.1:\d+/api)", line)
+        assert m
+        url = m.group(1)
+        await asyncio.to_thread(_http, "PUT", f"{url}/tags/ch0.manual_current", {"value": 2.0})
+        await asyncio.to_thread(_http, "PUT", f"{url}/tags/ch0.enable", {"value": True})
+        await wait_for(lambda: plant.supply.output_on and plant.pack_current_a > 1.9, "charging")
+        proc.send_signal(signal.SIGKILL)
+        await asyncio.to_thread(proc.wait, 10)
+        await wait_for(lambda: not plant.supply.output_on, "watchdog switched the output off")
+        assert plant.pack_current_a == 0.0
+        assert ea.watchdog_trips >= 1
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        if proc.stdout is not None:
+            proc.stdout.close()
+        await ea.stop()
