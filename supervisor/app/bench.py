@@ -6,12 +6,13 @@ import asyncio
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import can
 
 from supervisor.app.simulation import SimulatedBench, build_simulation
-from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target
-from supervisor.chains.engine import ChainRunner
+from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target, compile_recipe
+from supervisor.chains.engine import ChainEvent, ChainRunner, Record, State
 from supervisor.channels import Channel, ChannelLimits
 from supervisor.config.models import (
     AdamDevice,
@@ -25,8 +26,10 @@ from supervisor.config.models import (
     SimulationConfig,
     TagMapping,
 )
+from supervisor.config.recipe import load_recipe
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver, DType
+from supervisor.core.errors import OperatorError
 from supervisor.core.units import UNITS, Dim
 from supervisor.drivers.adam import AdamDriver, AdamModule
 from supervisor.drivers.bms import BmsDriver, socketcand_bus_factory
@@ -34,6 +37,7 @@ from supervisor.drivers.chadeche import ChadecheDriver
 from supervisor.drivers.chadeche.bus import ChadecheBus, SpidevBus
 from supervisor.drivers.ea import EaDriver
 from supervisor.protocols.chadeche import Calibration
+from supervisor.publish.results import ResultCollector
 from supervisor.scan import InputBinding, LogicPhase, OutputBinding, Publisher, ScanEngine
 from supervisor.sim.battery import BatteryModel, make_model
 from supervisor.sim.chadeche import SimBoard, SimChadecheBus
@@ -43,6 +47,7 @@ from supervisor.tags import AlarmLimits, HistorySettings, Scaling, TagDB, TagSpe
 
 log = logging.getLogger(__name__)
 
+FINAL_STATES = (State.COMPLETE, State.STOPPED, State.ABORTED)
 UNIT_DIMS = {u: d for u, (d, f) in UNITS.items() if f == 1.0}
 
 
@@ -61,6 +66,7 @@ class Bench:
     sim: SimulatedBench | None = None
     runners: dict[str, ChainRunner] = field(default_factory=dict)
     plant: BenchPlant | None = None  # the dry-run supply's battery
+    results: dict[str, ResultCollector] = field(default_factory=dict)
     _started: bool = False
 
     def target(self, channel: str) -> Target:
@@ -76,6 +82,46 @@ class Bench:
             current_limits_a=c.limits.current_a,
             tags=self.tag_dims(),
         )
+
+    def load_recipe(
+        self,
+        channel: str,
+        path: str | Path,
+        overrides: dict[str, str] | None = None,
+        results_dir: Path | None = None,
+        test_id: str | None = None,
+    ) -> ChainRunner:
+        """Compile a recipe for a channel (refused before start if it cannot run there),
+        load it, and record its result files under ``results_dir/<test id>/``."""
+        if channel not in self.runners:
+            raise OperatorError(f"unknown channel {channel!r} ({', '.join(self.runners)})")
+        recipe, pos = load_recipe(path)
+        program = compile_recipe(recipe, pos, str(path), self.target(channel), overrides or {})
+        runner = self.runners[channel]
+        runner.load(program, test_id)
+        folder = (results_dir or Path(self.cfg.state_dir) / "results") / runner.test_id
+        c = self.cfg.channels[[c.name for c in self.cfg.channels].index(channel)]
+        collector = ResultCollector(
+            channel, program.name, runner.test_id, folder, dba=c.source.board or 0
+        )
+        runner.listeners[:] = [e for e in runner.listeners if not getattr(e, "_results", False)]
+        runner.recorders[:] = [r for r in runner.recorders if not getattr(r, "_results", False)]
+
+        def on_event(ev: ChainEvent) -> None:
+            collector.on_event(ev)
+            if ev.kind == "state" and runner.state in FINAL_STATES:
+                collector.close(runner.end_reason, runner.state.value)
+                log.info("%s: results in %s", channel, folder)
+
+        def on_record(rec: Record) -> None:
+            collector.on_record(rec)
+
+        on_event._results = True  # type: ignore[attr-defined]
+        on_record._results = True  # type: ignore[attr-defined]
+        runner.listeners.append(on_event)
+        runner.recorders.append(on_record)
+        self.results[channel] = collector
+        return runner
 
     def tag_dims(self) -> dict[str, Dim]:
         out: dict[str, Dim] = {}
@@ -101,6 +147,10 @@ class Bench:
         for ch in self.channels.values():
             ch.go_safe()
         self.engine.scan_once()  # queue the zero setpoints
+        for name, collector in self.results.items():
+            runner = self.runners[name]
+            if runner.state not in FINAL_STATES:
+                collector.close("supervisor stopped", runner.state.value)
         for d in self.drivers.values():
             try:
                 await d.poll()  # flush the queued safe writes through the normal path

@@ -251,7 +251,8 @@ class _Compiler:
         try:
             return compile_condition(text, self.sig)
         except ExprError as exc:
-            self.err(path, f"{exc.message} (in {text!r})", at_key=at_key, offset=exc.offset)
+            msg = exc.message if text in exc.message else f"{exc.message} (in {text!r})"
+            self.err(path, msg, at_key=at_key, offset=exc.offset)
             return None
 
     def action(self, text: str, path: tuple[str | int, ...]) -> Action | None:
@@ -349,8 +350,8 @@ class _Compiler:
             kw["power_w"] = parse_quantity(s.power).value if s.power is not None else 0.0
         elif kind == "pulse" and s.pulse is not None:
             kw["current_a"] = self._current(s.pulse.current, (*path, "pulse", "current"))
-            kw["pulse_on_s"] = parse_quantity(s.pulse.on).value
-            kw["pulse_off_s"] = parse_quantity(s.pulse.off).value
+            kw["pulse_on_s"] = parse_quantity(s.pulse.on_time).value
+            kw["pulse_off_s"] = parse_quantity(s.pulse.off_time).value
             kw["pulse_count"] = s.pulse.count
         elif kind == "profile" and s.profile is not None:
             kw["profile"] = self._profile(s.profile, (*path, "profile"))

@@ -160,6 +160,7 @@ class _Run:
     last_rec_v: float | None = None
     last_rec_i: float | None = None
     end_reason: str = ""
+    max_time_acked: int = -1  # step activation whose step-time supervision was acknowledged
 
 
 class ChainRunner:
@@ -245,6 +246,9 @@ class ChainRunner:
             if self._alarm_latched:
                 self._emit("alarm", f"acknowledged by {actor}: {self._get('alarm')}")
                 self._alarm_latched = False
+                # S7-GRAPH: an acknowledged step-time error does not fire again for the
+                # same activation of the step.
+                self._r.max_time_acked = self._r.step_count
                 self._set("alarm", "")
             return
         allowed = TABLE[self.state]
@@ -352,7 +356,11 @@ class ChainRunner:
             self._set_state(State.HOLDING, why)
             return
         # S7-GRAPH supervision: latched error, chain halts until acknowledged.
-        if step.max_time_s is not None and values["step_time"] > step.max_time_s:  # type: ignore[operator]
+        if (
+            step.max_time_s is not None
+            and r.max_time_acked != r.step_count
+            and values["step_time"] > step.max_time_s  # type: ignore[operator]
+        ):
             why = f"supervision: step {step.id} exceeded {step.max_time_s:g} s"
             self._alarm(why)
             self._set_state(State.HOLDING, why)
@@ -399,7 +407,8 @@ class ChainRunner:
             grp = self.program.groups[g]
             t0 = r.group_t0.get(g)
             if grp.duration_s is not None and t0 is not None and now - t0 >= grp.duration_s:
-                self._act(Action(ActionKind.NEXT), f"group {grp.id} duration elapsed", now)
+                # A group's time limit leaves the group: on to the step after its last one.
+                self._goto(max(grp.steps) + 1, f"group {grp.id} duration elapsed", now)
                 return
         self._record(now, step)
 
@@ -558,6 +567,7 @@ class ChainRunner:
     def _next_cycle(self, cause: str, now: float) -> None:
         r = self._r
         assert self.program is not None
+        self._record(now, self.program.steps[r.step], "step change")
         self._emit("step", f"end of cycle {r.cycle} ({cause})")
         if r.cycle >= self.program.cycles:
             self._complete(f"{cause}; cycle {r.cycle} of {self.program.cycles} done", now)
@@ -565,7 +575,7 @@ class ChainRunner:
         r.cycle += 1
         r.t_cycle0 = now
         self._reset_cycle_counters()
-        self._enter(0, f"cycle {r.cycle} starts", now)
+        self._enter(0, f"cycle {r.cycle} starts", now, record_prev=False)
 
     def _complete(self, cause: str, now: float) -> None:
         r = self._r
@@ -574,14 +584,15 @@ class ChainRunner:
             self._record(now, self.program.steps[r.step], "end")
         self._set_state(State.COMPLETE, cause)
 
-    def _enter(self, index: int, cause: str, now: float) -> None:
+    def _enter(self, index: int, cause: str, now: float, record_prev: bool = True) -> None:
         """Activate a step; instant steps (goto, end of cycle, end, sleep_until) act at once."""
         assert self.program is not None
         r = self._r
         for _ in range(MAX_INSTANT_STEPS):
             prev = self.program.steps[r.step] if r.step_count else None
-            if prev is not None:
+            if prev is not None and record_prev:
                 self._record(now, prev, "step change")
+            record_prev = True
             step = self.program.steps[index]
             for g in step.groups:
                 if prev is None or g not in prev.groups:
@@ -689,7 +700,7 @@ class ChainRunner:
             cycle_discharged_ah=ch.discharged_ah.as_float() - r.cyc.get("discharged_ah0", 0.0),
             cycle_charged_wh=ch.charged_wh.as_float() - r.cyc.get("charged_wh0", 0.0),
             cycle_discharged_wh=ch.discharged_wh.as_float() - r.cyc.get("discharged_wh0", 0.0),
-            setpoint_a=self.ch.auto_current.as_float(),
+            setpoint_a=self.setpoint(),
             step_remaining_s=(step.duration_s - st) if step.duration_s is not None else None,
             reason=reason,
         )
@@ -737,6 +748,20 @@ class ChainRunner:
             elapsed = now - r.t_test0
             self._set("progress", min(1.0, elapsed / est))
             self._set("eta_s", max(0.0, est - elapsed))
+        elif (
+            running
+            and step is not None
+            and step.kind in ("charge", "discharge")
+            and self.program is not None
+            and self.program.capacity_ah
+        ):
+            # Against the rated capacity (seed 001's progress bar): charge moved in this
+            # step over the capacity; ETA at the step's current.
+            cap = self.program.capacity_ah
+            moved = abs(self.ch.charge_ah.as_float() - r.step_q0)
+            self._set("progress", min(1.0, moved / cap))
+            amps = abs(step.current_a)
+            self._set("eta_s", max(0.0, (cap - moved) * 3600.0 / amps) if amps > 0 else None)
         elif self.state is State.COMPLETE:
             self._set("progress", 1.0)
             self._set("eta_s", 0.0)

@@ -51,7 +51,22 @@ async def _run(args: argparse.Namespace) -> int:
     bench = build_bench(cfg, clock, simulate=not args.no_sim)
     port = cfg.hmi.port if args.http_port is None else args.http_port
     estop = bench.sim.press_estop if bench.sim is not None else None
-    api = HttpApi(bench.db, clock, cfg.hmi.host, port, estop=estop)
+
+    def load(channel: str, file: str, params: dict[str, str]) -> str:
+        if not Path(file).exists():
+            raise ConfigError(f"{file}: no such recipe")
+        return bench.load_recipe(channel, file, params).test_id
+
+    api = HttpApi(bench.db, clock, cfg.hmi.host, port, estop=estop, load_recipe=load)
+    for spec in args.recipe:
+        channel, _, file = spec.partition("=")
+        if not file:
+            raise ConfigError(f"--recipe {spec!r}: expected CHANNEL=FILE, e.g. ch0=recipes/x.yaml")
+        load(channel, file, _params(args.param))
+        if args.start:
+            bench.runners[channel].command("start", actor="command line")
+    for runner in bench.runners.values():
+        runner.display_period_s = 10.0 if args.verbose else 60.0
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -232,6 +247,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("io_map", nargs="?", default=str(DEFAULT_IO_MAP))
     r.add_argument("--http-port", type=int, default=None, help="override hmi.port (0 = any)")
     r.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+    r.add_argument("--recipe", action="append", default=[], metavar="CHANNEL=FILE")
+    r.add_argument("--param", action="append", default=[], metavar="NAME=VALUE")
+    r.add_argument("--start", action="store_true", help="start the --recipe chains at once")
+    r.add_argument("-v", "--verbose", action="store_true", help="status line every 10 s")
     r.add_argument(
         "--no-sim",
         action="store_true",

@@ -51,6 +51,14 @@ def _q(v: Q | None, *dims: Dim) -> Q | None:
     return v
 
 
+def _text(x: Any) -> Any:
+    if isinstance(x, bool):
+        return "true" if x else "false"
+    if isinstance(x, int | float):
+        return str(x)
+    return x
+
+
 class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -122,11 +130,12 @@ class CccvSpec(Strict):
 
 
 class PulseSpec(Strict):
-    """Pulse / DC internal resistance: ``count`` pulses of ``current`` for ``on``, rest ``off``."""
+    """Pulse / DC internal resistance: ``count`` pulses of ``current`` for ``on_time``, then
+    rest for ``off_time`` (not ``on``/``off``: YAML reads those words as booleans)."""
 
     current: Q
-    on: Q
-    off: Q
+    on_time: Q
+    off_time: Q
     count: int = Field(1, ge=1, le=100_000)
 
     @field_validator("current")
@@ -134,7 +143,7 @@ class PulseSpec(Strict):
     def _i(cls, v: Q) -> Q | None:
         return _q(v, Dim.CURRENT, Dim.C_RATE)
 
-    @field_validator("on", "off")
+    @field_validator("on_time", "off_time")
     @classmethod
     def _t(cls, v: Q) -> Q | None:
         return _q(v, Dim.TIME)
@@ -255,6 +264,17 @@ class Step(Strict):
             raise ValueError("write 'true' or remove the key")
         return v
 
+    @field_validator("until", mode="before")
+    @classmethod
+    def _until_text(cls, v: Any) -> Any:
+        # YAML reads `true: end` with a boolean key; conditions and actions are text.
+        if isinstance(v, list):
+            return [
+                {_text(k): _text(a) for k, a in item.items()} if isinstance(item, dict) else item
+                for item in v
+            ]
+        return v
+
     @field_validator("until")
     @classmethod
     def _until(cls, v: list[dict[str, str]]) -> list[dict[str, str]]:
@@ -276,6 +296,8 @@ class Group(Strict):
     @classmethod
     def _time(cls, v: Q | None) -> Q | None:
         return _q(v, Dim.TIME)
+
+    _until_text = field_validator("until", mode="before")(Step._until_text.__func__)  # type: ignore[attr-defined]
 
 
 class Limits(Strict):

@@ -13,7 +13,7 @@ from typing import Any
 from aiohttp import web
 
 from supervisor.core.clock import Clock
-from supervisor.core.errors import OperatorError
+from supervisor.core.errors import ConfigError, ConfigErrors, OperatorError
 from supervisor.tags import Access, Tag, TagDB
 
 log = logging.getLogger(__name__)
@@ -42,9 +42,11 @@ class HttpApi:
         host: str = "127.0.0.1",
         port: int = 8080,
         estop: Callable[[bool], None] | None = None,
+        load_recipe: Callable[[str, str, dict[str, str]], str] | None = None,
     ):
         self.db = db
         self._estop = estop
+        self._load_recipe = load_recipe
         self.clock = clock
         self.host = host
         self.port = port
@@ -57,6 +59,8 @@ class HttpApi:
                 web.put("/api/tags/{name}", self._put),
             ]
         )
+        if load_recipe is not None:
+            app.add_routes([web.put("/api/channels/{channel}/recipe", self._recipe)])
         if estop is not None:
             # Simulation only: the e-stop button of the simulated bench.
             app.add_routes([web.put("/api/sim/estop", self._sim_estop)])
@@ -92,6 +96,33 @@ class HttpApi:
         if tag is None:
             return web.json_response({"error": "unknown tag"}, status=404)
         return web.json_response(tag_json(tag, self.clock))
+
+    async def _recipe(self, request: web.Request) -> web.Response:
+        """Load a recipe on a channel: ``{"file": "recipes/x.yaml", "parameters": {...}}``."""
+        channel = request.match_info["channel"]
+        try:
+            body = await request.json()
+        except ValueError:
+            body = None
+        if not isinstance(body, dict) or not isinstance(body.get("file"), str):
+            return web.json_response({"error": 'body must be {"file": "...", ...}'}, status=400)
+        params = body.get("parameters") or {}
+        if not isinstance(params, dict):
+            return web.json_response({"error": "parameters must be a mapping"}, status=400)
+        assert self._load_recipe is not None
+        try:
+            test_id = self._load_recipe(
+                channel, body["file"], {k: str(v) for k, v in params.items()}
+            )
+        except ConfigErrors as exc:
+            return web.json_response(
+                {"error": "recipe refused", "details": [e.location_message() for e in exc.errors]},
+                status=422,
+            )
+        except (ConfigError, OperatorError) as exc:
+            return web.json_response({"error": str(exc)}, status=409)
+        log.info("http: recipe %s loaded on %s (test %s)", body["file"], channel, test_id)
+        return web.json_response({"channel": channel, "test_id": test_id})
 
     async def _sim_estop(self, request: web.Request) -> web.Response:
         try:

@@ -235,6 +235,9 @@ class ScanEngine:
         are polled in lockstep before each scan so runs are deterministic.
         """
         tasks: list[asyncio.Task[None]] = []
+        if not self.clock.virtual and self.stats.count == 0:
+            # First images in before the first scan, so logic never starts on "not connected".
+            await asyncio.gather(*(d.poll() for d in self.drivers), return_exceptions=True)
         if not self.clock.virtual:
             for d in self.drivers:
                 run = getattr(d, "run", None)
