@@ -34,6 +34,8 @@ unit: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/supervisor bench scan --tags 1000 --period-ms 10 --seconds 10
 	$(BIN)/supervisor bench manual --hours 10
+	$(BIN)/supervisor bench dry-run --recipe recipes/nimh-25h-slow-cycle.yaml
+	$(BIN)/supervisor bench seed002
 
 schema: $(STAMP)
 	$(BIN)/supervisor schema --out .

@@ -236,6 +236,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return asyncio.run(
             benchmarks.scan_benchmark(args.tags, args.period_ms / 1000, args.seconds)
         )
+    if args.what == "seed002":
+        return asyncio.run(benchmarks.seed002_benchmark(str(DEFAULT_IO_MAP)))
+    if args.what == "dry-run":
+        from supervisor.app.dryrun import dry_run, format_report
+
+        res = asyncio.run(dry_run(args.recipe, soc=0.0))
+        for line in format_report(res)[-3:]:
+            _out(line)
+        return EXIT_OK
     return asyncio.run(benchmarks.manual_charge_benchmark(args.hours))
 
 
@@ -286,7 +295,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_dry_run)
 
     b = sub.add_parser("bench", help="benchmarks that print figures")
-    b.add_argument("what", choices=["scan", "manual"])
+    b.add_argument("what", choices=["scan", "manual", "seed002", "dry-run"])
+    b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
     b.add_argument("--tags", type=int, default=1000, help="scan: number of tags")
     b.add_argument("--period-ms", type=float, default=10.0, help="scan: period in ms")
     b.add_argument("--seconds", type=float, default=10.0, help="scan: wall seconds to run")

@@ -220,7 +220,9 @@ class EaSimulator:
                 if reply is not None and not self.mute:
                     writer.write(reply.encode("ascii") + b"\n")
                     await writer.drain()
-        except ConnectionError:
+        except (ConnectionError, asyncio.CancelledError):
+            # stop()/drop_clients() cancel this handler on purpose; end quietly (a
+            # cancelled start_server callback would otherwise be logged as an error).
             pass
         finally:
             self._clients.pop(task, None)

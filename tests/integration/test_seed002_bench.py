@@ -243,3 +243,73 @@ async def test_sigkill_of_the_supervisor_lets_the_supply_watchdog_switch_the_out
         if proc.stdout is not None:
             proc.stdout.close()
         await ea.stop()
+
+
+async def test_a_cccv_step_on_the_ea_channel_sets_the_supply_cv_voltage(
+    bench: Bench, tmp_path: Path
+) -> None:
+    recipe = tmp_path / "cccv.yaml"
+    recipe.write_text(
+        "recipe: cccv\nsteps:\n  - {id: c, cccv: {current: 2 A, voltage: 16.4 V}, duration: 1 h}\n",
+        encoding="utf-8",
+    )
+    runner = bench.load_recipe("ch4", recipe, results_dir=tmp_path)
+    runner.command("start")
+    assert bench.sim is not None
+    plant = bench.sim.plant
+    await wait_for(
+        lambda: plant.supply.volt_set_v == pytest.approx(16.4) and plant.pack_current_a > 1.9,
+        "CC-CV charge with the supply's voltage set to the CV target",
+    )
+    assert plant.supply.curr_set_a == pytest.approx(2.0)
+    runner.command("stop")
+
+
+async def test_supervisor_sim_serves_the_devices_for_a_supervisor_started_without_sims(
+    tmp_path: Path,
+) -> None:
+    path = seed002_map(tmp_path)
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    sim = subprocess.Popen(  # noqa: ASYNC220 - Popen only starts it; waits go to threads
+        [sys.executable, "-m", "supervisor.cli.main", "sim", str(path), "--control-port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=env,
+    )
+    try:
+        assert sim.stdout is not None
+        lines = []
+        while True:
+            line = await asyncio.to_thread(sim.stdout.readline)
+            assert line, "supervisor sim exited"
+            lines.append(line)
+            if line.startswith("e-stop button"):
+                break
+        assert any(line.startswith("ADAM-5000/TCP adam: modbus tcp 127.0.0.1:") for line in lines)
+        assert any(line.startswith("EA supply ea: scpi tcp 127.0.0.1:") for line in lines)
+        b = build_bench(load_bench(path), RealClock(), simulate=False)
+        assert b.sim is None
+        stop = asyncio.Event()
+        task = asyncio.create_task(b.run(stop))
+        try:
+            await wait_for(
+                lambda: (
+                    all(b.db[f"{d}.connected"].value is True for d in ("adam", "ea", "bms"))
+                    and b.db["pack.voltage"].good
+                    and b.db["bms.voltage"].good
+                ),
+                "the supervisor reads the simulated devices of another process",
+            )
+            assert b.db["pack.voltage"].as_float() == pytest.approx(
+                b.db["bms.voltage"].as_float(), abs=0.05
+            )
+        finally:
+            stop.set()
+            await task
+            await b.shutdown()
+    finally:
+        sim.send_signal(signal.SIGTERM)
+        await asyncio.to_thread(sim.wait, 20)
+        assert sim.returncode == 0
+        sim.stdout.close()  # type: ignore[union-attr]
