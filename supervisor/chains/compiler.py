@@ -479,7 +479,8 @@ def read_profile_csv(path: Path) -> tuple[ProfilePoint, ...]:
     lines = text.splitlines()
     if not lines:
         raise ConfigError("profile is empty", path, 1, 1)
-    dialect_sep = max((",", ";", "\t"), key=lambda c: lines[0].count(c))
+    # On a tie prefer ";" and tab: "0;1,5" is a French decimal comma, not two fields.
+    dialect_sep = max((";", "\t", ","), key=lambda c: lines[0].count(c))
     rows = list(csv.reader(lines, delimiter=dialect_sep))
     out: list[ProfilePoint] = []
     last_t = -1.0
@@ -487,8 +488,11 @@ def read_profile_csv(path: Path) -> tuple[ProfilePoint, ...]:
         cells = [c.strip() for c in row]
         if not any(cells):
             continue
+        if dialect_sep != ",":
+            # Spreadsheets in French locales write decimal commas (seed 002 profiles).
+            cells = [c.replace(",", ".") for c in cells]
         try:
-            t = float(cells[0].replace(",", ".") if dialect_sep != "," else cells[0])
+            t = float(cells[0])
         except ValueError:
             if ln == 1:
                 continue  # header

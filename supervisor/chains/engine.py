@@ -237,7 +237,7 @@ class ChainRunner:
         self._r = _Run(test_id=test_id or time.strftime("%Y%m%d-%H%M%S") + f"-{self.name}")
         self._set("recipe", program.name)
         self._set("test_id", self._r.test_id)
-        self._set_state(State.IDLE, "recipe loaded")
+        self._set_state(State.IDLE, f"recipe {program.name} loaded")
 
     def command(self, cmd: str, actor: str = "operator") -> None:
         if cmd not in COMMANDS:
@@ -262,7 +262,7 @@ class ChainRunner:
                 raise OperatorError(f"{self.name}: no recipe loaded")
             if self.ch.fault.value:
                 raise OperatorError(f"{self.name}: channel fault must be acknowledged first")
-            self._start()
+            self._start(actor)
             return
         if cmd == "resume":
             if self._alarm_latched:
@@ -278,7 +278,7 @@ class ChainRunner:
             self._r = _Run(test_id=self._r.test_id)
         self._set_state(allowed[cmd], f"{cmd} by {actor}")
 
-    def _start(self) -> None:
+    def _start(self, actor: str) -> None:
         assert self.program is not None
         now = self.clock.now()
         r = self._r
@@ -288,7 +288,7 @@ class ChainRunner:
         self.db.update(self.ch.mode, Mode.AUTO.value)
         self.db.update(self.ch.enable, False)
         self._reset_cycle_counters()
-        self._set_state(State.RUNNING, "start by operator")
+        self._set_state(State.RUNNING, f"start by {actor}")
         self._enter(0, "start", now)
 
     # --- the scan phase ------------------------------------------------------------------
@@ -793,7 +793,7 @@ class ChainRunner:
         self._emit("alarm", text)
 
     def _set_state(self, state: State, cause: str) -> None:
-        if state is self.state and cause != "recipe loaded":
+        if state is self.state and not cause.startswith("recipe "):
             return
         old = self.state
         self.state = state

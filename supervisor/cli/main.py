@@ -227,6 +227,116 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+# --- import ----------------------------------------------------------------------------
+def _write_or_print(text: str, out: str | None) -> None:
+    if out is None:
+        sys.stdout.write(text if text.endswith("\n") else text + "\n")
+        return
+    path = Path(out)
+    if path.exists():
+        raise ConfigError(f"{out}: already exists; choose another name or remove it first")
+    path.write_text(text, encoding="utf-8")
+    _err(f"wrote {out}")
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    if not Path(args.file).exists():
+        _err(f"{args.file}: no such file")
+        return EXIT_USAGE
+    if args.kind == "chadeche":
+        from supervisor.importers import import_chadeche
+
+        if args.prm is not None and not Path(args.prm).exists():
+            _err(f"{args.prm}: no such parameter file")
+            return EXIT_USAGE
+        overrides = {}
+        for item in args.option:
+            letter, _, value = item.partition("=")
+            if not value:
+                raise ConfigError(f"--option {item!r}: expected LETTER=VALUE, e.g. i=1300")
+            overrides[letter] = value
+        res = import_chadeche(args.file, args.prm, name=args.name, overrides=overrides)
+        for w in res.warnings:
+            _err(f"warning: {w}")
+        _write_or_print(res.yaml_text, args.output)
+        if res.calibration_snippet:
+            _err("calibration (-1 -2 -s -o) belongs to the I/O map, under the board:")
+            _err(res.calibration_snippet)
+        return EXIT_OK
+    from supervisor.importers.profile import import_profile
+
+    _write_or_print(import_profile(args.file, name=args.name), args.output)
+    return EXIT_OK
+
+
+# --- calibrate -------------------------------------------------------------------------
+def _staircase_ma(recipe_path: str) -> list[float]:
+    from supervisor.chains.compiler import compile_recipe
+    from supervisor.config.recipe import load_recipe
+
+    recipe, pos = load_recipe(recipe_path)
+    program = compile_recipe(recipe, pos, recipe_path)
+    return [abs(st.current_a) * 1000 for st in program.steps if st.kind in ("charge", "rest")]
+
+
+def _ask(prompt: str) -> float:
+    while True:
+        sys.stderr.write(prompt)
+        sys.stderr.flush()
+        line = sys.stdin.readline()
+        if not line:
+            raise ConfigError("calibration: input ended before every reading was given")
+        try:
+            return float(line.strip().replace(",", "."))
+        except ValueError:
+            _err(f"  {line.strip()!r} is not a number; type the reading again")
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from supervisor.app.calibrate import (
+        calibrate_current,
+        calibrate_voltage,
+        fit_line,
+        read_pairs_csv,
+        write_calibration,
+    )
+
+    if args.csv:
+        xs, ys = read_pairs_csv(args.csv)
+    elif args.what == "current":
+        recipe = args.recipe or "recipes/current-calibration.yaml"
+        xs = _staircase_ma(recipe)
+        _err(f"staircase of {recipe}: type the ammeter reading (mA) for each setpoint")
+        ys = [_ask(f"  setpoint {x:g} mA → measured mA: ") for x in xs]
+    else:
+        recipe = args.recipe or "recipes/voltage-calibration.yaml"
+        steps = _staircase_ma(recipe)
+        _err(f"staircase of {recipe}: for each step type the supervisor's V, then the meter's V")
+        xs, ys = [], []
+        for x in steps:
+            xs.append(_ask(f"  step {x:g} mA → voltage shown by the supervisor (V): "))
+            ys.append(_ask(f"  step {x:g} mA → voltmeter reading (V): "))
+    try:
+        if args.what == "current":
+            # seed §III.F.1: setpoint as a function of the measured current
+            slope, offset = calibrate_current(xs, ys)
+            values = {"current_slope": slope, "current_offset_ma": offset}
+            _, _, r2 = fit_line(ys, xs)
+        else:
+            slope, offset = calibrate_voltage(xs, ys)
+            values = {"voltage_slope": slope, "voltage_offset_v": offset}
+            _, _, r2 = fit_line(xs, ys)
+    except ValueError as exc:
+        raise ConfigError(f"calibration: {exc}") from None
+    _out(f"fit: slope {slope:.6f}, offset {offset:.6f}, r² {r2:.6f}")
+    for k, v in values.items():
+        _out(f"  {k}: {v:.6f}")
+    if args.io_map:
+        write_calibration(args.io_map, args.device, args.board, values)
+        _out(f"written to {args.io_map}: device {args.device!r}, board {args.board}")
+    return EXIT_OK
+
+
 # --- bench ---------------------------------------------------------------------------
 def cmd_bench(args: argparse.Namespace) -> int:
     from supervisor.app import benchmarks
@@ -293,6 +403,30 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--max-hours", type=float, default=1000.0)
     d.add_argument("--results", default=None, help="write result files under this folder")
     d.set_defaults(func=cmd_dry_run)
+
+    im = sub.add_parser("import", help="turn a Chadèche sequence file or a profile into YAML")
+    im.add_argument("kind", choices=["chadeche", "profile"])
+    im.add_argument("file")
+    im.add_argument("--prm", default=None, help="chadecheN.prm parameter file")
+    im.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="LETTER=VALUE",
+        help="a chadeche command-line option, overrides the .prm (e.g. i=1300, M=1.8)",
+    )
+    im.add_argument("--name", default=None, help="recipe name (default: from the file name)")
+    im.add_argument("-o", "--output", default=None, help="write the recipe here (default: stdout)")
+    im.set_defaults(func=cmd_import)
+
+    ca = sub.add_parser("calibrate", help="fit a·x+b from a calibration staircase")
+    ca.add_argument("what", choices=["current", "voltage"])
+    ca.add_argument("--csv", default=None, help="pairs: setpoint,measured (or ADC V,meter V)")
+    ca.add_argument("--recipe", default=None, help="staircase recipe (readings typed in)")
+    ca.add_argument("--io-map", default=None, help="write the coefficients into this I/O map")
+    ca.add_argument("--device", default="chadeche")
+    ca.add_argument("--board", type=int, default=0)
+    ca.set_defaults(func=cmd_calibrate)
 
     b = sub.add_parser("bench", help="benchmarks that print figures")
     b.add_argument("what", choices=["scan", "manual", "seed002", "dry-run"])

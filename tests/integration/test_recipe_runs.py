@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import csv
 import json
+import re
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -313,3 +314,40 @@ async def test_a_capacity_test_publishes_progress_and_eta_against_the_rated_capa
     assert b.db["ch0.chain.step"].value == "discharge"
     assert b.db["ch0.chain.progress"].as_float() == pytest.approx(0.4 / 2.0, abs=0.01)
     assert b.db["ch0.chain.eta_s"].as_float() == pytest.approx(4 * 3600, rel=0.02)
+
+
+async def test_a_profile_from_csv_follows_its_rows_and_holds_on_a_row_limit(
+    tmp_path: Path,
+) -> None:
+    (tmp_path / "profile.csv").write_text(
+        "Temps (s);Courant (A);Tension Min/Max;Courant Min/Max;Température Min/Max\n"
+        "0;0,1;0.5/2.0;-1/1;0/60\n"
+        "60;-0,1;0.5/2.0;-1/1;0/60\n"
+        "120;0,2;0.5/1.0;-1/1;0/60\n"
+        "180;0;0.5/2.0;-1/1;0/60\n",
+        encoding="cp1252",
+    )
+    b = bench_with(
+        tmp_path,
+        "recipe: r\nsteps:\n  - {id: p, profile: {file: profile.csv}}\n  - {id: z, rest: 1 h}\n",
+    )
+    await start(b)
+    await b.engine.run_for(30.0)
+    assert b.channels["ch0"].current_cmd.value == pytest.approx(0.1)
+    await b.engine.run_for(60.0)
+    assert b.channels["ch0"].current_cmd.value == pytest.approx(-0.1)
+    await b.engine.run_for(60.0)  # row 3 allows at most 1.0 V: a NiMH cell is above that
+    assert b.runners["ch0"].state is State.HELD
+    assert "above 1 V" in str(b.db["ch0.chain.alarm"].value)
+
+
+async def test_the_status_line_follows_the_chadeche_display_format(tmp_path: Path) -> None:
+    b = bench_with(tmp_path, "recipe: r\nsteps:\n  - {id: a, charge: 50 mA, duration: 180 s}\n")
+    await start(b)
+    await b.engine.run_for(129.0)
+    line = b.runners["ch0"].display_line(b.clock.now())
+    assert re.match(
+        r"^C/01/01 ch0 mA=  50 CET=\s+129 SET=\s+129 TET=\s+129 STA=\s+51 V=\d\.\d{3}"
+        r" mAh=\d+\.\d, \w{3} \w{3} \d{2} \d{2}:\d{2}:\d{2} \d{4}$",
+        line,
+    ), line

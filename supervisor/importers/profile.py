@@ -1,0 +1,96 @@
+"""Import a load profile CSV (seed 002 §2.3) as a recipe with one ``profile:`` step.
+
+The file is read by :func:`supervisor.chains.compiler.read_profile_csv` — the same reader
+a recipe's ``profile: {file: ...}`` uses — so the columns, separators and encodings it
+accepts are exactly those: time (s), current (A, + charges), then optional V min/max,
+I min/max and T min/max, each pair in two columns or one ``min/max`` cell; ``,`` ``;`` or
+tab separated; an optional header line; UTF-8 or CP1252.
+
+The rows are written inline (``profile: {rows: [...]}``) so the recipe stands alone.
+Times are seconds from the step start; the step ends when the last row's time is reached
+(that row only marks the end).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+from supervisor.chains.compiler import Target, compile_recipe, read_profile_csv
+from supervisor.chains.program import ProfilePoint
+from supervisor.config.recipe import ID_PATTERN, load_recipe_text
+from supervisor.core.errors import ConfigError, ConfigErrors
+from supervisor.importers.chadeche import yaml_float, yaml_scalar
+
+__all__ = ["import_profile"]
+
+_FIELDS = ("v_min", "v_max", "i_min", "i_max", "t_min", "t_max")
+
+
+def _name(path: Path, name: str | None) -> str:
+    if name is not None:
+        if not re.match(ID_PATTERN, name):
+            raise ValueError(f"recipe name {name!r} must match {ID_PATTERN}")
+        return name
+    stem = re.sub(r"[^A-Za-z0-9_\-]+", "-", path.stem).strip("-") or "profile"
+    return stem if re.match(r"^[A-Za-z_]", stem) else f"profile-{stem}"
+
+
+def _row(p: ProfilePoint) -> str:
+    items: list[tuple[str, float | None]] = [("t", p.t_s), ("current", p.current_a)]
+    items += [(f, getattr(p, f)) for f in _FIELDS]
+    return "{" + ", ".join(f"{k}: {yaml_float(v)}" for k, v in items if v is not None) + "}"
+
+
+def import_profile(csv_path: str | Path, *, name: str | None = None) -> str:
+    """Recipe YAML (one ``profile:`` step with ``rows:``) from a load profile CSV.
+
+    Raises ConfigErrors naming the CSV (with line) when it cannot be read or the rows do
+    not make a valid profile (times not increasing, a negative time, non-finite values).
+    """
+    path = Path(csv_path)
+    file = str(path)
+    try:
+        points = read_profile_csv(path)
+    except ConfigError as exc:
+        raise ConfigErrors([exc]) from None
+    problems: list[ConfigError] = []
+    for k, p in enumerate(points, start=1):
+        values = [p.t_s, p.current_a, *(getattr(p, f) for f in _FIELDS)]
+        if not all(math.isfinite(v) for v in values if v is not None):
+            problems.append(ConfigError(f"profile row {k}: a value is not a finite number", file))
+        elif p.t_s < 0:
+            problems.append(ConfigError(f"profile row {k}: time {p.t_s:g} s is negative", file))
+    if problems:
+        raise ConfigErrors(problems)
+
+    span = points[-1].t_s - points[0].t_s
+    header = [
+        "# Imported by supervisor.importers.profile from a load profile (seed 002 §2.3).",
+        f"# source: {path}",
+        "# t: s from the step start; current: A, + charges; v/i/t min/max: per-row window",
+        "# (V, A, degC) that holds the chain with an alarm when crossed.",
+        "# The step ends when the last row's time is reached.",
+    ]
+    body: list[str] = [
+        f"recipe: {yaml_scalar(_name(path, name))}",
+        f"description: {yaml_scalar(f'Load profile imported from {path.name}')}",
+        "steps:",
+        "  - id: profile",
+        f"    comment: {yaml_scalar(f'{len(points)} rows, {span:g} s')}",
+        "    profile:",
+        "      rows:",
+        *(f"        - {_row(p)}" for p in points),
+    ]
+    text = "\n".join(header + body) + "\n"
+
+    where = "<imported profile>"
+    try:
+        recipe, pos = load_recipe_text(text, where)
+        compile_recipe(recipe, pos, where, Target())
+    except ConfigErrors as exc:
+        raise ConfigErrors(
+            [ConfigError(f"the imported profile is refused: {e.message}", file) for e in exc.errors]
+        ) from None
+    return text
