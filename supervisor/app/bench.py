@@ -10,7 +10,7 @@ from pathlib import Path
 
 import can
 
-from supervisor.app.simulation import SimulatedBench, build_simulation
+from supervisor.app.simulation import SimulatedBench, build_simulation, cell_model, make_plant
 from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target, compile_recipe
 from supervisor.chains.engine import ChainEvent, ChainRunner, Record, State
 from supervisor.channels import Channel, ChannelLimits
@@ -23,7 +23,6 @@ from supervisor.config.models import (
     EaDevice,
     LinearScaling,
     SimSupplyDevice,
-    SimulationConfig,
     TagMapping,
 )
 from supervisor.config.recipe import load_recipe
@@ -39,7 +38,7 @@ from supervisor.drivers.ea import EaDriver
 from supervisor.protocols.chadeche import Calibration
 from supervisor.publish.results import ResultCollector
 from supervisor.scan import InputBinding, LogicPhase, OutputBinding, Publisher, ScanEngine
-from supervisor.sim.battery import BatteryModel, make_model
+from supervisor.sim.battery import BatteryModel
 from supervisor.sim.chadeche import SimBoard, SimChadecheBus
 from supervisor.sim.plant import BenchPlant
 from supervisor.sim.supply import PlantSupplyDriver
@@ -231,14 +230,7 @@ def build_bench(
             if dev.backend == "sim":
                 sim_boards = {}
                 for b in dev.boards:
-                    params: dict[str, float] = {
-                        "capacity_ah": b.sim.capacity_ah,
-                        "soc": b.sim.soc,
-                        "temperature_c": b.sim.temperature_c,
-                    }
-                    if b.sim.cells_series is not None:
-                        params["cells_series"] = b.sim.cells_series
-                    cell = make_model(b.sim.model, **params)
+                    cell = cell_model(b.sim)
                     cells[f"{name}.b{b.address}"] = cell
                     sim_boards[b.address] = SimBoard(cell)
                 bus = SimChadecheBus(clock, sim_boards)
@@ -287,7 +279,7 @@ def build_bench(
         elif isinstance(dev, SimSupplyDevice):
             owner = _owner(cfg, name)
             if plant is None:
-                plant = _plant(cfg, clock)
+                plant = make_plant(cfg, clock)
             drivers[name] = PlantSupplyDriver(
                 name,
                 clock,
@@ -379,18 +371,6 @@ def build_bench(
     bench = Bench(cfg, clock, db, engine, drivers, channels, cells, buses, sim, runners)
     bench.plant = plant
     return bench
-
-
-def _plant(cfg: BenchConfig, clock: Clock) -> BenchPlant:
-    sc = cfg.simulation or SimulationConfig()
-    params: dict[str, float] = {
-        "capacity_ah": sc.pack.capacity_ah,
-        "soc": sc.pack.soc,
-        "temperature_c": sc.pack.temperature_c,
-    }
-    if sc.pack.cells_series is not None:
-        params["cells_series"] = sc.pack.cells_series
-    return BenchPlant(clock, make_model(sc.pack.model, **params), ambient_c=sc.ambient_c)
 
 
 def _owner(cfg: BenchConfig, device: str) -> ChannelConfig:

@@ -19,13 +19,14 @@ from supervisor.config.models import (
     BenchConfig,
     BmsDevice,
     EaDevice,
+    SimCell,
     SimPoint,
     SimulationConfig,
 )
 from supervisor.core.clock import Clock
 from supervisor.protocols.bms import BmsValues
 from supervisor.sim.adam import AdamSimulator
-from supervisor.sim.battery import make_model
+from supervisor.sim.battery import BatteryModel, make_model
 from supervisor.sim.bms import BmsSimulator, SocketcandServer
 from supervisor.sim.ea import EaSimulator
 from supervisor.sim.plant import BenchPlant
@@ -100,20 +101,30 @@ class SimulatedBench:
         )
 
 
+def cell_model(cell: SimCell) -> BatteryModel:
+    """The battery model an I/O map's ``sim:`` entry describes."""
+    params: dict[str, float] = {
+        "capacity_ah": cell.capacity_ah,
+        "soc": cell.soc,
+        "temperature_c": cell.temperature_c,
+    }
+    if cell.cells_series is not None:
+        params["cells_series"] = cell.cells_series
+    return make_model(cell.model, **params)
+
+
+def make_plant(cfg: BenchConfig, clock: Clock) -> BenchPlant:
+    sc = cfg.simulation or SimulationConfig()
+    return BenchPlant(clock, cell_model(sc.pack), ambient_c=sc.ambient_c)
+
+
 def build_simulation(cfg: BenchConfig, clock: Clock) -> SimulatedBench | None:
     """Simulators for every device marked ``sim: true`` (None if there are none)."""
     simulated = {n: d for n, d in cfg.devices.items() if getattr(d, "sim", False)}
     if not simulated:
         return None
     sc = cfg.simulation or SimulationConfig()
-    params: dict[str, float] = {
-        "capacity_ah": sc.pack.capacity_ah,
-        "soc": sc.pack.soc,
-        "temperature_c": sc.pack.temperature_c,
-    }
-    if sc.pack.cells_series is not None:
-        params["cells_series"] = sc.pack.cells_series
-    plant = BenchPlant(clock, make_model(sc.pack.model, **params), ambient_c=sc.ambient_c)
+    plant = make_plant(cfg, clock)
     bench = SimulatedBench(plant, cells_series=sc.pack.cells_series or 1)
 
     for name, dev in simulated.items():
