@@ -42,7 +42,7 @@ async def scan_benchmark(n_tags: int, period_s: float, seconds: float) -> int:
         channels.append(ch)
         phases.append(LogicPhase(f"channel:{ch.name}", ch.run))
     base = len(db) + 7 + 2 * 2  # scan stats and per-driver tags come later
-    n_ai = max(0, n_tags - base - n_channels * 2)
+    n_ai = max(0, n_tags - base)
     gen = SignalGenerator("gen", clock, n_ai, n_out=n_channels, poll_period_s=period_s)
     src = SignalGenerator("src", clock, n_channels * 2, poll_period_s=period_s)
     inputs = []
