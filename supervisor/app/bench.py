@@ -352,6 +352,8 @@ def build_bench(
         channels[c.name] = ch
 
     runners = {name: ChainRunner(ch, db, clock) for name, ch in channels.items()}
+    for c in cfg.channels:
+        runners[c.name].dba = c.source.board or 0
     phases = []
     for name, ch in channels.items():
         # The chain requests, then the channel protects: a chain never overrides a trip.

@@ -160,7 +160,13 @@ class _Run:
     last_rec_v: float | None = None
     last_rec_i: float | None = None
     end_reason: str = ""
-    max_time_acked: int = -1  # step activation whose step-time supervision was acknowledged
+    max_time_acked: int = -1
+    pulse_on: bool | None = None
+    rest_vi: tuple[float, float] | None = None
+    on_vi: tuple[float, float] | None = None
+    pulse_start: tuple[float, float] | None = (
+        None  # step activation whose step-time supervision was acknowledged
+    )
 
 
 class ChainRunner:
@@ -178,6 +184,7 @@ class ChainRunner:
         self.events: deque[ChainEvent] = deque(maxlen=1000)
         self.estimated_duration_s: float | None = None
         self.display_period_s = 60.0
+        self.dba = 0  # board address shown in the Chadèche display line
         self._r = _Run()
         self._alarm_latched = False
         self._dv: deque[tuple[float, float]] = deque()
@@ -215,6 +222,7 @@ class ChainRunner:
             TagSpec(f"{n}.chain.last_event", dtype="str", initial=""),
             TagSpec(f"{n}.chain.progress", unit="1", initial=0.0),
             TagSpec(f"{n}.chain.eta_s", unit="s", initial=None),
+            TagSpec(f"{n}.chain.internal_resistance", unit="ohm", initial=None),
         ):
             add(spec)
         for t in db:
@@ -396,6 +404,8 @@ class ChainRunner:
                     return
         st = values["step_time"]
         assert isinstance(st, float)
+        if step.kind == "pulse":
+            self._pulse_resistance(step, st, values)
         done = self._kind_done(step, st)
         if done:
             self._act(Action(ActionKind.NEXT), done, now)
@@ -413,6 +423,34 @@ class ChainRunner:
         self._record(now, step)
 
     # --- step behaviour ----------------------------------------------------------------------
+    def _pulse_resistance(
+        self, step: CompiledStep, st: float, values: dict[str, float | bool | None]
+    ) -> None:
+        """DC internal resistance: R = ΔV/ΔI between the last sample at rest before a pulse
+        and the last sample under current at its end (the usual DCIR definition)."""
+        period = step.pulse_on_s + step.pulse_off_s
+        if period <= 0:
+            return
+        v, i = values["voltage"], values["current"]
+        if not isinstance(v, float) or not isinstance(i, float):
+            return
+        on = (st % period) < step.pulse_on_s and st < period * step.pulse_count
+        r = self._r
+        if on and r.pulse_on is False and r.rest_vi is not None:
+            r.pulse_start = r.rest_vi
+        if not on and r.pulse_on is True and r.pulse_start is not None and r.on_vi is not None:
+            dv = r.on_vi[0] - r.pulse_start[0]
+            di = r.on_vi[1] - r.pulse_start[1]
+            if abs(di) > 1e-6:
+                res = dv / di
+                self._set("internal_resistance", res)
+                self._emit("message", f"DC internal resistance {res * 1000:.1f} mohm")
+        if on:
+            r.on_vi = (v, i)
+        else:
+            r.rest_vi = (v, i)
+        r.pulse_on = on
+
     def _kind_done(self, step: CompiledStep, st: float) -> str:
         if step.kind == "pulse":
             period = step.pulse_on_s + step.pulse_off_s
@@ -604,6 +642,14 @@ class ChainRunner:
             r.step_e0 = self.ch.energy_wh.as_float()
             r.peak_v = None
             self._dv.clear()
+            # DCIR reference: the last reading before the step's first pulse.
+            ch = self.ch
+            r.pulse_on, r.on_vi, r.pulse_start = False, None, None
+            r.rest_vi = (
+                (ch.voltage.as_float(), ch.current.as_float())
+                if ch.voltage.good and ch.current.good
+                else None
+            )
             label = f"{step.id}" + (f" ({step.comment})" if step.comment else "")
             self._emit("step", f"starting step {index + 1} {label} ({cause})")
             if step.kind == "goto" and step.goto is not None:
@@ -767,7 +813,7 @@ class ChainRunner:
             self._set("eta_s", 0.0)
         if running and now - self._last_display_t >= self.display_period_s and step is not None:
             self._last_display_t = now
-            log.info("%s", self.display_line(now))
+            log.info("%s: %s", self.name, self.display_line(now))
 
     def display_line(self, now: float) -> str:
         """Seed 000 §III.E.1 display: ``C/01/07 dba=0 mA= 50 CET= … V=1.373 mAh=1302.0, date``."""
@@ -780,9 +826,9 @@ class ChainRunner:
         sta = max(0.0, step.duration_s - st) if step.duration_s is not None else 0.0
         wall = time.strftime("%a %b %d %H:%M:%S %Y", time.localtime(self.clock.to_wall(now)))
         return (
-            f"{cd}/{r.cycle:02d}/{step.index + 1:02d} {self.name} mA={abs(amps) * 1000:4.0f}"
-            f" CET={now - r.t_cycle0:6.0f} SET={st:5.0f} TET={now - r.t_test0:6.0f}"
-            f" STA={sta:5.0f} V={self.ch.voltage.as_float():.3f} mAh={self._charge() * 1000:.1f},"
+            f"{cd}/{r.cycle:02d}/{step.index + 1:02d} dba={self.dba} mA={abs(amps) * 1000:3.0f}"
+            f" CET= {now - r.t_cycle0:.0f} SET= {st:.0f} TET= {now - r.t_test0:.0f}"
+            f" STA= {sta:.0f} V={self.ch.voltage.as_float():.3f} mAh={self._charge() * 1000:.1f},"
             f" {wall}"
         )
 

@@ -234,6 +234,10 @@ async def test_pulses_alternate_current_and_rest_then_move_on(tmp_path: Path) ->
         seen.append(b.channels["ch0"].current_cmd.as_float())
     assert max(seen) == pytest.approx(0.2) and min(seen) == 0.0
     assert b.db["ch0.chain.step"].value == "after"
+    # DC internal resistance from each pulse: the NiMH model's R is tens of milliohms.
+    r = b.db["ch0.chain.internal_resistance"].as_float()
+    assert 0.01 < r < 0.5
+    assert sum("DC internal resistance" in e.text for e in b.runners["ch0"].events) == 3
 
 
 async def test_a_group_time_limit_ends_a_loop_of_several_steps(tmp_path: Path) -> None:
@@ -365,7 +369,7 @@ async def test_the_status_line_follows_the_chadeche_display_format(tmp_path: Pat
     await b.engine.run_for(129.0)
     line = b.runners["ch0"].display_line(b.clock.now())
     assert re.match(
-        r"^C/01/01 ch0 mA=  50 CET=\s+129 SET=\s+129 TET=\s+129 STA=\s+51 V=\d\.\d{3}"
+        r"^C/01/01 dba=0 mA= 50 CET= 129 SET= 129 TET= 129 STA= 51 V=\d\.\d{3}"
         r" mAh=\d+\.\d, \w{3} \w{3} \d{2} \d{2}:\d{2}:\d{2} \d{4}$",
         line,
     ), line
