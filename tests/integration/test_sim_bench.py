@@ -170,6 +170,34 @@ def test_supervisor_run_serves_the_api_charges_on_request_and_exits_0_on_sigterm
             urllib.request.urlopen(refused, timeout=5)
         assert info.value.code == 403
         info.value.close()
+        # A recipe loaded over HTTP and started through the command tag.
+        loaded = _http(
+            "PUT", f"{url}/channels/ch1/recipe", {"file": str(ROOT / "recipes/nimh-ds2710.yaml")}
+        )
+        assert isinstance(loaded, dict) and loaded["channel"] == "ch1"
+        _http("PUT", f"{url}/tags/ch1.command", {"value": "start"})
+        state = None
+        while time.monotonic() < deadline:
+            state = _http("GET", f"{url}/tags/ch1.chain.state")
+            if isinstance(state, dict) and state["value"] == "Running":
+                break
+            time.sleep(0.1)
+        assert isinstance(state, dict) and state["value"] == "Running"
+        bad = urllib.request.Request(
+            f"{url}/channels/ch2/recipe",
+            data=json.dumps(
+                {"file": str(ROOT / "tests/data/bad_recipes/unit_mismatch.yaml")}
+            ).encode(),
+            method="PUT",
+        )
+        with pytest.raises(urllib.error.HTTPError) as refused_recipe:
+            urllib.request.urlopen(bad, timeout=5)
+        assert refused_recipe.value.code == 422
+        details = json.loads(refused_recipe.value.read())["details"]
+        refused_recipe.value.close()
+        assert details[0].endswith(
+            "unit_mismatch.yaml:7:17: cannot compare a voltage with a current (voltage >= 300 mA)"
+        )
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=20)
         assert proc.returncode == 0, err
