@@ -73,15 +73,21 @@ async def _run(args: argparse.Namespace) -> int:
         loop.add_signal_handler(sig, stop.set)
     try:
         await api.start()
+        await bench.start()
     except OSError as exc:
-        _err(f"supervisor: cannot listen on {cfg.hmi.host}:{port}: {exc.strerror or exc}")
+        _err(f"supervisor: cannot listen: {exc.strerror or exc} ({exc})")
         await bench.shutdown()
+        await api.stop()
         return EXIT_USAGE
     _out(
         f"bench {cfg.bench!r}: {len(bench.db)} tags, {len(bench.channels)} channels,"
         f" scan period {cfg.scan.period_s * 1000:g} ms"
     )
     _out(f"HTTP API listening on {api.url}/tags")
+    if bench.sim is not None:
+        for line in bench.sim.addresses():
+            _out(f"simulated {line}")
+        _out(f'simulated e-stop button: PUT {api.url}/sim/estop {{"pressed": true}}')
     _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
     try:
         await bench.run(stop)

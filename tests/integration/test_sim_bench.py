@@ -202,6 +202,7 @@ def test_supervisor_run_serves_the_api_charges_on_request_and_exits_0_on_sigterm
         out, err = proc.communicate(timeout=20)
         assert proc.returncode == 0, err
         assert "stopped: all outputs safe" in out
+        assert "simulated EA supply ea: scpi tcp 127.0.0.1:5025" in out
         assert "Traceback" not in err
     finally:
         if proc.poll() is None:
