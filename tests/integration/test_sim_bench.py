@@ -146,11 +146,15 @@ def test_supervisor_run_serves_the_api_charges_on_request_and_exits_0_on_sigterm
     try:
         assert proc.stdout is not None
         url = None
+        banner = []
         for line in proc.stdout:
+            banner.append(line)
             m = re.search(r"HTTP API listening on (http://127\.0\.0\.1:\d+/api)", line)
             if m:
                 url = m.group(1)
+            if line.startswith("Ctrl-C"):
                 break
+        assert "simulated EA supply ea: scpi tcp 127.0.0.1:5025\n" in banner
         assert url, "the bench never said where it listens"
         _http("PUT", f"{url}/tags/ch0.manual_current", {"value": 0.3})
         _http("PUT", f"{url}/tags/ch0.enable", {"value": True})
@@ -202,7 +206,6 @@ def test_supervisor_run_serves_the_api_charges_on_request_and_exits_0_on_sigterm
         out, err = proc.communicate(timeout=20)
         assert proc.returncode == 0, err
         assert "stopped: all outputs safe" in out
-        assert "simulated EA supply ea: scpi tcp 127.0.0.1:5025" in out
         assert "Traceback" not in err
     finally:
         if proc.poll() is None:
