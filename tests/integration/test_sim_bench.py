@@ -6,6 +6,7 @@ import json
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -135,8 +136,17 @@ def test_supervisor_run_serves_the_api_charges_on_request_and_exits_0_on_sigterm
     tmp_path: Path,
 ) -> None:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
+    # sim.yaml on free loopback ports, so a bench already running here does not collide.
+    data = yaml.safe_load(SIM.read_text(encoding="utf-8"))
+    for dev in ("adam", "ea", "bms"):
+        with socket.socket() as sock:
+            sock.bind(("127.0.0.1", 0))
+            data["devices"][dev]["port"] = sock.getsockname()[1]
+    io_map = tmp_path / "sim.yaml"
+    io_map.write_text(yaml.safe_dump(data), encoding="utf-8")
+    ea_port = data["devices"]["ea"]["port"]
     proc = subprocess.Popen(
-        [sys.executable, "-m", "supervisor.cli.main", "run", str(SIM), "--http-port", "0"],
+        [sys.executable, "-m", "supervisor.cli.main", "run", str(io_map), "--http-port", "0"],
         cwd=tmp_path,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -154,7 +164,7 @@ def test_supervisor_run_serves_the_api_charges_on_request_and_exits_0_on_sigterm
                 url = m.group(1)
             if line.startswith("Ctrl-C"):
                 break
-        assert "simulated EA supply ea: scpi tcp 127.0.0.1:5025\n" in banner
+        assert f"simulated EA supply ea: scpi tcp 127.0.0.1:{ea_port}\n" in banner
         assert url, "the bench never said where it listens"
         _http("PUT", f"{url}/tags/ch0.manual_current", {"value": 0.3})
         _http("PUT", f"{url}/tags/ch0.enable", {"value": True})
