@@ -87,6 +87,7 @@ AUTO_NEXT = {
     State.ABORTING: State.ABORTED,
 }
 ENERGISED = (State.RUNNING,)
+COUNTERS = ("charged_ah", "discharged_ah", "charged_wh", "discharged_wh")
 MAX_INSTANT_STEPS = 1000  # guard: a chain of goto steps in one scan
 DV_DT_WINDOW_S = 60.0
 DV_DT_MIN_SPAN_S = 10.0
@@ -151,7 +152,8 @@ class _Run:
     q0_ah: float = 0.0  # channel counters at test start
     step_q0: float = 0.0
     step_e0: float = 0.0
-    cyc: dict[str, float] = field(default_factory=dict)
+    test0: dict[str, float] = field(default_factory=dict)  # counters at test start
+    cycle0: dict[str, float] = field(default_factory=dict)  # counters at cycle start
     peak_v: float | None = None
     sleep_until_t: float | None = None
     sleep_then: int | None = None  # step index after a sleep action
@@ -292,6 +294,7 @@ class ChainRunner:
         r = self._r
         r.t_test0 = r.t_cycle0 = now
         r.q0_ah = self.ch.charge_ah.as_float()
+        r.test0 = self._counters()
         r.cycle = 1
         self.db.update(self.ch.mode, Mode.AUTO.value)
         self.db.update(self.ch.enable, False)
@@ -730,22 +733,14 @@ class ChainRunner:
             power_w=ch.power.as_float() if ch.power.good else None,
             temperature_c=ch.temperature.as_float() if ch.temperature.good else None,
             charge_ah=self._charge(),
-            charged_ah=ch.charged_ah.as_float()
-            - r.cyc.get("charged_ah0", 0.0)
-            + r.cyc.get("charged_before", 0.0),
-            discharged_ah=ch.discharged_ah.as_float()
-            - r.cyc.get("discharged_ah0", 0.0)
-            + r.cyc.get("discharged_before", 0.0),
-            charged_wh=ch.charged_wh.as_float()
-            - r.cyc.get("charged_wh0", 0.0)
-            + r.cyc.get("charged_wh_before", 0.0),
-            discharged_wh=ch.discharged_wh.as_float()
-            - r.cyc.get("discharged_wh0", 0.0)
-            + r.cyc.get("discharged_wh_before", 0.0),
-            cycle_charged_ah=ch.charged_ah.as_float() - r.cyc.get("charged_ah0", 0.0),
-            cycle_discharged_ah=ch.discharged_ah.as_float() - r.cyc.get("discharged_ah0", 0.0),
-            cycle_charged_wh=ch.charged_wh.as_float() - r.cyc.get("charged_wh0", 0.0),
-            cycle_discharged_wh=ch.discharged_wh.as_float() - r.cyc.get("discharged_wh0", 0.0),
+            charged_ah=self._since("charged_ah", r.test0),
+            discharged_ah=self._since("discharged_ah", r.test0),
+            charged_wh=self._since("charged_wh", r.test0),
+            discharged_wh=self._since("discharged_wh", r.test0),
+            cycle_charged_ah=self._since("charged_ah", r.cycle0),
+            cycle_discharged_ah=self._since("discharged_ah", r.cycle0),
+            cycle_charged_wh=self._since("charged_wh", r.cycle0),
+            cycle_discharged_wh=self._since("discharged_wh", r.cycle0),
             setpoint_a=self.setpoint(),
             step_remaining_s=(step.duration_s - st) if step.duration_s is not None else None,
             reason=reason,
@@ -756,28 +751,15 @@ class ChainRunner:
             except Exception:
                 log.exception("%s: result recorder failed", self.name)
 
+    def _counters(self) -> dict[str, float]:
+        return {name: getattr(self.ch, name).as_float() for name in COUNTERS}
+
+    def _since(self, name: str, base: dict[str, float]) -> float:
+        """A channel counter relative to the test start or the cycle start (BDF scopes)."""
+        return float(getattr(self.ch, name).as_float() - base.get(name, 0.0))
+
     def _reset_cycle_counters(self) -> None:
-        ch, c = self.ch, self._r.cyc
-        if c:
-            # Test-scoped counters keep what previous cycles added.
-            c["charged_before"] = (
-                c.get("charged_before", 0.0) + ch.charged_ah.as_float() - c["charged_ah0"]
-            )
-            c["discharged_before"] = (
-                c.get("discharged_before", 0.0) + ch.discharged_ah.as_float() - c["discharged_ah0"]
-            )
-            c["charged_wh_before"] = (
-                c.get("charged_wh_before", 0.0) + ch.charged_wh.as_float() - c["charged_wh0"]
-            )
-            c["discharged_wh_before"] = (
-                c.get("discharged_wh_before", 0.0)
-                + ch.discharged_wh.as_float()
-                - c["discharged_wh0"]
-            )
-        c["charged_ah0"] = ch.charged_ah.as_float()
-        c["discharged_ah0"] = ch.discharged_ah.as_float()
-        c["charged_wh0"] = ch.charged_wh.as_float()
-        c["discharged_wh0"] = ch.discharged_wh.as_float()
+        self._r.cycle0 = self._counters()
 
     def _publish(self, now: float) -> None:
         r = self._r
