@@ -29,9 +29,9 @@ import yaml
 from yaml.error import MarkedYAMLError
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
-from supervisor.config.bench import check_bench
-from supervisor.config.models import BenchConfig, ChadecheDevice
-from supervisor.config.yamlpos import load_yaml_text, validate
+from supervisor.config.bench import load_bench_text
+from supervisor.config.models import ChadecheDevice
+from supervisor.config.yamlpos import load_yaml_text
 from supervisor.core.errors import ConfigError, ConfigErrors
 from supervisor.importers.chadeche import yaml_float
 
@@ -260,18 +260,6 @@ def _check_values(values: Mapping[str, Any]) -> dict[str, float]:
     return out
 
 
-def _load_checked(text: str, file: str) -> BenchConfig:
-    try:
-        data, pos = load_yaml_text(text, file)
-    except ConfigError as exc:
-        raise ConfigErrors([exc]) from None
-    cfg = validate(BenchConfig, data, pos, file)
-    errors = check_bench(cfg, pos, file)
-    if errors:
-        raise ConfigErrors(errors)
-    return cfg
-
-
 def _edit(
     text: str, file: str, device: str, board: int, values: dict[str, float]
 ) -> tuple[str, int]:
@@ -447,9 +435,9 @@ def write_calibration(
         raise ConfigErrors([exc]) from None
     new_text, index = _edit(text, file, device, board, vals)
     try:
-        cfg = _load_checked(new_text, file)
+        cfg = load_bench_text(new_text, file)
     except ConfigErrors as exc:
-        _load_checked(text, file)  # already broken before the edit: report that as it is
+        load_bench_text(text, file)  # already broken before the edit: report that as it is
         raise ConfigErrors(  # pragma: no cover - a bug in _edit; nothing is written
             [
                 ConfigError(

@@ -699,19 +699,9 @@ class ChainRunner:
             di = rule.delta_i if rule.delta_i is not None else self.program.log.delta_i
             if period is not None and now - r.last_rec_t >= period - 1e-9:
                 reason = "period"
-            elif (
-                dv is not None
-                and v is not None
-                and r.last_rec_v is not None
-                and abs(v - r.last_rec_v) >= dv
-            ):
+            elif _moved(v, r.last_rec_v, dv):
                 reason = "delta_v"
-            elif (
-                di is not None
-                and i is not None
-                and r.last_rec_i is not None
-                and abs(i - r.last_rec_i) >= di
-            ):
+            elif _moved(i, r.last_rec_i, di):
                 reason = "delta_i"
             else:
                 return
@@ -864,6 +854,11 @@ class ChainRunner:
     @property
     def test_id(self) -> str:
         return self._r.test_id
+
+
+def _moved(x: float | None, last: float | None, delta: float | None) -> bool:
+    """A logging rule's ΔV / ΔI: has the value moved by ``delta`` since the last record?"""
+    return delta is not None and x is not None and last is not None and abs(x - last) >= delta
 
 
 def seconds_until(wall_now: float, hh: int, mm: int) -> float:

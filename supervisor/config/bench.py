@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from supervisor.config.models import BenchConfig, ChadecheDevice, EaDevice, SimSupplyDevice
-from supervisor.config.yamlpos import Positions, load_yaml, validate
+from supervisor.config.yamlpos import Positions, load_yaml, load_yaml_text, validate
 from supervisor.core.errors import ConfigError, ConfigErrors
 
 # Hardware maximum of a Chadèche board (seed 000 §II.C.4: 4.096 V DAC across 10 Ω).
@@ -20,11 +20,23 @@ RESERVED_PREFIXES = ("scan.", "bench.")
 
 def load_bench(path: str | Path) -> BenchConfig:
     """Load and fully check a bench file; raises ConfigErrors listing every problem."""
-    file = str(path)
     try:
         data, pos = load_yaml(path)
     except ConfigError as exc:
         raise ConfigErrors([exc]) from None
+    return _checked(data, pos, str(path))
+
+
+def load_bench_text(text: str, file: str) -> BenchConfig:
+    """The same checks on text not yet written (e.g. an I/O map about to be edited)."""
+    try:
+        data, pos = load_yaml_text(text, file)
+    except ConfigError as exc:
+        raise ConfigErrors([exc]) from None
+    return _checked(data, pos, file)
+
+
+def _checked(data: object, pos: Positions, file: str) -> BenchConfig:
     cfg = validate(BenchConfig, data, pos, file)
     errors = check_bench(cfg, pos, file)
     if errors:
