@@ -30,18 +30,18 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver, DType
 from supervisor.core.errors import OperatorError
 from supervisor.core.units import UNITS, Dim
-from supervisor.drivers.adam import AdamDriver, AdamModule
-from supervisor.drivers.bms import BmsDriver, socketcand_bus_factory
-from supervisor.drivers.chadeche import ChadecheDriver
-from supervisor.drivers.chadeche.bus import ChadecheBus, SpidevBus
-from supervisor.drivers.ea import EaDriver
-from supervisor.protocols.chadeche import Calibration
+from supervisor.devices.adam.driver import AdamDriver, AdamModule
+from supervisor.devices.bms.driver import BmsDriver, socketcand_bus_factory
+from supervisor.devices.chadeche import ChadecheDriver
+from supervisor.devices.chadeche.bus import ChadecheBus, SpidevBus
+from supervisor.devices.chadeche.protocol import Calibration
+from supervisor.devices.chadeche.sim import SimBoard, SimChadecheBus
+from supervisor.devices.ea.driver import EaDriver
+from supervisor.devices.sim_supply.driver import PlantSupplyDriver
 from supervisor.publish.results import ResultCollector
 from supervisor.scan import InputBinding, LogicPhase, OutputBinding, Publisher, ScanEngine
 from supervisor.sim.battery import BatteryModel
-from supervisor.sim.chadeche import SimBoard, SimChadecheBus
 from supervisor.sim.plant import BenchPlant
-from supervisor.sim.supply import PlantSupplyDriver
 from supervisor.tags import AlarmLimits, HistorySettings, Scaling, TagDB, TagSpec
 
 log = logging.getLogger(__name__)

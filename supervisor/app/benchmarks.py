@@ -6,11 +6,11 @@ import asyncio
 import sys
 import time
 
+from supervisor.app.loadgen import SignalGenerator
 from supervisor.channels import Channel, ChannelLimits
 from supervisor.config.models import BenchConfig
 from supervisor.core.clock import RealClock, VirtualClock
 from supervisor.scan import InputBinding, LogicPhase, OutputBinding, ScanEngine, ScanStats
-from supervisor.sim.signals import SignalGenerator
 from supervisor.tags import TagDB, TagSpec
 
 
@@ -130,9 +130,9 @@ async def seed002_benchmark(io_map: str) -> int:
 
     from supervisor.app import build_bench
     from supervisor.config.bench import load_bench
-    from supervisor.sim.adam import AdamSimulator
-    from supervisor.sim.bms import SocketcandServer
-    from supervisor.sim.ea import EaSimulator
+    from supervisor.devices.adam.sim import AdamSimulator
+    from supervisor.devices.bms.sim import SocketcandServer
+    from supervisor.devices.ea.sim import EaSimulator
 
     data = yaml.safe_load(Path(io_map).read_text(encoding="utf-8"))  # noqa: ASYNC240 - setup
     data["devices"] = {k: v for k, v in data["devices"].items() if k in ("adam", "ea", "bms")}

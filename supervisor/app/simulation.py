@@ -24,11 +24,11 @@ from supervisor.config.models import (
     SimulationConfig,
 )
 from supervisor.core.clock import Clock
-from supervisor.protocols.bms import BmsValues
-from supervisor.sim.adam import AdamSimulator
+from supervisor.devices.adam.sim import AdamSimulator
+from supervisor.devices.bms.protocol import BmsValues
+from supervisor.devices.bms.sim import BmsSimulator, SocketcandServer
+from supervisor.devices.ea.sim import EaSimulator
 from supervisor.sim.battery import BatteryModel, make_model
-from supervisor.sim.bms import BmsSimulator, SocketcandServer
-from supervisor.sim.ea import EaSimulator
 from supervisor.sim.plant import BenchPlant
 
 log = logging.getLogger(__name__)

@@ -9,12 +9,12 @@ from dataclasses import dataclass, field
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-import supervisor.drivers.base as base
+import supervisor.devices.base as base
 from supervisor.core.clock import RealClock
 from supervisor.core.quality import Quality, Reason
-from supervisor.drivers.adam import AdamDriver, AdamModule
-from supervisor.protocols.adam import lsb
-from supervisor.sim.adam import AdamSimulator
+from supervisor.devices.adam.driver import AdamDriver, AdamModule
+from supervisor.devices.adam.protocol import lsb
+from supervisor.devices.adam.sim import AdamSimulator
 
 pytestmark = pytest.mark.integration
 
@@ -104,10 +104,10 @@ def test_points() -> None:
 
 
 def test_fast_polling_of_a_5017_warns(caplog: pytest.LogCaptureFixture) -> None:
-    with caplog.at_level(logging.WARNING, logger="supervisor.drivers.adam"):
+    with caplog.at_level(logging.WARNING, logger="supervisor.devices.adam.driver"):
         AdamDriver("fast", RealClock(), "127.0.0.1", 1, {0: AdamModule("5018")}, poll_period_s=0.05)
     assert not caplog.records
-    with caplog.at_level(logging.WARNING, logger="supervisor.drivers.adam"):
+    with caplog.at_level(logging.WARNING, logger="supervisor.devices.adam.driver"):
         AdamDriver("fast", RealClock(), "127.0.0.1", 1, {0: AdamModule("5017")}, poll_period_s=0.05)
     assert any("fast" in r.getMessage() and "5017" in r.getMessage() for r in caplog.records)
 

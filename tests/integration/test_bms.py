@@ -13,10 +13,10 @@ import pytest
 
 from supervisor.core.clock import Clock, RealClock, VirtualClock
 from supervisor.core.quality import Quality, Reason
-from supervisor.drivers import base
-from supervisor.drivers.bms import POINTS, BmsDriver, socketcand_bus_factory
-from supervisor.protocols.bms import BmsValues
-from supervisor.sim.bms import BmsSimulator, SocketcandServer
+from supervisor.devices import base
+from supervisor.devices.bms.driver import POINTS, BmsDriver, socketcand_bus_factory
+from supervisor.devices.bms.protocol import BmsValues
+from supervisor.devices.bms.sim import BmsSimulator, SocketcandServer
 
 pytestmark = pytest.mark.integration
 

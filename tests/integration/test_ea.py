@@ -11,10 +11,10 @@ import pytest
 
 from supervisor.core.clock import RealClock
 from supervisor.core.quality import Quality, Reason
-from supervisor.drivers.ea import EaDriver
-from supervisor.protocols.scpi import QUES_OCP_BIT, WATCHDOG_ENABLE_HEADER
+from supervisor.devices.ea.driver import EaDriver
+from supervisor.devices.ea.protocol import QUES_OCP_BIT, WATCHDOG_ENABLE_HEADER
+from supervisor.devices.ea.sim import EaSimulator
 from supervisor.sim.battery import make_model
-from supervisor.sim.ea import EaSimulator
 from supervisor.sim.plant import BenchPlant
 
 pytestmark = pytest.mark.integration
@@ -259,7 +259,7 @@ async def test_zero_current_stops_both_directions(driver: EaDriver, plant: Bench
 async def test_a_current_beyond_the_limits_is_clamped_with_a_warning(
     driver: EaDriver, plant: BenchPlant, caplog: pytest.LogCaptureFixture
 ) -> None:
-    with caplog.at_level(logging.WARNING, logger="supervisor.drivers.ea"):
+    with caplog.at_level(logging.WARNING, logger="supervisor.devices.ea.driver"):
         await charge(driver, 50.0)
     assert plant.supply.curr_set_a == pytest.approx(5.0)
     assert any("clamped" in r.getMessage() and "psu" in r.getMessage() for r in caplog.records)
@@ -344,7 +344,7 @@ async def test_a_silent_device_times_out_and_no_late_reply_is_taken_later(
 async def test_stopping_the_device_marks_inputs_bad_and_restarting_makes_them_good(
     driver: EaDriver, sim: EaSimulator, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr("supervisor.drivers.base.BACKOFF_START_S", 0.0)
+    monkeypatch.setattr("supervisor.devices.base.BACKOFF_START_S", 0.0)
     port = sim.port
     await sim.stop()
     await driver.poll()
@@ -387,7 +387,7 @@ async def test_safe_state_without_a_link_logs_and_does_not_raise(
     make_driver: MakeDriver, caplog: pytest.LogCaptureFixture
 ) -> None:
     d = make_driver()
-    with caplog.at_level(logging.ERROR, logger="supervisor.drivers.base"):
+    with caplog.at_level(logging.ERROR, logger="supervisor.devices.base"):
         await d.safe_state()
     assert any("safe state" in r.getMessage() for r in caplog.records)
 

@@ -23,9 +23,9 @@ from supervisor.app import Bench, build_bench
 from supervisor.config.bench import load_bench
 from supervisor.core.clock import RealClock
 from supervisor.core.quality import Quality
-from supervisor.drivers import base
+from supervisor.devices import base
+from supervisor.devices.ea.sim import EaSimulator
 from supervisor.sim.battery import make_model
-from supervisor.sim.ea import EaSimulator
 from supervisor.sim.plant import BenchPlant
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -20,7 +20,7 @@ import yaml
 from supervisor.app import build_bench
 from supervisor.config.bench import load_bench
 from supervisor.core.clock import VirtualClock
-from supervisor.sim.chadeche import SimChadecheBus
+from supervisor.devices.chadeche.sim import SimChadecheBus
 
 ROOT = Path(__file__).resolve().parents[2]
 SIM = ROOT / "io_maps" / "sim.yaml"

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from supervisor.protocols.adam import (
+from supervisor.devices.adam.protocol import (
     ANALOG_READ_FUNCTION,
     MODULE_KINDS,
     OFFSET_BINARY_SPAN,

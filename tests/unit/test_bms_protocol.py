@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from supervisor.core.errors import ProtocolError
-from supervisor.protocols.bms import (
+from supervisor.devices.bms.protocol import (
     BMS_CURRENT_SIGN,
     FRAME_IDS,
     PACK_CURRENT_ID,

@@ -18,14 +18,14 @@ import pytest
 from supervisor.core.clock import VirtualClock
 from supervisor.core.errors import DeviceIOError
 from supervisor.core.quality import Quality, Reason
-from supervisor.drivers.base import BACKOFF_START_S
-from supervisor.drivers.chadeche import (
+from supervisor.devices.base import BACKOFF_START_S
+from supervisor.devices.chadeche import (
     RELAY_SETTLE_S,
     ChadecheDriver,
     SpidevBus,
     claim_board,
 )
-from supervisor.protocols.chadeche import (
+from supervisor.devices.chadeche.protocol import (
     Calibration,
     Chip,
     DacChannel,
@@ -33,7 +33,7 @@ from supervisor.protocols.chadeche import (
     decode_dac_word,
     decode_latch,
 )
-from supervisor.sim.chadeche import SimBoard, SimChadecheBus, SimTransfer
+from supervisor.devices.chadeche.sim import SimBoard, SimChadecheBus, SimTransfer
 
 
 class FakeCell:
@@ -230,7 +230,7 @@ async def test_current_above_400_ma_is_clamped_to_400_ma_and_logged(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     rig = await connected_rig()
-    with caplog.at_level(logging.WARNING, logger="supervisor.drivers.chadeche.driver"):
+    with caplog.at_level(logging.WARNING, logger="supervisor.devices.chadeche.driver"):
         rig.driver.write("b0.current_set", 0.5)
         await rig.driver.poll()
     assert rig.sim(0).current_a == pytest.approx(0.4)

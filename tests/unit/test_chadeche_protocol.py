@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from supervisor.core.errors import ProtocolError
-from supervisor.protocols.chadeche import (
+from supervisor.devices.chadeche.protocol import (
     ADC_MAX_CODE,
     CHIP_SELECT_GPIO,
     DAC_MAX_CODE,

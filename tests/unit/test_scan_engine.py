@@ -10,7 +10,7 @@ from supervisor.core.clock import VirtualClock
 from supervisor.core.driver import PointInfo, Sample, Value
 from supervisor.core.errors import DeviceIOError
 from supervisor.core.quality import Quality, Reason
-from supervisor.drivers.base import PolledDriver
+from supervisor.devices.base import PolledDriver
 from supervisor.scan import InputBinding, LogicPhase, OutputBinding, ScanEngine
 from supervisor.tags import Scaling, TagDB, TagSpec
 

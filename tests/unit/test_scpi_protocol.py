@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from supervisor.core.errors import ProtocolError
-from supervisor.protocols.scpi import (
+from supervisor.devices.ea.protocol import (
     COMMAND_SEPARATOR,
     Command,
     Identity,

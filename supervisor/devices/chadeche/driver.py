@@ -27,9 +27,9 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
 from supervisor.core.errors import DeviceIOError, ProtocolError, SupervisorError
 from supervisor.core.quality import Quality, Reason
-from supervisor.drivers.base import PolledDriver
-from supervisor.drivers.chadeche.bus import BoardClaim, ChadecheBus, SpidevBus, claim_board
-from supervisor.protocols.chadeche import (
+from supervisor.devices.base import PolledDriver
+from supervisor.devices.chadeche.bus import BoardClaim, ChadecheBus, SpidevBus, claim_board
+from supervisor.devices.chadeche.protocol import (
     ADC_MAX_CODE,
     ADC_READ,
     BOARD_ADDRESSES,

@@ -20,7 +20,7 @@ from types import TracebackType
 from typing import Any, Protocol
 
 from supervisor.core.errors import DeviceIOError
-from supervisor.protocols.chadeche import (
+from supervisor.devices.chadeche.protocol import (
     A0_GPIO,
     A1_GPIO,
     BOARD_ADDRESSES,

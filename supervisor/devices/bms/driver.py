@@ -42,8 +42,8 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
 from supervisor.core.errors import DeviceIOError, DeviceTimeout, ProtocolError
 from supervisor.core.quality import Quality, Reason
-from supervisor.drivers.base import PolledDriver
-from supervisor.protocols.bms import (
+from supervisor.devices.base import PolledDriver
+from supervisor.devices.bms.protocol import (
     BMS_CURRENT_SIGN,
     PACK_CURRENT_ID,
     PACK_TEMPERATURES_ID,

@@ -26,7 +26,7 @@ from collections import deque
 from collections.abc import Callable
 
 from supervisor.core.errors import ProtocolError
-from supervisor.protocols.scpi import (
+from supervisor.devices.ea.protocol import (
     ERR_COMMAND,
     ERR_DATA_OUT_OF_RANGE,
     ERR_INVALID_IN_LOCAL,

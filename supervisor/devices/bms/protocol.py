@@ -37,7 +37,7 @@ from supervisor.core.errors import ProtocolError
 DEVICE: Final = "bms"
 
 DBC_RESOURCE: Final = "bms.dbc"
-"""File name of the DBC inside the ``supervisor.protocols`` package (package data)."""
+"""File name of the DBC inside this package (package data)."""
 
 PACK_VOLTAGES_ID: Final = 0x1B0
 PACK_CURRENT_ID: Final = 0x2B0
@@ -78,7 +78,7 @@ class UnknownFrameError(ProtocolError):
 @cache
 def load_database() -> Database:
     """The BMS DBC, parsed once (strict: overlapping or out-of-frame signals are errors)."""
-    text = resources.files("supervisor.protocols").joinpath(DBC_RESOURCE).read_text("utf-8")
+    text = resources.files("supervisor.devices.bms").joinpath(DBC_RESOURCE).read_text("utf-8")
     db = cantools.database.load_string(text, database_format="dbc")
     if not isinstance(db, Database):  # pragma: no cover - a DBC always gives a CAN database
         raise TypeError(f"{DBC_RESOURCE} is not a CAN database")

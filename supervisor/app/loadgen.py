@@ -7,7 +7,7 @@ from collections.abc import Mapping
 
 from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
-from supervisor.drivers.base import PolledDriver
+from supervisor.devices.base import PolledDriver
 
 
 class SignalGenerator(PolledDriver):

@@ -1,6 +1,6 @@
 """Chadèche charger/discharger boards on one SPI bus (seed 000)."""
 
-from supervisor.drivers.chadeche.bus import (
+from supervisor.devices.chadeche.bus import (
     BoardClaim,
     ChadecheBus,
     SpidevBus,
@@ -8,7 +8,7 @@ from supervisor.drivers.chadeche.bus import (
     claim_board,
     default_lock_dir,
 )
-from supervisor.drivers.chadeche.driver import RELAY_SETTLE_S, ChadecheDriver
+from supervisor.devices.chadeche.driver import RELAY_SETTLE_S, ChadecheDriver
 
 __all__ = [
     "RELAY_SETTLE_S",

@@ -1,7 +1,7 @@
 """ADAM-5000/TCP over Modbus TCP: register map and raw number codecs (no I/O here).
 
-Shared by the driver (:mod:`supervisor.drivers.adam`) and the simulator
-(:mod:`supervisor.sim.adam`). Facts come from ``shared/reference/devices.md``
+Shared by the driver (:mod:`supervisor.devices.adam.driver`) and the simulator
+(:mod:`supervisor.devices.adam.sim`). Facts come from ``shared/reference/devices.md``
 ("ADAM-5000/TCP"): the address rules are verified, the raw number format of analog values
 over Modbus is not. Every uncertain fact is ONE named constant marked UNVERIFIED, so that a
 measurement on the real unit corrects it in one place.

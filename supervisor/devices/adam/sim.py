@@ -1,7 +1,7 @@
 """A Modbus TCP server laid out like an ADAM-5000/TCP with I/O modules in its slots.
 
 Real pymodbus server (``ModbusTcpServer`` with a ``SimDevice``), so the driver is tested over
-real sockets. The register map is :mod:`supervisor.protocols.adam`:
+real sockets. The register map is :mod:`supervisor.devices.adam.protocol`:
 
 - analog inputs of 5017/5018 slots are served both as holding registers (FC03) and as input
   registers (FC04); every read request samples the callables again (live values);
@@ -26,7 +26,7 @@ from pymodbus.pdu import ModbusPDU
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from supervisor.protocols.adam import (
+from supervisor.devices.adam.protocol import (
     COILS_PER_SLOT,
     DEFAULT_RAW_FORMAT,
     FC_READ_HOLDING_REGISTERS,

@@ -8,7 +8,7 @@ Points per slot ``n`` (channel ``k`` from 0):
 - 5060 / 5069: ``slot{n}.do{k}`` (out, bool, True = relay energised) and
   ``slot{n}.do{k}_fb`` (in, bool, coil read back), k = 0..5 / 0..7.
 
-Each poll reads one block per slot (:data:`~supervisor.protocols.adam.ANALOG_READ_FUNCTION`
+Each poll reads one block per slot (:data:`~supervisor.devices.adam.protocol.ANALOG_READ_FUNCTION`
 for analog slots, FC01 for relay slots). A Modbus exception answer makes that slot's inputs
 BAD ``DEVICE_ERROR`` (code in ``last_error`` and ``raw_log``), a short answer makes them BAD
 ``COMM_FAILURE``; other slots are unaffected. A lost or silent connection raises
@@ -33,8 +33,7 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
 from supervisor.core.errors import DeviceIOError, DeviceTimeout, ProtocolError, SupervisorError
 from supervisor.core.quality import Quality, Reason
-from supervisor.drivers.base import PolledDriver
-from supervisor.protocols.adam import (
+from supervisor.devices.adam.protocol import (
     ANALOG_READ_FUNCTION,
     FC_READ_COILS,
     FC_READ_HOLDING_REGISTERS,
@@ -47,6 +46,7 @@ from supervisor.protocols.adam import (
     is_burnout,
     raw_to_value,
 )
+from supervisor.devices.base import PolledDriver
 
 log = logging.getLogger(__name__)
 

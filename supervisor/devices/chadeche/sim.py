@@ -17,7 +17,7 @@ from typing import Protocol
 
 from supervisor.core.clock import Clock
 from supervisor.core.errors import DeviceIOError, ProtocolError
-from supervisor.protocols.chadeche import (
+from supervisor.devices.chadeche.protocol import (
     DAC_LSB_MA,
     Chip,
     DacChannel,

@@ -27,7 +27,7 @@ Safety of the link (devices.md "EA-PSB 10000"):
 Modbus TCP (port 502) as a second transport is deliberately NOT implemented: part of its
 register map (sink set values, limits, nominal values, the state bits 0–4/9–10/12) is only
 [S] and the sign of the sink current over Modbus is [U] in devices.md, whereas the SCPI
-subset used here is [V] except for the constants marked in :mod:`supervisor.protocols.scpi`.
+subset used here is [V] except for the constants marked in :mod:`supervisor.devices.ea.protocol`.
 """
 
 from __future__ import annotations
@@ -43,8 +43,8 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
 from supervisor.core.errors import DeviceIOError, DeviceTimeout, ProtocolError
 from supervisor.core.quality import Quality, Reason
-from supervisor.drivers.base import PolledDriver
-from supervisor.protocols.scpi import (
+from supervisor.devices.base import PolledDriver
+from supervisor.devices.ea.protocol import (
     MAX_LINE_BYTES,
     QUES_OCP_BIT,
     QUES_OPP_BIT,

@@ -4,7 +4,7 @@ It has the EA driver's points (``voltage``, ``current``, ``power``, ``output_on`
 outputs ``output``, ``current_set``, ``voltage_set``) and the same regulation (CV at
 the voltage set value bounded by the source and sink current limits, via
 ``BenchPlant``), but no socket: a dry run on the virtual clock stays deterministic and
-fast. Real benches use ``supervisor.drivers.ea.EaDriver`` over SCPI.
+fast. Real benches use ``supervisor.devices.ea.driver.EaDriver`` over SCPI.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from collections.abc import Mapping
 
 from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
-from supervisor.drivers.base import PolledDriver
+from supervisor.devices.base import PolledDriver
 from supervisor.sim.plant import BenchPlant
 
 _POINTS = {

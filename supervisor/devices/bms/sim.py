@@ -34,7 +34,7 @@ from typing import Any
 import can
 
 from supervisor.core.clock import Clock
-from supervisor.protocols.bms import FRAME_IDS, BmsValues, encode_values, period_s
+from supervisor.devices.bms.protocol import FRAME_IDS, BmsValues, encode_values, period_s
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,1 @@
+"""Devices: one package per kind (codec, config and point catalog, driver, simulator)."""
