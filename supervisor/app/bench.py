@@ -4,44 +4,24 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import can
-
-from supervisor.app.simulation import SimulatedBench, build_simulation, cell_model, make_plant
+from supervisor.app.simulation import SimulatedBench, build_simulation
 from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target, compile_recipe
 from supervisor.chains.engine import ChainEvent, ChainRunner, Record, State
 from supervisor.channels import Channel, ChannelLimits
-from supervisor.config.models import (
-    AdamDevice,
-    BenchConfig,
-    BmsDevice,
-    ChadecheDevice,
-    ChannelConfig,
-    EaDevice,
-    LinearScaling,
-    SimSupplyDevice,
-    TagMapping,
-)
+from supervisor.config.models import BenchConfig, LinearScaling, TagMapping
 from supervisor.config.recipe import load_recipe
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver, DType
 from supervisor.core.errors import OperatorError
 from supervisor.core.units import UNITS, Dim
-from supervisor.devices.adam.driver import AdamDriver, AdamModule
-from supervisor.devices.bms.driver import BmsDriver, socketcand_bus_factory
-from supervisor.devices.chadeche import ChadecheDriver
-from supervisor.devices.chadeche.bus import ChadecheBus, SpidevBus
-from supervisor.devices.chadeche.protocol import Calibration
-from supervisor.devices.chadeche.sim import SimBoard, SimChadecheBus
-from supervisor.devices.ea.driver import EaDriver
-from supervisor.devices.sim_supply.driver import PlantSupplyDriver
+from supervisor.devices.kind import DriverWiring
+from supervisor.devices.registry import kind_of
 from supervisor.publish.results import ResultCollector
 from supervisor.scan import InputBinding, LogicPhase, OutputBinding, Publisher, ScanEngine
 from supervisor.sim.battery import BatteryModel
-from supervisor.sim.plant import BenchPlant
 from supervisor.tags import AlarmLimits, HistorySettings, Scaling, TagDB, TagSpec
 
 log = logging.getLogger(__name__)
@@ -60,23 +40,20 @@ class Bench:
     engine: ScanEngine
     drivers: dict[str, Driver]
     channels: dict[str, Channel]
-    cells: dict[str, BatteryModel] = field(default_factory=dict)  # simulation only
-    buses: list[ChadecheBus] = field(default_factory=list)
     sim: SimulatedBench | None = None
     runners: dict[str, ChainRunner] = field(default_factory=dict)
-    plant: BenchPlant | None = None  # the dry-run supply's battery
     results: dict[str, ResultCollector] = field(default_factory=dict)
     _started: bool = False
 
     def target(self, channel: str) -> Target:
         """What a recipe may ask of this channel (checked before start)."""
         c = next(c for c in self.cfg.channels if c.name == channel)
-        dev = self.cfg.devices[c.source.device]
-        cv = not isinstance(dev, ChadecheDevice)
+        spec = self.cfg.devices[c.source.device].channel_source()
+        assert spec is not None  # refused by the bench checks
         return Target(
             channel=channel,
-            capabilities=WITH_CV if cv else CC_ONLY,
-            no_cv_reason="a Chadèche board drives a constant current only (no voltage regulation)",
+            capabilities=WITH_CV if spec.regulates_voltage else CC_ONLY,
+            no_cv_reason=spec.no_cv_reason,
             capacity_ah=c.capacity_ah,
             current_limits_a=c.limits.current_a,
             tags=self.tag_dims(),
@@ -131,6 +108,11 @@ class Bench:
                 out[t.name] = UNIT_DIMS.get(t.spec.unit, Dim.NONE)
         return out
 
+    @property
+    def cells(self) -> dict[str, BatteryModel]:
+        """Battery models of the simulated Chadèche boards, by ``<device>.b<address>``."""
+        return self.sim.cells if self.sim is not None else {}
+
     async def start(self) -> None:
         """Start the in-process simulators (if the I/O map has any) before scanning."""
         if self.sim is not None and not self._started:
@@ -160,14 +142,9 @@ class Bench:
                 await d.close()
             except Exception:
                 log.exception("%s: close failed", d.name)
-        for bus in self.buses:
-            try:
-                bus.close()
-            except Exception:
-                log.exception("bus close failed")
-        if self.sim is not None and self._started:
+        if self.sim is not None:
             await self.sim.stop()
-            self._started = False
+        self._started = False
         log.info("bench %s: all outputs safe", self.cfg.bench)
 
 
@@ -206,104 +183,33 @@ def build_bench(
     publishers: list[Publisher] | None = None,
     *,
     simulate: bool = True,
+    in_process: bool = False,
 ) -> Bench:
-    """Wire a bench. ``simulate=False`` skips the in-process simulators of ``sim: true``
-    devices (another process, e.g. ``supervisor sim``, serves them)."""
+    """Wire a bench.
+
+    ``simulate=False`` skips the simulators of ``sim: true`` devices (another process, e.g.
+    ``supervisor sim``, serves them). ``in_process=True`` has every driver of a simulated
+    device talk to its simulator in this process instead of over loopback (dry runs and
+    virtual-clock tests: deterministic, nothing listens). A kind whose simulator cannot be
+    served (a simulated SPI bus) is always in process.
+    """
     db = TagDB()
+    sim = build_simulation(cfg, clock, in_process_only=not simulate, in_process=in_process)
     drivers: dict[str, Driver] = {}
-    cells: dict[str, BatteryModel] = {}
-    buses: list[ChadecheBus] = []
     stale: dict[str, float] = {}
-    plant: BenchPlant | None = None
     for name, dev in cfg.devices.items():
-        if isinstance(dev, ChadecheDevice):
-            cal = {
-                b.address: Calibration(
-                    current_slope=b.calibration.current_slope,
-                    current_offset_ma=b.calibration.current_offset_ma,
-                    voltage_slope=b.calibration.voltage_slope,
-                    voltage_offset_v=b.calibration.voltage_offset_v,
-                )
-                for b in dev.boards
-            }
-            bus: ChadecheBus
-            if dev.backend == "sim":
-                sim_boards = {}
-                for b in dev.boards:
-                    cell = cell_model(b.sim)
-                    cells[f"{name}.b{b.address}"] = cell
-                    sim_boards[b.address] = SimBoard(cell)
-                bus = SimChadecheBus(clock, sim_boards)
-            else:
-                bus = SpidevBus(
-                    spi_bus=dev.spi.bus,
-                    spi_device=dev.spi.device,
-                    max_speed_hz=dev.spi.max_speed_hz,
-                    lock_dir=dev.lock_dir,
-                )
-            buses.append(bus)
-            drivers[name] = ChadecheDriver(
-                name, clock, bus, cal, poll_period_s=dev.poll_period_s, lock_dir=dev.lock_dir
-            )
-            stale[name] = dev.stale_after_s
-        elif isinstance(dev, AdamDevice):
-            drivers[name] = AdamDriver(
-                name,
-                clock,
-                dev.host,
-                dev.port,
-                {slot: AdamModule(m.kind, m.raw_format) for slot, m in sorted(dev.modules.items())},
-                unit_id=dev.unit_id,
-                poll_period_s=dev.poll_period_s,
-                timeout_s=dev.timeout_s,
-            )
-            stale[name] = dev.stale_after_s
-        elif isinstance(dev, EaDevice):
-            owner = _owner(cfg, name)
-            lo, hi = owner.limits.current_a
-            drivers[name] = EaDriver(
-                name,
-                clock,
-                dev.host,
-                dev.port,
-                v_min=owner.limits.voltage_v[0],
-                v_max=owner.limits.voltage_v[1],
-                i_charge_max_a=hi,
-                i_discharge_max_a=-lo,
-                expected_model=dev.expected_model,
-                poll_period_s=dev.poll_period_s,
-                watchdog_s=dev.watchdog_s,
-                timeout_s=dev.timeout_s,
-            )
-            stale[name] = dev.stale_after_s
-        elif isinstance(dev, SimSupplyDevice):
-            owner = _owner(cfg, name)
-            if plant is None:
-                plant = make_plant(cfg, clock)
-            drivers[name] = PlantSupplyDriver(
-                name,
-                clock,
-                plant,
-                v_min=owner.limits.voltage_v[0],
-                v_max=owner.limits.voltage_v[1],
-                poll_period_s=dev.poll_period_s,
-            )
-            stale[name] = dev.stale_after_s
-        elif isinstance(dev, BmsDevice):
-            drivers[name] = BmsDriver(
-                name,
-                clock,
-                _can_factory(dev),
-                poll_period_s=dev.poll_period_s,
-                stale_factor=dev.stale_factor,
-            )
-            stale[name] = dev.stale_after_s
+        kind = kind_of(dev)
+        own = sim.devices.get(name) if sim is not None else None
+        linked = own is not None and (in_process or kind.in_process_only)
+        wiring = DriverWiring(clock, cfg, own if linked else None)
+        drivers[name] = kind.build_driver(name, dev, wiring)
+        stale[name] = dev.stale_after_s
 
     inputs: list[InputBinding] = []
     outputs: list[OutputBinding] = []
     for m in cfg.tags:
         drv = drivers[m.device]
-        info = drv.points()[m.point]
+        info = cfg.devices[m.device].points()[m.point]
         spec = _tag_spec(m, "bool" if m.threshold is not None else info.dtype)
         tag = db.add(spec)
         if info.direction == "in":
@@ -322,8 +228,9 @@ def build_bench(
 
     channels: dict[str, Channel] = {}
     for c in cfg.channels:
-        dev = cfg.devices[c.source.device]
-        is_ea = isinstance(dev, EaDevice | SimSupplyDevice)
+        source = cfg.devices[c.source.device].channel_source()
+        assert source is not None and source.points is not None  # refused by the bench checks
+        pts = source.points(c.source.board)
         ch = Channel(
             c.name,
             db,
@@ -334,21 +241,20 @@ def build_bench(
             current_tag=c.current_tag,
             contactor_tag=c.contactor_tag,
             permissives=tuple(c.permissives),
-            has_output_switch=is_ea,
-            has_voltage_setpoint=is_ea,
+            has_output_switch=pts.output is not None,
+            has_voltage_setpoint=pts.voltage_set is not None,
         )
         drv = drivers[c.source.device]
-        prefix = "" if is_ea else f"b{c.source.board}."
         st = stale[c.source.device]
         if c.voltage_tag is None:
-            inputs.append(InputBinding(ch.voltage, drv, f"{prefix}voltage", None, st))
+            inputs.append(InputBinding(ch.voltage, drv, pts.voltage, None, st))
         if c.current_tag is None:
-            inputs.append(InputBinding(ch.current, drv, f"{prefix}current", None, st))
-        outputs.append(OutputBinding(ch.current_cmd, drv, f"{prefix}current_set"))
-        if ch.output_cmd is not None:
-            outputs.append(OutputBinding(ch.output_cmd, drv, "output"))
-        if ch.voltage_cmd is not None:
-            outputs.append(OutputBinding(ch.voltage_cmd, drv, "voltage_set"))
+            inputs.append(InputBinding(ch.current, drv, pts.current, None, st))
+        outputs.append(OutputBinding(ch.current_cmd, drv, pts.current_set))
+        if ch.output_cmd is not None and pts.output is not None:
+            outputs.append(OutputBinding(ch.output_cmd, drv, pts.output))
+        if ch.voltage_cmd is not None and pts.voltage_set is not None:
+            outputs.append(OutputBinding(ch.voltage_cmd, drv, pts.voltage_set))
         channels[c.name] = ch
 
     runners = {name: ChainRunner(ch, db, clock) for name, ch in channels.items()}
@@ -369,21 +275,4 @@ def build_bench(
         phases=phases,
         publishers=publishers or [],
     )
-    sim = build_simulation(cfg, clock) if simulate else None
-    bench = Bench(cfg, clock, db, engine, drivers, channels, cells, buses, sim, runners)
-    bench.plant = plant
-    return bench
-
-
-def _owner(cfg: BenchConfig, device: str) -> ChannelConfig:
-    for c in cfg.channels:
-        if c.source.device == device:
-            return c
-    raise ValueError(f"device {device!r} drives no channel")  # refused by check_bench
-
-
-def _can_factory(dev: BmsDevice) -> Callable[[], can.BusABC]:
-    if dev.interface == "socketcand":
-        # Probes the server first: python-can's client otherwise spins while it is down.
-        return socketcand_bus_factory(dev.host, dev.port, dev.channel)
-    return lambda: can.Bus(interface=dev.interface, channel=dev.channel)
+    return Bench(cfg, clock, db, engine, drivers, channels, sim, runners)

@@ -8,8 +8,8 @@ import time
 
 from supervisor.app.loadgen import SignalGenerator
 from supervisor.channels import Channel, ChannelLimits
-from supervisor.config.models import BenchConfig
 from supervisor.core.clock import RealClock, VirtualClock
+from supervisor.devices.registry import bench_from_data
 from supervisor.scan import InputBinding, LogicPhase, OutputBinding, ScanEngine, ScanStats
 from supervisor.tags import TagDB, TagSpec
 
@@ -77,7 +77,7 @@ async def manual_charge_benchmark(hours: float) -> int:
     """Simulated hours of Manual charge on the sim bench, on the virtual clock."""
     from supervisor.app import build_bench
 
-    cfg = BenchConfig.model_validate(
+    cfg = bench_from_data(
         {
             "bench": "benchmark",
             "scan": {"period_s": 0.1},
@@ -129,10 +129,9 @@ async def seed002_benchmark(io_map: str) -> int:
     import yaml
 
     from supervisor.app import build_bench
-    from supervisor.config.bench import load_bench
-    from supervisor.devices.adam.sim import AdamSimulator
-    from supervisor.devices.bms.sim import SocketcandServer
-    from supervisor.devices.ea.sim import EaSimulator
+    from supervisor.devices.bms.sim import SimulatedBms, SocketcandServer
+    from supervisor.devices.kind import DeviceSimulator
+    from supervisor.devices.registry import load_bench
 
     data = yaml.safe_load(Path(io_map).read_text(encoding="utf-8"))  # noqa: ASYNC240 - setup
     data["devices"] = {k: v for k, v in data["devices"].items() if k in ("adam", "ea", "bms")}
@@ -173,10 +172,12 @@ async def seed002_benchmark(io_map: str) -> int:
         )
         sim = bench.sim
         assert sim is not None
-        servers: dict[str, AdamSimulator | EaSimulator | SocketcandServer] = {
-            "adam": sim.adam["adam"],
-            "ea": sim.ea["ea"],
-            "bms": sim.socketcand["bms"],
+        bms = sim.devices["bms"]
+        assert isinstance(bms, SimulatedBms) and bms.server is not None
+        servers: dict[str, DeviceSimulator | SocketcandServer] = {
+            "adam": sim.devices["adam"],
+            "ea": sim.devices["ea"],
+            "bms": bms.server,  # the link only: the BMS itself keeps sending
         }
         probe = {"adam": "pack.voltage", "ea": "ch4.voltage", "bms": "bms.voltage"}
         for name, server in servers.items():

@@ -29,10 +29,10 @@ import yaml
 from yaml.error import MarkedYAMLError
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
-from supervisor.config.bench import load_bench_text
-from supervisor.config.models import ChadecheDevice
 from supervisor.config.yamlpos import load_yaml_text
 from supervisor.core.errors import ConfigError, ConfigErrors
+from supervisor.devices.chadeche.config import ChadecheDevice
+from supervisor.devices.registry import load_bench_text
 from supervisor.importers.chadeche import yaml_float
 
 __all__ = [

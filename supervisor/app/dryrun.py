@@ -20,6 +20,7 @@ from supervisor.config.models import BenchConfig
 from supervisor.config.recipe import load_recipe
 from supervisor.core.clock import VirtualClock
 from supervisor.core.units import parse_quantity
+from supervisor.devices.registry import bench_from_data
 from supervisor.publish.results import ResultCollector
 
 TERMINAL = (State.COMPLETE, State.STOPPED, State.ABORTED, State.HELD)
@@ -51,7 +52,7 @@ def dry_run_config(
     model: str, capacity_ah: float, soc: float, period_s: float, cells: int = 1
 ) -> BenchConfig:
     if model == "nimh-aa":
-        return BenchConfig.model_validate(
+        return bench_from_data(
             {
                 "bench": "dry_run",
                 "scan": {"period_s": period_s},
@@ -78,7 +79,7 @@ def dry_run_config(
                 ],
             }
         )
-    return BenchConfig.model_validate(
+    return bench_from_data(
         {
             "bench": "dry_run",
             "scan": {"period_s": period_s},

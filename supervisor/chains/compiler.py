@@ -8,7 +8,6 @@ cannot do (CV on a Chadèche board).
 
 from __future__ import annotations
 
-import csv
 import difflib
 import re
 from collections.abc import Mapping, Sequence
@@ -16,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from supervisor.chains.expr import Expr, ExprError, Signature, compile_condition
+from supervisor.chains.profile_csv import read_profile_csv
 from supervisor.chains.program import (
     Action,
     ActionKind,
@@ -58,8 +58,6 @@ CC_ONLY = frozenset(
 )
 WITH_CV = CC_ONLY | {"cv", "cccv"}
 
-_WHY_NO_CV = "a Chadèche board drives a constant current only (no voltage regulation)"
-
 
 @dataclass
 class Target:
@@ -67,7 +65,7 @@ class Target:
 
     channel: str | None = None
     capabilities: frozenset[str] = WITH_CV
-    no_cv_reason: str = _WHY_NO_CV
+    no_cv_reason: str = "its source drives a constant current only (no voltage regulation)"
     capacity_ah: float | None = None
     current_limits_a: tuple[float, float] | None = None
     tags: Mapping[str, Dim] = field(default_factory=dict)
@@ -460,59 +458,3 @@ class _Compiler:
                     f"loop with no exit and no duration: {path_ids}",
                 )
                 return
-
-
-def read_profile_csv(path: Path) -> tuple[ProfilePoint, ...]:
-    """A load profile (seed 002 §2.3): time, current, then optional V/I/T min/max columns.
-
-    Accepts ``,`` ``;`` or tab separators, a header line, UTF-8 or CP1252, and
-    ``min/max`` pairs written in one cell as ``3.0/4.2``.
-    """
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"cannot read profile: {exc.strerror or exc}", path) from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        text = raw.decode("cp1252")
-    lines = text.splitlines()
-    if not lines:
-        raise ConfigError("profile is empty", path, 1, 1)
-    # On a tie prefer ";" and tab: "0;1,5" is a French decimal comma, not two fields.
-    dialect_sep = max((";", "\t", ","), key=lambda c: lines[0].count(c))
-    rows = list(csv.reader(lines, delimiter=dialect_sep))
-    out: list[ProfilePoint] = []
-    last_t = -1.0
-    for ln, row in enumerate(rows, start=1):
-        cells = [c.strip() for c in row]
-        if not any(cells):
-            continue
-        if dialect_sep != ",":
-            # Spreadsheets in French locales write decimal commas (seed 002 profiles).
-            cells = [c.replace(",", ".") for c in cells]
-        try:
-            t = float(cells[0])
-        except ValueError:
-            if ln == 1:
-                continue  # header
-            raise ConfigError(f"time {cells[0]!r} is not a number", path, ln, 1) from None
-        vals: list[float | None] = []
-        for c in cells[1:]:
-            for part in c.split("/") if "/" in c else [c]:
-                part = part.strip()
-                try:
-                    vals.append(float(part) if part else None)
-                except ValueError:
-                    raise ConfigError(f"{part!r} is not a number", path, ln, 1) from None
-        if not vals or vals[0] is None:
-            raise ConfigError("each row needs a current after the time", path, ln, 1)
-        if t <= last_t:
-            raise ConfigError(f"time {t:g} s does not increase", path, ln, 1)
-        last_t = t
-        vals += [None] * (7 - len(vals))
-        cur = vals[0]
-        out.append(ProfilePoint(t, cur, *vals[1:7]))
-    if not out:
-        raise ConfigError("profile has no rows", path, 1, 1)
-    return tuple(out)

@@ -42,8 +42,8 @@ def _setup_logging(level: str) -> None:
 # --- run -----------------------------------------------------------------------------
 async def _run(args: argparse.Namespace) -> int:
     from supervisor.app import build_bench
-    from supervisor.config.bench import load_bench
     from supervisor.core.clock import RealClock
+    from supervisor.devices.registry import load_bench
     from supervisor.hmi import HttpApi
 
     cfg = load_bench(args.io_map)
@@ -109,8 +109,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 # --- sim -----------------------------------------------------------------------------
 async def _sim(args: argparse.Namespace) -> int:
     from supervisor.app.simulation import build_simulation
-    from supervisor.config.bench import load_bench
     from supervisor.core.clock import RealClock
+    from supervisor.devices.registry import load_bench
     from supervisor.hmi import HttpApi
     from supervisor.tags import TagDB
 
@@ -156,9 +156,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
 # --- check ---------------------------------------------------------------------------
 def _check_one(path: Path) -> list[ConfigError]:
     from supervisor.chains.compiler import compile_recipe
-    from supervisor.config.bench import load_bench
     from supervisor.config.recipe import load_recipe
     from supervisor.config.yamlpos import load_yaml
+    from supervisor.devices.registry import load_bench
 
     try:
         data, _ = load_yaml(path)
@@ -190,8 +190,9 @@ def cmd_check(args: argparse.Namespace) -> int:
 # --- schema --------------------------------------------------------------------------
 def cmd_schema(args: argparse.Namespace) -> int:
     from supervisor.config.schema import write_schemas
+    from supervisor.devices.registry import BENCH_MODEL
 
-    for path in write_schemas(Path(args.out)):
+    for path in write_schemas(Path(args.out), BENCH_MODEL):
         _out(f"wrote {path}")
     return EXIT_OK
 

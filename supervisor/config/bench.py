@@ -6,38 +6,44 @@ device have that point? is a board owned twice?). Every error names file:line:co
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
-from supervisor.config.models import BenchConfig, ChadecheDevice, EaDevice, SimSupplyDevice
+from supervisor.config.models import BenchConfig, SourceSpec
 from supervisor.config.yamlpos import Positions, load_yaml, load_yaml_text, validate
+from supervisor.core.driver import PointInfo
 from supervisor.core.errors import ConfigError, ConfigErrors
 
-# Hardware maximum of a Chadèche board (seed 000 §II.C.4: 4.096 V DAC across 10 Ω).
-CHADECHE_MAX_CURRENT_A = 0.4
 DEVICE_STATUS_SUFFIXES = ("connected", "comm_failures")
 RESERVED_PREFIXES = ("scan.", "bench.")
 
 
-def load_bench(path: str | Path) -> BenchConfig:
-    """Load and fully check a bench file; raises ConfigErrors listing every problem."""
+def load_bench(path: str | Path, model: type[BenchConfig]) -> BenchConfig:
+    """Load and fully check a bench file against ``model`` (the registry's bench model);
+    raises ConfigErrors listing every problem."""
     try:
         data, pos = load_yaml(path)
     except ConfigError as exc:
         raise ConfigErrors([exc]) from None
-    return _checked(data, pos, str(path))
+    return _checked(data, pos, str(path), model)
 
 
-def load_bench_text(text: str, file: str) -> BenchConfig:
+def load_bench_text(text: str, file: str, model: type[BenchConfig]) -> BenchConfig:
     """The same checks on text not yet written (e.g. an I/O map about to be edited)."""
     try:
         data, pos = load_yaml_text(text, file)
     except ConfigError as exc:
         raise ConfigErrors([exc]) from None
-    return _checked(data, pos, file)
+    return _checked(data, pos, file, model)
 
 
-def _checked(data: object, pos: Positions, file: str) -> BenchConfig:
-    cfg = validate(BenchConfig, data, pos, file)
+def check_data(data: object, file: str, model: type[BenchConfig]) -> BenchConfig:
+    """The same checks on data built in code (no positions: errors point at its start)."""
+    return _checked(data, Positions(), file, model)
+
+
+def _checked(data: object, pos: Positions, file: str, model: type[BenchConfig]) -> BenchConfig:
+    cfg = validate(model, data, pos, file)
     errors = check_bench(cfg, pos, file)
     if errors:
         raise ConfigErrors(errors)
@@ -45,6 +51,8 @@ def _checked(data: object, pos: Positions, file: str) -> BenchConfig:
 
 
 def check_bench(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError]:
+    """Checks that need the whole file: does the device have that point? is a board owned
+    twice? Every device kind answers for itself (``DeviceConfig`` methods)."""
     errors: list[ConfigError] = []
 
     def err(path: tuple[str | int, ...], msg: str, at_key: bool = False) -> None:
@@ -52,18 +60,9 @@ def check_bench(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError
         m = m or pos.nearest(path)
         errors.append(ConfigError(msg, file, m.line, m.col))
 
-    # Boards: unique addresses per bus.
     for dname, dev in cfg.devices.items():
-        if isinstance(dev, ChadecheDevice):
-            seen: dict[int, int] = {}
-            for i, b in enumerate(dev.boards):
-                if b.address in seen:
-                    err(
-                        ("devices", dname, "boards", i, "address"),
-                        f"board address {b.address} is already used by boards[{seen[b.address]}]"
-                        f" of device {dname!r}",
-                    )
-                seen.setdefault(b.address, i)
+        for where, msg in dev.problems():
+            err(("devices", dname, *where), f"{msg} of device {dname!r}")
 
     # Tag mappings: known device and point; unique names; reserved namespaces.
     channel_names = {c.name for c in cfg.channels}
@@ -75,8 +74,8 @@ def check_bench(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError
                 ("tags", i, "device"),
                 f"unknown device {t.device!r} (devices: {', '.join(sorted(cfg.devices))})",
             )
-        elif t.point not in tdev.point_names():
-            points = sorted(tdev.point_names())
+        elif t.point not in tdev.points():
+            points = sorted(tdev.points())
             have = ", ".join(points[:12]) + (", ..." if len(points) > 12 else "")
             err(
                 ("tags", i, "point"),
@@ -96,6 +95,8 @@ def check_bench(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError
             err(("tags", i, "name"), f"tag name {t.name!r} is generated for device {head!r}")
 
     # Channels: unique names; source exists; one owner per board; limits within hardware.
+    sources = {n: s for n, d in cfg.devices.items() if (s := d.channel_source()) is not None}
+    nouns = list(dict.fromkeys(k.source_noun for k in type(cfg).device_kinds if k.source_noun))
     owners: dict[tuple[str, int], str] = {}
     ch_seen: set[str] = set()
     for i, ch in enumerate(cfg.channels):
@@ -109,28 +110,16 @@ def check_bench(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError
         if cdev is None:
             err(("channels", i, "source", "device"), f"unknown device {src.device!r}")
             continue
-        key: tuple[str, int]
-        if isinstance(cdev, ChadecheDevice):
-            if src.board is None:
-                err(("channels", i, "source"), f"device {src.device!r} needs a board: 0..3")
-                continue
-            if src.board not in {b.address for b in cdev.boards}:
-                err(
-                    ("channels", i, "source", "board"),
-                    f"device {src.device!r} has no board {src.board}"
-                    f" (boards: {', '.join(str(b.address) for b in cdev.boards)})",
-                )
-            key = (src.device, src.board)
-        elif isinstance(cdev, EaDevice | SimSupplyDevice):
-            if src.board is not None:
-                err(("channels", i, "source", "board"), "an EA supply has no boards")
-            key = (src.device, -1)
-        else:
+        spec = sources.get(src.device)
+        if spec is None:
             err(
                 ("channels", i, "source", "device"),
                 f"device {src.device!r} ({cdev.driver}) cannot drive a channel;"
-                " use a Chadèche board or an EA supply",
+                f" use {' or '.join(nouns) if nouns else 'a device that can'}",
             )
+            continue
+        key = _source_key(spec, src.device, src.board, ("channels", i, "source"), err)
+        if key is None:
             continue
         if key in owners:
             err(
@@ -148,7 +137,8 @@ def check_bench(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError
                 )
         if ch.contactor_tag in names:
             m = cfg.tags[names[ch.contactor_tag]]
-            if not m.point.split(".")[-1].startswith("do") or m.point.endswith("_fb"):
+            info = cfg.devices[m.device].points().get(m.point) if m.device in cfg.devices else None
+            if info is None or info.direction != "out" or info.dtype != "bool":
                 err(
                     ("channels", i, "contactor_tag"),
                     f"contactor_tag {ch.contactor_tag!r} must map a relay output (slotN.doK)",
@@ -156,25 +146,47 @@ def check_bench(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError
         for k, ref in enumerate(ch.permissives):
             if ref not in names:
                 err(("channels", i, "permissives", k), f"permissive {ref!r} is not a declared tag")
-        if not isinstance(cdev, ChadecheDevice):
-            continue
         lo, hi = ch.limits.current_a
-        if max(-lo, hi) > CHADECHE_MAX_CURRENT_A:
+        if spec.max_current_a is not None and max(-lo, hi) > spec.max_current_a:
             err(
                 ("channels", i, "limits", "current_a"),
-                f"a Chadèche board drives at most {CHADECHE_MAX_CURRENT_A} A;"
+                f"{spec.noun} drives at most {spec.max_current_a} A;"
                 f" limits [{lo}, {hi}] A exceed it",
             )
-    for dname, dev in cfg.devices.items():
-        if isinstance(dev, EaDevice | SimSupplyDevice) and (dname, -1) not in owners:
+    for dname, spec in sources.items():
+        if spec.owner_required and (dname, -1) not in owners:
             err(
                 ("devices", dname),
-                f"EA supply {dname!r} drives no channel; a channel gives it its limits",
+                f"{spec.title} {dname!r} drives no channel; a channel gives it its limits",
                 at_key=True,
             )
     errors.extend(_check_simulation(cfg, pos, file))
     errors.sort(key=lambda e: (e.line or 0, e.col or 0))
     return errors
+
+
+def _source_key(
+    spec: SourceSpec,
+    device: str,
+    board: int | None,
+    at: tuple[str | int, ...],
+    err: Callable[[tuple[str | int, ...], str], None],
+) -> tuple[str, int] | None:
+    """Which source of the device a channel takes (device, board or -1); None if refused."""
+    if spec.addresses is None:
+        if board is not None:
+            err((*at, "board"), f"{spec.noun} has no boards")
+        return (device, -1)
+    if board is None:
+        err(at, f"device {device!r} needs a board: {spec.addresses[0]}..{spec.addresses[-1]}")
+        return None
+    if board not in spec.boards:
+        err(
+            (*at, "board"),
+            f"device {device!r} has no board {board}"
+            f" (boards: {', '.join(str(b) for b in spec.boards)})",
+        )
+    return (device, board)
 
 
 def _check_simulation(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError]:
@@ -190,15 +202,15 @@ def _check_simulation(cfg: BenchConfig, pos: Positions, file: str) -> list[Confi
         dev = cfg.devices.get(device)
         if dev is None:
             errors.append(ConfigError(f"unknown device {device!r}", file, m.line, m.col))
-        elif not getattr(dev, "sim", False):
+        elif not dev.simulated:
             errors.append(
                 ConfigError(f"device {device!r} is not simulated (sim: true)", file, m.line, m.col)
             )
-        elif point not in dev.point_names():
+        elif point not in dev.points():
             errors.append(
                 ConfigError(f"device {device!r} has no point {point!r}", file, m.line, m.col)
             )
-        elif relay != point.split(".")[-1].startswith("do"):
+        elif relay != _is_relay(dev.points()[point]):
             what = "a relay output (slotN.doK)" if relay else "an analog input"
             errors.append(ConfigError(f"{point!r} must be {what}", file, m.line, m.col))
 
@@ -209,3 +221,7 @@ def _check_simulation(cfg: BenchConfig, pos: Positions, file: str) -> list[Confi
     for k, sp in enumerate(sim.thermocouples):
         check(("simulation", "thermocouples", k), sp, relay=False)
     return errors
+
+
+def _is_relay(info: PointInfo) -> bool:
+    return info.direction == "out" and info.dtype == "bool"

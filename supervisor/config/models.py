@@ -6,7 +6,10 @@ ignored is how a limit goes missing. Names carry units (``period_s``, ``current_
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Annotated, Any, ClassVar, Literal, Union
 
 from pydantic import (
     BaseModel,
@@ -14,9 +17,12 @@ from pydantic import (
     Discriminator,
     Field,
     Tag,
+    create_model,
     field_validator,
     model_validator,
 )
+
+from supervisor.core.driver import PointInfo
 
 NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
 TAG_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)*$"
@@ -116,16 +122,7 @@ class TagMapping(Strict):
     )
 
 
-# --- devices -----------------------------------------------------------------------------
-class ChadecheCalibration(Strict):
-    """The seed's ``-1 -2 -s -o`` (seed 000 §III.F)."""
-
-    current_slope: float = Field(1.0, gt=0, description="-1: DAC mA per wanted mA")
-    current_offset_ma: float = Field(0.0, description="-2: DAC offset in mA")
-    voltage_slope: float = Field(1.0, gt=0, description="-s: true V per ADC V")
-    voltage_offset_v: float = Field(0.0, description="-o: offset in V")
-
-
+# --- simulation ------------------------------------------------------------------------
 class SimCell(Strict):
     """Battery model behind a simulated board or supply."""
 
@@ -136,48 +133,87 @@ class SimCell(Strict):
     cells_series: int | None = Field(None, ge=1, description="Li-ion pack only")
 
 
-class ChadecheBoard(Strict):
-    address: int = Field(ge=0, le=3, description="DIP switch address 0..3 (seed table 1)")
-    calibration: ChadecheCalibration = ChadecheCalibration()
-    sim: SimCell = SimCell()
-
-
-class SpiConfig(Strict):
-    bus: int = Field(0, ge=0)
-    device: int = Field(0, ge=0)
-    max_speed_hz: int = Field(500_000, gt=0, le=20_000_000)
-
-
-class ChadecheDevice(Strict):
-    driver: Literal["chadeche"]
-    backend: Literal["sim", "spidev"] = "sim"
-    poll_period_s: float = Field(0.1, gt=0)
-    stale_after_s: float = Field(1.0, gt=0)
-    spi: SpiConfig = SpiConfig()
-    lock_dir: str | None = None
-    boards: list[ChadecheBoard] = Field(min_length=1, max_length=4)
-
-    def point_names(self) -> set[str]:
-        out: set[str] = set()
-        for b in self.boards:
-            n = b.address
-            out |= {f"b{n}.voltage", f"b{n}.current", f"b{n}.charging"}
-            out |= {f"b{n}.current_set", f"b{n}.led_duty"}
-        return out
-
-    def output_points(self) -> set[str]:
-        return {p for p in self.point_names() if p.endswith(("_set", "led_duty"))}
-
+# --- devices -----------------------------------------------------------------------------
+# Each device kind's model lives in its own package (``supervisor/devices/<kind>/config.py``)
+# and derives from ``DeviceConfig``; ``bench_model`` puts the registered kinds together.
 
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 
 
-class NetworkDevice(Strict):
+@dataclass(frozen=True, slots=True)
+class SourcePoints:
+    """The device points a channel binds to when this device drives it."""
+
+    voltage: str
+    current: str
+    current_set: str
+    output: str | None = None  # an output switch (EA: ``OUTP``)
+    voltage_set: str | None = None  # a CV target (EA: ``VOLT`` while charging)
+
+
+@dataclass(frozen=True, slots=True)
+class SourceSpec:
+    """What a device kind offers the channels it drives (checked before anything runs)."""
+
+    noun: str
+    """How messages name one source of this kind (the kind's ``source_noun``)."""
+    title: str
+    """The kind in a sentence's subject: "Chadèche device", "EA supply"."""
+    addresses: range | None = None
+    """Possible board addresses when one device carries several sources; None: one source."""
+    boards: tuple[int, ...] = ()
+    """Board addresses configured on this device."""
+    max_current_a: float | None = None
+    """Hardware maximum of the current, either direction; limits beyond it are refused."""
+    regulates_voltage: bool = False
+    """Can hold a constant voltage (CV, CC-CV steps)."""
+    no_cv_reason: str = ""
+    owner_required: bool = False
+    """The device takes its limits from the channel it drives: it must drive one."""
+    points: Callable[[int | None], SourcePoints] | None = None
+
+
+class DeviceConfig(Strict):
+    """Base of every device kind's entry under ``devices:``."""
+
+    driver: str
+    poll_period_s: float = Field(0.1, gt=0)
+    stale_after_s: float = Field(1.0, gt=0)
+
+    source_noun: ClassVar[str | None] = None
+    """How messages name one channel source of this kind ("a Chadèche board"); None when
+    the kind cannot drive a channel."""
+
+    @property
+    def simulated(self) -> bool:
+        """Served by an in-process simulator rather than a real device."""
+        return False
+
+    def points(self) -> Mapping[str, PointInfo]:
+        """The device's point catalog: every name an I/O map may bind a tag to."""
+        raise NotImplementedError
+
+    def point_names(self) -> set[str]:
+        return set(self.points())
+
+    def channel_source(self) -> SourceSpec | None:
+        """What it offers a channel it drives; None when it cannot drive one."""
+        return None
+
+    def problems(self) -> list[tuple[tuple[str | int, ...], str]]:
+        """Cross-checks of this entry alone, as (path inside the entry, message)."""
+        return []
+
+
+class NetworkDevice(DeviceConfig):
     host: str
     poll_period_s: float = Field(0.2, gt=0)
-    stale_after_s: float = Field(1.0, gt=0)
     timeout_s: float = Field(1.0, gt=0, le=30)
     sim: bool = Field(False, description="serve a simulator of this device on host:port")
+
+    @property
+    def simulated(self) -> bool:
+        return self.sim
 
     @model_validator(mode="after")
     def _sim_on_loopback(self) -> NetworkDevice:
@@ -187,129 +223,6 @@ class NetworkDevice(Strict):
                 " must be 127.0.0.1 (or set sim: false)"
             )
         return self
-
-
-class AdamModuleConfig(Strict):
-    kind: Literal["5017", "5018", "5060", "5069"]
-    raw_format: Literal["offset", "twos"] = "offset"
-
-
-ADAM_POINTS = {"5017": ("ai", 8), "5018": ("tc", 7), "5060": ("do", 6), "5069": ("do", 8)}
-
-
-class AdamDevice(NetworkDevice):
-    """ADAM-5000/TCP over Modbus TCP (seed 002 §1.1): modules by slot."""
-
-    driver: Literal["adam5000tcp"]
-    port: int = Field(502, ge=1, le=65535)
-    unit_id: int = Field(1, ge=0, le=255)
-    modules: dict[int, AdamModuleConfig] = Field(min_length=1)
-
-    @field_validator("modules")
-    @classmethod
-    def _slots(cls, v: dict[int, AdamModuleConfig]) -> dict[int, AdamModuleConfig]:
-        for slot in v:
-            if not 0 <= slot <= 7:
-                raise ValueError(f"slot {slot} does not exist (ADAM-5000/TCP slots are 0..7)")
-        return v
-
-    def point_names(self) -> set[str]:
-        out: set[str] = set()
-        for slot, m in self.modules.items():
-            prefix, n = ADAM_POINTS[m.kind]
-            for k in range(n):
-                out.add(f"slot{slot}.{prefix}{k}")
-                if prefix == "do":
-                    out.add(f"slot{slot}.do{k}_fb")
-        return out
-
-
-class EaDevice(NetworkDevice):
-    """EA-PSB 10000 bidirectional supply over SCPI/TCP (seed 002 §2.2)."""
-
-    driver: Literal["ea-psb"]
-    port: int = Field(5025, ge=1, le=65535)
-    expected_model: str | None = Field(None, description="refuse any other model")
-    watchdog_s: float = Field(2.0, gt=0, description="interface monitoring timeout")
-    sim_model: str = "PSB 10060-60"
-    sim_nominal_v: float = Field(60.0, gt=0)
-    sim_nominal_a: float = Field(60.0, gt=0)
-    sim_nominal_w: float = Field(1500.0, gt=0)
-
-    @model_validator(mode="after")
-    def _keepalive(self) -> EaDevice:
-        if self.watchdog_s < 3 * self.poll_period_s - 1e-9:
-            raise ValueError(
-                f"watchdog_s ({self.watchdog_s}) must be at least 3 x poll_period_s"
-                f" ({self.poll_period_s}) so the keep-alive beats the supply's timeout"
-            )
-        return self
-
-    def point_names(self) -> set[str]:
-        return {
-            "voltage",
-            "current",
-            "power",
-            "output_on",
-            "remote",
-            "ques",
-            "error",
-            "output",
-            "current_set",
-            "voltage_set",
-        }
-
-
-class BmsDevice(Strict):
-    """BMS over CAN (seed 002 §2.1): frames 0x1B0, 0x2B0, 0x3B0 decoded with the DBC."""
-
-    driver: Literal["bms-can"]
-    interface: Literal["socketcand", "socketcan", "virtual"] = "socketcand"
-    channel: str = "can0"
-    host: str = "127.0.0.1"
-    port: int = Field(29536, ge=1, le=65535)
-    poll_period_s: float = Field(0.05, gt=0)
-    stale_factor: float = Field(3.0, ge=1.0, description="a value is stale after k x period")
-    stale_after_s: float = Field(3.0, gt=0)
-    sim: bool = False
-
-    @model_validator(mode="after")
-    def _sim_on_loopback(self) -> BmsDevice:
-        if self.sim and self.interface == "socketcand" and self.host not in LOOPBACK_HOSTS:
-            raise ValueError(f"a simulated BMS serves on loopback only; host {self.host!r}")
-        if self.sim and self.interface == "socketcan":
-            raise ValueError("a simulated BMS uses interface socketcand or virtual")
-        return self
-
-    def point_names(self) -> set[str]:
-        return {
-            "pack_voltage",
-            "min_cell_voltage",
-            "max_cell_voltage",
-            "pack_current",
-            "min_temp",
-            "max_temp",
-            "avg_temp",
-            "frames_unknown",
-            "frames_bad",
-        }
-
-
-class SimSupplyDevice(Strict):
-    """An ideal bidirectional supply acting directly on the simulated pack (dry runs)."""
-
-    driver: Literal["sim-supply"]
-    poll_period_s: float = Field(0.1, gt=0)
-    stale_after_s: float = Field(1.0, gt=0)
-
-    def point_names(self) -> set[str]:
-        return {"voltage", "current", "power", "output_on", "output", "current_set", "voltage_set"}
-
-
-Device = Annotated[
-    ChadecheDevice | AdamDevice | EaDevice | BmsDevice | SimSupplyDevice,
-    Field(discriminator="driver"),
-]
 
 
 # --- channels ----------------------------------------------------------------------------
@@ -389,17 +302,39 @@ class BenchConfig(Strict):
     scan: ScanConfig = ScanConfig()
     hmi: HmiConfig = HmiConfig()
     state_dir: str = Field("var", description="Where retained state and results go.")
-    devices: dict[str, Device] = Field(min_length=1)
+    devices: dict[str, DeviceConfig] = Field(min_length=1)
     tags: list[TagMapping] = []
     channels: list[ChannelConfig] = []
     simulation: SimulationConfig | None = None
 
+    device_kinds: ClassVar[tuple[type[DeviceConfig], ...]] = ()
+    """The device models this bench model accepts (set by ``bench_model``)."""
+
     @field_validator("devices")
     @classmethod
-    def _device_names(cls, v: dict[str, Device]) -> dict[str, Device]:
-        import re
-
+    def _device_names(cls, v: dict[str, DeviceConfig]) -> dict[str, DeviceConfig]:
         for name in v:
             if not re.match(NAME_PATTERN, name):
                 raise ValueError(f"device name {name!r} must be a plain identifier")
         return v
+
+
+def bench_model(kinds: Sequence[type[DeviceConfig]]) -> type[BenchConfig]:
+    """``BenchConfig`` whose ``devices`` accept exactly these kinds, told apart by ``driver``.
+
+    The device kinds live above this layer (``supervisor/devices/<kind>/config.py``); the
+    registry hands them in, so adding a kind never edits this module.
+    """
+    if not kinds:
+        raise ValueError("a bench model needs at least one device kind")
+    union: Any = kinds[0] if len(kinds) == 1 else Union[tuple(kinds)]  # noqa: UP007
+    device = Annotated[union, Field(discriminator="driver")]
+    model: type[BenchConfig] = create_model(
+        "BenchConfig",
+        __base__=BenchConfig,
+        __module__=BenchConfig.__module__,
+        __doc__=BenchConfig.__doc__,
+        devices=(dict[str, device], Field(min_length=1)),
+    )
+    model.device_kinds = tuple(kinds)
+    return model

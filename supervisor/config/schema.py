@@ -9,8 +9,9 @@ from supervisor.config.models import BenchConfig
 from supervisor.config.recipe import Recipe
 
 
-def bench_schema() -> dict[str, object]:
-    schema = BenchConfig.model_json_schema()
+def bench_schema(model: type[BenchConfig]) -> dict[str, object]:
+    """The schema of an I/O map (``model``: the registry's bench model)."""
+    schema = model.model_json_schema()
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "Bench supervisor I/O map"
     return schema
@@ -23,10 +24,10 @@ def recipe_schema() -> dict[str, object]:
     return schema
 
 
-def write_schemas(root: Path) -> list[Path]:
+def write_schemas(root: Path, bench_model: type[BenchConfig]) -> list[Path]:
     out = []
     for folder, name, schema in (
-        ("io_maps", "bench.schema.json", bench_schema()),
+        ("io_maps", "bench.schema.json", bench_schema(bench_model)),
         ("recipes", "recipe.schema.json", recipe_schema()),
     ):
         (root / folder).mkdir(parents=True, exist_ok=True)

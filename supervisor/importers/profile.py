@@ -1,6 +1,6 @@
 """Import a load profile CSV (seed 002 §2.3) as a recipe with one ``profile:`` step.
 
-The file is read by :func:`supervisor.chains.compiler.read_profile_csv` — the same reader
+The file is read by :func:`supervisor.chains.profile_csv.read_profile_csv` — the same reader
 a recipe's ``profile: {file: ...}`` uses — so the columns, separators and encodings it
 accepts are exactly those: time (s), current (A, + charges), then optional V min/max,
 I min/max and T min/max, each pair in two columns or one ``min/max`` cell; ``,`` ``;`` or
@@ -17,7 +17,8 @@ import math
 import re
 from pathlib import Path
 
-from supervisor.chains.compiler import Target, compile_recipe, read_profile_csv
+from supervisor.chains.compiler import Target, compile_recipe
+from supervisor.chains.profile_csv import read_profile_csv
 from supervisor.chains.program import ProfilePoint
 from supervisor.config.recipe import ID_PATTERN, load_recipe_text
 from supervisor.core.errors import ConfigError, ConfigErrors

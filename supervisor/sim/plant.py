@@ -12,8 +12,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from supervisor.config.models import SimCell, SimulationConfig
 from supervisor.core.clock import Clock
-from supervisor.sim.battery import BatteryModel
+from supervisor.sim.battery import BatteryModel, make_model
 
 # The EA unit's own bounds on how hard it regulates (its internal R is irrelevant here:
 # it is an ideal CV source with a source and a sink current limit).
@@ -141,3 +142,21 @@ class BenchPlant:
             else:
                 hi = mid
         return (lo + hi) / 2
+
+
+def make_cell(cell: SimCell) -> BatteryModel:
+    """The battery model an I/O map's ``sim:`` entry describes."""
+    params: dict[str, float] = {
+        "capacity_ah": cell.capacity_ah,
+        "soc": cell.soc,
+        "temperature_c": cell.temperature_c,
+    }
+    if cell.cells_series is not None:
+        params["cells_series"] = cell.cells_series
+    return make_model(cell.model, **params)
+
+
+def make_plant(sim: SimulationConfig | None, clock: Clock) -> BenchPlant:
+    """The seed-002 plant of an I/O map's ``simulation:`` section (defaults when absent)."""
+    sc = sim or SimulationConfig()
+    return BenchPlant(clock, make_cell(sc.pack), ambient_c=sc.ambient_c)

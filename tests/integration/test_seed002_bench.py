@@ -20,11 +20,11 @@ import pytest
 import yaml
 
 from supervisor.app import Bench, build_bench
-from supervisor.config.bench import load_bench
 from supervisor.core.clock import RealClock
 from supervisor.core.quality import Quality
 from supervisor.devices import base
 from supervisor.devices.ea.sim import EaSimulator
+from supervisor.devices.registry import load_bench
 from supervisor.sim.battery import make_model
 from supervisor.sim.plant import BenchPlant
 
@@ -150,7 +150,7 @@ async def test_a_stopped_simulator_turns_its_tags_bad_and_a_restart_brings_them_
 ) -> None:
     sim = bench.sim
     assert sim is not None
-    server = {**sim.adam, **sim.ea, **sim.socketcand}[device]
+    server = sim.devices[device]
     db = bench.db
     assert all(db[t].good for t in tags)
     await server.stop()
@@ -167,7 +167,7 @@ async def test_losing_the_supply_while_charging_trips_the_channel_safe(bench: Be
     db.write("ch4.enable", True)
     await wait_for(lambda: abs(v(bench, "ch4.current") - 2.0) < 0.01, "charging")
     assert bench.sim is not None
-    await bench.sim.ea["ea"].stop()
+    await bench.sim.devices["ea"].stop()
     await wait_for(lambda: db["ch4.state"].value == "faulted", "channel tripped on comm loss")
     assert db["contactor.cmd"].value is False
     await wait_for(lambda: not bench.sim.plant.contactor_closed, "contactor open")  # type: ignore[union-attr]

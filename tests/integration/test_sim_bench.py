@@ -18,9 +18,9 @@ import pytest
 import yaml
 
 from supervisor.app import build_bench
-from supervisor.config.bench import load_bench
 from supervisor.core.clock import VirtualClock
-from supervisor.devices.chadeche.sim import SimChadecheBus
+from supervisor.devices.chadeche.sim import SimChadecheBus, SimulatedBoards
+from supervisor.devices.registry import load_bench
 
 ROOT = Path(__file__).resolve().parents[2]
 SIM = ROOT / "io_maps" / "sim.yaml"
@@ -46,10 +46,14 @@ def sim_bench():  # type: ignore[no-untyped-def]
     return clock, bench
 
 
+def sim_bus(bench) -> SimChadecheBus:  # type: ignore[no-untyped-def]
+    boards = bench.sim.devices["chadeche"]
+    assert isinstance(boards, SimulatedBoards)
+    return boards.bus
+
+
 def board(bench, address: int):  # type: ignore[no-untyped-def]
-    bus = bench.buses[0]
-    assert isinstance(bus, SimChadecheBus)
-    return bus.boards[address]
+    return sim_bus(bench).boards[address]
 
 
 async def test_300_ma_charge_raises_the_cell_voltage_and_the_ah_counter_matches_i_times_t() -> None:
@@ -111,13 +115,13 @@ async def test_a_bus_failure_makes_the_channel_inputs_bad_and_trips_a_driving_ch
     bench.db.write("ch0.manual_current", 0.3)
     bench.db.write("ch0.enable", True)
     await bench.engine.run_for(5.0)
-    bench.buses[0].fault = OSError("SPI bus error")  # type: ignore[attr-defined]
+    sim_bus(bench).fault = OSError("SPI bus error")
     await bench.engine.run_for(2.0)
     ch = bench.channels["ch0"]
     assert ch.voltage.quality.name == "BAD"
     assert ch.state.value == "faulted"
     assert bench.db["chadeche.connected"].value is False
-    bench.buses[0].fault = None  # type: ignore[attr-defined]
+    sim_bus(bench).fault = None
     await bench.engine.run_for(10.0)
     assert ch.voltage.good
     assert ch.current_cmd.value == 0.0  # never re-energised on its own

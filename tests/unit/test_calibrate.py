@@ -19,10 +19,10 @@ from supervisor.app.calibrate import (
     write_calibration,
 )
 from supervisor.chains.compiler import Target, compile_recipe
-from supervisor.config.bench import load_bench
-from supervisor.config.models import ChadecheCalibration, ChadecheDevice
 from supervisor.config.recipe import load_recipe
 from supervisor.core.errors import ConfigError, ConfigErrors
+from supervisor.devices.chadeche.config import ChadecheCalibration, ChadecheDevice
+from supervisor.devices.registry import load_bench
 
 ROOT = Path(__file__).resolve().parents[2]
 SIM = ROOT / "io_maps" / "sim.yaml"

@@ -332,6 +332,8 @@ async def test_safe_state_zeroes_every_board() -> None:
 class OneBoardFails:
     """Wraps the sim bus; transfers to ``bad_board`` (when set) raise."""
 
+    blocking = False
+
     def __init__(self, inner: SimChadecheBus) -> None:
         self.inner = inner
         self.bad_board: int | None = None

@@ -9,12 +9,12 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from supervisor.core.errors import ProtocolError
+from supervisor.devices.chadeche.config import MAX_CURRENT_A
 from supervisor.devices.chadeche.protocol import (
     ADC_MAX_CODE,
     CHIP_SELECT_GPIO,
     DAC_MAX_CODE,
     DIP_SWITCHES,
-    MAX_CURRENT_A,
     MAX_CURRENT_CODE,
     Calibration,
     Chip,

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from supervisor.cli.main import main
-from supervisor.config.bench import load_bench
+from supervisor.devices.registry import load_bench
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data" / "chadeche"

@@ -14,11 +14,11 @@ from hypothesis import strategies as st
 from supervisor.app.calibrate import write_calibration
 from supervisor.chains.compiler import Target, compile_recipe
 from supervisor.chains.program import Program
-from supervisor.config.bench import load_bench
-from supervisor.config.models import ChadecheDevice
 from supervisor.config.recipe import load_recipe, load_recipe_text
 from supervisor.config.yamlpos import load_yaml_text
 from supervisor.core.errors import ConfigErrors
+from supervisor.devices.chadeche.config import ChadecheDevice
+from supervisor.devices.registry import load_bench
 from supervisor.importers import ImportResult, import_chadeche, import_profile
 from supervisor.importers.chadeche import yaml_float, yaml_scalar
 

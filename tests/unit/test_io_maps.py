@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from supervisor.cli.main import main
-from supervisor.config.bench import load_bench
 from supervisor.config.schema import bench_schema
 from supervisor.core.errors import ConfigErrors
+from supervisor.devices.registry import BENCH_MODEL, load_bench
 
 ROOT = Path(__file__).resolve().parents[2]
 BAD = ROOT / "tests" / "data" / "bad_io_maps"
@@ -85,10 +85,10 @@ def test_the_installed_command_reports_a_missing_file_with_exit_2() -> None:
 
 def test_the_committed_json_schema_matches_the_models() -> None:
     committed = json.loads((ROOT / "io_maps" / "bench.schema.json").read_text(encoding="utf-8"))
-    assert committed == json.loads(json.dumps(bench_schema()))
+    assert committed == json.loads(json.dumps(bench_schema(BENCH_MODEL)))
 
 
 def test_the_schema_rejects_unknown_keys_for_editors() -> None:
-    schema = bench_schema()
+    schema = bench_schema(BENCH_MODEL)
     assert schema["additionalProperties"] is False
     assert "period_s" in json.dumps(schema)

@@ -10,6 +10,7 @@ from supervisor.chains.compiler import CC_ONLY, Target, compile_recipe
 from supervisor.cli.main import main
 from supervisor.config.recipe import load_recipe, load_recipe_text
 from supervisor.core.errors import ConfigErrors
+from supervisor.devices.chadeche.config import NO_CV_REASON
 
 ROOT = Path(__file__).resolve().parents[2]
 BAD = ROOT / "tests" / "data" / "bad_recipes"
@@ -65,7 +66,8 @@ def test_check_exits_2_on_each_broken_recipe_without_traceback(
 
 def test_cv_on_a_chadeche_channel_is_refused_before_start_with_the_reason() -> None:
     recipe, pos = load_recipe(ROOT / "recipes" / "liion-cccv-cycle.yaml")
-    target = Target(channel="ch0", capabilities=CC_ONLY, capacity_ah=2.0)
+    # The reason is the source's own (the Chadèche package states it; the bench hands it on).
+    target = Target(channel="ch0", capabilities=CC_ONLY, no_cv_reason=NO_CV_REASON, capacity_ah=2.0)
     with pytest.raises(ConfigErrors) as info:
         compile_recipe(recipe, pos, "liion.yaml", target)
     assert "cannot run on channel ch0: a Chadèche board drives a constant current only" in str(

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Awaitable, Callable, Mapping
-from typing import Final
 
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.constants import ExcCodes
@@ -33,13 +32,13 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
 from supervisor.core.errors import DeviceIOError, DeviceTimeout, ProtocolError, SupervisorError
 from supervisor.core.quality import Quality, Reason
+from supervisor.devices.adam.config import MIN_POLL_PERIOD_5017_S, SLOTS, slot_points
 from supervisor.devices.adam.protocol import (
     ANALOG_READ_FUNCTION,
     FC_READ_COILS,
     FC_READ_HOLDING_REGISTERS,
     FC_READ_INPUT_REGISTERS,
     FC_WRITE_SINGLE_COIL,
-    SLOTS,
     AdamModule,
     analog_register,
     coil_address,
@@ -49,10 +48,6 @@ from supervisor.devices.adam.protocol import (
 from supervisor.devices.base import PolledDriver
 
 log = logging.getLogger(__name__)
-
-MIN_POLL_PERIOD_5017_S: Final = 0.1
-"""UNVERIFIED (devices.md [U]): the 5017 converts about 10 samples/s in total; polling
-faster only re-reads old values and loads the unit."""
 
 __all__ = ["MIN_POLL_PERIOD_5017_S", "AdamDriver", "AdamModule"]
 
@@ -104,28 +99,13 @@ class AdamDriver(PolledDriver):
         self._outputs: dict[str, tuple[int, int]] = {}
         self._slot_inputs: dict[int, list[str]] = {}
         for slot, module in self._modules.items():
-            spec = module.spec
             names: list[str] = []
-            for ch in range(spec.points):
-                where = f"slot {slot} ({spec.kind}) channel {ch}"
-                if spec.family == "analog":
-                    info = PointInfo(f"slot{slot}.ai{ch}", "in", "float", "V", where)
-                    self._points[info.name] = info
-                    names.append(info.name)
-                elif spec.family == "thermocouple":
-                    desc = f"{where}, type T thermocouple"
-                    info = PointInfo(f"slot{slot}.tc{ch}", "in", "float", "degC", desc)
-                    self._points[info.name] = info
-                    names.append(info.name)
+            for info in slot_points(slot, module.kind):
+                self._points[info.name] = info
+                if info.direction == "out":
+                    self._outputs[info.name] = (slot, int(info.name.rsplit("do", 1)[1]))
                 else:
-                    out = PointInfo(f"slot{slot}.do{ch}", "out", "bool", "", f"{where} relay")
-                    fb = PointInfo(
-                        f"slot{slot}.do{ch}_fb", "in", "bool", "", f"{where} relay read back"
-                    )
-                    self._points[out.name] = out
-                    self._points[fb.name] = fb
-                    self._outputs[out.name] = (slot, ch)
-                    names.append(fb.name)
+                    names.append(info.name)
             self._slot_inputs[slot] = names
         # Logged once per change, not on every poll.
         self._slot_fault: dict[int, str] = {}

@@ -1,10 +1,12 @@
 """ADAM-5000/TCP over Modbus TCP: register map and raw number codecs (no I/O here).
 
-Shared by the driver (:mod:`supervisor.devices.adam.driver`) and the simulator
-(:mod:`supervisor.devices.adam.sim`). Facts come from ``shared/reference/devices.md``
-("ADAM-5000/TCP"): the address rules are verified, the raw number format of analog values
-over Modbus is not. Every uncertain fact is ONE named constant marked UNVERIFIED, so that a
-measurement on the real unit corrects it in one place.
+Module facts (slots, channel counts) come from the point catalog,
+:mod:`supervisor.devices.adam.config`. Shared by the driver
+(:mod:`supervisor.devices.adam.driver`) and the simulator (:mod:`supervisor.devices.adam.sim`).
+Facts come from ``shared/reference/devices.md`` ("ADAM-5000/TCP"): the address rules are
+verified, the raw number format of analog values over Modbus is not. Every uncertain fact is
+ONE named constant marked UNVERIFIED, so that a measurement on the real unit corrects it in
+one place.
 
 Addresses are 0-based PDU addresses (what goes on the wire):
 
@@ -22,10 +24,10 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Final, Literal
 
+from supervisor.devices.adam.config import MODULE_KINDS, SLOTS, ModuleKind
+
 DEVICE: Final = "adam"
 
-SLOTS: Final = range(8)
-"""ADAM-5000/TCP has 8 slots (0..7); the 5000L/TCP only 4 (0..3)."""
 REGISTERS_PER_SLOT: Final = 8
 COILS_PER_SLOT: Final = 16
 
@@ -46,34 +48,6 @@ DEFAULT_RAW_FORMAT: Final[RawFormat] = "offset"
 """UNVERIFIED: raw format of 5017/5018 values over Modbus on the 5000/TCP. One tested
 application reads bipolar ranges as offset binary; the ASCII protocol uses two's complement.
 It is a per-module setting (:class:`AdamModule.raw_format`), this is only its default."""
-
-Family = Literal["analog", "thermocouple", "relay"]
-
-
-@dataclass(frozen=True, slots=True)
-class ModuleKind:
-    """What one I/O module type offers."""
-
-    kind: str
-    points: int
-    family: Family
-    range_code: int | None = None
-    """Input range code (shared with ADAM-4017/4018), for documentation and checks."""
-    unit: str = ""
-
-
-MODULE_KINDS: Final[Mapping[str, ModuleKind]] = MappingProxyType(
-    {
-        # 8 differential inputs, range 0x08 = ±10 V [V].
-        "5017": ModuleKind("5017", 8, "analog", 0x08, "V"),
-        # 7 thermocouple inputs, range 0x10 = type T, −100…+400 °C [V].
-        "5018": ModuleKind("5018", 7, "thermocouple", 0x10, "degC"),
-        # Relay counts UNVERIFIED (devices.md [U]): 5060 6 relays (2 form A + 4 form C),
-        # 5069 8 power relays.
-        "5060": ModuleKind("5060", 6, "relay"),
-        "5069": ModuleKind("5069", 8, "relay"),
-    }
-)
 
 OFFSET_BINARY_SPAN: Final[Mapping[str, tuple[float, float]]] = MappingProxyType(
     {"5017": (-10.0, 10.0), "5018": (-100.0, 400.0)}

@@ -26,18 +26,19 @@ from pymodbus.pdu import ModbusPDU
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
+from supervisor.config.models import SimPoint, SimulationConfig
+from supervisor.devices.adam.config import MODULE_KINDS, SLOTS, AdamDevice
 from supervisor.devices.adam.protocol import (
     COILS_PER_SLOT,
     DEFAULT_RAW_FORMAT,
     FC_READ_HOLDING_REGISTERS,
     FC_READ_INPUT_REGISTERS,
-    MODULE_KINDS,
     RAW_FORMATS,
     REGISTERS_PER_SLOT,
-    SLOTS,
     TC_OPEN_WIRE_RAW,
     value_to_raw,
 )
+from supervisor.sim.plant import BenchPlant
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +70,7 @@ class AdamSimulator:
         host: str = "127.0.0.1",
         port: int = 0,
         unit_id: int = 1,
+        name: str = "adam",
     ) -> None:
         analog = analog or {}
         relays = relays or {}
@@ -90,6 +92,7 @@ class AdamSimulator:
         if not 0 <= unit_id <= 255:
             raise ValueError(f"unit_id must be 0..255, got {unit_id!r}")
         self.modules: Mapping[int, str] = dict(modules)
+        self.name = name
         self.host = host
         self._port = port
         self.unit_id = unit_id
@@ -135,6 +138,9 @@ class AdamSimulator:
     @property
     def running(self) -> bool:
         return self._server is not None
+
+    def addresses(self) -> list[str]:
+        return [f"ADAM-5000/TCP {self.name}: modbus tcp {self.host}:{self._port}"]
 
     async def start(self) -> None:
         """Listen on ``host:port``; again on the same port after :meth:`stop`."""
@@ -330,3 +336,65 @@ class AdamSimulator:
                 if self._coils.get((slot, ch), False):
                     word |= 1 << ch
             registers[slot - start_address] = word
+
+
+# --- wiring from an I/O map --------------------------------------------------------------
+ESTOP_SENSE_HEALTHY_V: Final = 5.0
+"""Seed 002 §1.5: the e-stop sense input reads 5 V while the e-stop circuit is closed."""
+
+
+def _split(point: str) -> tuple[int, int]:
+    """``slot3.do0`` → (3, 0)."""
+    slot, rest = point.split(".", 1)
+    prefix = rest.rstrip("0123456789")
+    return int(slot.removeprefix("slot")), int(rest[len(prefix) :])
+
+
+def plant_simulator(
+    name: str, dev: AdamDevice, sc: SimulationConfig, plant: BenchPlant
+) -> AdamSimulator:
+    """The simulated unit ``name``, its inputs and relays wired to the plant as the I/O map's
+    ``simulation:`` section says (LEM sensor, voltage board, e-stop sense, thermocouples,
+    battery contactor)."""
+    analog: dict[tuple[int, int], Callable[[], float | None]] = {}
+    relays: dict[tuple[int, int], Callable[[bool], None]] = {}
+
+    def mine(sp: SimPoint | None) -> tuple[int, int] | None:
+        return _split(sp.point) if sp is not None and sp.device == name else None
+
+    if (k := mine(sc.lem_current)) is not None:
+        vpa = sc.lem_volts_per_amp
+        analog[k] = lambda: plant.pack_current_a * vpa
+    if (k := mine(sc.voltage_board)) is not None:
+        ratio = sc.voltage_board_ratio
+        analog[k] = lambda: plant.pack_voltage_v * ratio
+    if (k := mine(sc.estop_sense)) is not None:
+        analog[k] = lambda: 0.0 if plant.estop_pressed else ESTOP_SENSE_HEALTHY_V
+    for i, tc in enumerate(sc.thermocouples):
+        if (k := mine(tc)) is not None:
+            # The first thermocouple sits on the pack; the others read the ambient air.
+            if i == 0:
+                analog[k] = lambda: plant.pack_temperature_c
+            else:
+                analog[k] = lambda: sc.ambient_c
+    # Thermocouple inputs not wired to the pack read the room, not an open circuit.
+    for slot, m in dev.modules.items():
+        if MODULE_KINDS[m.kind].family == "thermocouple":
+            for ch in range(MODULE_KINDS[m.kind].points):
+                analog.setdefault((slot, ch), lambda: sc.ambient_c)
+    if (k := mine(sc.contactor)) is not None:
+        relays[k] = plant.set_contactor
+    return AdamSimulator(
+        {slot: m.kind for slot, m in dev.modules.items()},
+        analog,
+        relays,
+        raw_format={
+            slot: m.raw_format
+            for slot, m in dev.modules.items()
+            if MODULE_KINDS[m.kind].family != "relay"
+        },
+        host=dev.host,
+        port=dev.port,
+        unit_id=dev.unit_id,
+        name=name,
+    )

@@ -1,0 +1,52 @@
+"""BMS over CAN (seed 002 §2.1), listened to and decoded with its DBC. Registration for
+:mod:`supervisor.devices.registry`."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import can
+
+from supervisor.config.models import SimulationConfig
+from supervisor.core.driver import Driver
+from supervisor.devices.bms.config import BmsDevice
+from supervisor.devices.bms.driver import BmsDriver, socketcand_bus_factory
+from supervisor.devices.bms.sim import BmsSimulator, SimulatedBms, plant_values
+from supervisor.devices.kind import DeviceKind, DeviceSimulator, DriverWiring, SimWiring
+
+
+def bus_factory(dev: BmsDevice) -> Callable[[], can.BusABC]:
+    """How the driver opens its bus, from the I/O map entry."""
+    if dev.interface == "socketcand":
+        # Probes the server first: python-can's client otherwise spins while it is down.
+        return socketcand_bus_factory(dev.host, dev.port, dev.channel)
+    return lambda: can.Bus(interface=dev.interface, channel=dev.channel)
+
+
+def _driver(name: str, dev: BmsDevice, wiring: DriverWiring) -> Driver:
+    return BmsDriver(
+        name,
+        wiring.clock,
+        bus_factory(dev),
+        poll_period_s=dev.poll_period_s,
+        stale_factor=dev.stale_factor,
+    )
+
+
+def _simulator(name: str, dev: BmsDevice, wiring: SimWiring) -> DeviceSimulator:
+    sc = wiring.bench.simulation or SimulationConfig()
+    cells = sc.pack.cells_series or 1
+    return SimulatedBms(
+        name,
+        wiring.clock,
+        plant_values(wiring.plant, cells),
+        interface=dev.interface,
+        channel=dev.channel,
+        host=dev.host,
+        port=dev.port,
+    )
+
+
+KIND = DeviceKind(BmsDevice, _driver, _simulator)
+
+__all__ = ["KIND", "BmsDevice", "BmsDriver", "BmsSimulator", "SimulatedBms"]

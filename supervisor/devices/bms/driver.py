@@ -43,6 +43,7 @@ from supervisor.core.driver import PointInfo, Sample, Value
 from supervisor.core.errors import DeviceIOError, DeviceTimeout, ProtocolError
 from supervisor.core.quality import Quality, Reason
 from supervisor.devices.base import PolledDriver
+from supervisor.devices.bms.config import POINTS
 from supervisor.devices.bms.protocol import (
     BMS_CURRENT_SIGN,
     PACK_CURRENT_ID,
@@ -76,23 +77,6 @@ FRAME_POINTS: Final[Mapping[int, Mapping[str, str]]] = MappingProxyType(
     }
 )
 """Frame identifier -> DBC signal -> point name."""
-
-POINTS: Final[Mapping[str, PointInfo]] = MappingProxyType(
-    {
-        p.name: p
-        for p in (
-            PointInfo("pack_voltage", "in", "float", "V", "pack voltage (0x1B0)"),
-            PointInfo("min_cell_voltage", "in", "float", "V", "lowest cell voltage (0x1B0)"),
-            PointInfo("max_cell_voltage", "in", "float", "V", "highest cell voltage (0x1B0)"),
-            PointInfo("pack_current", "in", "float", "A", "pack current, + charges (0x2B0)"),
-            PointInfo("min_temp", "in", "float", "degC", "lowest temperature (0x3B0)"),
-            PointInfo("max_temp", "in", "float", "degC", "highest temperature (0x3B0)"),
-            PointInfo("avg_temp", "in", "float", "degC", "average temperature (0x3B0)"),
-            PointInfo("frames_unknown", "in", "int", "", "frames with an id not in the DBC"),
-            PointInfo("frames_bad", "in", "int", "", "frames that could not be decoded"),
-        )
-    }
-)
 
 _ERROR_FRAME_KEY = -1  # "logged once" key for error frames
 

@@ -29,12 +29,13 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, Final
 
 import can
 
 from supervisor.core.clock import Clock
 from supervisor.devices.bms.protocol import FRAME_IDS, BmsValues, encode_values, period_s
+from supervisor.sim.plant import BenchPlant
 
 log = logging.getLogger(__name__)
 
@@ -382,3 +383,74 @@ def _frame_line(msg: can.Message) -> bytes:
         can_id = f"{msg.arbitration_id & 0x7FF:03X}"
     stamp = msg.timestamp if msg.timestamp else time.time()
     return f"< frame {can_id} {stamp:.6f} {bytes(msg.data).hex().upper()} >".encode("ascii")
+
+
+# --- wiring from an I/O map --------------------------------------------------------------
+CELL_SPREAD_V: Final = 0.004
+"""Simulated spread between the lowest and the highest cell of the pack."""
+
+
+def plant_values(plant: BenchPlant, cells_series: int) -> Callable[[], BmsValues]:
+    """What the BMS of the plant's pack reports, read from the plant at each frame."""
+
+    def values() -> BmsValues:
+        v = plant.pack_voltage_v
+        cell = v / cells_series
+        t = plant.pack_temperature_c
+        return BmsValues(
+            pack_voltage_v=v,
+            min_cell_v=cell - CELL_SPREAD_V / 2,
+            max_cell_v=cell + CELL_SPREAD_V / 2,
+            pack_current_a=plant.pack_current_a,
+            min_temp_c=t - 0.5,
+            max_temp_c=t + 0.5,
+            avg_temp_c=t,
+        )
+
+    return values
+
+
+class SimulatedBms:
+    """A BMS on the plant's pack, sending on python-can's ``virtual`` bus (in process) or
+    through a :class:`SocketcandServer` on loopback (another process connects with
+    python-can's socketcand client)."""
+
+    def __init__(
+        self,
+        name: str,
+        clock: Clock,
+        source: Callable[[], BmsValues],
+        *,
+        interface: str,
+        channel: str,
+        host: str = "127.0.0.1",
+        port: int = 0,
+    ) -> None:
+        self.name = name
+        self.server: SocketcandServer | None = None
+        self._virtual_bus: can.BusABC | None = None
+        bus: can.BusABC
+        if interface == "virtual":
+            bus = self._virtual_bus = can.Bus(interface="virtual", channel=channel)
+        else:
+            self.server = SocketcandServer(host, port, channel=channel)
+            bus = self.server.bus
+        self.sender = BmsSimulator(bus, clock, source)
+
+    async def start(self) -> None:
+        if self.server is not None:
+            await self.server.start()
+        await self.sender.start()
+
+    async def stop(self) -> None:
+        await self.sender.stop()
+        if self.server is not None:
+            await self.server.stop()
+        if self._virtual_bus is not None:
+            self._virtual_bus.shutdown()
+            self._virtual_bus = None
+
+    def addresses(self) -> list[str]:
+        if self.server is None:
+            return []
+        return [f"BMS {self.name}: socketcand {self.server.host}:{self.server.port}"]

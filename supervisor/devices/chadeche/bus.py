@@ -20,10 +20,10 @@ from types import TracebackType
 from typing import Any, Protocol
 
 from supervisor.core.errors import DeviceIOError
+from supervisor.devices.chadeche.config import BOARD_ADDRESSES
 from supervisor.devices.chadeche.protocol import (
     A0_GPIO,
     A1_GPIO,
-    BOARD_ADDRESSES,
     CHIP_SELECT_ACTIVE_HIGH,
     CHIP_SELECT_GPIO,
     Chip,
@@ -42,6 +42,9 @@ SPI_MODE = 0
 
 class ChadecheBus(Protocol):
     """One SPI bus to up to four boards; ``transfer`` is atomic (select, xfer, deselect)."""
+
+    blocking: bool
+    """Transfers block (real SPI): the driver runs them in a worker thread."""
 
     def transfer(self, board: int, chip: Chip, data: bytes) -> bytes:
         """Select ``board`` (A0/A1) and ``chip``, shift ``data`` out while reading as many
@@ -148,6 +151,8 @@ class SpidevBus:
     directory: :func:`default_lock_dir`) so several processes can share the bus, as the
     seed's one-program-per-board setup does (§III.G).
     """
+
+    blocking = True
 
     def __init__(
         self,

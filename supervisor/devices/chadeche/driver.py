@@ -28,13 +28,12 @@ from supervisor.core.driver import PointInfo, Sample, Value
 from supervisor.core.errors import DeviceIOError, ProtocolError, SupervisorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.devices.base import PolledDriver
-from supervisor.devices.chadeche.bus import BoardClaim, ChadecheBus, SpidevBus, claim_board
+from supervisor.devices.chadeche.bus import BoardClaim, ChadecheBus, claim_board
+from supervisor.devices.chadeche.config import BOARD_ADDRESSES, MAX_CURRENT_A, board_points
 from supervisor.devices.chadeche.protocol import (
     ADC_MAX_CODE,
     ADC_READ,
-    BOARD_ADDRESSES,
     DAC_MAX_CODE,
-    MAX_CURRENT_A,
     Calibration,
     Chip,
     DacChannel,
@@ -106,25 +105,16 @@ class ChadecheDriver(PolledDriver):
         self._bus = bus
         # spidev blocks: run it in a worker thread. The simulator is fast and must stay
         # deterministic on a virtual clock: call it directly.
-        self._blocking_bus = isinstance(bus, SpidevBus)
+        self._blocking_bus = bus.blocking
         self._relay_settle_s = relay_settle_s
         self._boards = {a: _Board(a, boards[a]) for a in sorted(boards)}
         self._points: dict[str, PointInfo] = {}
         self._outputs: dict[str, tuple[int, str]] = {}
         for a in self._boards:
-            p = f"b{a}."
-            for info in (
-                PointInfo(p + "voltage", "in", "float", "V", f"board {a} cell voltage"),
-                PointInfo(
-                    p + "current", "in", "float", "A", f"board {a} commanded current, + charge"
-                ),
-                PointInfo(p + "charging", "in", "bool", "", f"board {a} relay in charge"),
-                PointInfo(p + "current_set", "out", "float", "A", f"board {a} current, + charge"),
-                PointInfo(p + "led_duty", "out", "float", "", f"board {a} LED duty 0..1"),
-            ):
+            for info in board_points(a):
                 self._points[info.name] = info
-            self._outputs[p + "current_set"] = (a, "current_set")
-            self._outputs[p + "led_duty"] = (a, "led_duty")
+                if info.direction == "out":
+                    self._outputs[info.name] = (a, info.name.split(".", 1)[1])
         # Output sequences (zero, flip, raise) and the safe state must not interleave.
         self._io_lock = asyncio.Lock()
         super().__init__(name, clock, poll_period_s)

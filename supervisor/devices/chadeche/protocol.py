@@ -5,7 +5,9 @@ constant current, channel B the LED blink duty), an MCP3201 12-bit ADC (cell vol
 74HC74 D latch driving the charge/discharge relay. Up to four boards share one SPI bus; the
 Raspberry Pi selects a board with two address lines and a chip with three GPIO chip selects.
 
-No I/O here. Every device fact the seed leaves open is one named constant marked UNVERIFIED.
+No I/O here. The board rating and addresses come from the catalog
+(:mod:`supervisor.devices.chadeche.config`); every other device fact the seed leaves open is
+one named constant marked UNVERIFIED.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from types import MappingProxyType
 from typing import Final, NamedTuple
 
 from supervisor.core.errors import ProtocolError
+from supervisor.devices.chadeche.config import BOARD_ADDRESSES
 
 DEVICE: Final = "chadeche"
 
@@ -34,13 +37,10 @@ SENSE_RESISTOR_OHM: Final = 10.0
 """Foot resistor RL of the current source: I = V_dac / RL (seed §II.C.3, Figure 6)."""
 DAC_LSB_MA: Final = DAC_LSB_V / SENSE_RESISTOR_OHM * 1000.0
 """0.1 mA per DAC step."""
-MAX_CURRENT_A: Final = 0.400
-"""Board maximum (seed §II.C.4: 400 mA in the example of Figure 6)."""
 MAX_CURRENT_CODE: Final = 4000
 """DAC A code for 400 mA: the hardware last line, whatever the calibration says."""
 
 # --- board and chip selection (seed §II.C.2, §II.F) --------------------------------------
-BOARD_ADDRESSES: Final = range(4)
 A0_GPIO: Final = 17
 A1_GPIO: Final = 27
 

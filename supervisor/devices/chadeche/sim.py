@@ -138,6 +138,8 @@ class SimBoard:
 class SimChadecheBus:
     """A simulated SPI bus with up to four boards; same surface as the real ``ChadecheBus``."""
 
+    blocking = False  # fast and deterministic on a virtual clock: called directly
+
     def __init__(
         self, clock: Clock, boards: Mapping[int, SimBoard], history_len: int = 256
     ) -> None:
@@ -180,4 +182,21 @@ class SimChadecheBus:
         self.closed = True
 
 
-__all__ = ["Cell", "SimBoard", "SimChadecheBus", "SimTransfer"]
+__all__ = ["Cell", "SimBoard", "SimChadecheBus", "SimTransfer", "SimulatedBoards"]
+
+
+class SimulatedBoards:
+    """The simulated boards of one Chadèche device, as the composition root sees them: an
+    SPI bus that only exists in this process (nothing to serve on the network)."""
+
+    def __init__(self, bus: SimChadecheBus) -> None:
+        self.bus = bus
+
+    async def start(self) -> None:
+        return None
+
+    async def stop(self) -> None:
+        return None
+
+    def addresses(self) -> list[str]:
+        return []

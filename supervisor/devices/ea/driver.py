@@ -44,6 +44,7 @@ from supervisor.core.driver import PointInfo, Sample, Value
 from supervisor.core.errors import DeviceIOError, DeviceTimeout, ProtocolError
 from supervisor.core.quality import Quality, Reason
 from supervisor.devices.base import PolledDriver
+from supervisor.devices.ea.config import POINTS, WATCHDOG_POLL_RATIO
 from supervisor.devices.ea.protocol import (
     MAX_LINE_BYTES,
     QUES_OCP_BIT,
@@ -85,8 +86,6 @@ VERIFY_TOLERANCE_MIN = 0.01
 MAX_ERRORS_PER_POLL = 8
 """``SYST:ERR?`` entries read per poll at most (one round trip each)."""
 RAW_LOG_LINES = 64
-WATCHDOG_POLL_RATIO = 3.0
-"""``watchdog_s`` must be at least this many poll periods."""
 
 POLL_QUERIES = ("MEAS:ARR?", "OUTP?", "SYST:LOCK:OWN?", "STAT:QUES:COND?")
 """Asked on one line every poll; ``SYST:ERR?`` follows on its own line because reading the
@@ -170,25 +169,6 @@ class EaDriver(PolledDriver):
         self.nominal_v = math.nan
         self.nominal_a = math.nan
         self.nominal_w = math.nan
-        self._points: dict[str, PointInfo] = {
-            p.name: p
-            for p in (
-                PointInfo("voltage", "in", "float", "V", "measured output voltage"),
-                PointInfo(
-                    "current", "in", "float", "A", "measured current, + charging, - discharging"
-                ),
-                PointInfo("power", "in", "float", "W", "measured power, same sign as current"),
-                PointInfo("output_on", "in", "bool", "", "DC output on (OUTP?)"),
-                PointInfo("remote", "in", "bool", "", "remote control held (SYST:LOCK:OWN?)"),
-                PointInfo(
-                    "ques", "in", "int", "", "STAT:QUES:COND? (bit 0 OVP, 1 OCP, 2 OPP, 3 OT)"
-                ),
-                PointInfo("error", "in", "str", "", "last non-zero SYST:ERR? entry, or ''"),
-                PointInfo("output", "out", "bool", "", "DC output on/off"),
-                PointInfo("current_set", "out", "float", "A", "+ charge, - discharge"),
-                PointInfo("voltage_set", "out", "float", "V", "CV target while charging"),
-            )
-        }
         self._reader: asyncio.StreamReader | None = None
         self._writer: asyncio.StreamWriter | None = None
         self._io_lock = asyncio.Lock()
@@ -202,7 +182,7 @@ class EaDriver(PolledDriver):
 
     # --- public surface --------------------------------------------------------
     def points(self) -> Mapping[str, PointInfo]:
-        return self._points
+        return POINTS
 
     def write(self, point: str, value: Value) -> None:
         """Queue a write; refuses values of the wrong kind at once (the caller's bug)."""

@@ -97,8 +97,10 @@ class EaSimulator:
         nominal_w: float = 1500.0,
         host: str = "127.0.0.1",
         port: int = 0,
+        name: str = "ea",
     ) -> None:
         self.plant = plant
+        self.name = name
         self.clock = plant.clock
         self.identity = Identity(
             "EA Elektro-Automatik GmbH & Co. KG", model, SIM_SERIAL, SIM_FIRMWARE
@@ -136,6 +138,9 @@ class EaSimulator:
     @property
     def running(self) -> bool:
         return self._server is not None
+
+    def addresses(self) -> list[str]:
+        return [f"EA supply {self.name}: scpi tcp {self.host}:{self._port}"]
 
     async def start(self) -> None:
         """Listen (again, on the same port after a ``stop()``) and start the checker."""

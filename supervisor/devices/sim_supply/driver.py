@@ -14,20 +14,8 @@ from collections.abc import Mapping
 from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
 from supervisor.devices.base import PolledDriver
+from supervisor.devices.sim_supply.config import POINTS
 from supervisor.sim.plant import BenchPlant
-
-_POINTS = {
-    p.name: p
-    for p in (
-        PointInfo("voltage", "in", "float", "V"),
-        PointInfo("current", "in", "float", "A", "+ charges the battery"),
-        PointInfo("power", "in", "float", "W"),
-        PointInfo("output_on", "in", "bool"),
-        PointInfo("output", "out", "bool"),
-        PointInfo("current_set", "out", "float", "A"),
-        PointInfo("voltage_set", "out", "float", "V"),
-    )
-}
 
 
 class PlantSupplyDriver(PolledDriver):
@@ -49,7 +37,7 @@ class PlantSupplyDriver(PolledDriver):
         super().__init__(name, clock, poll_period_s)
 
     def points(self) -> Mapping[str, PointInfo]:
-        return _POINTS
+        return POINTS
 
     async def _connect(self) -> None:
         self.plant.set_contactor(True)
