@@ -20,7 +20,15 @@ from supervisor.core.units import UNITS, Dim
 from supervisor.devices.kind import DriverWiring
 from supervisor.devices.registry import kind_of
 from supervisor.publish.results import ResultCollector
-from supervisor.scan import InputBinding, LogicPhase, OutputBinding, Publisher, ScanEngine
+from supervisor.safety import SafetyPhase
+from supervisor.scan import (
+    InputBinding,
+    LogicPhase,
+    OutputBinding,
+    Publisher,
+    ScanEngine,
+    ScanPhases,
+)
 from supervisor.sim.battery import BatteryModel
 from supervisor.tags import AlarmLimits, HistorySettings, Scaling, TagDB, TagSpec
 
@@ -42,6 +50,7 @@ class Bench:
     channels: dict[str, Channel]
     sim: SimulatedBench | None = None
     runners: dict[str, ChainRunner] = field(default_factory=dict)
+    safety: SafetyPhase = field(default_factory=SafetyPhase)
     results: dict[str, ResultCollector] = field(default_factory=dict)
     _started: bool = False
 
@@ -260,11 +269,14 @@ def build_bench(
     runners = {name: ChainRunner(ch, db, clock) for name, ch in channels.items()}
     for c in cfg.channels:
         runners[c.name].dba = c.source.board or 0
-    phases = []
-    for name, ch in channels.items():
+    safety = SafetyPhase()
+    phases = ScanPhases(
+        derived=[LogicPhase(f"derive:{n}", ch.derive) for n, ch in channels.items()],
+        safety=[LogicPhase("safety", safety.run)],
+        chains=[LogicPhase(f"chain:{n}", r.run) for n, r in runners.items()],
         # The chain requests, then the channel protects: a chain never overrides a trip.
-        phases.append(LogicPhase(f"chain:{name}", runners[name].run))
-        phases.append(LogicPhase(f"channel:{name}", ch.run))
+        outputs=[LogicPhase(f"drive:{n}", ch.drive) for n, ch in channels.items()],
+    )
     engine = ScanEngine(
         clock,
         db,
@@ -272,7 +284,7 @@ def build_bench(
         drivers=list(drivers.values()),
         inputs=inputs,
         outputs=outputs,
-        phases=phases,
+        phases=phases.ordered(),
         publishers=publishers or [],
     )
-    return Bench(cfg, clock, db, engine, drivers, channels, sim, runners)
+    return Bench(cfg, clock, db, engine, drivers, channels, sim, runners, safety=safety)

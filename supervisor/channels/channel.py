@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -33,7 +34,7 @@ def _spec(name: str, **kw: object) -> TagSpec:
 
 
 class Channel:
-    """Per-channel logic run once per scan by the engine (phase ``channels``)."""
+    """Per-channel logic, run by the scan in two phases: ``derive`` and ``drive``."""
 
     def __init__(
         self,
@@ -164,15 +165,31 @@ class Channel:
         self._last_clamp_req: float | None = None
 
     # --- per scan ------------------------------------------------------------------
+    # Two phases of the scan (DESIGN.md "One scan"): ``derive`` first, so interlocks and the
+    # step chain see this scan's measurements and counters; ``drive`` last, so the chain's
+    # request is clamped and protected before it reaches the outputs.
+    def derive(self, now: float, dt: float) -> None:
+        """Derived values: measurements copied from other tags, Ah/Wh, power."""
+        self._guarded(self._derive, dt)
+
+    def drive(self, now: float, dt: float) -> None:
+        """Setpoint selection, protection (latched trips), clamping, the output commands."""
+        self._guarded(self._drive, dt)
+
     def run(self, now: float, dt: float) -> None:
+        """Both phases back to back: a channel with nothing between them (no step chain)."""
+        self.derive(now, dt)
+        self.drive(now, dt)
+
+    def _guarded(self, phase: Callable[[float], None], dt: float) -> None:
         try:
-            self._scan(dt)
+            phase(dt)
         except Exception as exc:  # logic error: this channel goes safe, the scan goes on
             log.exception("%s: channel logic failed", self.name)
             self._trip(f"internal error: {exc}")
             self.db.update(self.current_cmd, 0.0)
 
-    def _scan(self, dt: float) -> None:
+    def _derive(self, dt: float) -> None:
         db = self.db
         v, i = self.voltage, self.current
         for dst, name in self._copies:
@@ -189,6 +206,8 @@ class Channel:
             db.update(self.power, self.power.value, Quality.BAD, Reason.DERIVED_FROM_BAD)
             self._prev_p = None
 
+    def _drive(self, dt: float) -> None:
+        db = self.db
         request = self._request()
         active = self._active()
         if active:

@@ -8,5 +8,14 @@ from supervisor.scan.engine import (
     ScanEngine,
     ScanStats,
 )
+from supervisor.scan.phases import ScanPhases
 
-__all__ = ["InputBinding", "LogicPhase", "OutputBinding", "Publisher", "ScanEngine", "ScanStats"]
+__all__ = [
+    "InputBinding",
+    "LogicPhase",
+    "OutputBinding",
+    "Publisher",
+    "ScanEngine",
+    "ScanPhases",
+    "ScanStats",
+]
