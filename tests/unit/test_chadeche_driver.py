@@ -658,3 +658,19 @@ def test_sim_bus_records_transfers_in_order() -> None:
     assert [(tr.t, tr.chip) for tr in bus.history] == [(0.0, Chip.LATCH), (1.0, Chip.ADC)]
     assert isinstance(bus.history[0], SimTransfer)
     assert bus.boards[0].transfers == 2
+
+
+# --- who closes the bus -------------------------------------------------------------------
+async def test_close_leaves_an_injected_bus_open_for_its_owner() -> None:
+    rig = await connected_rig()
+    await rig.driver.close()
+    assert rig.bus.closed is False  # the composition root (or another driver) still uses it
+
+
+async def test_close_closes_a_bus_opened_for_the_driver() -> None:
+    clock = VirtualClock()
+    bus = SimChadecheBus(clock, {0: SimBoard(FakeCell())})
+    driver = ChadecheDriver("chadeche", clock, bus, {0: Calibration()}, owns_bus=True)
+    await driver.poll()
+    await driver.close()
+    assert bus.closed is True

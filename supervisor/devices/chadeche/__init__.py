@@ -32,16 +32,23 @@ def _driver(name: str, dev: ChadecheDevice, wiring: DriverWiring) -> Driver:
     }
     bus: ChadecheBus
     if isinstance(wiring.simulator, SimulatedBoards):
-        bus = wiring.simulator.bus
-    else:
+        bus, owned = wiring.simulator.bus, False
+    else:  # opened for this driver: its close() closes it
         bus = SpidevBus(
             spi_bus=dev.spi.bus,
             spi_device=dev.spi.device,
             max_speed_hz=dev.spi.max_speed_hz,
             lock_dir=dev.lock_dir,
         )
+        owned = True
     return ChadecheDriver(
-        name, wiring.clock, bus, cal, poll_period_s=dev.poll_period_s, lock_dir=dev.lock_dir
+        name,
+        wiring.clock,
+        bus,
+        cal,
+        poll_period_s=dev.poll_period_s,
+        lock_dir=dev.lock_dir,
+        owns_bus=owned,
     )
 
 

@@ -81,7 +81,8 @@ class ChadecheDriver(PolledDriver):
     ``relay_settle_s``: wait after flipping the relay before raising the current (slept on
     ``clock``, so it advances a virtual clock). ``lock_dir``: claim every board with
     :func:`claim_board` there; boards are always claimed (default directory) when ``bus`` is
-    a :class:`SpidevBus`. ``close()`` releases the claims but leaves outputs as they are.
+    a blocking (real) bus. ``close()`` releases the claims, and closes the bus when
+    ``owns_bus`` (it was opened for this driver), but leaves outputs as they are.
     """
 
     def __init__(
@@ -94,6 +95,7 @@ class ChadecheDriver(PolledDriver):
         *,
         relay_settle_s: float = RELAY_SETTLE_S,
         lock_dir: str | Path | None = None,
+        owns_bus: bool = False,
     ) -> None:
         if not boards:
             raise ValueError(f"{name}: at least one board is needed")
@@ -103,6 +105,7 @@ class ChadecheDriver(PolledDriver):
         if relay_settle_s < 0:
             raise ValueError(f"{name}: relay_settle_s must be >= 0")
         self._bus = bus
+        self._owns_bus = owns_bus
         # spidev blocks: run it in a worker thread. The simulator is fast and must stay
         # deterministic on a virtual clock: call it directly.
         self._blocking_bus = bus.blocking
@@ -152,6 +155,8 @@ class ChadecheDriver(PolledDriver):
     async def _disconnect(self) -> None:
         # Outputs are left as they are: the caller runs safe_state() first if it wants.
         self._release_claims()
+        if self._owns_bus:
+            self._bus.close()
 
     async def _read(self) -> dict[str, Sample]:
         samples: dict[str, Sample] = {}

@@ -196,7 +196,7 @@ class SimulatedBoards:
         return None
 
     async def stop(self) -> None:
-        return None
+        self.bus.close()
 
     def addresses(self) -> list[str]:
         return []
