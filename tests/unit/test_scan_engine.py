@@ -4,55 +4,24 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Mapping
 
 from supervisor.core.clock import VirtualClock
-from supervisor.core.driver import PointInfo, Sample, Value
-from supervisor.core.errors import DeviceIOError
+from supervisor.core.driver import Sample
 from supervisor.core.quality import Quality, Reason
-from supervisor.devices.base import PolledDriver
 from supervisor.scan import InputBinding, LogicPhase, OutputBinding, ScanEngine
 from supervisor.tags import Scaling, TagDB, TagSpec
+from supervisor.testing import RecordingDriver
 
 
-class FakeDevice(PolledDriver):
-    """Records every write in order; its inputs are whatever the test puts in ``values``."""
-
-    def __init__(self, clock: VirtualClock, poll_period_s: float = 0.1) -> None:
-        self.values: dict[str, float] = {"ai0": 1.0, "ai1": 2.0}
-        self.writes: list[tuple[str, Value]] = []
-        self.fail = False
-        self.safe_calls = 0
-        super().__init__("dev", clock, poll_period_s)
-
-    def points(self) -> Mapping[str, PointInfo]:
-        return {
-            "ai0": PointInfo("ai0", "in"),
-            "ai1": PointInfo("ai1", "in"),
-            "ao0": PointInfo("ao0", "out"),
-        }
-
-    async def _connect(self) -> None:
-        if self.fail:
-            raise DeviceIOError("dev", "connection refused")
-
-    async def _read(self) -> dict[str, Sample]:
-        if self.fail:
-            raise DeviceIOError("dev", "no answer")
-        t = self.clock.now()
-        return {k: Sample(v, t=t) for k, v in self.values.items()}
-
-    async def _write(self, point: str, value: Value) -> None:
-        self.writes.append((point, value))
-
-    async def _safe(self) -> None:
-        self.safe_calls += 1
+def fake_device(clock: VirtualClock, poll_period_s: float = 0.1) -> RecordingDriver:
+    """Two inputs the test sets in ``values``, one output whose writes it records."""
+    return RecordingDriver("dev", clock, {"ai0": 1.0, "ai1": 2.0}, ["ao0"], poll_period_s)
 
 
 def make(period_s: float = 0.1, stale_after_s: float = 0.5):  # type: ignore[no-untyped-def]
     clock = VirtualClock()
     db = TagDB()
-    dev = FakeDevice(clock)
+    dev = fake_device(clock)
     a = db.add(TagSpec("a", unit="V"))
     b = db.add(TagSpec("b", unit="A"))
     out = db.add(TagSpec("out", unit="A"))

@@ -14,6 +14,7 @@ from supervisor.app import Bench, build_bench
 from supervisor.core.clock import VirtualClock
 from supervisor.devices.registry import bench_from_data
 from supervisor.safety import SafetyPhase
+from supervisor.testing import run_scans
 
 PERIOD_S = 1.0
 Q_MAX_AH = 0.01  # 10 mAh: crossed after 120 s at 300 mA, between two scans
@@ -63,13 +64,13 @@ async def test_a_charge_transition_fires_in_the_scan_where_the_counter_crosses(
     recipe = tmp_path / "phases.yaml"
     recipe.write_text(RECIPE, encoding="utf-8")
     bench.load_recipe("ch0", recipe, results_dir=tmp_path)
-    await bench.engine.run_for(3 * PERIOD_S)  # first images in
+    await run_scans(bench.engine, 3)  # first images in
     bench.runners["ch0"].command("start", actor="test")
     db = bench.db
     crossed_in: int | None = None
     left_in: int | None = None
     for scan in range(400):
-        await bench.engine.run_for(PERIOD_S)  # exactly one scan
+        await run_scans(bench.engine)
         if crossed_in is None and db["ch0.charge_ah"].as_float() >= Q_MAX_AH:
             crossed_in = scan
         if left_in is None and db["ch0.chain.step"].value == "after":
