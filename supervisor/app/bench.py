@@ -18,7 +18,7 @@ from supervisor.core.driver import Driver, DType
 from supervisor.core.errors import OperatorError
 from supervisor.core.units import UNITS, Dim
 from supervisor.devices.kind import DriverWiring
-from supervisor.devices.registry import kind_of
+from supervisor.devices.registry import REGISTRY, Registry
 from supervisor.publish.results import ResultCollector
 from supervisor.safety import SafetyPhase
 from supervisor.scan import (
@@ -193,6 +193,7 @@ def build_bench(
     *,
     simulate: bool = True,
     in_process: bool = False,
+    registry: Registry = REGISTRY,
 ) -> Bench:
     """Wire a bench.
 
@@ -200,14 +201,17 @@ def build_bench(
     ``supervisor sim``, serves them). ``in_process=True`` has every driver of a simulated
     device talk to its simulator in this process instead of over loopback (dry runs and
     virtual-clock tests: deterministic, nothing listens). A kind whose simulator cannot be
-    served (a simulated SPI bus) is always in process.
+    served (a simulated SPI bus) is always in process. ``registry``: the device kinds
+    ``cfg`` was loaded with.
     """
     db = TagDB()
-    sim = build_simulation(cfg, clock, in_process_only=not simulate, in_process=in_process)
+    sim = build_simulation(
+        cfg, clock, in_process_only=not simulate, in_process=in_process, registry=registry
+    )
     drivers: dict[str, Driver] = {}
     stale: dict[str, float] = {}
     for name, dev in cfg.devices.items():
-        kind = kind_of(dev)
+        kind = registry.kind_of(dev)
         own = sim.devices.get(name) if sim is not None else None
         linked = own is not None and (in_process or kind.in_process_only)
         wiring = DriverWiring(clock, cfg, own if linked else None)

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from supervisor.config.models import BenchConfig
 from supervisor.core.clock import Clock
 from supervisor.devices.kind import DeviceSimulator, SimWiring
-from supervisor.devices.registry import kind_of
+from supervisor.devices.registry import REGISTRY, Registry
 from supervisor.sim.battery import BatteryModel
 from supervisor.sim.plant import BenchPlant, make_plant
 
@@ -50,7 +50,12 @@ class SimulatedBench:
 
 
 def build_simulation(
-    cfg: BenchConfig, clock: Clock, *, in_process_only: bool = False, in_process: bool = False
+    cfg: BenchConfig,
+    clock: Clock,
+    *,
+    in_process_only: bool = False,
+    in_process: bool = False,
+    registry: Registry = REGISTRY,
 ) -> SimulatedBench | None:
     """Simulators for the bench's simulated devices (None if it has none).
 
@@ -62,7 +67,7 @@ def build_simulation(
     bench = SimulatedBench(wiring.plant, cells=wiring.cells)
     served: list[str] = []
     for name, dev in cfg.devices.items():
-        kind = kind_of(dev)
+        kind = registry.kind_of(dev)
         if not dev.simulated or kind.build_simulator is None:
             continue
         if in_process_only and not kind.in_process_only:
