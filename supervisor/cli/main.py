@@ -50,7 +50,8 @@ async def _run(args: argparse.Namespace) -> int:
     clock = RealClock()
     bench = build_bench(cfg, clock, simulate=not args.no_sim)
     port = cfg.hmi.port if args.http_port is None else args.http_port
-    estop = bench.sim.press_estop if bench.sim is not None else None
+    # The e-stop button presses the simulated plant's e-stop (seed 002 bench only).
+    estop = bench.sim.press_estop if bench.sim is not None and bench.sim.served else None
 
     def load(channel: str, file: str, params: dict[str, str]) -> str:
         if not Path(file).exists():
@@ -84,7 +85,7 @@ async def _run(args: argparse.Namespace) -> int:
         f" scan period {cfg.scan.period_s * 1000:g} ms"
     )
     _out(f"HTTP API listening on {api.url}/tags")
-    if bench.sim is not None:
+    if bench.sim is not None and bench.sim.served:
         for line in bench.sim.addresses():
             _out(f"simulated {line}")
         _out(f'simulated e-stop button: PUT {api.url}/sim/estop {{"pressed": true}}')
@@ -117,7 +118,7 @@ async def _sim(args: argparse.Namespace) -> int:
     cfg = load_bench(args.io_map)
     clock = RealClock()
     sim = build_simulation(cfg, clock)
-    if sim is None:
+    if sim is None or not sim.served:
         _err(f"{args.io_map}: no device has sim: true; nothing to serve")
         return EXIT_USAGE
     control = HttpApi(TagDB(), clock, "127.0.0.1", args.control_port, estop=sim.press_estop)

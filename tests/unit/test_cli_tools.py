@@ -94,3 +94,21 @@ def test_dry_run_reports_a_refused_recipe_with_exit_2(capsys: pytest.CaptureFixt
     code = main(["dry-run", str(ROOT / "recipes" / "liion-cccv-cycle.yaml"), "--model", "nimh-aa"])
     assert code == 2
     assert "cannot run on channel ch0" in capsys.readouterr().err
+
+
+def test_sim_refuses_a_bench_whose_only_simulation_is_an_in_process_spi_bus(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A simulated Chadèche bus lives inside the supervisor's process: nothing to serve.
+    path = tmp_path / "chadeche-only.yaml"
+    path.write_text(
+        "bench: boards\n"
+        "devices:\n"
+        "  chadeche: {driver: chadeche, boards: [{address: 0}]}\n"
+        "channels:\n"
+        "  - {name: ch0, source: {device: chadeche, board: 0}, capacity_ah: 2.0,\n"
+        "     limits: {current_a: [-0.4, 0.4], voltage_v: [0.8, 1.9]}}\n",
+        encoding="utf-8",
+    )
+    assert main(["sim", str(path), "--control-port", "0"]) == 2
+    assert "nothing to serve" in capsys.readouterr().err
