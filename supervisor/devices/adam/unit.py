@@ -170,7 +170,8 @@ class AdamUnit:
     def mute(self, silent: bool = True) -> None:
         """Fault: the unit accepts connections but answers no request (``False`` heals it).
 
-        A muted unit does not act on what it is sent either: a relay write is lost.
+        A muted unit does not act on what it is sent either: the in-process link and the
+        TCP server do not hand it the request, so a relay write is lost.
         """
         self._muted = silent
 
@@ -197,6 +198,8 @@ class AdamUnit:
             self._coils[key] = state
 
     # --- requests (what a Modbus master asks) --------------------------------------------
+    # Called by the links and the server once a request has reached the unit: being
+    # plugged in and answering (mute) are theirs to check.
     def read_registers(self, function_code: int, address: int, count: int) -> list[int]:
         """FC03/FC04: ``count`` raw 16-bit values from ``address`` (one fewer when a short
         answer is armed). Raises :class:`ModbusExceptionAnswer`."""
