@@ -1,9 +1,19 @@
-"""ADAM-5000/TCP driver against the pymodbus simulator over real sockets on 127.0.0.1."""
+"""ADAM-5000/TCP over real Modbus TCP on 127.0.0.1: the pymodbus link against the pymodbus
+server around the simulated unit.
+
+Only what is about Modbus TCP itself lives here: framing (short answers, exception answers
+over the wire), bit and word order end to end, pymodbus's own failures (refused, lost, no
+answer) as the link maps them, a reconnect after the server restarts on the same port, and
+a raw pymodbus client against the simulator. Everything else about the driver runs on the
+virtual clock through the in-process link: ``tests/unit/test_adam_driver.py``.
+"""
 
 from __future__ import annotations
 
-import logging
-from collections.abc import AsyncIterator
+import asyncio
+import socket
+import time
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
 
 import pytest
@@ -11,14 +21,19 @@ from pymodbus.client import AsyncModbusTcpClient
 
 import supervisor.devices.base as base
 from supervisor.core.clock import RealClock
+from supervisor.core.errors import DeviceIOError, DeviceTimeout
 from supervisor.core.quality import Quality, Reason
 from supervisor.devices.adam.driver import AdamDriver, AdamModule
-from supervisor.devices.adam.protocol import lsb
+from supervisor.devices.adam.protocol import ModbusExceptionAnswer, lsb
 from supervisor.devices.adam.sim import AdamSimulator
+from supervisor.devices.adam.transport import PymodbusTcpLink
+from supervisor.devices.adam.unit import AdamUnit
 
 pytestmark = pytest.mark.integration
 
 TIMEOUT_S = 0.5
+SILENT_TIMEOUT_S = 0.2
+"""The one test that waits for a timeout on wall time waits this long."""
 
 # Seed 002 layout: 5017 (slot 0), two 5018 (slots 1, 2; slot 2 in two's complement), 5060.
 MODULES = {0: "5017", 1: "5018", 2: "5018", 3: "5060"}
@@ -28,16 +43,23 @@ FORMATS = {2: "twos"}
 @dataclass
 class Bench:
     sim: AdamSimulator
+    link: PymodbusTcpLink
     driver: AdamDriver
     inputs: dict[tuple[int, int], float | None] = field(default_factory=dict)
     relay_calls: dict[tuple[int, int], list[bool]] = field(default_factory=dict)
 
+    @property
+    def unit(self) -> AdamUnit:
+        return self.sim.unit
 
-def _make_sim(bench_inputs: dict[tuple[int, int], float | None], calls: dict, port: int = 0):
-    def source(key: tuple[int, int]):
+
+def _make_unit(
+    bench_inputs: dict[tuple[int, int], float | None], calls: dict[tuple[int, int], list[bool]]
+) -> AdamUnit:
+    def source(key: tuple[int, int]) -> Callable[[], float | None]:
         return lambda: bench_inputs.get(key)
 
-    def sink(key: tuple[int, int]):
+    def sink(key: tuple[int, int]) -> Callable[[bool], None]:
         return lambda state: calls.setdefault(key, []).append(state)
 
     analog = {
@@ -47,7 +69,7 @@ def _make_sim(bench_inputs: dict[tuple[int, int], float | None], calls: dict, po
         for ch in range(8 if kind == "5017" else 7)
     }
     relays = {(3, ch): sink((3, ch)) for ch in range(6)}
-    return AdamSimulator(MODULES, analog, relays, raw_format=FORMATS, port=port)
+    return AdamUnit(MODULES, analog, relays, raw_format=FORMATS)
 
 
 @pytest.fixture
@@ -58,18 +80,17 @@ async def bench(monkeypatch: pytest.MonkeyPatch) -> AsyncIterator[Bench]:
     inputs: dict[tuple[int, int], float | None] = {(0, ch): 0.0 for ch in range(8)}
     inputs.update({(slot, ch): 20.0 for slot in (1, 2) for ch in range(7)})
     calls: dict[tuple[int, int], list[bool]] = {}
-    sim = _make_sim(inputs, calls)
+    sim = AdamSimulator(_make_unit(inputs, calls), port=0)
     await sim.start()
+    link = PymodbusTcpLink("adam1", sim.host, sim.port, timeout_s=TIMEOUT_S)
     driver = AdamDriver(
         "adam1",
         RealClock(),
-        sim.host,
-        sim.port,
+        link,
         {s: AdamModule(k, FORMATS.get(s, "offset")) for s, k in MODULES.items()},
-        timeout_s=TIMEOUT_S,
     )
     try:
-        yield Bench(sim, driver, inputs, calls)
+        yield Bench(sim, link, driver, inputs, calls)
     finally:
         await driver.close()
         await sim.stop()
@@ -79,40 +100,25 @@ def _inputs_all(driver: AdamDriver, quality: Quality, reason: Reason) -> bool:
     return all(s.quality == quality and s.reason == reason for s in driver.image().values())
 
 
-def test_points() -> None:
-    driver = AdamDriver(
-        "adam1",
-        RealClock(),
-        "127.0.0.1",
-        1,
-        {0: AdamModule("5017"), 1: AdamModule("5018"), 3: AdamModule("5060")},
-    )
-    pts = driver.points()
-    assert [n for n in pts if n.startswith("slot0.")] == [f"slot0.ai{k}" for k in range(8)]
-    assert [n for n in pts if n.startswith("slot1.")] == [f"slot1.tc{k}" for k in range(7)]
-    assert pts["slot0.ai3"].unit == "V" and pts["slot0.ai3"].direction == "in"
-    assert pts["slot1.tc6"].unit == "degC"
-    assert pts["slot3.do5"].direction == "out" and pts["slot3.do5"].dtype == "bool"
-    assert pts["slot3.do5_fb"].direction == "in" and pts["slot3.do5_fb"].dtype == "bool"
-    assert "slot3.do6" not in pts
-    # Before any poll every input is BAD, never connected.
-    assert _inputs_all(driver, Quality.BAD, Reason.NOT_CONNECTED)
-    with pytest.raises(ValueError):
-        driver.write("slot3.do0", 0.5)
-    with pytest.raises(KeyError):
-        driver.write("slot0.ai0", True)
+async def _until(pred: Callable[[], bool], what: str, limit_s: float = 5.0) -> None:
+    """Wait for the event loop to deliver a socket event (a bound, not a timing claim)."""
+    deadline = time.monotonic() + limit_s
+    while not pred():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"gave up waiting: {what}")
+        await asyncio.sleep(0.01)
 
 
-def test_fast_polling_of_a_5017_warns(caplog: pytest.LogCaptureFixture) -> None:
-    with caplog.at_level(logging.WARNING, logger="supervisor.devices.adam.driver"):
-        AdamDriver("fast", RealClock(), "127.0.0.1", 1, {0: AdamModule("5018")}, poll_period_s=0.05)
-    assert not caplog.records
-    with caplog.at_level(logging.WARNING, logger="supervisor.devices.adam.driver"):
-        AdamDriver("fast", RealClock(), "127.0.0.1", 1, {0: AdamModule("5017")}, poll_period_s=0.05)
-    assert any("fast" in r.getMessage() and "5017" in r.getMessage() for r in caplog.records)
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
 
 
+# --- word and bit order end to end ------------------------------------------------------------
 async def test_analog_values_arrive_in_volts_and_degc(bench: Bench) -> None:
+    """Registers big-endian on the wire, both raw formats: what the unit encodes is what the
+    driver decodes after pymodbus on both ends."""
     bench.inputs[(0, 2)] = 4.0  # e.g. LEM at +300 A
     bench.inputs[(1, 0)] = 25.0
     bench.inputs[(2, 6)] = -20.5  # two's complement slot
@@ -135,29 +141,13 @@ async def test_analog_values_arrive_in_volts_and_degc(bench: Bench) -> None:
     assert img["slot1.tc0"].value == pytest.approx(31.25, abs=lsb("5018"))
 
 
-async def test_open_thermocouple_is_bad_sensor_failure(bench: Bench) -> None:
-    bench.inputs[(1, 3)] = None
-    bench.inputs[(2, 4)] = None
-    await bench.driver.poll()
-    img = bench.driver.image()
-    for point in ("slot1.tc3", "slot2.tc4"):
-        assert img[point].value is None
-        assert img[point].quality == Quality.BAD
-        assert img[point].reason == Reason.SENSOR_FAILURE
-    assert img["slot1.tc2"].quality == Quality.GOOD
-
-    bench.inputs[(1, 3)] = 22.0
-    await bench.driver.poll()
-    assert bench.driver.image()["slot1.tc3"].quality == Quality.GOOD
-    assert bench.driver.image()["slot1.tc3"].value == pytest.approx(22.0, abs=lsb("5018"))
-
-
 async def test_relay_write_calls_callback_and_reads_back(bench: Bench) -> None:
+    """Coil bit order: FC05 on coil 50 is relay 2 of slot 3, and FC01 unpacks it there."""
     await bench.driver.poll()
     bench.driver.write("slot3.do2", True)
     await bench.driver.poll()
     assert bench.relay_calls == {(3, 2): [True]}
-    assert bench.sim.relay_state(3, 2) is True
+    assert bench.unit.relay_state(3, 2) is True
     img = bench.driver.image()
     assert img["slot3.do2_fb"].value is True
     assert img["slot3.do2_fb"].quality == Quality.GOOD
@@ -169,19 +159,10 @@ async def test_relay_write_calls_callback_and_reads_back(bench: Bench) -> None:
     assert bench.driver.image()["slot3.do2_fb"].value is False
 
 
-async def test_relay_that_does_not_follow_is_a_write_fault(bench: Bench) -> None:
-    await bench.driver.poll()
-    bench.sim.stick_relay(3, 1, False)
-    bench.driver.write("slot3.do1", True)
-    await bench.driver.poll()
-    assert "write did not verify" in bench.driver.last_error
-    assert not bench.driver.connected
-    assert _inputs_all(bench.driver, Quality.BAD, Reason.COMM_FAILURE)
-
-
+# --- framing: exception answers and short answers over the wire -------------------------------
 async def test_modbus_exception_on_one_slot_leaves_the_others_good(bench: Bench) -> None:
     await bench.driver.poll()
-    bench.sim.fail_next_reads(1, 0x04, slot=1)
+    bench.unit.fail_next_reads(1, 0x04, slot=1)
     await bench.driver.poll()
     img = bench.driver.image()
     assert bench.driver.connected
@@ -199,7 +180,7 @@ async def test_modbus_exception_on_one_slot_leaves_the_others_good(bench: Bench)
 
 async def test_modbus_exception_on_relay_slot(bench: Bench) -> None:
     await bench.driver.poll()
-    bench.sim.fail_next_reads(1, 0x02, slot=3)
+    bench.unit.fail_next_reads(1, 0x02, slot=3)
     await bench.driver.poll()
     img = bench.driver.image()
     assert img["slot3.do0_fb"].reason == Reason.DEVICE_ERROR
@@ -208,7 +189,7 @@ async def test_modbus_exception_on_relay_slot(bench: Bench) -> None:
 
 async def test_short_read_makes_that_slot_bad(bench: Bench) -> None:
     await bench.driver.poll()
-    bench.sim.short_next_reads(1, slot=0)
+    bench.unit.short_next_reads(1, slot=0)
     await bench.driver.poll()
     img = bench.driver.image()
     assert bench.driver.connected
@@ -224,6 +205,53 @@ async def test_short_read_makes_that_slot_bad(bench: Bench) -> None:
     assert _inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
 
 
+async def test_short_coil_answer_over_the_wire(bench: Bench) -> None:
+    await bench.driver.poll()
+    bench.unit.short_next_reads(1, slot=3)
+    await bench.driver.poll()
+    assert bench.driver.image()["slot3.do0_fb"].reason == Reason.COMM_FAILURE
+    assert "0 coils back for 6" in bench.driver.last_error
+
+
+# --- the pymodbus link's failures, from the real library --------------------------------------
+async def test_pymodbus_link_exception_answer_over_the_wire(bench: Bench) -> None:
+    await bench.link.connect()
+    with pytest.raises(ModbusExceptionAnswer) as info:
+        await bench.link.read_registers(40, 8)  # nothing in slot 5
+    assert info.value.code == 0x02
+    assert bench.link.connected  # a refused request is no comm loss
+
+
+async def test_pymodbus_link_refused_and_lost(bench: Bench) -> None:
+    nobody = PymodbusTcpLink("adam2", "127.0.0.1", _free_port(), timeout_s=TIMEOUT_S)
+    with pytest.raises(DeviceIOError, match=r"^adam2: cannot connect to 127\.0\.0\.1:\d+$"):
+        await nobody.connect()
+    assert not nobody.connected
+
+    await bench.link.connect()
+    await bench.sim.stop()
+    await _until(lambda: not bench.link.connected, "the link sees the server gone")
+    with pytest.raises(DeviceIOError, match=r"^adam1: not connected$"):
+        await bench.link.read_coils(48, 6)
+
+
+async def test_a_silent_server_is_a_timeout(bench: Bench) -> None:
+    """pymodbus reports a request without answer in words ("No response …") that the link
+    must recognise; only the real library can say whether it still does. Wall time: one
+    ``SILENT_TIMEOUT_S``."""
+    link = PymodbusTcpLink("adam1", bench.sim.host, bench.sim.port, timeout_s=SILENT_TIMEOUT_S)
+    await link.connect()
+    bench.unit.mute()
+    try:
+        with pytest.raises(DeviceTimeout, match=rf"^adam1: no answer in {SILENT_TIMEOUT_S} s$"):
+            await link.read_registers(0, 8)
+        bench.unit.mute(False)
+        assert len(await link.read_registers(0, 8)) == 8
+    finally:
+        await link.close()
+
+
+# --- outage: the server restarts on the same port ----------------------------------------------
 async def test_lost_simulator_marks_everything_bad_then_recovers(bench: Bench) -> None:
     await bench.driver.poll()
     assert _inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
@@ -248,35 +276,17 @@ async def test_lost_simulator_marks_everything_bad_then_recovers(bench: Bench) -
     assert bench.driver.image()["slot0.ai0"].value == pytest.approx(1.5, abs=lsb("5017"))
 
 
-async def test_safe_state_switches_every_relay_off(bench: Bench) -> None:
+async def test_relay_states_are_kept_across_a_server_outage(bench: Bench) -> None:
     await bench.driver.poll()
-    for ch in (0, 3, 5):
-        bench.driver.write(f"slot3.do{ch}", True)
+    bench.driver.write("slot3.do4", True)
     await bench.driver.poll()
-    assert all(bench.sim.relay_state(3, ch) for ch in (0, 3, 5))
-
-    bench.driver.write("slot3.do1", True)  # queued, dropped by the safe state
-    await bench.driver.safe_state()
-    assert not any(bench.sim.relay_state(3, ch) for ch in range(6))
-    for ch in range(6):
-        assert bench.relay_calls[(3, ch)][-1] is False
-    await bench.driver.poll()
-    assert all(bench.driver.image()[f"slot3.do{ch}_fb"].value is False for ch in range(6))
-
-
-async def test_safe_state_connects_when_needed_and_goes_on_past_failures(bench: Bench) -> None:
-    bench.sim.stick_relay(3, 0, True)  # welded contact
-    await bench.driver.safe_state()  # never polled: connects by itself; logs, never raises
-    assert bench.sim.relay_state(3, 0) is True
-    assert not any(bench.sim.relay_state(3, ch) for ch in range(1, 6))
-    assert all(bench.relay_calls[(3, ch)] == [False] for ch in range(1, 6))
-
-
-async def test_safe_state_without_device_does_not_raise(bench: Bench) -> None:
     await bench.sim.stop()
-    await bench.driver.safe_state()
+    await bench.sim.start()
+    await bench.driver.poll()
+    assert bench.driver.image()["slot3.do4_fb"].value is True
 
 
+# --- a foreign Modbus client against the simulator ---------------------------------------------
 async def test_analog_values_are_served_by_fc03_and_fc04(bench: Bench) -> None:
     bench.inputs[(1, 2)] = 42.0
     client = AsyncModbusTcpClient(bench.sim.host, port=bench.sim.port, timeout=TIMEOUT_S)
@@ -302,3 +312,8 @@ async def test_analog_values_are_served_by_fc03_and_fc04(bench: Bench) -> None:
         assert list(back.bits[:6]) == [True, False, True, False, False, False]
     finally:
         client.close()
+
+
+def test_server_refuses_a_bad_unit_id() -> None:
+    with pytest.raises(ValueError, match="unit_id"):
+        AdamSimulator(AdamUnit({0: "5017"}), unit_id=300)

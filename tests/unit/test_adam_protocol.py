@@ -1,4 +1,5 @@
-"""ADAM-5000/TCP codecs: golden addresses and raw values, burn-out, round trips."""
+"""ADAM-5000/TCP codecs: golden addresses and raw values, burn-out, round trips; golden
+frames of the pymodbus minor we pin (bit and word order), Modbus exception answers."""
 
 from __future__ import annotations
 
@@ -7,13 +8,19 @@ import math
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from pymodbus.constants import ExcCodes
+from pymodbus.pdu.bit_message import ReadCoilsResponse, WriteSingleCoilRequest
+from pymodbus.pdu.register_message import ReadHoldingRegistersResponse
 
+from supervisor.core.errors import SupervisorError
 from supervisor.devices.adam.protocol import (
     ANALOG_READ_FUNCTION,
+    EXCEPTION_MEANINGS,
     MODULE_KINDS,
     OFFSET_BINARY_SPAN,
     TC_OPEN_WIRE_RAW,
     AdamModule,
+    ModbusExceptionAnswer,
     analog_register,
     coil_address,
     coil_slot_channel,
@@ -207,3 +214,46 @@ def test_any_value_encodes_to_16_bits(value: float, kind: str, fmt: str) -> None
 def test_raw_to_value_then_back_is_identity_inside_range(raw: int, fmt: str) -> None:
     value = raw_to_value(raw, "5017", fmt)
     assert value_to_raw(value, "5017", fmt) == raw
+
+
+# --- pymodbus's bit and word order (STYLE.md: pinned minor; it changed between minors) --------
+def test_pymodbus_packs_coils_lsb_first() -> None:
+    """FC01 answer: coil ``address + 0`` is bit 0 of the first data byte (Modbus §6.1)."""
+    bits = [True, False, True, False, False, False, False, False, True]
+    assert ReadCoilsResponse(bits=bits).encode() == bytes([0x02, 0x05, 0x01])
+    back = ReadCoilsResponse()
+    back.decode(bytes([0x02, 0x05, 0x01]))
+    assert back.bits[:9] == bits
+
+
+def test_pymodbus_sends_registers_big_endian() -> None:
+    """FC03/FC04 answer: byte count, then each register high byte first (Modbus §4.2)."""
+    answer = ReadHoldingRegistersResponse(registers=[0x1234, 0xFFFF])
+    assert answer.encode() == bytes([0x04, 0x12, 0x34, 0xFF, 0xFF])
+
+
+def test_pymodbus_single_coil_on_is_ff00() -> None:
+    """FC05: relay 2 of slot 3 is coil 50; ON is 0xFF00 (Modbus §6.5)."""
+    request = WriteSingleCoilRequest(address=coil_address(3, 2), bits=[True])
+    assert request.encode() == bytes([0x00, 0x32, 0xFF, 0x00])
+
+
+# --- Modbus exception answers --------------------------------------------------------------
+def test_exception_codes_are_pymodbus_codes() -> None:
+    assert set(EXCEPTION_MEANINGS) == {int(c) for c in ExcCodes}
+    for code in ExcCodes:
+        if code == 0x0A:  # pymodbus spells it GATEWAY_PATH_UNAVIABLE
+            assert EXCEPTION_MEANINGS[code] == "gateway path unavailable"
+        else:
+            assert EXCEPTION_MEANINGS[code] == code.name.lower().replace("_", " ")
+
+
+def test_exception_answer_message_and_request() -> None:
+    answer = ModbusExceptionAnswer(0x04)
+    assert (answer.code, str(answer)) == (0x04, "Modbus exception 0x04 (device failure)")
+    named = answer.about("slot1 FC03 @8x7")
+    assert (named.code, named.what) == (0x04, "slot1 FC03 @8x7")
+    assert str(named) == "slot1 FC03 @8x7: Modbus exception 0x04 (device failure)"
+    assert str(ModbusExceptionAnswer(0x42)) == "Modbus exception 0x42 (unknown code)"
+    # Slot-local data, never a comm failure that PolledDriver would catch.
+    assert not isinstance(answer, SupervisorError)

@@ -7,28 +7,56 @@ from supervisor.config.models import SimulationConfig
 from supervisor.core.driver import Driver
 from supervisor.devices.adam.config import AdamDevice
 from supervisor.devices.adam.driver import AdamDriver
-from supervisor.devices.adam.protocol import AdamModule
+from supervisor.devices.adam.protocol import AdamModule, ModbusExceptionAnswer
 from supervisor.devices.adam.sim import AdamSimulator, plant_simulator
+from supervisor.devices.adam.transport import InProcessLink, ModbusLink, PymodbusTcpLink
+from supervisor.devices.adam.unit import AdamUnit
 from supervisor.devices.kind import DeviceKind, DeviceSimulator, DriverWiring, SimWiring
 
 
+def unit_of(sim: DeviceSimulator) -> AdamUnit:
+    """The simulated unit behind an ADAM simulator (served or not)."""
+    if isinstance(sim, AdamUnit):
+        return sim
+    if isinstance(sim, AdamSimulator):
+        return sim.unit
+    raise TypeError(f"not an ADAM simulator: {sim!r}")
+
+
 def _driver(name: str, dev: AdamDevice, wiring: DriverWiring) -> Driver:
+    link: ModbusLink
+    if wiring.simulator is not None:
+        link = InProcessLink(name, wiring.clock, unit_of(wiring.simulator), dev.timeout_s)
+    else:
+        link = PymodbusTcpLink(name, dev.host, dev.port, dev.unit_id, dev.timeout_s)
     return AdamDriver(
         name,
         wiring.clock,
-        dev.host,
-        dev.port,
+        link,
         {slot: AdamModule(m.kind, m.raw_format) for slot, m in sorted(dev.modules.items())},
-        unit_id=dev.unit_id,
         poll_period_s=dev.poll_period_s,
-        timeout_s=dev.timeout_s,
     )
 
 
 def _simulator(name: str, dev: AdamDevice, wiring: SimWiring) -> DeviceSimulator:
-    return plant_simulator(name, dev, wiring.bench.simulation or SimulationConfig(), wiring.plant)
+    unit = plant_simulator(name, dev, wiring.bench.simulation or SimulationConfig(), wiring.plant)
+    if wiring.in_process:
+        return unit  # nothing served: the driver calls the unit directly
+    return AdamSimulator(unit, host=dev.host, port=dev.port, unit_id=dev.unit_id)
 
 
 KIND = DeviceKind(AdamDevice, _driver, _simulator)
 
-__all__ = ["KIND", "AdamDevice", "AdamDriver", "AdamModule", "AdamSimulator"]
+__all__ = [
+    "KIND",
+    "AdamDevice",
+    "AdamDriver",
+    "AdamModule",
+    "AdamSimulator",
+    "AdamUnit",
+    "InProcessLink",
+    "ModbusExceptionAnswer",
+    "ModbusLink",
+    "PymodbusTcpLink",
+    "unit_of",
+]

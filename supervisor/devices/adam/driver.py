@@ -13,20 +13,18 @@ for analog slots, FC01 for relay slots). A Modbus exception answer makes that sl
 BAD ``DEVICE_ERROR`` (code in ``last_error`` and ``raw_log``), a short answer makes them BAD
 ``COMM_FAILURE``; other slots are unaffected. A lost or silent connection raises
 :class:`DeviceIOError`, so :class:`PolledDriver` marks every input BAD and reconnects with
-backoff (the pymodbus client's own reconnect is off). Relay writes are FC05 then an FC01
-read-back; a mismatch is a fault. The safe state switches every relay off (de-energised =
-contactor open).
+backoff. Relay writes are FC05 then an FC01 read-back; a mismatch is a fault. The safe state
+switches every relay off (de-energised = contactor open).
+
+The Modbus link is injected (:mod:`supervisor.devices.adam.transport`): Modbus TCP through
+pymodbus for a real unit, or a direct call into a simulated unit in the same process.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Awaitable, Callable, Mapping
-
-from pymodbus.client import AsyncModbusTcpClient
-from pymodbus.constants import ExcCodes
-from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
-from pymodbus.pdu import ModbusPDU
+from typing import TypeVar
 
 from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
@@ -36,15 +34,15 @@ from supervisor.devices.adam.config import MIN_POLL_PERIOD_5017_S, SLOTS, slot_p
 from supervisor.devices.adam.protocol import (
     ANALOG_READ_FUNCTION,
     FC_READ_COILS,
-    FC_READ_HOLDING_REGISTERS,
-    FC_READ_INPUT_REGISTERS,
     FC_WRITE_SINGLE_COIL,
     AdamModule,
+    ModbusExceptionAnswer,
     analog_register,
     coil_address,
     is_burnout,
     raw_to_value,
 )
+from supervisor.devices.adam.transport import ModbusLink
 from supervisor.devices.base import PolledDriver
 
 log = logging.getLogger(__name__)
@@ -52,31 +50,20 @@ log = logging.getLogger(__name__)
 __all__ = ["MIN_POLL_PERIOD_5017_S", "AdamDriver", "AdamModule"]
 
 
-class _ExceptionAnswer(Exception):
-    """The device answered a request with a Modbus exception (slot-local, not a comm loss)."""
-
-    def __init__(self, what: str, code: int) -> None:
-        self.code = code
-        try:
-            meaning = ExcCodes(code).name.lower().replace("_", " ")
-        except ValueError:
-            meaning = "unknown code"
-        super().__init__(f"{what}: Modbus exception 0x{code:02X} ({meaning})")
+T = TypeVar("T")
 
 
 class AdamDriver(PolledDriver):
-    """Poll an ADAM-5000/TCP: ``modules`` maps slot (0..7) → :class:`AdamModule`."""
+    """Poll an ADAM-5000/TCP through ``link``: ``modules`` maps slot (0..7) →
+    :class:`AdamModule`. The link carries the unit id and the answer timeout."""
 
     def __init__(
         self,
         name: str,
         clock: Clock,
-        host: str,
-        port: int,
+        link: ModbusLink,
         modules: dict[int, AdamModule],
-        unit_id: int = 1,
         poll_period_s: float = 0.2,
-        timeout_s: float = 1.0,
     ) -> None:
         if not modules:
             raise ValueError(f"{name}: at least one module is needed")
@@ -85,16 +72,8 @@ class AdamDriver(PolledDriver):
                 raise ValueError(f"{name}: ADAM slot must be 0..{SLOTS[-1]}, got {slot!r}")
             if not isinstance(module, AdamModule):
                 raise TypeError(f"{name}: slot {slot}: expected AdamModule, got {module!r}")
-        if not 0 <= unit_id <= 255:
-            raise ValueError(f"{name}: unit_id must be 0..255, got {unit_id!r}")
-        if timeout_s <= 0:
-            raise ValueError(f"{name}: timeout_s must be > 0")
-        self._host = host
-        self._port = port
-        self._unit_id = unit_id
-        self._timeout_s = timeout_s
+        self._link = link
         self._modules = {s: modules[s] for s in sorted(modules)}
-        self._client: AsyncModbusTcpClient | None = None
         self._points: dict[str, PointInfo] = {}
         self._outputs: dict[str, tuple[int, int]] = {}
         self._slot_inputs: dict[int, list[str]] = {}
@@ -130,6 +109,11 @@ class AdamDriver(PolledDriver):
     def modules(self) -> Mapping[int, AdamModule]:
         return self._modules
 
+    @property
+    def link(self) -> ModbusLink:
+        """The Modbus link the composition root gave it."""
+        return self._link
+
     def write(self, point: str, value: Value) -> None:
         """Queue a relay write; only ``True``/``False`` (or 1/0) are accepted."""
         if point in self._outputs and not (
@@ -141,31 +125,18 @@ class AdamDriver(PolledDriver):
     # --- PolledDriver hooks ----------------------------------------------------
     async def _connect(self) -> None:
         await self._disconnect()
-        client = AsyncModbusTcpClient(
-            self._host,
-            port=self._port,
-            name=self.name,
-            timeout=self._timeout_s,
-            retries=0,
-            reconnect_delay=0,  # PolledDriver reconnects, with backoff
-        )
-        self._client = client
-        if not await client.connect():
-            await self._disconnect()
-            raise DeviceIOError(self.name, f"cannot connect to {self._host}:{self._port}")
-        log.info("%s: connected to %s:%d", self.name, self._host, self._port)
+        await self._link.connect()
+        log.info("%s: connected to %s", self.name, self._link.address)
 
     async def _disconnect(self) -> None:
-        client, self._client = self._client, None
-        if client is not None:
-            client.close()
+        await self._link.close()
 
     async def _read(self) -> dict[str, Sample]:
         samples: dict[str, Sample] = {}
         for slot, module in self._modules.items():
             try:
                 samples.update(await self._read_slot(slot, module))
-            except _ExceptionAnswer as exc:
+            except ModbusExceptionAnswer as exc:
                 self._slot_failed(slot, str(exc), Reason.DEVICE_ERROR, samples)
             except ProtocolError as exc:
                 message = str(exc).removeprefix(f"{self.name}: ")
@@ -181,18 +152,14 @@ class AdamDriver(PolledDriver):
         address = coil_address(slot, ch)
         what = f"{point} FC{FC_WRITE_SINGLE_COIL:02d} @{address}={int(want)}"
         try:
-            await self._request(
-                what, lambda c: c.write_coil(address, want, device_id=self._unit_id)
-            )
+            await self._request(what, lambda link: link.write_coil(address, want))
             what = f"{point} FC{FC_READ_COILS:02d} @{address}x1"
-            rsp = await self._request(
-                what, lambda c: c.read_coils(address, count=1, device_id=self._unit_id)
-            )
-        except _ExceptionAnswer as exc:
+            bits = await self._request(what, lambda link: link.read_coils(address, 1))
+        except ModbusExceptionAnswer as exc:
             raise DeviceIOError(self.name, f"{exc}; write did not verify") from exc
-        if not rsp.bits:
+        if not bits:
             raise ProtocolError(self.name, f"{what}: no coil in the answer")
-        got = bool(rsp.bits[0])
+        got = bits[0]
         self.raw_log.append(f"{what} -> {int(got)}")
         if got != want:
             raise DeviceIOError(
@@ -204,7 +171,7 @@ class AdamDriver(PolledDriver):
         """Every relay off (de-energised = contactor open); go on past failures."""
         if not self._outputs:
             return
-        if self._client is None or not self._client.connected:
+        if not self._link.connected:
             await self._connect()
         failed: list[str] = []
         for point in self._outputs:
@@ -218,33 +185,19 @@ class AdamDriver(PolledDriver):
         log.info("%s: safe state: every relay off", self.name)
 
     # --- internals -------------------------------------------------------------
-    async def _request(
-        self, what: str, call: Callable[[AsyncModbusTcpClient], Awaitable[ModbusPDU]]
-    ) -> ModbusPDU:
-        """One Modbus transaction; comm failures raise DeviceIOError, exception answers
-        raise :class:`_ExceptionAnswer`."""
-        client = self._client
-        # pymodbus would silently reconnect on its own: reconnecting is PolledDriver's job.
-        if client is None or not client.connected:
-            raise DeviceIOError(self.name, f"{what}: not connected")
+    async def _request(self, what: str, call: Callable[[ModbusLink], Awaitable[T]]) -> T:
+        """One Modbus transaction; the link's errors come back naming the request ``what``:
+        :class:`DeviceIOError` / :class:`DeviceTimeout` for the link, and
+        :class:`ModbusExceptionAnswer` (logged in ``raw_log``) for a refused request."""
         try:
-            rsp = await call(client)
-        except ConnectionException as exc:
-            raise DeviceIOError(self.name, f"{what}: {exc}") from exc
-        except ModbusIOException as exc:
-            if "No response" in str(exc):
-                raise DeviceTimeout(self.name, f"{what}: no answer in {self._timeout_s} s") from exc
-            raise DeviceIOError(self.name, f"{what}: {exc}") from exc
-        except ModbusException as exc:
-            raise DeviceIOError(self.name, f"{what}: {exc}") from exc
-        except TimeoutError as exc:
-            raise DeviceTimeout(self.name, f"{what}: no answer in {self._timeout_s} s") from exc
-        if rsp.isError():
-            code = int(rsp.exception_code)
-            answer = _ExceptionAnswer(what, code)
-            self.raw_log.append(f"{what} -> exception 0x{code:02X}")
-            raise answer
-        return rsp
+            return await call(self._link)
+        except ModbusExceptionAnswer as exc:
+            self.raw_log.append(f"{what} -> exception 0x{exc.code:02X}")
+            raise exc.about(what) from exc
+        except DeviceIOError as exc:
+            detail = str(exc).removeprefix(f"{exc.device}: ")
+            error = DeviceTimeout if isinstance(exc, DeviceTimeout) else DeviceIOError
+            raise error(self.name, f"{what}: {detail}") from exc
 
     async def _read_slot(self, slot: int, module: AdamModule) -> dict[str, Sample]:
         spec = module.spec
@@ -252,10 +205,7 @@ class AdamDriver(PolledDriver):
         if spec.family == "relay":
             address = coil_address(slot, 0)
             what = f"slot{slot} FC{FC_READ_COILS:02d} @{address}x{n}"
-            rsp = await self._request(
-                what, lambda c: c.read_coils(address, count=n, device_id=self._unit_id)
-            )
-            bits = [bool(b) for b in rsp.bits]
+            bits = await self._request(what, lambda link: link.read_coils(address, n))
             self.raw_log.append(f"{what} -> {''.join(str(int(b)) for b in bits[:n])}")
             if len(bits) < n:
                 raise ProtocolError(
@@ -269,8 +219,7 @@ class AdamDriver(PolledDriver):
 
         address = analog_register(slot, 0)
         what = f"slot{slot} FC{ANALOG_READ_FUNCTION:02d} @{address}x{n}"
-        rsp = await self._request(what, lambda c: self._read_registers(c, address, n))
-        regs = [int(r) & 0xFFFF for r in rsp.registers]
+        regs = await self._request(what, lambda link: link.read_registers(address, n))
         raw = b"".join(r.to_bytes(2, "big") for r in regs)
         self.raw_log.append(f"{what} -> {raw.hex()}")
         if len(regs) < n:
@@ -300,14 +249,6 @@ class AdamDriver(PolledDriver):
             value = raw_to_value(code, module.kind, module.raw_format)
             samples[point] = Sample(value, Quality.GOOD, Reason.NONE, t)
         return samples
-
-    def _read_registers(
-        self, client: AsyncModbusTcpClient, address: int, count: int
-    ) -> Awaitable[ModbusPDU]:
-        if ANALOG_READ_FUNCTION == FC_READ_INPUT_REGISTERS:
-            return client.read_input_registers(address, count=count, device_id=self._unit_id)
-        assert ANALOG_READ_FUNCTION == FC_READ_HOLDING_REGISTERS
-        return client.read_holding_registers(address, count=count, device_id=self._unit_id)
 
     def _slot_failed(
         self, slot: int, message: str, reason: Reason, samples: dict[str, Sample]

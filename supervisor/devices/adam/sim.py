@@ -1,24 +1,21 @@
-"""A Modbus TCP server laid out like an ADAM-5000/TCP with I/O modules in its slots.
+"""The simulated ADAM-5000/TCP served over Modbus TCP, and its wiring to the bench plant.
 
-Real pymodbus server (``ModbusTcpServer`` with a ``SimDevice``), so the driver is tested over
-real sockets. The register map is :mod:`supervisor.devices.adam.protocol`:
+:class:`AdamSimulator` is a real pymodbus server (``ModbusTcpServer`` with a ``SimDevice``
+action hook) around an :class:`~supervisor.devices.adam.unit.AdamUnit`, the register/coil
+model, so the pymodbus link and foreign Modbus clients are tested over real sockets: every
+request is answered by the unit (its values, its exception answers, its faults); pymodbus
+does the framing, the bit packing of coils and the word order. The in-process link calls
+the same unit directly.
 
-- analog inputs of 5017/5018 slots are served both as holding registers (FC03) and as input
-  registers (FC04); every read request samples the callables again (live values);
-- relays of 5060/5069 slots are coils: FC05/FC15 call the relay callbacks with the new
-  state, FC01 reads back the stored state;
-- addresses outside the configured modules answer exception 0x02 (illegal address), as does
-  any write to the analog registers.
-
-``stop()`` then ``start()`` models a network outage: relay states are kept. Only bind
-127.0.0.1 in tests.
+``stop()`` then ``start()`` models a network outage: same port again, relay states kept.
+Only bind 127.0.0.1 in tests.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from typing import Final
 
 from pymodbus.constants import ExcCodes
@@ -30,104 +27,59 @@ from supervisor.config.models import SimPoint, SimulationConfig
 from supervisor.devices.adam.config import MODULE_KINDS, SLOTS, AdamDevice
 from supervisor.devices.adam.protocol import (
     COILS_PER_SLOT,
-    DEFAULT_RAW_FORMAT,
+    FC_READ_COILS,
     FC_READ_HOLDING_REGISTERS,
     FC_READ_INPUT_REGISTERS,
-    RAW_FORMATS,
+    FC_WRITE_MULTIPLE_COILS,
+    FC_WRITE_MULTIPLE_REGISTERS,
+    FC_WRITE_SINGLE_COIL,
+    FC_WRITE_SINGLE_REGISTER,
     REGISTERS_PER_SLOT,
-    TC_OPEN_WIRE_RAW,
-    value_to_raw,
+    ModbusExceptionAnswer,
 )
+from supervisor.devices.adam.unit import AdamUnit
 from supervisor.sim.plant import BenchPlant
 
 log = logging.getLogger(__name__)
 
-AnalogSource = Callable[[], float | None]
-RelaySink = Callable[[bool], None]
-
-_READ_FUNCTIONS: Final = frozenset({1, 2, 3, 4})
-_COIL_FUNCTIONS: Final = frozenset({1, 5, 15})
-_REGISTER_FUNCTIONS: Final = frozenset({3, 4, 6, 16, 22, 23})
+_COIL_FUNCTIONS: Final = frozenset({FC_READ_COILS, FC_WRITE_SINGLE_COIL, FC_WRITE_MULTIPLE_COILS})
+_REGISTER_FUNCTIONS: Final = frozenset(
+    {
+        FC_READ_HOLDING_REGISTERS,
+        FC_READ_INPUT_REGISTERS,
+        FC_WRITE_SINGLE_REGISTER,
+        FC_WRITE_MULTIPLE_REGISTERS,
+        22,  # mask write register
+        23,  # read/write multiple registers
+    }
+)
 _N_REGISTERS: Final = REGISTERS_PER_SLOT * len(SLOTS)
 _N_COILS: Final = COILS_PER_SLOT * len(SLOTS)
 
 
 class AdamSimulator:
-    """ADAM-5000/TCP on Modbus TCP: ``modules`` maps slot → module kind (``"5017"`` …).
+    """``unit`` served on Modbus TCP at ``host:port`` as device ``unit_id``.
 
-    ``analog[(slot, ch)]`` returns volts (5017) or °C (5018), or ``None`` for an open
-    thermocouple; channels without a callable read 0 V (5017) or open wire (5018).
-    ``relays[(slot, ch)]`` is called with the new state on every write of that relay.
-    ``raw_format`` maps slot → ``"offset"``/``"twos"`` (default offset binary).
+    Port 0 lets the OS choose (see :attr:`port` once started); the same port is taken
+    again after :meth:`stop`. Starting the server plugs the unit in, stopping it unplugs
+    it. A muted or unplugged unit gets the request but sends no answer.
     """
 
     def __init__(
-        self,
-        modules: dict[int, str],
-        analog: dict[tuple[int, int], Callable[[], float | None]] | None = None,
-        relays: dict[tuple[int, int], Callable[[bool], None]] | None = None,
-        raw_format: dict[int, str] | None = None,
-        host: str = "127.0.0.1",
-        port: int = 0,
-        unit_id: int = 1,
-        name: str = "adam",
+        self, unit: AdamUnit, host: str = "127.0.0.1", port: int = 0, unit_id: int = 1
     ) -> None:
-        analog = analog or {}
-        relays = relays or {}
-        raw_format = raw_format or {}
-        for slot, kind in modules.items():
-            if isinstance(slot, bool) or slot not in SLOTS:
-                raise ValueError(f"ADAM slot must be 0..{SLOTS[-1]}, got {slot!r}")
-            if kind not in MODULE_KINDS:
-                raise ValueError(f"slot {slot}: unknown ADAM module {kind!r}")
-        for slot, fmt in raw_format.items():
-            if slot not in modules or MODULE_KINDS[modules[slot]].family == "relay":
-                raise ValueError(f"raw_format given for slot {slot}, not an analog module")
-            if fmt not in RAW_FORMATS:
-                raise ValueError(f"slot {slot}: unknown raw format {fmt!r}")
-        for key in analog:
-            self._check_point(modules, key, ("analog", "thermocouple"))
-        for key in relays:
-            self._check_point(modules, key, ("relay",))
         if not 0 <= unit_id <= 255:
             raise ValueError(f"unit_id must be 0..255, got {unit_id!r}")
-        self.modules: Mapping[int, str] = dict(modules)
-        self.name = name
+        self.unit = unit
         self.host = host
         self._port = port
         self.unit_id = unit_id
-        self._analog: dict[tuple[int, int], AnalogSource] = dict(analog)
-        self._relays: dict[tuple[int, int], RelaySink] = dict(relays)
-        self._formats = {
-            s: raw_format.get(s, DEFAULT_RAW_FORMAT)
-            for s, k in modules.items()
-            if MODULE_KINDS[k].family != "relay"
-        }
-        self._coils: dict[tuple[int, int], bool] = {
-            (s, ch): False
-            for s, k in modules.items()
-            if MODULE_KINDS[k].family == "relay"
-            for ch in range(MODULE_KINDS[k].points)
-        }
-        self._stuck: dict[tuple[int, int], bool] = {}
-        self._fail_reads = 0
-        self._fail_code = ExcCodes.DEVICE_FAILURE
-        self._fail_slot: int | None = None
-        self._short_reads = 0
-        self._short_slot: int | None = None
         self._truncate_next = False
         self._server: ModbusTcpServer | None = None
 
-    @staticmethod
-    def _check_point(
-        modules: Mapping[int, str], key: tuple[int, int], families: tuple[str, ...]
-    ) -> None:
-        slot, ch = key
-        kind = modules.get(slot)
-        if kind is None or MODULE_KINDS[kind].family not in families:
-            raise ValueError(f"no {'/'.join(families)} module in slot {slot} for point {key}")
-        if not 0 <= ch < MODULE_KINDS[kind].points:
-            raise ValueError(f"slot {slot} ({kind}) has no channel {ch}")
+    @property
+    def name(self) -> str:
+        return self.unit.name
 
     # --- lifecycle -----------------------------------------------------------------
     @property
@@ -148,20 +100,26 @@ class AdamSimulator:
             raise RuntimeError("ADAM simulator already running")
         blocks: tuple[list[SimData], list[SimData], list[SimData], list[SimData]] = (
             # Coils of all 8 slots, discrete inputs (none simulated: placeholder, every
-            # FC02 is refused), holding and input registers of all 8 slots. The action
-            # below refuses addresses outside the configured modules.
+            # FC02 is refused), holding and input registers of all 8 slots. The unit
+            # refuses addresses outside the configured modules.
             [SimData(0, values=[False] * _N_COILS, datatype=DataType.BITS)],
             [SimData(0, values=[False] * COILS_PER_SLOT, datatype=DataType.BITS)],
             [SimData(0, count=_N_REGISTERS, values=0, datatype=DataType.REGISTERS)],
             [SimData(0, count=_N_REGISTERS, values=0, datatype=DataType.REGISTERS)],
         )
         device = SimDevice(self.unit_id, simdata=blocks, action=self._action)
-        server = ModbusTcpServer(device, address=(self.host, self._port), trace_pdu=self._trace)
+        server = ModbusTcpServer(
+            device,
+            address=(self.host, self._port),
+            trace_pdu=self._trace,
+            trace_packet=self._trace_packet,
+        )
         await server.serve_forever(background=True)
         sockets = getattr(server.transport, "sockets", None)
         if sockets:
             self._port = int(sockets[0].getsockname()[1])
         self._server = server
+        await self.unit.start()
         log.info("ADAM simulator listening on %s:%d", self.host, self._port)
 
     async def stop(self) -> None:
@@ -169,6 +127,7 @@ class AdamSimulator:
         server, self._server = self._server, None
         if server is None:
             return
+        await self.unit.stop()
         await server.shutdown()  # type: ignore[no-untyped-call]
         # Let the transports deliver their connection_lost callbacks.
         await asyncio.sleep(0)
@@ -181,42 +140,14 @@ class AdamSimulator:
     async def __aexit__(self, *_exc: object) -> None:
         await self.stop()
 
-    # --- test hooks ----------------------------------------------------------------
-    def fail_next_reads(
-        self, n: int, exception_code: int = ExcCodes.DEVICE_FAILURE, slot: int | None = None
-    ) -> None:
-        """Answer the next ``n`` read requests (FC01–FC04) with a Modbus exception.
-
-        With ``slot``, only reads touching that slot count and fail.
-        """
-        self._fail_reads = n
-        self._fail_code = ExcCodes(exception_code)
-        self._fail_slot = slot
-
-    def short_next_reads(self, n: int, slot: int | None = None) -> None:
-        """Answer the next ``n`` read requests with one register (or every coil) missing."""
-        self._short_reads = n
-        self._short_slot = slot
-
-    def relay_state(self, slot: int, ch: int) -> bool:
-        """Stored state of a relay (what FC01 reads back)."""
-        return self._coils[(slot, ch)]
-
-    def stick_relay(self, slot: int, ch: int, state: bool | None) -> None:
-        """Fault: the relay stays in ``state`` whatever is written (``None`` heals it).
-
-        Writes are still acknowledged; the read-back shows the stuck state.
-        """
-        key = (slot, ch)
-        if key not in self._coils:
-            raise ValueError(f"no relay at slot {slot} channel {ch}")
-        if state is None:
-            self._stuck.pop(key, None)
-        else:
-            self._stuck[key] = state
-            self._coils[key] = state
-
     # --- pymodbus hooks ------------------------------------------------------------
+    def _silent(self) -> bool:
+        return self.unit.muted or not self.unit.running
+
+    def _trace_packet(self, sending: bool, packet: bytes) -> bytes:
+        # A silent unit sends nothing: the client waits for its timeout.
+        return b"" if sending and self._silent() else packet
+
     def _trace(self, sending: bool, pdu: ModbusPDU) -> ModbusPDU:
         if sending and self._truncate_next:
             self._truncate_next = False
@@ -235,107 +166,48 @@ class AdamSimulator:
         registers: list[int],
         set_values: list[int] | list[bool] | None,
     ) -> ExcCodes | None:
-        """Called by pymodbus on every access, before it reads or writes ``registers``.
+        """Called by pymodbus on every access, before it reads or writes ``registers``:
+        the unit answers, pymodbus packs the answer.
 
-        ``count`` is in registers: for coils, 16-bit words of packed bits.
+        ``count`` is in registers: for coils, 16-bit words of packed bits (pymodbus does
+        not pass the coil count, so whole slots are read).
         """
-        if function_code in _COIL_FUNCTIONS:
-            if set_values is not None:
-                slots = self._coil_write_slots(address, len(set_values))
-            else:
-                slots = self._coil_read_slots(address, count)
-        elif function_code in _REGISTER_FUNCTIONS:
-            if set_values is not None:
-                return ExcCodes.ILLEGAL_ADDRESS  # analog inputs are read-only
-            slots = self._register_slots(address, count)
-        else:
-            return ExcCodes.ILLEGAL_ADDRESS  # no discrete-input module simulated
-        if slots is None:
-            return ExcCodes.ILLEGAL_ADDRESS
-
-        if function_code in _READ_FUNCTIONS:
-            if self._fail_reads > 0 and (self._fail_slot is None or self._fail_slot in slots):
-                self._fail_reads -= 1
-                return self._fail_code
-            if self._short_reads > 0 and (self._short_slot is None or self._short_slot in slots):
-                self._short_reads -= 1
-                self._truncate_next = True
-
+        if self._silent():
+            return ExcCodes.DEVICE_FAILURE  # not acted on; the answer is dropped
         try:
-            if function_code in (FC_READ_HOLDING_REGISTERS, FC_READ_INPUT_REGISTERS):
-                for reg in range(address, address + count):
-                    registers[reg - start_address] = self._sample(*divmod(reg, REGISTERS_PER_SLOT))
+            if function_code in _REGISTER_FUNCTIONS:
+                if set_values is not None:
+                    self.unit.write_registers(address, [int(v) for v in set_values])
+                values = self.unit.read_registers(function_code, address, count)
+                registers[address - start_address : address - start_address + len(values)] = values
+                self._truncate_next = len(values) < count
             elif function_code in _COIL_FUNCTIONS:
                 if set_values is not None:
-                    self._apply_coils(address, [bool(v) for v in set_values])
-                self._refresh_coils(start_address, address, count, registers)
-        except Exception:
+                    # The echo of a write carries no coil data: nothing to pack.
+                    self.unit.write_coils(address, [bool(v) for v in set_values])
+                else:
+                    self._pack_coils(start_address, address, count, registers)
+            else:
+                return ExcCodes.ILLEGAL_ADDRESS  # no discrete-input module simulated
+        except ModbusExceptionAnswer as answer:
             self._truncate_next = False
-            log.exception("ADAM simulator: callable failed (FC%02d @%d)", function_code, address)
-            return ExcCodes.DEVICE_FAILURE
+            return ExcCodes(answer.code)
         return None
 
-    # --- internals -----------------------------------------------------------------
-    def _register_slots(self, address: int, count: int) -> set[int] | None:
-        slots: set[int] = set()
-        for reg in range(address, address + count):
-            slot, ch = divmod(reg, REGISTERS_PER_SLOT)
-            kind = self.modules.get(slot)
-            if kind is None or MODULE_KINDS[kind].family == "relay":
-                return None
-            if ch >= MODULE_KINDS[kind].points:
-                return None
-            slots.add(slot)
-        return slots
-
-    def _coil_write_slots(self, address: int, n: int) -> set[int] | None:
-        slots: set[int] = set()
-        for coil in range(address, address + n):
-            if divmod(coil, COILS_PER_SLOT) not in self._coils:
-                return None
-            slots.add(coil // COILS_PER_SLOT)
-        return slots
-
-    def _coil_read_slots(self, address: int, words: int) -> set[int] | None:
-        # One 16-bit word of coils is one slot; pymodbus does not pass the coil count, so
-        # coils past a module's last relay read False rather than being refused.
-        first = address // COILS_PER_SLOT
-        slots = set(range(first, first + words))
-        for slot in slots:
-            kind = self.modules.get(slot)
-            if kind is None or MODULE_KINDS[kind].family != "relay":
-                return None
-        return slots
-
-    def _sample(self, slot: int, ch: int) -> int:
-        kind = self.modules[slot]
-        source = self._analog.get((slot, ch))
-        # No source: nothing wired, 0 V on a 5017, an open thermocouple on a 5018.
-        value = (None if kind == "5018" else 0.0) if source is None else source()
-        if value is None:
-            return TC_OPEN_WIRE_RAW
-        return value_to_raw(float(value), kind, self._formats[slot])
-
-    def _apply_coils(self, address: int, values: list[bool]) -> None:
-        for i, state in enumerate(values):
-            key = divmod(address + i, COILS_PER_SLOT)
-            state = self._stuck.get(key, state)
-            self._coils[key] = state
-            sink = self._relays.get(key)
-            if sink is not None:
-                sink(state)
-
-    def _refresh_coils(
+    def _pack_coils(
         self, start_address: int, address: int, words: int, registers: list[int]
     ) -> None:
-        """Write the stored relay states into pymodbus's packed coil words."""
+        """Read whole slots of relay states from the unit and pack them into pymodbus's
+        coil words (bit 0 = channel 0: pymodbus unpacks bit 0 first)."""
         first = address // COILS_PER_SLOT
-        for slot in range(first, first + words):
+        states = self.unit.read_coils(first * COILS_PER_SLOT, words * COILS_PER_SLOT)
+        self._truncate_next = len(states) < words * COILS_PER_SLOT
+        for i in range(words):
             word = 0
-            for ch in range(COILS_PER_SLOT):
-                if self._coils.get((slot, ch), False):
+            for ch, on in enumerate(states[i * COILS_PER_SLOT : (i + 1) * COILS_PER_SLOT]):
+                if on:
                     word |= 1 << ch
-            registers[slot - start_address] = word
+            registers[first + i - start_address] = word
 
 
 # --- wiring from an I/O map --------------------------------------------------------------
@@ -352,10 +224,13 @@ def _split(point: str) -> tuple[int, int]:
 
 def plant_simulator(
     name: str, dev: AdamDevice, sc: SimulationConfig, plant: BenchPlant
-) -> AdamSimulator:
+) -> AdamUnit:
     """The simulated unit ``name``, its inputs and relays wired to the plant as the I/O map's
     ``simulation:`` section says (LEM sensor, voltage board, e-stop sense, thermocouples,
-    battery contactor)."""
+    battery contactor).
+
+    The unit itself is the server-less simulator (an in-process link calls it); serve it
+    with :class:`AdamSimulator` for a driver or a tool on the network."""
     analog: dict[tuple[int, int], Callable[[], float | None]] = {}
     relays: dict[tuple[int, int], Callable[[bool], None]] = {}
 
@@ -384,7 +259,7 @@ def plant_simulator(
                 analog.setdefault((slot, ch), lambda: sc.ambient_c)
     if (k := mine(sc.contactor)) is not None:
         relays[k] = plant.set_contactor
-    return AdamSimulator(
+    return AdamUnit(
         {slot: m.kind for slot, m in dev.modules.items()},
         analog,
         relays,
@@ -393,8 +268,5 @@ def plant_simulator(
             for slot, m in dev.modules.items()
             if MODULE_KINDS[m.kind].family != "relay"
         },
-        host=dev.host,
-        port=dev.port,
-        unit_id=dev.unit_id,
         name=name,
     )
