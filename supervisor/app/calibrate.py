@@ -17,23 +17,21 @@ other byte of the file stay as they were.
 
 from __future__ import annotations
 
-import codecs
 import math
-import re
 from collections.abc import Iterable, Mapping
 from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
 import yaml
-from yaml.error import MarkedYAMLError
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
-from supervisor.config.yamlpos import load_yaml_text
+from supervisor.config.text import Layout, Row, decode_text, decode_yaml, read_table
+from supervisor.config.yamledit import YamlText, flow_mapping, yaml_float
+from supervisor.config.yamlpos import Path_
 from supervisor.core.errors import ConfigError, ConfigErrors
 from supervisor.devices.chadeche.config import ChadecheDevice
 from supervisor.devices.registry import load_bench_text
-from supervisor.importers.chadeche import yaml_float
 
 __all__ = [
     "CALIBRATION_KEYS",
@@ -120,73 +118,47 @@ def calibrate_voltage(adc_v: Iterable[float], meter_v: Iterable[float]) -> tuple
 # Readings
 
 
-def _decode(data: bytes) -> str:
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        return data.decode("cp1252", errors="replace")
+def _reading(text: str, layout: Layout) -> float | None:
+    value = layout.number(text)
+    return value if value is not None and math.isfinite(value) else None
 
 
-def _number(text: str, decimal_comma: bool) -> float | None:
-    t = text.strip()
-    if decimal_comma:
-        t = t.replace(",", ".")
-    try:
-        v = float(t)
-    except ValueError:
+def _pair(row: Row, layout: Layout, file: str, *, header: bool) -> tuple[float, float] | None:
+    """A row's two numbers; None for a header line; a ConfigError at the bad cell."""
+    cells = [c for c in row.cells if c.text]  # "0;;0,1": an empty cell is no field
+    values = [_reading(c.text, layout) for c in cells]
+    if len(cells) == 2 and values[0] is not None and values[1] is not None:
+        return values[0], values[1]
+    if header and any(v is None for v in values):
         return None
-    return v if math.isfinite(v) else None
+    if len(cells) != 2:
+        col = cells[2].col if len(cells) > 2 else row.end_col
+        raise ConfigError(f"expected 2 numbers, found {len(cells)} fields", file, row.line, col)
+    bad = cells[0] if values[0] is None else cells[1]
+    raise ConfigError(f"{bad.text!r} is not a number", file, row.line, bad.col)
 
 
 def read_pairs_csv(path: str | Path) -> tuple[list[float], list[float]]:
     """Two numeric columns → ``(first column, second column)``.
 
-    Separators: tab or ``;`` (then a ``,`` is a decimal comma), else ``,``, else blanks.
-    A first line that is not numeric is a header; blank lines and ``#`` lines are skipped.
-    UTF-8 or CP1252. Errors name file, line and column.
+    Separators: tab or ``;`` (then a ``,`` is a decimal comma), else ``,``, else blanks
+    (:func:`supervisor.config.text.read_table`). A first line that is not numeric is a
+    header; blank lines and ``#`` lines are skipped. UTF-8 or CP1252. Errors name file,
+    line and column.
     """
     file = str(path)
     try:
-        text = _decode(Path(path).read_bytes())
+        data = Path(path).read_bytes()
     except OSError as exc:
         raise ConfigError(f"cannot read readings: {exc.strerror or exc}", file) from None
+    layout, rows = read_table(decode_text(data, file), file, blanks=True, comments=True)
     first: list[float] = []
     second: list[float] = []
-    seen_line = False
-    for ln, raw in enumerate(re.split(r"\r\n|\r|\n", text), start=1):
-        line = raw.rstrip()
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
-        if "\t" in line or ";" in line:
-            sep: str | None = "\t" if "\t" in line else ";"
-            comma = True
-        elif "," in line:
-            sep, comma = ",", False
-        else:
-            sep, comma = None, False
-        cells: list[tuple[str, int]] = []
-        if sep is None:
-            cells = [(m.group(), m.start() + 1) for m in re.finditer(r"\S+", line)]
-        else:
-            pos = 0
-            for part in line.split(sep):
-                cells.append((part, pos + 1 + (len(part) - len(part.lstrip()))))
-                pos += len(part) + 1
-            cells = [c for c in cells if c[0].strip()]
-        values = [_number(c, comma) for c, _ in cells]
-        header = not seen_line
-        seen_line = True
-        if len(cells) == 2 and values[0] is not None and values[1] is not None:
-            first.append(values[0])
-            second.append(values[1])
-            continue
-        if header and any(v is None for v in values):
-            continue  # a header line
-        if len(cells) != 2:
-            col = cells[2][1] if len(cells) > 2 else len(line) + 1
-            raise ConfigError(f"expected 2 numbers, found {len(cells)} fields", file, ln, col)
-        k = 0 if values[0] is None else 1
-        raise ConfigError(f"{cells[k][0].strip()!r} is not a number", file, ln, cells[k][1])
+    for k, row in enumerate(rows):
+        pair = _pair(row, layout, file, header=k == 0)
+        if pair is not None:
+            first.append(pair[0])
+            second.append(pair[1])
     if not first:
         raise ConfigError("no readings (expected lines of two numbers)", file)
     return first, second
@@ -194,49 +166,6 @@ def read_pairs_csv(path: str | Path) -> tuple[list[float], list[float]]:
 
 # --------------------------------------------------------------------------------------------
 # Writing the I/O map
-
-
-def _key(mapping: MappingNode, name: str) -> tuple[Node, Node] | None:
-    for k, v in mapping.value:
-        if isinstance(k, ScalarNode) and k.value == name:
-            return k, v
-    return None
-
-
-def _ref_counts(root: Node) -> dict[int, int]:
-    counts: dict[int, int] = {}
-    stack = [root]
-    while stack:
-        node = stack.pop()
-        counts[id(node)] = counts.get(id(node), 0) + 1
-        if counts[id(node)] > 1:
-            continue
-        if isinstance(node, MappingNode):
-            for k, v in node.value:
-                stack += [k, v]
-        elif isinstance(node, SequenceNode):
-            stack += list(node.value)
-    return counts
-
-
-_PROPS = re.compile(r"(?:[&!][^\s,\[\]{}]*[ \t]+)*")
-
-
-def _value_start(text: str, node: Node) -> int:
-    """Where a scalar's own text starts (after an anchor or tag, which are kept)."""
-    i: int = node.start_mark.index
-    m = _PROPS.match(text, i)
-    return m.end() if m else i
-
-
-def _line_end(text: str, index: int) -> int:
-    """Index just after the line break of the line holding ``index`` (or len(text))."""
-    m = re.compile(r"\r\n|\r|\n").search(text, index)
-    return m.end() if m else len(text)
-
-
-def _flow(values: Mapping[str, float]) -> str:
-    return "{" + ", ".join(f"{k}: {yaml_float(v)}" for k, v in values.items()) + "}"
 
 
 def _check_values(values: Mapping[str, Any]) -> dict[str, float]:
@@ -260,184 +189,106 @@ def _check_values(values: Mapping[str, Any]) -> dict[str, float]:
     return out
 
 
-def _edit(
-    text: str, file: str, device: str, board: int, values: dict[str, float]
-) -> tuple[str, int]:
-    """The edited text and the index of the board in its ``boards`` list."""
-
-    def here(node: Node, msg: str) -> ConfigError:
-        return ConfigError(msg, file, node.start_mark.line + 1, node.start_mark.column + 1)
-
-    try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
-    except MarkedYAMLError as exc:  # pragma: no cover - load_yaml_text parsed it just before
-        mark = exc.problem_mark
-        raise ConfigError(
-            f"YAML error: {exc.problem}",
-            file,
-            mark.line + 1 if mark else None,
-            mark.column + 1 if mark else None,
-        ) from None
-    if not isinstance(root, MappingNode):
-        raise ConfigError("an I/O map is a mapping (bench:, devices:, ...)", file, 1, 1)
-    counts = _ref_counts(root)
-    where = f"device {device!r}, board {board}"
-
-    devices = _key(root, "devices")
-    if devices is None or not isinstance(devices[1], MappingNode):
-        raise here(root, "no 'devices:' mapping in this I/O map")
-    dev = _key(devices[1], device)
-    if dev is None:
-        known = ", ".join(str(k.value) for k, _ in devices[1].value)
-        raise here(devices[0], f"no device {device!r} in devices: (have: {known})")
-    dev_node = dev[1]
-    assert isinstance(dev_node, MappingNode)
-    driver = _key(dev_node, "driver")
-    if driver is None or driver[1].value != "chadeche":
-        got = driver[1].value if driver is not None else "none"
-        raise here(
-            dev[0],
+def _chadeche_boards(doc: YamlText, device: str) -> SequenceNode:
+    """The ``boards:`` list of Chadèche ``device``."""
+    if not isinstance(doc.root, MappingNode):
+        raise ConfigError("an I/O map is a mapping (bench:, devices:, ...)", doc.file, 1, 1)
+    devices = doc.node(("devices",))
+    if not isinstance(devices, MappingNode):
+        raise doc.error(doc.root, "no 'devices:' mapping in this I/O map")
+    dev_key = doc.key(("devices", device))
+    if dev_key is None:
+        known = ", ".join(str(k.value) for k, _ in devices.value)
+        where = doc.key(("devices",)) or devices
+        raise doc.error(where, f"no device {device!r} in devices: (have: {known})")
+    driver = doc.node(("devices", device, "driver"))
+    if not isinstance(driver, ScalarNode) or driver.value != "chadeche":
+        got = driver.value if isinstance(driver, ScalarNode) else "none"
+        raise doc.error(
+            dev_key,
             f"device {device!r} has driver {got!r}: only Chadèche boards have a calibration",
         )
-    boards = _key(dev_node, "boards")
-    if boards is None or not isinstance(boards[1], SequenceNode):
-        raise here(dev[0], f"device {device!r} has no 'boards:' list")
-    matches: list[tuple[int, MappingNode]] = []
-    for idx, item in enumerate(boards[1].value):
-        if isinstance(item, MappingNode):
-            addr = _key(item, "address")
-            if addr is not None and yaml.safe_load(addr[1].value) == board:
-                matches.append((idx, item))
+    boards = doc.node(("devices", device, "boards"))
+    if not isinstance(boards, SequenceNode):
+        raise doc.error(dev_key, f"device {device!r} has no 'boards:' list")
+    return boards
+
+
+def _is_address(node: Node | None, board: int) -> bool:
+    try:
+        return isinstance(node, ScalarNode) and yaml.safe_load(node.value) == board
+    except yaml.YAMLError:
+        return False
+
+
+def _board_index(doc: YamlText, device: str, board: int) -> int:
+    """Index in ``boards:`` of the board at ``address: board``, refused if shared."""
+    boards = _chadeche_boards(doc, device)
+    items: list[Node] = boards.value
+    addresses = [doc.node(("devices", device, "boards", i, "address")) for i in range(len(items))]
+    matches = [i for i, a in enumerate(addresses) if _is_address(a, board)]
     if not matches:
-        addresses: list[str] = []
-        for item in boards[1].value:
-            addr = _key(item, "address") if isinstance(item, MappingNode) else None
-            if addr is not None:
-                addresses.append(str(addr[1].value))
-        raise here(
-            boards[0],
-            f"device {device!r} has no board with address {board} "
-            f"(addresses: {', '.join(addresses) or 'none'})",
+        known = ", ".join(str(a.value) for a in addresses if a is not None) or "none"
+        boards_key = doc.key(("devices", device, "boards")) or boards
+        raise doc.error(
+            boards_key, f"device {device!r} has no board with address {board} (addresses: {known})"
         )
+    where = f"device {device!r}, board {board}"
     if len(matches) > 1:
-        raise here(matches[1][1], f"{where}: the address appears twice")
-    index, bnode = matches[0]
-    if counts.get(id(bnode), 0) > 1 or _key(bnode, "<<") is not None:
-        raise here(bnode, f"{where}: the board is shared (anchor/alias or '<<'); edit by hand")
-
-    nl = "\r\n" if "\r\n" in text else "\n"
-    edits: list[tuple[int, int, str]] = []  # (start, end, replacement)
-    cal = _key(bnode, "calibration")
-    if cal is None:
-        addr_key, addr_val = _key(bnode, "address") or (None, None)
-        assert addr_key is not None and addr_val is not None
-        if bnode.flow_style:
-            edits.append(
-                (
-                    addr_val.end_mark.index,
-                    addr_val.end_mark.index,
-                    f", calibration: {_flow(values)}",
-                )
-            )
-        else:
-            at = _line_end(text, addr_val.end_mark.index)
-            lead = nl if at == len(text) and not text.endswith(("\n", "\r")) else ""
-            indent = " " * addr_key.start_mark.column
-            edits.append((at, at, f"{lead}{indent}calibration: {_flow(values)}{nl}"))
-    else:
-        cnode = cal[1]
-        if not isinstance(cnode, MappingNode):
-            if isinstance(cnode, ScalarNode) and cnode.tag.endswith(":null"):
-                start = _value_start(text, cnode)
-                end = cnode.end_mark.index
-                if start == end:  # `calibration:` with nothing after it
-                    edits.append(
-                        (
-                            start,
-                            end,
-                            f" {_flow(values)}" if text[start - 1] == ":" else _flow(values),
-                        )
-                    )
-                else:
-                    edits.append((start, end, _flow(values)))
-            else:
-                raise here(cnode, f"{where}: calibration is not a mapping")
-        else:
-            inside = bnode.start_mark.index <= cnode.start_mark.index < bnode.end_mark.index
-            if counts.get(id(cnode), 0) > 1 or not inside or _key(cnode, "<<") is not None:
-                raise here(
-                    cnode,
-                    f"{where}: the calibration is shared (anchor/alias or '<<'); edit by hand",
-                )
-            missing: dict[str, float] = {}
-            for k, v in values.items():
-                entry = _key(cnode, k)
-                if entry is None:
-                    missing[k] = v
-                    continue
-                vnode = entry[1]
-                if not isinstance(vnode, ScalarNode) or counts.get(id(vnode), 0) > 1:
-                    raise here(vnode, f"{where}: {k} is not a plain number; edit by hand")
-                edits.append((_value_start(text, vnode), vnode.end_mark.index, yaml_float(v)))
-            if missing:
-                if cnode.flow_style:
-                    if cnode.value:
-                        last = cnode.value[-1][1].end_mark.index
-                        add = "".join(f", {k}: {yaml_float(v)}" for k, v in missing.items())
-                        edits.append((last, last, add))
-                    else:
-                        brace = text.index("{", cnode.start_mark.index) + 1
-                        add = ", ".join(f"{k}: {yaml_float(v)}" for k, v in missing.items())
-                        edits.append((brace, brace, add))
-                else:
-                    first_key = cnode.value[0][0]
-                    indent = " " * first_key.start_mark.column
-                    at = _line_end(text, cnode.value[-1][1].end_mark.index)
-                    lead = nl if at == len(text) and not text.endswith(("\n", "\r")) else ""
-                    add = "".join(f"{indent}{k}: {yaml_float(v)}{nl}" for k, v in missing.items())
-                    edits.append((at, at, lead + add))
-    for start, end, new in sorted(edits, reverse=True):
-        text = text[:start] + new + text[end:]
-    return text, index
+        raise doc.error(items[matches[1]], f"{where}: the address appears twice")
+    path = ("devices", device, "boards", matches[0])
+    node = items[matches[0]]
+    if doc.shared(node) or doc.node((*path, "<<")) is not None:
+        raise doc.error(node, f"{where}: the board is shared (anchor/alias or '<<'); edit by hand")
+    return matches[0]
 
 
-def write_calibration(
-    io_map_path: str | Path, device: str, board: int, values: Mapping[str, float]
+def _check_own_calibration(
+    doc: YamlText, board_path: Path_, values: Mapping[str, str], where: str
 ) -> None:
-    """Set ``values`` (some of :data:`CALIBRATION_KEYS`) in the calibration of ``board`` of
-    Chadèche ``device`` in an I/O map, editing the text in place.
+    """Refuse a calibration that other boards share, or values that are not plain numbers."""
+    board = doc.node(board_path)
+    cal = doc.node((*board_path, "calibration"))
+    assert board is not None and cal is not None
+    inside = board.start_mark.index <= cal.start_mark.index < board.end_mark.index
+    merged = doc.node((*board_path, "calibration", "<<")) is not None
+    if doc.shared(cal) or not inside or merged:
+        raise doc.error(
+            cal, f"{where}: the calibration is shared (anchor/alias or '<<'); edit by hand"
+        )
+    for key in values:
+        node = doc.node((*board_path, "calibration", key))
+        if node is not None and (not isinstance(node, ScalarNode) or doc.shared(node)):
+            raise doc.error(node, f"{where}: {key} is not a plain number; edit by hand")
 
-    Only the numbers concerned change (or one ``calibration: {...}`` line / one key line is
-    added); comments and every other byte stay. The result is checked like
-    :func:`supervisor.config.bench.load_bench` before it replaces the file (atomically);
-    nothing is written when it would be refused (a map that was already broken is reported
-    as it is, unless the edit is what repairs it, e.g. an empty ``calibration:``).
-    Raises ConfigError/ConfigErrors naming the file (and device/board), ValueError for bad
-    ``values``.
-    """
-    path = Path(io_map_path)
-    file = str(path)
-    vals = _check_values(values)
+
+def _edit(doc: YamlText, device: str, board: int, values: Mapping[str, float]) -> int:
+    """Splice ``values`` into the board's calibration; returns its index in ``boards:``."""
+    index = _board_index(doc, device, board)
+    board_path: Path_ = ("devices", device, "boards", index)
+    cal_path: Path_ = (*board_path, "calibration")
+    texts = {k: yaml_float(v) for k, v in values.items()}
+    cal = doc.node(cal_path)
+    if cal is None:  # one `calibration: {...}` after the address
+        doc.add_mapping(board_path, "calibration", texts, after="address")
+    elif isinstance(cal, ScalarNode) and cal.tag.endswith(":null"):  # `calibration:` or `~`
+        doc.set_scalar(cal_path, flow_mapping(texts))
+    elif not isinstance(cal, MappingNode):
+        raise doc.error(cal, f"device {device!r}, board {board}: calibration is not a mapping")
+    else:
+        _check_own_calibration(doc, board_path, texts, f"device {device!r}, board {board}")
+        doc.set_scalars(cal_path, texts)
+    return index
+
+
+def _check_edit(
+    old: str, new: str, file: str, device: str, board: int, index: int, values: dict[str, float]
+) -> None:
+    """Load the edited map like ``supervisor check``; nothing is written if it is refused."""
     try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise ConfigError("I/O map not found", file) from None
-    except OSError as exc:
-        raise ConfigError(f"cannot read I/O map: {exc.strerror or exc}", file) from None
-    bom = data.startswith(codecs.BOM_UTF8)
-    try:
-        text = data[len(codecs.BOM_UTF8) :].decode("utf-8") if bom else data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise ConfigError("I/O map is not UTF-8", file) from None
-    try:
-        load_yaml_text(text, file)  # YAML syntax first, reported the usual way
-    except ConfigError as exc:
-        raise ConfigErrors([exc]) from None
-    new_text, index = _edit(text, file, device, board, vals)
-    try:
-        cfg = load_bench_text(new_text, file)
+        cfg = load_bench_text(new, file)
     except ConfigErrors as exc:
-        load_bench_text(text, file)  # already broken before the edit: report that as it is
+        load_bench_text(old, file)  # already broken before the edit: report that as it is
         raise ConfigErrors(  # pragma: no cover - a bug in _edit; nothing is written
             [
                 ConfigError(
@@ -453,14 +304,52 @@ def write_calibration(
     dev = cfg.devices[device]
     assert isinstance(dev, ChadecheDevice)
     got = dev.boards[index].calibration
-    for k, v in vals.items():
+    for k, v in values.items():
         if getattr(got, k) != v:  # pragma: no cover - yaml_float round-trips exactly
             raise ConfigError(f"device {device!r}, board {board}: {k} did not round-trip", file)
-    out = (codecs.BOM_UTF8 if bom else b"") + new_text.encode("utf-8")
+
+
+def _replace_file(path: Path, data: bytes) -> None:
+    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``:
+    a crash leaves the old map or the new one, never half of one."""
     tmp = path.with_name(f".{path.name}.calibrate.tmp")
     try:
-        tmp.write_bytes(out)
+        tmp.write_bytes(data)
         tmp.replace(path)
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def write_calibration(
+    io_map_path: str | Path, device: str, board: int, values: Mapping[str, float]
+) -> None:
+    """Set ``values`` (some of :data:`CALIBRATION_KEYS`) in the calibration of ``board`` of
+    Chadèche ``device`` in an I/O map, editing the text in place.
+
+    Only the numbers concerned change (or one ``calibration: {...}`` line / one key line is
+    added); comments, the BOM, the line ends and every other byte stay. The result is checked
+    like :func:`supervisor.config.bench.load_bench` before it replaces the file (atomically);
+    nothing is written when it would be refused (a map that was already broken is reported
+    as it is, unless the edit is what repairs it, e.g. an empty ``calibration:``).
+    Raises ConfigError/ConfigErrors naming the file (and device/board), ValueError for bad
+    ``values``.
+    """
+    path = Path(io_map_path)
+    file = str(path)
+    vals = _check_values(values)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError("I/O map not found", file) from None
+    except OSError as exc:
+        raise ConfigError(f"cannot read I/O map: {exc.strerror or exc}", file) from None
+    decoded = decode_yaml(data, file)
+    try:
+        doc = YamlText(decoded.text, file)  # YAML syntax first, reported the usual way
+    except ConfigError as exc:
+        raise ConfigErrors([exc]) from None
+    index = _edit(doc, device, board, vals)
+    new_text = doc.edited()
+    _check_edit(decoded.text, new_text, file, device, board, index, vals)
+    _replace_file(path, decoded.encode(new_text))

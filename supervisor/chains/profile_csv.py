@@ -2,66 +2,75 @@
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 from supervisor.chains.program import ProfilePoint
+from supervisor.config.text import Layout, Row, decode_text, read_table
 from supervisor.core.errors import ConfigError
 
 __all__ = ["read_profile_csv"]
+
+_LIMITS = 6  # V min/max, I min/max, T min/max after the current
+
+
+def _limits(row: Row, layout: Layout, path: Path) -> list[float | None]:
+    """Current and the optional limits: a pair in two cells or one ``min/max`` cell."""
+    values: list[float | None] = []
+    for cell in row.cells[1:]:
+        for part in cell.text.split("/"):
+            text = part.strip()
+            value = layout.number(text) if text else None
+            if text and value is None:
+                raise ConfigError(f"{text!r} is not a number", path, row.line, cell.col)
+            values.append(value)
+    return values
+
+
+def _point(row: Row, layout: Layout, path: Path, *, header: bool) -> ProfilePoint | None:
+    """One row as a point; None for a header line or a row of empty cells."""
+    if not any(cell.text for cell in row.cells):
+        return None
+    first = row.cells[0]
+    t = layout.number(first.text)
+    if t is None:
+        if header:
+            return None
+        raise ConfigError(f"time {first.text!r} is not a number", path, row.line, first.col)
+    values = _limits(row, layout, path)
+    if not values or values[0] is None:
+        col = row.cells[1].col if len(row.cells) > 1 else row.end_col
+        raise ConfigError("each row needs a current after the time", path, row.line, col)
+    values += [None] * (1 + _LIMITS - len(values))
+    return ProfilePoint(t, values[0], *values[1 : 1 + _LIMITS])
 
 
 def read_profile_csv(path: Path) -> tuple[ProfilePoint, ...]:
     """A load profile (seed 002 §2.3): time, current, then optional V/I/T min/max columns.
 
-    Accepts ``,`` ``;`` or tab separators, a header line, UTF-8 or CP1252, and
-    ``min/max`` pairs written in one cell as ``3.0/4.2``.
+    Accepts ``,`` ``;`` or tab separators (with ``;`` or tab a ``,`` is a decimal comma:
+    :func:`supervisor.config.text.read_table`), a header line, UTF-8 or CP1252, and
+    ``min/max`` pairs written in one cell as ``3.0/4.2``. Errors name file, line and column.
     """
     try:
         raw = path.read_bytes()
     except OSError as exc:
         raise ConfigError(f"cannot read profile: {exc.strerror or exc}", path) from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        text = raw.decode("cp1252")
-    lines = text.splitlines()
-    if not lines:
+    decoded = decode_text(raw, path)
+    if not decoded.text:
         raise ConfigError("profile is empty", path, 1, 1)
-    # On a tie prefer ";" and tab: "0;1,5" is a French decimal comma, not two fields.
-    dialect_sep = max((";", "\t", ","), key=lambda c: lines[0].count(c))
-    rows = list(csv.reader(lines, delimiter=dialect_sep))
+    layout, rows = read_table(decoded, path)
     out: list[ProfilePoint] = []
     last_t = -1.0
-    for ln, row in enumerate(rows, start=1):
-        cells = [c.strip() for c in row]
-        if not any(cells):
+    for k, row in enumerate(rows):
+        point = _point(row, layout, path, header=k == 0)
+        if point is None:
             continue
-        if dialect_sep != ",":
-            # Spreadsheets in French locales write decimal commas (seed 002 profiles).
-            cells = [c.replace(",", ".") for c in cells]
-        try:
-            t = float(cells[0])
-        except ValueError:
-            if ln == 1:
-                continue  # header
-            raise ConfigError(f"time {cells[0]!r} is not a number", path, ln, 1) from None
-        vals: list[float | None] = []
-        for c in cells[1:]:
-            for part in c.split("/") if "/" in c else [c]:
-                part = part.strip()
-                try:
-                    vals.append(float(part) if part else None)
-                except ValueError:
-                    raise ConfigError(f"{part!r} is not a number", path, ln, 1) from None
-        if not vals or vals[0] is None:
-            raise ConfigError("each row needs a current after the time", path, ln, 1)
-        if t <= last_t:
-            raise ConfigError(f"time {t:g} s does not increase", path, ln, 1)
-        last_t = t
-        vals += [None] * (7 - len(vals))
-        cur = vals[0]
-        out.append(ProfilePoint(t, cur, *vals[1:7]))
+        if point.t_s <= last_t:
+            raise ConfigError(
+                f"time {point.t_s:g} s does not increase", path, row.line, row.cells[0].col
+            )
+        last_t = point.t_s
+        out.append(point)
     if not out:
         raise ConfigError("profile has no rows", path, 1, 1)
     return tuple(out)

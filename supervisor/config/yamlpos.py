@@ -16,7 +16,6 @@ keys, the value otherwise), all collected in one :class:`~supervisor.core.errors
 
 from __future__ import annotations
 
-import codecs
 import difflib
 import re
 import types
@@ -33,6 +32,7 @@ from yaml.error import MarkedYAMLError
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 from yaml.reader import ReaderError
 
+from supervisor.config.text import decode_yaml, line_col
 from supervisor.core.errors import ConfigError, ConfigErrors
 
 __all__ = [
@@ -159,49 +159,9 @@ class Positions:
 # Reading and decoding
 
 
-def _line_col(text: str, index: int) -> tuple[int, int]:
-    """1-based line and column of ``text[index]``, counting line breaks like PyYAML does."""
-    line, col = 1, 1
-    end = min(index, len(text))
-    i = 0
-    while i < end:
-        ch = text[i]
-        if ch in "\n\x85\u2028\u2029" or (ch == "\r" and text[i + 1 : i + 2] != "\n"):
-            line += 1
-            col = 1
-        elif ch != "\ufeff":
-            col += 1
-        i += 1
-    return line, col
-
-
-def _decode(data: bytes, file: str) -> str:
-    if data.startswith(codecs.BOM_UTF8):
-        data = data[len(codecs.BOM_UTF8) :]
-    elif data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
-        raise ConfigError(
-            "file is encoded as UTF-16 (it has a UTF-16 byte order mark); the file must be UTF-8",
-            file,
-            1,
-            1,
-        )
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        # Everything before the first bad byte is valid UTF-8 by construction.
-        prefix = data[: exc.start].decode("utf-8", errors="replace")
-        line, col = _line_col(prefix, len(prefix))
-        raise ConfigError(
-            f"invalid UTF-8 byte 0x{data[exc.start]:02x} at line {line}, column {col}: "
-            "the file must be UTF-8 encoded",
-            file,
-            line,
-            col,
-        ) from exc
-
-
 def load_yaml(path: str | Path) -> tuple[Any, Positions]:
-    """Read ``path`` (UTF-8, BOM allowed) and parse it; see :func:`load_yaml_text`."""
+    """Read ``path`` (UTF-8, BOM allowed: :func:`supervisor.config.text.decode_yaml`) and
+    parse it; see :func:`load_yaml_text`."""
     file = str(path)
     try:
         data = Path(path).read_bytes()
@@ -213,7 +173,7 @@ def load_yaml(path: str | Path) -> tuple[Any, Positions]:
         raise ConfigError("cannot read file: permission denied", file) from exc
     except OSError as exc:
         raise ConfigError(f"cannot read file: {exc.strerror or exc}", file) from exc
-    return load_yaml_text(_decode(data, file), file)
+    return load_yaml_text(decode_yaml(data, file).text, file)
 
 
 def load_yaml_text(text: str, file: str = "<string>") -> tuple[Any, Positions]:
@@ -256,7 +216,7 @@ def _compose(text: str) -> Node | None:
 
 
 def _reader_error(exc: ReaderError, text: str, file: str) -> ConfigError:
-    line, col = _line_col(text, exc.position)
+    line, col = line_col(text, exc.position, yaml=True)
     char = exc.character
     what = f"U+{char:04X}" if isinstance(char, int) else repr(char)
     return ConfigError(f"character {what} is not allowed in YAML ({exc.reason})", file, line, col)

@@ -38,33 +38,29 @@ example ``-2 0.0008`` comes from a 0–250 mA staircase), so it lands in
 
 from __future__ import annotations
 
-import codecs
-import json
 import math
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from decimal import Decimal
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from supervisor.chains.compiler import Target, compile_recipe
 from supervisor.config.recipe import ID_PATTERN, STEP_KINDS, load_recipe_text
+from supervisor.config.text import DecodedText, decode_text
+from supervisor.config.yamledit import yaml_comment, yaml_float, yaml_scalar
 from supervisor.core.errors import ConfigError, ConfigErrors
+from supervisor.devices.chadeche.config import MAX_CURRENT_A
 
 __all__ = [
     "COLUMNS",
     "DEFAULTS",
     "ImportResult",
     "import_chadeche",
-    "yaml_float",
-    "yaml_scalar",
 ]
 
 COLUMNS = ("ADR", "C/D", "mA", "SD", "TL", "TH", "LmAh", "HmAh", "TRUE", "CTRLZ", "COMMENT")
-MAX_MA = 400  # seed §III.D.1: "ne pouvant dépasser 400 mA"
+_MAX_MA = round(MAX_CURRENT_A * 1000)  # the board maximum (seed §III.D.1), in the file's mA
 
 # Condition columns (index in COLUMNS) → the recipe condition.
 CONDITIONS: tuple[tuple[int, str], ...] = (
@@ -124,7 +120,6 @@ _FLAGS = {"v", "t", "h"}  # options without a value
 _INT = re.compile(r"^\d+$")
 _HHMM = re.compile(r"^(\d{1,2}):(\d{2})$")
 _PLUS_HHMM = re.compile(r"^\+(\d{1,3}):(\d{2})$")
-_LINE_BREAK = re.compile(r"\r\n|\r|\n")
 
 
 @dataclass(frozen=True)
@@ -142,70 +137,6 @@ class ImportResult:
     warnings: list[str] = field(default_factory=list)
 
 
-# --------------------------------------------------------------------------------------------
-# YAML scalars (shared with the profile importer and the calibration writer)
-
-_NOT_PRINTABLE = re.compile(
-    "[^\x09\x0a\x0d\x20-\x7e\xa0-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]|[\u2028\u2029\ufeff]"
-)
-
-
-def _escape_nonprintable(text: str) -> str:
-    return _NOT_PRINTABLE.sub(lambda m: f"\\u{ord(m.group()):04x}", text)
-
-
-def yaml_float(value: float) -> str:
-    """A float as a YAML 1.1 float literal PyYAML reads back exactly (``1e-05`` is a string
-    to PyYAML; this writes ``0.00001``)."""
-    v = float(value)
-    if not math.isfinite(v):
-        raise ValueError(f"{value!r} is not a finite number")
-    text = repr(v)
-    if "e" in text or "E" in text:
-        text = format(Decimal(text), "f")
-    if "." not in text:
-        text += ".0"
-    return text
-
-
-def _round_trips(snippet: str, expected: Any) -> bool:
-    try:
-        return bool(yaml.safe_load(snippet) == expected)
-    except yaml.YAMLError:
-        return False
-
-
-def yaml_scalar(value: str | float | bool | None, *, key: bool = False) -> str:
-    """``value`` as a block-context YAML scalar: plain when that reads back as the same
-    string, double-quoted otherwise (``"true"``, ``"20:00"``, ``"a: b"``)."""
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        return yaml_float(value)
-    text = str(value)
-    if (
-        text
-        and text == text.strip()
-        and not _NOT_PRINTABLE.search(text)
-        and "\t" not in text
-        and "\n" not in text
-        and "\r" not in text
-    ):
-        snippet, expected = (f"{text}: x\n", {text: "x"}) if key else (f"k: {text}\n", {"k": text})
-        if _round_trips(snippet, expected):
-            return text
-    return _escape_nonprintable(json.dumps(text, ensure_ascii=False))
-
-
-def _comment_text(text: str) -> str:
-    """Text safe inside a YAML comment (one line, printable)."""
-    return _escape_nonprintable(text.replace("\r", " ").replace("\n", " "))
-
-
 def _num(value: float) -> str:
     """A number for a quantity string: ``1``, ``1.75``, ``0.5``."""
     if float(value).is_integer() and abs(value) < 1e15:
@@ -215,52 +146,6 @@ def _num(value: float) -> str:
 
 # --------------------------------------------------------------------------------------------
 # Reading
-
-
-def _line_col_of(text: str, index: int) -> tuple[int, int]:
-    before = text[:index]
-    lines = _LINE_BREAK.split(before)
-    return len(lines), len(lines[-1]) + 1
-
-
-def _decode(data: bytes, file: str) -> tuple[str, str]:
-    """UTF-8 (BOM allowed), else CP1252 (what Excel writes on Windows)."""
-    if data.startswith(codecs.BOM_UTF8):
-        body = data[len(codecs.BOM_UTF8) :]
-        try:
-            return body.decode("utf-8"), "UTF-8 with BOM"
-        except UnicodeDecodeError as exc:
-            prefix = body[: exc.start].decode("utf-8", errors="replace")
-            line, col = _line_col_of(prefix, len(prefix))
-            raise ConfigError(
-                f"invalid UTF-8 byte 0x{body[exc.start]:02x} in a file with a UTF-8 BOM",
-                file,
-                line,
-                col,
-            ) from None
-    try:
-        return data.decode("utf-8"), "UTF-8"
-    except UnicodeDecodeError:
-        pass
-    try:
-        return data.decode("cp1252"), "CP1252"
-    except UnicodeDecodeError as exc:
-        prefix = data[: exc.start].decode("cp1252", errors="replace")
-        line, col = _line_col_of(prefix, len(prefix))
-        raise ConfigError(
-            f"byte 0x{data[exc.start]:02x} is neither UTF-8 nor CP1252 (Windows-1252) text",
-            file,
-            line,
-            col,
-        ) from None
-
-
-def _newline_style(text: str) -> str:
-    crlf = text.count("\r\n")
-    cr = text.count("\r") - crlf
-    lf = text.count("\n") - crlf
-    kinds = [name for name, n in (("CRLF", crlf), ("LF", lf), ("CR", cr)) if n]
-    return "+".join(kinds) if kinds else "one line"
 
 
 def _split_fields(line: str) -> list[tuple[str, int]]:
@@ -326,21 +211,25 @@ def _parse_action(text: str, col: int) -> _Act | str:
     )
 
 
+def _read_text(path: Path, not_found: str) -> DecodedText:
+    """The file's text: UTF-8 (BOM allowed), else CP1252, what Excel writes on Windows."""
+    file = str(path)
+    try:
+        return decode_text(path.read_bytes(), file)
+    except FileNotFoundError:
+        raise ConfigErrors([ConfigError(not_found, file)]) from None
+    except OSError as exc:
+        raise ConfigErrors([ConfigError(f"cannot read: {exc.strerror or exc}", file)]) from None
+    except ConfigError as exc:
+        raise ConfigErrors([exc]) from None
+
+
 def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
     """Parse the sequence file; raise ConfigErrors listing every problem."""
     file = str(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise ConfigErrors([ConfigError("file not found", file)]) from None
-    except OSError as exc:
-        raise ConfigErrors([ConfigError(f"cannot read: {exc.strerror or exc}", file)]) from None
-    try:
-        text, encoding = _decode(data, file)
-    except ConfigError as exc:
-        raise ConfigErrors([exc]) from None
-    about = f"{encoding}, {_newline_style(text)}"
-    lines = _LINE_BREAK.split(text)
+    decoded = _read_text(path, "file not found")
+    about = f"{decoded.encoding}, {decoded.newline_style}"
+    lines = decoded.lines()
     while lines and not lines[-1].strip(" \t"):
         lines.pop()  # trailing empty lines (and a final line break)
     errors: list[ConfigError] = []
@@ -465,8 +354,8 @@ def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
             bad = True
         else:
             ma = int(ma_text)
-            if ma > MAX_MA:
-                err(ln, cols[2], f"{ma} mA is over the board's {MAX_MA} mA maximum")
+            if ma > _MAX_MA:
+                err(ln, cols[2], f"{ma} mA is over the board's {_MAX_MA} mA maximum")
                 bad = True
 
         sd_text = cells[3].strip()
@@ -560,20 +449,11 @@ def _read_prm(
     warnings: list[str],
 ) -> None:
     file = str(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise ConfigErrors([ConfigError("parameter file not found", file)]) from None
-    except OSError as exc:
-        raise ConfigErrors([ConfigError(f"cannot read: {exc.strerror or exc}", file)]) from None
-    try:
-        text, _ = _decode(data, file)
-    except ConfigError as exc:
-        raise ConfigErrors([exc]) from None
+    decoded = _read_text(path, "parameter file not found")
     errors: list[ConfigError] = []
     ignored: list[str] = []
     not_recipe: list[str] = []
-    for ln, raw in enumerate(_LINE_BREAK.split(text), start=1):
+    for ln, raw in enumerate(decoded.lines(), start=1):
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
@@ -731,10 +611,10 @@ def _emit(
     step_notes: list[list[str]],
 ) -> tuple[str, list[tuple[int, int]]]:
     """Recipe YAML text and, per step, the (first, last) line it spans."""
-    out: list[str] = [f"# {_comment_text(h)}".rstrip() for h in header]
+    out: list[str] = [f"# {yaml_comment(h)}".rstrip() for h in header]
 
     def put(text: str, note: str | None = None) -> None:
-        out.append(f"{text:<24}  # {_comment_text(note)}" if note else text)
+        out.append(f"{text:<24}  # {yaml_comment(note)}" if note else text)
 
     put(f"recipe: {yaml_scalar(recipe['recipe'])}")
     put(f"description: {yaml_scalar(recipe['description'])}")
@@ -749,7 +629,7 @@ def _emit(
     spans: list[tuple[int, int]] = []
     for step, notes in zip(recipe["steps"], step_notes, strict=True):
         for note in notes:
-            put(f"  # {_comment_text(note)}")
+            put(f"  # {yaml_comment(note)}")
         first = len(out) + 1
         lead = "  - "
         for key, value in step.items():

@@ -21,8 +21,8 @@ from supervisor.chains.compiler import Target, compile_recipe
 from supervisor.chains.profile_csv import read_profile_csv
 from supervisor.chains.program import ProfilePoint
 from supervisor.config.recipe import ID_PATTERN, load_recipe_text
+from supervisor.config.yamledit import yaml_float, yaml_scalar
 from supervisor.core.errors import ConfigError, ConfigErrors
-from supervisor.importers.chadeche import yaml_float, yaml_scalar
 
 __all__ = ["import_profile"]
 

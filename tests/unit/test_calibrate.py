@@ -163,6 +163,23 @@ def test_a_bad_readings_line_is_refused_at_its_line_and_column(
     assert words in info.value.message
 
 
+def test_a_header_may_use_other_separators_than_the_readings(tmp_path: Path) -> None:
+    path = tmp_path / "r.txt"
+    path.write_text("Consigne, mA   Mesure, mA\n0\t0,1\n50\t50,9\n", encoding="utf-8")
+    assert read_pairs_csv(path) == ([0.0, 50.0], [0.1, 50.9])
+
+
+def test_a_readings_file_that_is_neither_utf8_nor_cp1252_is_refused_where_the_byte_is(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "r.csv"
+    path.write_bytes(b"set;meas\r\n0;0,1\r\n50;50,9\x81\r\n")
+    with pytest.raises(ConfigError) as info:
+        read_pairs_csv(path)
+    assert (info.value.file, info.value.line, info.value.col) == (str(path), 3, 8)
+    assert "0x81 is neither UTF-8 nor CP1252" in info.value.message
+
+
 def test_a_readings_file_without_readings_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "r.csv"
     path.write_text("setpoint;measured\n", encoding="utf-8")
@@ -322,6 +339,39 @@ def test_a_bom_and_crlf_line_ends_are_kept(tmp_path: Path) -> None:
         b"      - address: 0\r\n        calibration: {current_slope: 0.99}\r\n",
     )
     assert calibration_of(path, 0).current_slope == 0.99
+
+
+def test_a_cr_only_io_map_gets_its_new_line_with_cr(tmp_path: Path) -> None:
+    path = tmp_path / "cr.yaml"
+    original = SIM.read_bytes().replace(b"\n", b"\r")
+    path.write_bytes(original)
+    write_calibration(path, "chadeche", 0, {"current_slope": 0.99})
+    assert path.read_bytes() == original.replace(
+        b"      - address: 0\r", b"      - address: 0\r        calibration: {current_slope: 0.99}\r"
+    )
+    assert calibration_of(path, 0).current_slope == 0.99
+
+
+def test_an_io_map_that_is_not_utf8_is_refused_at_the_bad_byte_and_not_touched(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "latin1.yaml"
+    text = BLOCK.encode().replace(b"# name", b"# caf\xe9")
+    path.write_bytes(text)
+    with pytest.raises(ConfigError) as info:
+        write_calibration(path, "chadeche", 0, {"current_slope": 0.98})
+    assert (info.value.file, info.value.line, info.value.col) == (str(path), 2, 17)
+    assert "must be UTF-8" in info.value.message
+    assert path.read_bytes() == text
+
+
+def test_a_device_that_is_not_a_mapping_is_refused_not_a_traceback(tmp_path: Path) -> None:
+    path = tmp_path / "odd.yaml"
+    path.write_text("devices:\n  chadeche: 5\n", encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        write_calibration(path, "chadeche", 0, {"current_slope": 0.98})
+    assert (info.value.line, info.value.col) == (2, 3)
+    assert "device 'chadeche' has driver 'none'" in info.value.message
 
 
 @pytest.mark.parametrize(

@@ -8,19 +8,17 @@ from typing import Any
 
 import pytest
 import yaml
-from hypothesis import given
-from hypothesis import strategies as st
 
 from supervisor.app.calibrate import write_calibration
 from supervisor.chains.compiler import Target, compile_recipe
+from supervisor.chains.profile_csv import read_profile_csv
 from supervisor.chains.program import Program
 from supervisor.config.recipe import load_recipe, load_recipe_text
 from supervisor.config.yamlpos import load_yaml_text
-from supervisor.core.errors import ConfigErrors
+from supervisor.core.errors import ConfigError, ConfigErrors
 from supervisor.devices.chadeche.config import ChadecheDevice
 from supervisor.devices.registry import load_bench
 from supervisor.importers import ImportResult, import_chadeche, import_profile
-from supervisor.importers.chadeche import yaml_float, yaml_scalar
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data" / "chadeche"
@@ -445,21 +443,6 @@ def test_a_file_that_is_neither_utf8_nor_cp1252_is_refused_where_the_byte_is(
 
 
 # --------------------------------------------------------------------------------------------
-# YAML scalars
-
-
-@given(st.text(alphabet=st.characters(codec="utf-8"), max_size=30))
-def test_any_string_is_written_as_a_yaml_scalar_that_reads_back_the_same(text: str) -> None:
-    assert load_yaml_text(f"k: {yaml_scalar(text)}\n")[0] == {"k": text}
-    assert load_yaml_text(f"{yaml_scalar(text, key=True)}: v\n")[0] == {text: "v"}
-
-
-@given(st.floats(allow_nan=False, allow_infinity=False))
-def test_any_finite_float_is_written_as_a_yaml_float_that_reads_back_exactly(x: float) -> None:
-    assert load_yaml_text(f"k: {yaml_float(x)}\n")[0] == {"k": x}
-
-
-# --------------------------------------------------------------------------------------------
 # Load profiles (seed 002 §2.3)
 
 
@@ -526,3 +509,19 @@ def test_a_broken_profile_is_refused_with_its_file_and_line(tmp_path: Path) -> N
     csv.write_text("-0.5;0.5\n10;1\n", encoding="utf-8")
     with pytest.raises(ConfigErrors, match="negative"):
         import_profile(csv)
+
+
+@pytest.mark.parametrize("byte", [0x81, 0x8D, 0x8F, 0x90, 0x9D], ids=lambda b: f"0x{b:02X}")
+def test_a_profile_with_a_byte_undefined_in_cp1252_is_refused_at_that_byte_not_a_traceback(
+    tmp_path: Path, byte: int
+) -> None:
+    # Neither UTF-8 (a lone continuation byte) nor CP1252 (one of its five holes).
+    csv = tmp_path / "profil.csv"
+    csv.write_bytes(b"Temps;Courant\r\n0;0,5\r\n10;1,0" + bytes([byte]) + b"\r\n")
+    with pytest.raises(ConfigError) as info:
+        read_profile_csv(csv)
+    assert (info.value.file, info.value.line, info.value.col) == (str(csv), 3, 7)
+    assert f"byte 0x{byte:02x} is neither UTF-8 nor CP1252" in info.value.message
+    with pytest.raises(ConfigErrors) as many:
+        import_profile(csv)
+    assert [(e.line, e.col) for e in many.value.errors] == [(3, 7)]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import codecs
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -226,6 +227,29 @@ def test_invalid_utf8_byte_reports_its_line_and_character_column(tmp_path: Path)
     assert at(error) == (str(path), 2, 16)
     assert "0xe9" in error.message
     assert "must be UTF-8" in error.message
+
+
+def test_a_utf16_file_is_refused_at_1_1_naming_its_encoding(tmp_path: Path) -> None:
+    path = tmp_path / "unicode.yaml"
+    path.write_bytes(codecs.BOM_UTF16_LE + "scan: {period_s: 1}\n".encode("utf-16-le"))
+    with pytest.raises(ConfigError) as info:
+        load_yaml(path)
+    assert at(info.value) == (str(path), 1, 1)
+    assert "UTF-16" in info.value.message
+    assert "must be UTF-8" in info.value.message
+
+
+def test_crlf_and_cr_line_ends_give_the_same_positions_as_lf(tmp_path: Path) -> None:
+    for newline in ("\r\n", "\r"):
+        path = tmp_path / "crlf.yaml"
+        path.write_bytes(f"scan:{newline}  period_s: 1{newline}  perod_s: 2{newline}".encode())
+        data, positions = load_yaml(path)
+        assert data == {"scan": {"period_s": 1, "perod_s": 2}}
+        assert positions.key(("scan", "perod_s")) == Mark(3, 3)
+        path.write_bytes(f"scan:{newline}  name: caf".encode() + b"\xe9" + newline.encode())
+        with pytest.raises(ConfigError) as info:
+            load_yaml(path)
+        assert at(info.value) == (str(path), 2, 12)
 
 
 def test_empty_file_is_an_error(tmp_path: Path) -> None:
