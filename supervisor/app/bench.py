@@ -9,16 +9,20 @@ from pathlib import Path
 
 from supervisor.app.simulation import SimulatedBench, build_simulation
 from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target, compile_recipe
-from supervisor.chains.engine import ChainEvent, ChainRunner, Record, State
-from supervisor.channels import Channel, ChannelLimits
+from supervisor.chains.engine import ChainRunner
+from supervisor.chains.port import ChannelPort
+from supervisor.chains.states import FINAL
+from supervisor.channels import Channel, ChannelLimits, Mode
 from supervisor.config.models import BenchConfig, LinearScaling, TagMapping
 from supervisor.config.recipe import load_recipe
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver, DType
 from supervisor.core.errors import OperatorError
+from supervisor.core.records import ChainEvent, Record
 from supervisor.core.units import UNITS, Dim
 from supervisor.devices.kind import DriverWiring
 from supervisor.devices.registry import REGISTRY, Registry
+from supervisor.publish.display import ChadecheDisplay
 from supervisor.publish.results import ResultCollector
 from supervisor.safety import SafetyPhase
 from supervisor.scan import (
@@ -34,7 +38,6 @@ from supervisor.tags import AlarmLimits, HistorySettings, Scaling, TagDB, TagSpe
 
 log = logging.getLogger(__name__)
 
-FINAL_STATES = (State.COMPLETE, State.STOPPED, State.ABORTED)
 UNIT_DIMS = {u: d for u, (d, f) in UNITS.items() if f == 1.0}
 
 
@@ -52,6 +55,7 @@ class Bench:
     runners: dict[str, ChainRunner] = field(default_factory=dict)
     safety: SafetyPhase = field(default_factory=SafetyPhase)
     results: dict[str, ResultCollector] = field(default_factory=dict)
+    displays: dict[str, ChadecheDisplay] = field(default_factory=dict)
     _started: bool = False
 
     def target(self, channel: str) -> Target:
@@ -94,7 +98,7 @@ class Bench:
 
         def on_event(ev: ChainEvent) -> None:
             collector.on_event(ev)
-            if ev.kind == "state" and runner.state in FINAL_STATES:
+            if ev.kind == "state" and runner.state in FINAL:
                 collector.close(runner.end_reason, runner.state.value)
                 log.info("%s: results in %s", channel, folder)
 
@@ -139,7 +143,7 @@ class Bench:
         self.engine.scan_once()  # queue the zero setpoints
         for name, collector in self.results.items():
             runner = self.runners[name]
-            if runner.state not in FINAL_STATES:
+            if runner.state not in FINAL:
                 collector.close("supervisor stopped", runner.state.value)
         for d in self.drivers.values():
             try:
@@ -270,9 +274,15 @@ def build_bench(
             outputs.append(OutputBinding(ch.voltage_cmd, drv, pts.voltage_set))
         channels[c.name] = ch
 
-    runners = {name: ChainRunner(ch, db, clock) for name, ch in channels.items()}
+    # The chain sees its channel through the channel's tags only (chains/port.py).
+    runners = {
+        name: ChainRunner(ChannelPort.from_tags(db, name, Mode.AUTO.value), db, clock)
+        for name in channels
+    }
+    displays: dict[str, ChadecheDisplay] = {}
     for c in cfg.channels:
-        runners[c.name].dba = c.source.board or 0
+        displays[c.name] = ChadecheDisplay(c.name, dba=c.source.board or 0)
+        runners[c.name].samplers.append(displays[c.name])
     safety = SafetyPhase()
     phases = ScanPhases(
         derived=[LogicPhase(f"derive:{n}", ch.derive) for n, ch in channels.items()],
@@ -291,4 +301,6 @@ def build_bench(
         phases=phases.ordered(),
         publishers=publishers or [],
     )
-    return Bench(cfg, clock, db, engine, drivers, channels, sim, runners, safety=safety)
+    return Bench(
+        cfg, clock, db, engine, drivers, channels, sim, runners, safety=safety, displays=displays
+    )

@@ -140,7 +140,7 @@ async def dry_run(
     clock = VirtualClock(wall_epoch_s=_epoch(start))
     bench: Bench = build_bench(dry_run_config(model, cap, soc, period_s, cells), clock)
     runner = bench.runners["ch0"]
-    runner.display_period_s = float("inf")
+    bench.displays["ch0"].period_s = float("inf")  # a dry run shows its report instead
     program = compile_recipe(recipe, pos, str(recipe_path), bench.target("ch0"), params or {})
     runner.load(program, test_id=f"dryrun-{program.name}")
     collector = ResultCollector(

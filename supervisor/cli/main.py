@@ -66,8 +66,8 @@ async def _run(args: argparse.Namespace) -> int:
         load(channel, file, _params(args.param))
         if args.start:
             bench.runners[channel].command("start", actor="command line")
-    for runner in bench.runners.values():
-        runner.display_period_s = 10.0 if args.verbose else 60.0
+    for display in bench.displays.values():
+        display.period_s = 10.0 if args.verbose else 60.0
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from supervisor.chains.engine import ChainEvent, Record
+from supervisor.core.records import ChainEvent, Record
 
 log = logging.getLogger(__name__)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import csv
 import json
+import logging
 import re
 import time
 from collections.abc import AsyncIterator
@@ -14,10 +15,11 @@ import pytest
 
 from supervisor.app import Bench, build_bench
 from supervisor.app.dryrun import DryRunResult, dry_run, dry_run_config
-from supervisor.chains.engine import OPCUA_CODE, TABLE, State
+from supervisor.chains.states import OPCUA_CODE, TABLE, State
 from supervisor.core.clock import RealClock, VirtualClock
 from supervisor.core.errors import OperatorError
 from supervisor.importers import import_chadeche
+from supervisor.publish.display import display_line
 
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.integration
@@ -367,9 +369,24 @@ async def test_the_status_line_follows_the_chadeche_display_format(tmp_path: Pat
     b = bench_with(tmp_path, "recipe: r\nsteps:\n  - {id: a, charge: 50 mA, duration: 180 s}\n")
     await start(b)
     await b.engine.run_for(129.0)
-    line = b.runners["ch0"].display_line(b.clock.now())
+    snapshot = b.runners["ch0"].snapshot(b.clock.now())
+    assert snapshot is not None
+    line = display_line(snapshot, b.displays["ch0"].dba)
     assert re.match(
         r"^C/01/01 dba=0 mA= 50 CET= 129 SET= 129 TET= 129 STA= 51 V=\d\.\d{3}"
         r" mAh=\d+\.\d, \w{3} \w{3} \d{2} \d{2}:\d{2}:\d{2} \d{4}$",
         line,
     ), line
+
+
+async def test_the_status_line_is_logged_every_display_period_while_a_test_runs(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    b = bench_with(tmp_path, "recipe: r\nsteps:\n  - {id: a, charge: 50 mA, duration: 180 s}\n")
+    b.displays["ch0"].period_s = 60.0
+    with caplog.at_level(logging.INFO, logger="supervisor.publish.display"):
+        await start(b)
+        await b.engine.run_for(200.0)
+    lines = [m for m in caplog.messages if m.startswith("ch0: C/01/01 dba=0")]
+    assert [re.findall(r" SET= (\d+) ", m) for m in lines] == [["0"], ["60"], ["120"]]
+    assert b.runners["ch0"].state is State.COMPLETE

@@ -1,0 +1,84 @@
+"""The one seam between a step chain and its channel: tags to read, requests to write.
+
+A chain reads the channel's measurement, counter, fault and mode tags and requests a
+setpoint through ``chN.auto_current`` / ``chN.auto_voltage`` / ``chN.auto_active``; the
+channel's own logic (run after the chain in the same scan) clamps, protects and drives
+the source, so a chain can never override a trip (DESIGN.md, one scan). The chain never
+sees the channel object, a driver or a device: only these tags, through the TagDB.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+from supervisor.tags import Tag, TagDB
+
+
+@dataclass(frozen=True, slots=True)
+class ChannelPort:
+    """A channel's tags as a step chain sees them (built by the composition root)."""
+
+    name: str
+    db: TagDB
+    auto_mode: str  # the value of ``chN.mode`` that hands the channel to its chain
+    # Read.
+    voltage: Tag
+    current: Tag
+    temperature: Tag
+    power: Tag
+    charge_ah: Tag
+    energy_wh: Tag
+    charged_ah: Tag
+    discharged_ah: Tag
+    charged_wh: Tag
+    discharged_wh: Tag
+    current_cmd: Tag
+    fault: Tag
+    # Written (mode is also read).
+    mode: Tag
+    enable: Tag
+    auto_current: Tag
+    auto_voltage: Tag
+    auto_active: Tag
+
+    @classmethod
+    def from_tags(cls, db: TagDB, channel: str, auto_mode: str) -> ChannelPort:
+        """The port of channel ``channel`` from its ``<channel>.<field>`` tags."""
+        tags = {
+            f.name: db[f"{channel}.{f.name}"]
+            for f in fields(cls)
+            if f.name not in ("name", "db", "auto_mode")
+        }
+        return cls(name=channel, db=db, auto_mode=auto_mode, **tags)
+
+    @property
+    def in_auto(self) -> bool:
+        return self.mode.value == self.auto_mode
+
+    def fault_text(self) -> str:
+        """The channel's latched trip, "" when there is none."""
+        return str(self.fault.value or "")
+
+    def take_control(self) -> None:
+        """Hand the channel to its chain at the start of a test: Auto mode, and the manual
+        enable dropped so that a later switch to Manual does not re-energise by itself."""
+        self.db.update(self.mode, self.auto_mode)
+        self.db.update(self.enable, False)
+
+    def request(self, current_a: float, voltage_v: float, active: bool) -> None:
+        """This scan's request: current (A, + charges), CV target (V, 0: none), and
+        whether the power stage should be on."""
+        db = self.db
+        db.update(self.auto_current, current_a)
+        db.update(self.auto_active, active)
+        db.update(self.auto_voltage, voltage_v)
+
+    def counters(self) -> dict[str, float]:
+        """The counters whose test- and cycle-scoped differences go into the records (BDF:
+        test-scoped counters never reset, cycle-scoped ones reset at a new cycle)."""
+        return {
+            "charged_ah": self.charged_ah.as_float(),
+            "discharged_ah": self.discharged_ah.as_float(),
+            "charged_wh": self.charged_wh.as_float(),
+            "discharged_wh": self.discharged_wh.as_float(),
+        }

@@ -1,0 +1,77 @@
+"""What a step chain tells the world: events and result samples (plain data).
+
+They live below every layer that produces or consumes them, so that the chain engine
+(``supervisor.chains``) emits them and the publishers (``supervisor.publish``: result
+files, the Chadèche display line) take them without importing each other (STYLE.md,
+layers).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+
+@dataclass(frozen=True, slots=True)
+class ChainEvent:
+    t: float  # Clock.now()
+    wall: float
+    channel: str
+    kind: str  # "state" | "step" | "alarm" | "message"
+    text: str
+    step_index: int = -1
+    step_id: str = ""
+    cycle: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Record:
+    """One result sample (BDF columns), emitted when a logging rule says so.
+
+    The same type carries a periodic snapshot for displays (``reason == "sample"``).
+    """
+
+    t: float
+    wall: float
+    test_time_s: float
+    step_time_s: float
+    cycle_time_s: float
+    cycle: int
+    step_count: int  # increments at every step start, never resets (BDF)
+    step_index: int
+    step_id: str
+    step_type: str
+    voltage_v: float | None
+    current_a: float | None
+    power_w: float | None
+    temperature_c: float | None
+    charge_ah: float  # counter incl. the initial charge
+    charged_ah: float
+    discharged_ah: float
+    charged_wh: float
+    discharged_wh: float
+    cycle_charged_ah: float
+    cycle_discharged_ah: float
+    cycle_charged_wh: float
+    cycle_discharged_wh: float
+    setpoint_a: float
+    step_remaining_s: float | None
+    reason: str  # "period" | "delta_v" | "delta_i" | "step change" | "end" | "sample"
+    # What the channel sends to its source (after its clamp and trips). The chain runs
+    # before the channel in a scan, so during the scan this is the last scan's command.
+    current_cmd_a: float = 0.0
+    # The voltage tag's last value whatever its quality (0.0 when it has none): the
+    # Chadèche display (seed 000 §III.E.1) shows it; ``voltage_v`` is None when not GOOD.
+    last_voltage_v: float = 0.0
+
+
+class Sampler(Protocol):
+    """A periodic observer of a running test (e.g. a display line).
+
+    The chain asks ``due(now)`` every scan and builds a snapshot only when it is due:
+    building a Record every scan would cost the dry run its speed.
+    """
+
+    def due(self, now: float) -> bool: ...
+
+    def on_sample(self, rec: Record) -> None: ...
