@@ -15,11 +15,11 @@ from typing import Any, Final
 from supervisor.config import bench as bench_file
 from supervisor.config.models import BenchConfig, DeviceConfig, bench_model
 from supervisor.core.errors import ConfigError
-from supervisor.devices import adam, bms, chadeche, ea, sim_supply
+from supervisor.devices import adam, bms, chadeche, ea
 from supervisor.devices.kind import DeviceKind
 
 KINDS: Final[Mapping[str, DeviceKind[Any]]] = MappingProxyType(
-    {k.name: k for k in (chadeche.KIND, adam.KIND, ea.KIND, bms.KIND, sim_supply.KIND)}
+    {k.name: k for k in (chadeche.KIND, adam.KIND, ea.KIND, bms.KIND)}
 )
 """Registered kinds by their I/O map ``driver:`` value, in the order messages list them."""
 

@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import logging
 from collections.abc import AsyncIterator, Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 from supervisor.app import build_bench
+from supervisor.app.dryrun import dry_run, dry_run_config
+from supervisor.chains.engine import State
 from supervisor.core.clock import RealClock, VirtualClock
 from supervisor.core.errors import DeviceIOError, DeviceTimeout, ProtocolError
 from supervisor.core.quality import Quality, Reason
@@ -613,3 +616,32 @@ def test_a_served_bench_drives_the_ea_over_tcp_to_host_and_port() -> None:
     assert isinstance(driver, EaDriver)
     assert isinstance(driver.transport, TcpScpiTransport)
     assert driver.transport.address == "127.0.0.1:5025"
+
+
+# --- the dry run -------------------------------------------------------------------------------
+def test_the_li_ion_dry_run_bench_is_an_ea_supply_on_a_unit_rated_for_the_channel() -> None:
+    cfg = dry_run_config("liion-pack", 10.0, 0.5, 1.0)
+    dev = cfg.devices["supply"]
+    assert dev.driver == "ea-psb"
+    assert dev.simulated
+    bench = build_bench(cfg, VirtualClock(), in_process=True)
+    driver = bench.drivers["supply"]
+    assert isinstance(driver, EaDriver)
+    assert isinstance(driver.transport, InProcessScpiTransport)
+    assert (driver.i_charge_max_a, driver.i_discharge_max_a) == (100.0, 100.0)
+
+
+async def test_a_cccv_dry_run_goes_through_the_ea_driver_and_simulator(tmp_path: Path) -> None:
+    recipe = tmp_path / "cccv.yaml"
+    recipe.write_text(
+        "recipe: short-cccv\nchemistry: liion\ncapacity: 2 Ah\nsteps:\n"
+        "  - id: charge\n    cccv: {current: 1 A, voltage: 3.9 V}\n    duration: 30 min\n"
+        "  - {id: discharge, discharge: 1 A, duration: 20 min}\n",
+        encoding="utf-8",
+    )
+    res = await dry_run(recipe, soc=0.5)
+    assert res.state is State.COMPLETE, res.end_reason
+    (cycle,) = res.summary["cycles"]
+    # 1 A for 20 min out; in: 1 A until the CV phase at 3.9 V tapers it, within 30 min.
+    assert cycle["discharge_capacity_ah"] == pytest.approx(1 / 3, rel=0.01)
+    assert 0.05 < cycle["charge_capacity_ah"] < 0.45
