@@ -59,7 +59,8 @@ class BenchPlant:
             self.battery.step(self._current_a, dt)
             self._t = now
             self._current_a = self._regulate()
-        # dt == 0: nothing moved since the last regulation (every setter regulates again).
+        # dt == 0: nothing moved since the last regulation. Change settings through
+        # set_supply/set_contactor/set_estop (they regulate), not by assigning fields.
 
     # --- what the sensors see --------------------------------------------------------
     @property
