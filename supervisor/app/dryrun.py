@@ -1,8 +1,9 @@
 """``supervisor dry-run``: a recipe against the battery model, on the virtual clock.
 
 The same compiler, step-chain engine, channel logic and drivers as on a bench; only the
-source is simulated (a Chadèche board with a NiMH cell, or an ideal bidirectional supply
-with a Li-ion pack when the recipe needs constant voltage) and time is virtual.
+source is simulated (a Chadèche board with a NiMH cell, or an EA-PSB supply with a Li-ion
+pack when the recipe needs constant voltage: the real EA driver talking SCPI to the EA
+simulator in process) and time is virtual.
 """
 
 from __future__ import annotations
@@ -51,6 +52,12 @@ def _epoch(start: str) -> float:
 def dry_run_config(
     model: str, capacity_ah: float, soc: float, period_s: float, cells: int = 1
 ) -> BenchConfig:
+    """The dry-run bench: one channel ``ch0`` on a simulated source.
+
+    ``nimh-aa``: a Chadèche board with its cell. Otherwise an EA-PSB supply (``sim: true``)
+    on a Li-ion pack of ``cells`` in series; build it with ``in_process=True`` (the driver
+    talks to the simulator in this process, nothing listens on its port).
+    """
     if model == "nimh-aa":
         return bench_from_data(
             {
@@ -79,15 +86,33 @@ def dry_run_config(
                 ],
             }
         )
+    i_max_a = 10 * capacity_ah
+    v_max = 4.35 * cells
+    # The simulated unit is a PSB 10060-60 (60 V, 60 A, 1500 W), rated up to the channel's
+    # limits where they are higher, as a real bench's unit must be: the EA driver refuses,
+    # at connect, limits above the nominal ratings; and its power limit must not cut a
+    # current the channel allows.
+    nominal_v = max(60.0, v_max)
+    nominal_a = max(60.0, i_max_a)
+    nominal_w = max(1500.0, v_max * i_max_a)
+    # The unit's interface watchdog: 10 polls, as io_maps/sim.yaml (2 s at 0.2 s). Nothing
+    # stops polling in a dry run; it only has to satisfy the driver's keep-alive rule.
+    watchdog_s = 10 * period_s
     return bench_from_data(
         {
             "bench": "dry_run",
             "scan": {"period_s": period_s},
             "devices": {
                 "supply": {
-                    "driver": "sim-supply",
+                    "driver": "ea-psb",
+                    "sim": True,
+                    "host": "127.0.0.1",
                     "poll_period_s": period_s,
                     "stale_after_s": max(1.0, 3 * period_s),
+                    "watchdog_s": watchdog_s,
+                    "sim_nominal_v": nominal_v,
+                    "sim_nominal_a": nominal_a,
+                    "sim_nominal_w": nominal_w,
                 }
             },
             "channels": [
@@ -97,8 +122,8 @@ def dry_run_config(
                     "chemistry": "liion",
                     "capacity_ah": capacity_ah,
                     "limits": {
-                        "current_a": [-10 * capacity_ah, 10 * capacity_ah],
-                        "voltage_v": [2.0 * cells, 4.35 * cells],
+                        "current_a": [-i_max_a, i_max_a],
+                        "voltage_v": [2.0 * cells, v_max],
                     },
                 }
             ],
@@ -138,7 +163,14 @@ async def dry_run(
     if soc is None:
         soc = 0.9 if model == "nimh-aa" else 0.5
     clock = VirtualClock(wall_epoch_s=_epoch(start))
-    bench: Bench = build_bench(dry_run_config(model, cap, soc, period_s, cells), clock)
+    bench: Bench = build_bench(
+        dry_run_config(model, cap, soc, period_s, cells), clock, in_process=True
+    )
+    assert bench.sim is not None  # every dry-run source is simulated
+    # The dry-run bench has no contactor relay (no ADAM), but the plant only lets current
+    # flow between supply and pack with its contactor closed: close it for good (the
+    # ideal supply that dry runs used before did the same at connect).
+    bench.sim.plant.set_contactor(True)
     runner = bench.runners["ch0"]
     bench.displays["ch0"].period_s = float("inf")  # a dry run shows its report instead
     program = compile_recipe(recipe, pos, str(recipe_path), bench.target("ch0"), params or {})

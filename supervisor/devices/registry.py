@@ -15,7 +15,7 @@ from typing import Any, Final
 from supervisor.config import bench as bench_file
 from supervisor.config.models import BenchConfig, DeviceConfig, bench_model
 from supervisor.core.errors import ConfigError
-from supervisor.devices import adam, bms, chadeche, ea, sim_supply
+from supervisor.devices import adam, bms, chadeche, ea
 from supervisor.devices.kind import DeviceKind
 
 
@@ -56,7 +56,7 @@ class Registry:
         return bench_file.check_data(data, file, self.bench_model)
 
 
-REGISTRY: Final = Registry([chadeche.KIND, adam.KIND, ea.KIND, bms.KIND, sim_supply.KIND])
+REGISTRY: Final = Registry([chadeche.KIND, adam.KIND, ea.KIND, bms.KIND])
 """The kinds this supervisor ships with."""
 
 KINDS: Final = REGISTRY.kinds

@@ -53,11 +53,14 @@ class BenchPlant:
         now = self.clock.now()
         if self._t is None:
             self._t = now
+            self._current_a = self._regulate()
         dt = now - self._t
         if dt > 0:
             self.battery.step(self._current_a, dt)
             self._t = now
-        self._current_a = self._regulate()
+            self._current_a = self._regulate()
+        # dt == 0: nothing moved since the last regulation. Change settings through
+        # set_supply/set_contactor/set_estop (they regulate), not by assigning fields.
 
     # --- what the sensors see --------------------------------------------------------
     @property

@@ -23,7 +23,7 @@ from supervisor.app import Bench, build_bench
 from supervisor.core.clock import RealClock
 from supervisor.core.quality import Quality
 from supervisor.devices import base
-from supervisor.devices.ea.sim import EaSimulator
+from supervisor.devices.ea.sim import EaTcpSimulator as EaSimulator
 from supervisor.devices.registry import load_bench
 from supervisor.sim.battery import make_model
 from supervisor.sim.plant import BenchPlant

@@ -6,7 +6,13 @@ from __future__ import annotations
 from supervisor.core.driver import Driver
 from supervisor.devices.ea.config import EaDevice
 from supervisor.devices.ea.driver import EaDriver
-from supervisor.devices.ea.sim import EaSimulator
+from supervisor.devices.ea.sim import EaSimulator, EaTcpSimulator
+from supervisor.devices.ea.transport import (
+    InProcessScpiTransport,
+    ScpiConnection,
+    ScpiTransport,
+    TcpScpiTransport,
+)
 from supervisor.devices.kind import DeviceKind, DeviceSimulator, DriverWiring, SimWiring
 
 
@@ -14,12 +20,19 @@ def _driver(name: str, dev: EaDevice, wiring: DriverWiring) -> Driver:
     owner = wiring.owner(name)
     if owner is None:  # refused by the bench checks: an EA supply takes its limits from it
         raise ValueError(f"device {name!r} drives no channel")
+    transport: ScpiTransport
+    if wiring.simulator is None:
+        transport = TcpScpiTransport(dev.host, dev.port)
+    elif isinstance(wiring.simulator, EaSimulator):
+        # Dry runs and virtual-clock benches: the simulator's interpreter, no socket.
+        transport = InProcessScpiTransport(wiring.simulator, wiring.clock)
+    else:
+        raise TypeError(f"device {name!r}: {wiring.simulator!r} is not an EA simulator")
     lo, hi = owner.limits.current_a
     return EaDriver(
         name,
         wiring.clock,
-        dev.host,
-        dev.port,
+        transport,
         v_min=owner.limits.voltage_v[0],
         v_max=owner.limits.voltage_v[1],
         i_charge_max_a=hi,
@@ -32,12 +45,21 @@ def _driver(name: str, dev: EaDevice, wiring: DriverWiring) -> Driver:
 
 
 def _simulator(name: str, dev: EaDevice, wiring: SimWiring) -> DeviceSimulator:
-    return EaSimulator(
+    if wiring.in_process:  # nothing served, nothing sleeping on its own
+        return EaSimulator(
+            wiring.plant,
+            dev.sim_model,
+            dev.sim_nominal_v,
+            dev.sim_nominal_a,
+            dev.sim_nominal_w,
+            name=name,
+        )
+    return EaTcpSimulator(
         wiring.plant,
-        model=dev.sim_model,
-        nominal_v=dev.sim_nominal_v,
-        nominal_a=dev.sim_nominal_a,
-        nominal_w=dev.sim_nominal_w,
+        dev.sim_model,
+        dev.sim_nominal_v,
+        dev.sim_nominal_a,
+        dev.sim_nominal_w,
         host=dev.host,
         port=dev.port,
         name=name,
@@ -46,4 +68,14 @@ def _simulator(name: str, dev: EaDevice, wiring: SimWiring) -> DeviceSimulator:
 
 KIND = DeviceKind(EaDevice, _driver, _simulator)
 
-__all__ = ["KIND", "EaDevice", "EaDriver", "EaSimulator"]
+__all__ = [
+    "KIND",
+    "EaDevice",
+    "EaDriver",
+    "EaSimulator",
+    "EaTcpSimulator",
+    "InProcessScpiTransport",
+    "ScpiConnection",
+    "ScpiTransport",
+    "TcpScpiTransport",
+]

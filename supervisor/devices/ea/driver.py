@@ -1,4 +1,4 @@
-"""EA-PSB 10000 bidirectional supply (seed 002) over SCPI on raw TCP.
+"""EA-PSB 10000 bidirectional supply (seed 002) over SCPI, on an injected line transport.
 
 Points:
 
@@ -20,9 +20,13 @@ Safety of the link (devices.md "EA-PSB 10000"):
 - the unit's interface monitoring (watchdog) is armed at connect: if this driver stops
   talking for ``watchdog_s``, the unit leaves remote and switches its output off. Every poll
   keeps it alive, so ``watchdog_s`` must be well above ``poll_period_s``;
-- one ``write()`` + ``drain()`` per complete line, an ``asyncio.Lock`` around every
-  question/answer pair, and on a timeout or a malformed reply the connection is closed, so a
-  late reply can never be taken for the answer to the next question.
+- one complete line per write, an ``asyncio.Lock`` around every question/answer pair, and
+  on a timeout or a malformed reply the connection is closed, so a late reply can never be
+  taken for the answer to the next question.
+
+The transport (:mod:`supervisor.devices.ea.transport`) is chosen by the composition root:
+raw-socket SCPI on ``host:port`` for a unit, or the simulator's interpreter in process
+(dry runs, virtual-clock tests).
 
 Modbus TCP (port 502) as a second transport is deliberately NOT implemented: part of its
 register map (sink set values, limits, nominal values, the state bits 0–4/9–10/12) is only
@@ -41,12 +45,11 @@ from collections.abc import AsyncIterator, Mapping
 
 from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
-from supervisor.core.errors import DeviceIOError, DeviceTimeout, ProtocolError
+from supervisor.core.errors import DeviceIOError, ProtocolError
 from supervisor.core.quality import Quality, Reason
 from supervisor.devices.base import PolledDriver
 from supervisor.devices.ea.config import POINTS, WATCHDOG_POLL_RATIO
 from supervisor.devices.ea.protocol import (
-    MAX_LINE_BYTES,
     QUES_OCP_BIT,
     QUES_OPP_BIT,
     QUES_OT_BIT,
@@ -73,6 +76,7 @@ from supervisor.devices.ea.protocol import (
     parse_register,
     split_reply,
 )
+from supervisor.devices.ea.transport import ScpiConnection, ScpiTransport
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +94,7 @@ RAW_LOG_LINES = 64
 POLL_QUERIES = ("MEAS:ARR?", "OUTP?", "SYST:LOCK:OWN?", "STAT:QUES:COND?")
 """Asked on one line every poll; ``SYST:ERR?`` follows on its own line because reading the
 error queue can acknowledge alarms that have cleared (devices.md): QUES must be read first."""
+_POLL_LINE = join_commands(POLL_QUERIES)
 _QUES_NAMES = {
     QUES_OVP_BIT: "OVP",
     QUES_OCP_BIT: "OCP",
@@ -100,7 +105,7 @@ _QUES_NAMES = {
 
 
 class EaDriver(PolledDriver):
-    """One EA-PSB 10000 unit on ``host:port`` (SCPI, normally port 5025).
+    """One EA-PSB 10000 unit reached through ``transport`` (SCPI; on TCP normally port 5025).
 
     ``v_min``/``v_max``: voltage set while discharging/charging (the unit regulates CV there,
     so they are the battery's voltage window). ``i_charge_max_a``/``i_discharge_max_a``:
@@ -113,8 +118,7 @@ class EaDriver(PolledDriver):
         self,
         name: str,
         clock: Clock,
-        host: str,
-        port: int,
+        transport: ScpiTransport,
         *,
         v_min: float,
         v_max: float,
@@ -153,8 +157,7 @@ class EaDriver(PolledDriver):
                 f"{WATCHDOG_POLL_RATIO:g} x poll_period_s ({poll_period_s} s): every poll is "
                 "the keep-alive, it must come well within the unit's timeout"
             )
-        self.host = host
-        self.port = port
+        self.transport = transport
         self.v_min = v_min
         self.v_max = v_max
         self._cv_v: float | None = None  # CV target from voltage_set (None: v_max)
@@ -169,8 +172,7 @@ class EaDriver(PolledDriver):
         self.nominal_v = math.nan
         self.nominal_a = math.nan
         self.nominal_w = math.nan
-        self._reader: asyncio.StreamReader | None = None
-        self._writer: asyncio.StreamWriter | None = None
+        self._link: ScpiConnection | None = None
         self._io_lock = asyncio.Lock()
         self._direction = 0  # sign of the last commanded current
         self._device_error = ""
@@ -198,19 +200,8 @@ class EaDriver(PolledDriver):
     async def _connect(self) -> None:
         async with self._io_lock:
             await self._drop_transport()
-            try:
-                async with asyncio.timeout(self.timeout_s):
-                    self._reader, self._writer = await asyncio.open_connection(
-                        self.host, self.port, limit=MAX_LINE_BYTES
-                    )
-            except TimeoutError:
-                raise DeviceTimeout(
-                    self.name, f"no TCP connection to {self.host}:{self.port} in {self.timeout_s} s"
-                ) from None
-            except OSError as exc:
-                raise DeviceIOError(
-                    self.name, f"cannot connect to {self.host}:{self.port}: {exc}"
-                ) from exc
+            # Raises DeviceTimeout / DeviceIOError naming the address.
+            self._link = await self.transport.connect(self.name, self.timeout_s)
             try:
                 await self._setup()
             except BaseException:
@@ -227,7 +218,7 @@ class EaDriver(PolledDriver):
 
     async def _read(self) -> dict[str, Sample]:
         async with self._transaction():
-            parts = await self._exchange(join_commands(POLL_QUERIES), len(POLL_QUERIES))
+            parts = await self._exchange(_POLL_LINE, len(POLL_QUERIES))
             meas = parse_meas_array(parts[0], self.name, sinking=self._direction < 0)
             output_on = parse_on_off(parts[1], self.name)
             owner = parse_lock_owner(parts[2], self.name)
@@ -505,7 +496,7 @@ class EaDriver(PolledDriver):
         """Hold the I/O lock; on any failure inside, close the connection (no late reply
         may be read as the answer to a later question)."""
         async with self._io_lock:
-            if self._writer is None:
+            if self._link is None:
                 raise DeviceIOError(self.name, "not connected")
             try:
                 yield
@@ -516,34 +507,18 @@ class EaDriver(PolledDriver):
     async def _exchange(self, line: str, replies: int) -> list[str]:
         """Send one complete line; read one reply line of ``replies`` parts (0: no reply).
 
-        The caller holds the I/O lock and closes the connection if this raises.
+        The caller holds the I/O lock and closes the connection if this raises (the
+        transport's DeviceTimeout, DeviceIOError or ProtocolError, naming ``line``).
         """
-        reader, writer = self._reader, self._writer
-        if reader is None or writer is None:
+        link = self._link
+        if link is None:
             raise DeviceIOError(self.name, "not connected")
         data = encode_line(line)
         self.raw_log.append(f"> {line}")
-        try:
-            async with asyncio.timeout(self.timeout_s):
-                writer.write(data)
-                await writer.drain()
-                if replies == 0:
-                    return []
-                raw = await reader.readuntil(b"\n")
-        except TimeoutError:
-            raise DeviceTimeout(
-                self.name, f"no reply to {line!r} within {self.timeout_s:g} s"
-            ) from None
-        except asyncio.IncompleteReadError as exc:
-            raise DeviceIOError(
-                self.name, f"connection closed by the device while waiting for {line!r}"
-            ) from exc
-        except asyncio.LimitOverrunError as exc:
-            raise ProtocolError(
-                self.name, f"a reply line to {line!r} of at most {MAX_LINE_BYTES} bytes"
-            ) from exc
-        except OSError as exc:
-            raise DeviceIOError(self.name, f"{line!r}: {exc}") from exc
+        await link.send_line(data, self.timeout_s)
+        if replies == 0:
+            return []
+        raw = await link.receive_line(self.timeout_s)
         self.raw_log.append(f"< {raw.decode('ascii', 'replace').rstrip()}")
         text = decode_line(raw, self.name)
         return split_reply(text, replies, self.name)
@@ -556,10 +531,6 @@ class EaDriver(PolledDriver):
         return value
 
     async def _drop_transport(self) -> None:
-        writer, self._writer, self._reader = self._writer, None, None
-        if writer is None:
-            return
-        writer.close()
-        with contextlib.suppress(OSError, TimeoutError):
-            async with asyncio.timeout(self.timeout_s):
-                await writer.wait_closed()
+        link, self._link = self._link, None
+        if link is not None:
+            await link.close()

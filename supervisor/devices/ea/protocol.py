@@ -137,6 +137,8 @@ _NUMBER = r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?"
 _NUMBER_WITH_UNIT_RE: Final = re.compile(rf"({_NUMBER})\s*([A-Za-z]*)", re.ASCII)
 _INT_RE: Final = re.compile(r"\+?\d{1,12}", re.ASCII)
 _ERROR_RE: Final = re.compile(r'([+-]?\d{1,6})\s*,\s*(?:"(.*)"|(.*))', re.DOTALL | re.ASCII)
+_NOT_PRINTABLE_RE: Final = re.compile(rb"[^\t\x20-\x7e]")
+"""A byte that is neither printable ASCII nor a tab."""
 _HEADER_RE: Final = re.compile(
     r":?(\*[A-Za-z]+|[A-Za-z][A-Za-z0-9]*(?::[A-Za-z][A-Za-z0-9]*)*)(\?)?(?:\s+(.*))?",
     re.DOTALL | re.ASCII,
@@ -156,7 +158,7 @@ def decode_line(raw: bytes, device: str = DEVICE) -> str:
         body = body[:-1]
     if body.endswith(b"\r"):
         body = body[:-1]
-    if any((b < 0x20 and b != 0x09) or b > 0x7E for b in body):
+    if _NOT_PRINTABLE_RE.search(body) is not None:
         raise ProtocolError(device, "a line of printable ASCII text", raw)
     return body.decode("ascii").strip()
 

@@ -1,4 +1,10 @@
-"""EA-PSB 10000 simulator: an asyncio TCP server speaking the EA SCPI subset over the plant.
+"""EA-PSB 10000 simulator: the EA SCPI subset over the plant, in process or served on TCP.
+
+:class:`EaSimulator` is the unit: its SCPI interpreter (:meth:`EaSimulator.handle_line`), its
+state and the test hooks. It has no socket and no task of its own, so a driver can talk to
+it in process (:class:`~supervisor.devices.ea.transport.InProcessScpiTransport`) on a
+virtual clock. :class:`EaTcpSimulator` is the same unit served on loopback for drivers in
+another process or on real TCP.
 
 The simulated unit drives :class:`~supervisor.sim.plant.BenchPlant` (its ``supply`` settings);
 the plant decides the current. Behaviour modelled (devices.md "EA-PSB 10000"):
@@ -13,8 +19,19 @@ the plant decides the current. Behaviour modelled (devices.md "EA-PSB 10000"):
   makes the unit leave remote and switch the output off (``POW:STAG:AFT:REM OFF``). A client
   that disconnects does NOT by itself switch anything off.
 
-A checker task on the plant's clock enforces protections and the watchdog between commands;
-use a real clock (a virtual clock would be advanced by the checker's own sleeps).
+When the watchdog and the protections are enforced:
+
+* in process (:class:`EaSimulator`), lazily: before every command line (a line arriving
+  after the timeout finds the unit already out of remote with its output off, as a real
+  unit would have switched off in between), after every line that is not only queries
+  (a setting may trip a protection at once), and whenever
+  :meth:`EaSimulator.check` is called — a test that lets virtual time pass without a line
+  calls it to see what the unit did meanwhile. Nothing sleeps, so virtual time only moves
+  with the scan. A protection crossed between two lines acts when the next one arrives
+  (the plant integrates the current that flowed until then): at most one poll late;
+* served (:class:`EaTcpSimulator`), also by a checker task every ``CHECK_PERIOD_S`` on the
+  plant's clock, so they act between commands; use a real clock (a virtual clock would be
+  advanced by the checker's own sleeps).
 """
 
 from __future__ import annotations
@@ -70,6 +87,8 @@ DEFAULT_PROTECTION_FRACTION = 1.1
 SIM_SERIAL = "2775129999"
 SIM_FIRMWARE = "V3.03 05.10.2022 V3.06 24.05.2023 V1.0.2.20"
 _CC_TOLERANCE_A = 1e-3
+PARSE_CACHE_SIZE = 256
+"""Command texts whose parse the simulator remembers (see ``EaSimulator._parse``)."""
 
 _Handler = Callable[[Command], str | None]
 
@@ -80,12 +99,32 @@ class _Refused(Exception):
         self.code = code
 
 
+class _Session:
+    """One in-process client connection; the unit closes it in ``drop_clients()``."""
+
+    __slots__ = ("_unit", "open")
+
+    def __init__(self, unit: EaSimulator) -> None:
+        self._unit = unit
+        self.open = True
+
+    def close(self) -> None:
+        self.open = False
+        self._unit._sessions.discard(self)
+
+
 class EaSimulator:
-    """One simulated EA unit on ``host:port`` (``port=0`` picks a free port, see ``.port``).
+    """One simulated EA unit: SCPI interpreter and state, no socket, no task.
+
+    Its network link starts plugged in: in-process clients connect with
+    :meth:`open_session`. :meth:`stop` unplugs it (sessions dropped, new ones refused, the
+    unit keeps its state: unplugged from the network, not from mains); :meth:`start` plugs
+    it in again. Nothing is served: :meth:`addresses` is empty.
 
     Test hooks: ``commands`` (every command received, in order), ``lines`` (every command
-    line), :meth:`drop_clients`, :meth:`set_local`, :meth:`corrupt_next_reply`, ``mute``
-    (stop answering queries), ``watchdog_trips``.
+    line), :meth:`drop_clients`, :meth:`set_local`, :meth:`corrupt_next_reply`,
+    :meth:`queue_error`, ``mute`` (stop answering queries), ``watchdog_trips``,
+    ``protection_trips``, :meth:`check`.
     """
 
     def __init__(
@@ -95,8 +134,6 @@ class EaSimulator:
         nominal_v: float = 60.0,
         nominal_a: float = 60.0,
         nominal_w: float = 1500.0,
-        host: str = "127.0.0.1",
-        port: int = 0,
         name: str = "ea",
     ) -> None:
         self.plant = plant
@@ -108,20 +145,18 @@ class EaSimulator:
         self.nominal_v = nominal_v
         self.nominal_a = nominal_a
         self.nominal_w = nominal_w
-        self.host = host
-        self._port = port
         self.commands: list[str] = []
         self.lines: list[str] = []
         self.mute = False
         self.watchdog_trips = 0
         self.protection_trips = 0
         self._corrupt: dict[str, str] = {}
+        self._parsed: dict[str, Command | None] = {}
         self._errors: deque[tuple[int, str]] = deque(maxlen=ERROR_QUEUE_LENGTH)
         self._local_lock = False
         self._ques = 0
-        self._server: asyncio.Server | None = None
-        self._checker: asyncio.Task[None] | None = None
-        self._clients: dict[asyncio.Task[None], asyncio.StreamWriter] = {}
+        self._plugged = True
+        self._sessions: set[_Session] = set()
         self._mon_active = False
         self._mon_timeout_s = 5.0
         self._last_line_t = self.clock.now()
@@ -129,55 +164,44 @@ class EaSimulator:
         self._reset_settings()
         self._handlers = self._build_handlers()
 
-    # --- lifecycle --------------------------------------------------------------------
+    # --- lifecycle (DeviceSimulator) -----------------------------------------------------
     @property
-    def port(self) -> int:
-        """The TCP port (the real one once started with ``port=0``)."""
-        return self._port
-
-    @property
-    def running(self) -> bool:
-        return self._server is not None
+    def reachable(self) -> bool:
+        """A client can connect (the network link is plugged in)."""
+        return self._plugged
 
     def addresses(self) -> list[str]:
-        return [f"EA supply {self.name}: scpi tcp {self.host}:{self._port}"]
+        return []  # served nowhere: only this process talks to it
 
     async def start(self) -> None:
-        """Listen (again, on the same port after a ``stop()``) and start the checker."""
-        if self._server is not None:
-            return
-        self._server = await asyncio.start_server(
-            self._serve, self.host, self._port, limit=MAX_LINE_BYTES
-        )
-        self._port = self._server.sockets[0].getsockname()[1]
-        self._last_line_t = self.clock.now()
-        self._checker = asyncio.create_task(self._check_loop(), name=f"ea-sim-{self._port}-check")
+        """Plug the link in again after :meth:`stop` (serves nothing)."""
+        self._plugged = True
 
     async def stop(self) -> None:
-        """Close the listener and every client; the unit keeps its state (as if unplugged
-        from the network, not from mains)."""
-        server, self._server = self._server, None
-        if server is not None:
-            server.close()
+        """Unplug the link: clients dropped, new connections refused; the state stays."""
+        self._plugged = False
         await self.drop_clients()
-        if self._checker is not None:
-            self._checker.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._checker
-            self._checker = None
-        if server is not None:
-            await server.wait_closed()
 
     async def drop_clients(self) -> None:
-        """Close every client connection (the server keeps listening)."""
-        clients = list(self._clients.items())
-        for _, writer in clients:
-            writer.close()
-        for task, _ in clients:
-            task.cancel()
-        for task, _ in clients:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+        """Close every client connection (the next exchange on it fails; reconnecting works
+        while the link is plugged in)."""
+        for session in list(self._sessions):
+            session.close()
+
+    def open_session(self) -> _Session:
+        """A new in-process client connection (see
+        :class:`~supervisor.devices.ea.transport.InProcessScpiTransport`)."""
+        if not self.reachable:
+            raise ConnectionRefusedError(f"{self.name}: link unplugged (simulator stopped)")
+        session = _Session(self)
+        self._sessions.add(session)
+        return session
+
+    def check(self) -> None:
+        """Enforce the interface watchdog and the protections at ``clock.now()`` (what the
+        unit did on its own since the last line)."""
+        self._check_watchdog()
+        self._check_protections()
 
     # --- test hooks --------------------------------------------------------------------
     def set_local(self, local: bool) -> None:
@@ -210,33 +234,13 @@ class EaSimulator:
     def error_queue(self) -> list[tuple[int, str]]:
         return list(self._errors)
 
-    # --- connection --------------------------------------------------------------------
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        task = asyncio.current_task()
-        assert task is not None
-        self._clients[task] = writer
-        try:
-            while True:
-                try:
-                    raw = await reader.readuntil(b"\n")
-                except (asyncio.IncompleteReadError, asyncio.LimitOverrunError):
-                    break
-                reply = self.handle_line(raw)
-                if reply is not None and not self.mute:
-                    writer.write(reply.encode("ascii") + b"\n")
-                    await writer.drain()
-        except (ConnectionError, asyncio.CancelledError):
-            # stop()/drop_clients() cancel this handler on purpose; end quietly (a
-            # cancelled start_server callback would otherwise be logged as an error).
-            pass
-        finally:
-            self._clients.pop(task, None)
-            writer.close()
-            with contextlib.suppress(OSError, asyncio.CancelledError):
-                await writer.wait_closed()
-
+    # --- command lines ----------------------------------------------------------------
     def handle_line(self, raw: bytes) -> str | None:
-        """Execute one command line; the reply line (without ``\\n``) or None."""
+        """Execute one command line; the reply line (without ``\\n``) or None.
+
+        What the unit did on its own since the last line happens first (:meth:`check`).
+        """
+        self.check()
         self._last_line_t = self.clock.now()
         try:
             text = decode_line(raw, "ea-sim")
@@ -245,19 +249,23 @@ class EaSimulator:
             return None
         self.lines.append(text)
         replies: list[str] = []
+        queries_only = True
         for cmd_text in split_commands(text):
             self.commands.append(cmd_text)
-            reply = self._execute(cmd_text)
+            cmd = self._parse(cmd_text)
+            queries_only = queries_only and cmd is not None and cmd.query
+            reply = self._execute(cmd)
             if reply is not None:
                 replies.append(reply)
-        self._check_protections()
+        if not queries_only:
+            # A setting may trip a protection at once. After queries alone nothing changed
+            # since check() above, at this same instant: checking again cannot trip.
+            self._check_protections()
         return REPLY_SEPARATOR.join(replies) if replies else None
 
     # --- command execution ---------------------------------------------------------------
-    def _execute(self, text: str) -> str | None:
-        try:
-            cmd = parse_command(text, "ea-sim")
-        except ProtocolError:
+    def _execute(self, cmd: Command | None) -> str | None:
+        if cmd is None:
             self._push_error(ERR_COMMAND)
             return None
         handler = self._handlers.get((cmd.header, cmd.query))
@@ -269,11 +277,27 @@ class EaSimulator:
         except _Refused as exc:
             self._push_error(exc.code)
             return None
-        if reply is not None:
-            garbage = self._corrupt.pop(_key(text), None)
+        if reply is not None and self._corrupt:
+            garbage = self._corrupt.pop(cmd.header + ("?" if cmd.query else ""), None)
             if garbage is not None:
                 return garbage
         return reply
+
+    def _parse(self, text: str) -> Command | None:
+        """``parse_command`` (None: not a command), remembered: a driver repeats the same
+        few command texts every poll, and a dry run sends millions of them."""
+        try:
+            return self._parsed[text]
+        except KeyError:
+            pass
+        try:
+            cmd: Command | None = parse_command(text, "ea-sim")
+        except ProtocolError:
+            cmd = None
+        if len(self._parsed) >= PARSE_CACHE_SIZE:
+            self._parsed.clear()  # bounded: arbitrary set values make new texts
+        self._parsed[text] = cmd
+        return cmd
 
     def _build_handlers(self) -> dict[tuple[str, bool], _Handler]:
         h: dict[tuple[str, bool], _Handler] = {
@@ -500,17 +524,120 @@ class EaSimulator:
             log.info("ea-sim: interface monitoring timeout, leaving remote, output off")
             self._leave_remote()
 
-    async def _check_loop(self) -> None:
-        while True:
-            self._check_watchdog()
-            self._check_protections()
-            await self.clock.sleep_until(self.clock.now() + CHECK_PERIOD_S)
-
 
 def _key(query: str) -> str:
-    """Canonical form of a command for :meth:`EaSimulator.corrupt_next_reply`."""
+    """Canonical form of a command for :meth:`EaSimulator.corrupt_next_reply` (header, ``?``
+    for a query)."""
     try:
         cmd = parse_command(query, "ea-sim")
     except ProtocolError:
         return query.strip().upper()
     return cmd.header + ("?" if cmd.query else "")
+
+
+class EaTcpSimulator(EaSimulator):
+    """The same unit served on ``host:port`` (``port=0`` picks a free port, see ``.port``).
+
+    Listens from :meth:`start` to :meth:`stop` (again on the same port after a stop); a
+    checker task enforces the watchdog and the protections between commands (real clock).
+    While stopped, in-process sessions are refused too.
+    """
+
+    def __init__(
+        self,
+        plant: BenchPlant,
+        model: str = "PSB 10060-60",
+        nominal_v: float = 60.0,
+        nominal_a: float = 60.0,
+        nominal_w: float = 1500.0,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        name: str = "ea",
+    ) -> None:
+        super().__init__(plant, model, nominal_v, nominal_a, nominal_w, name=name)
+        self.host = host
+        self._port = port
+        self._plugged = False  # until it listens
+        self._server: asyncio.Server | None = None
+        self._checker: asyncio.Task[None] | None = None
+        self._clients: dict[asyncio.Task[None], asyncio.StreamWriter] = {}
+
+    @property
+    def port(self) -> int:
+        """The TCP port (the real one once started with ``port=0``)."""
+        return self._port
+
+    @property
+    def running(self) -> bool:
+        return self._server is not None
+
+    def addresses(self) -> list[str]:
+        return [f"EA supply {self.name}: scpi tcp {self.host}:{self._port}"]
+
+    async def start(self) -> None:
+        """Listen (again, on the same port after a ``stop()``) and start the checker."""
+        if self._server is not None:
+            return
+        self._server = await asyncio.start_server(
+            self._serve, self.host, self._port, limit=MAX_LINE_BYTES
+        )
+        self._port = self._server.sockets[0].getsockname()[1]
+        self._plugged = True
+        self._last_line_t = self.clock.now()
+        self._checker = asyncio.create_task(self._check_loop(), name=f"ea-sim-{self._port}-check")
+
+    async def stop(self) -> None:
+        """Close the listener and every client; the unit keeps its state (as if unplugged
+        from the network, not from mains)."""
+        server, self._server = self._server, None
+        if server is not None:
+            server.close()
+        await super().stop()  # unplugged: drops every client, sockets included
+        if self._checker is not None:
+            self._checker.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._checker
+            self._checker = None
+        if server is not None:
+            await server.wait_closed()
+
+    async def drop_clients(self) -> None:
+        """Close every client connection (the server keeps listening)."""
+        await super().drop_clients()
+        clients = list(self._clients.items())
+        for _, writer in clients:
+            writer.close()
+        for task, _ in clients:
+            task.cancel()
+        for task, _ in clients:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        assert task is not None
+        self._clients[task] = writer
+        try:
+            while True:
+                try:
+                    raw = await reader.readuntil(b"\n")
+                except (asyncio.IncompleteReadError, asyncio.LimitOverrunError):
+                    break
+                reply = self.handle_line(raw)
+                if reply is not None and not self.mute:
+                    writer.write(reply.encode("ascii") + b"\n")
+                    await writer.drain()
+        except (ConnectionError, asyncio.CancelledError):
+            # stop()/drop_clients() cancel this handler on purpose; end quietly (a
+            # cancelled start_server callback would otherwise be logged as an error).
+            pass
+        finally:
+            self._clients.pop(task, None)
+            writer.close()
+            with contextlib.suppress(OSError, asyncio.CancelledError):
+                await writer.wait_closed()
+
+    async def _check_loop(self) -> None:
+        while True:
+            self.check()
+            await self.clock.sleep_until(self.clock.now() + CHECK_PERIOD_S)
