@@ -8,16 +8,15 @@ import json
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
-import time
 import urllib.request
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
 import yaml
+from ea_rig import ea_only_io_map
 
 from supervisor.app import Bench, build_bench
 from supervisor.core.clock import RealClock
@@ -27,18 +26,10 @@ from supervisor.devices.ea.sim import EaTcpSimulator as EaSimulator
 from supervisor.devices.registry import load_bench
 from supervisor.sim.battery import make_model
 from supervisor.sim.plant import BenchPlant
+from supervisor.testing import free_tcp_port, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.integration
-
-# Generous upper bounds for a loaded machine; these are not timing claims.
-SETTLE_S = 15.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def seed002_map(tmp_path: Path) -> Path:
@@ -47,19 +38,11 @@ def seed002_map(tmp_path: Path) -> Path:
     del data["devices"]["chadeche"]
     data["channels"] = [c for c in data["channels"] if c["source"]["device"] == "ea"]
     for name in ("adam", "ea", "bms"):
-        data["devices"][name]["port"] = free_port()
+        data["devices"][name]["port"] = free_tcp_port()
     data["hmi"]["port"] = 0
     path = tmp_path / "seed002.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     return path
-
-
-async def wait_for(pred: Callable[[], bool], what: str, limit_s: float = SETTLE_S) -> None:
-    deadline = time.monotonic() + limit_s
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"gave up waiting: {what}")
-        await asyncio.sleep(0.05)
 
 
 @pytest.fixture
@@ -72,7 +55,7 @@ async def bench(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> AsyncIterato
     task = asyncio.create_task(b.run(stop))
     try:
         db = b.db
-        await wait_for(
+        await wait_until(
             lambda: (
                 all(db[f"{d}.connected"].value is True for d in ("adam", "ea", "bms"))
                 and db["bms.current"].good
@@ -100,7 +83,7 @@ async def test_2_a_charge_on_the_ea_channel_agrees_in_adam_voltage_board_and_bms
     db.write("ch4.manual_current", 2.0)
     db.write("ch4.enable", True)
     assert bench.sim is not None
-    await wait_for(
+    await wait_until(
         lambda: (
             abs(v(bench, "pack.current") - 2.0) < 0.1
             and abs(v(bench, "bms.current") - 2.0) < 0.01
@@ -115,7 +98,7 @@ async def test_2_a_charge_on_the_ea_channel_agrees_in_adam_voltage_board_and_bms
     # Voltage board (1:10) vs BMS vs the supply's own measurement; the BMS sends its
     # voltages once a second, so wait for a frame sent after the current settled.
     t_settled = bench.clock.now()
-    await wait_for(lambda: db["bms.voltage"].source_t > t_settled, "a fresh 0x1B0 frame")
+    await wait_until(lambda: db["bms.voltage"].source_t > t_settled, "a fresh 0x1B0 frame")
     assert v(bench, "pack.voltage") == pytest.approx(v(bench, "bms.voltage"), abs=0.02)
     assert v(bench, "ch4.voltage") == pytest.approx(v(bench, "bms.voltage"), abs=0.02)
     assert v(bench, "bms.voltage") > bench.sim.plant.battery.ocv_v  # charging lifts the terminal
@@ -127,12 +110,12 @@ async def test_pressing_the_estop_trips_the_channel_opens_the_contactor_and_kill
     db = bench.db
     db.write("ch4.manual_current", 2.0)
     db.write("ch4.enable", True)
-    await wait_for(lambda: abs(v(bench, "bms.current") - 2.0) < 0.01, "charging")
+    await wait_until(lambda: abs(v(bench, "bms.current") - 2.0) < 0.01, "charging")
     assert bench.sim is not None
     bench.sim.press_estop(True)
-    await wait_for(lambda: db["ch4.state"].value == "faulted", "channel tripped")
+    await wait_until(lambda: db["ch4.state"].value == "faulted", "channel tripped")
     assert "estop.ok" in str(db["ch4.fault"].value)
-    await wait_for(lambda: not bench.sim.plant.contactor_closed, "contactor open")  # type: ignore[union-attr]
+    await wait_until(lambda: not bench.sim.plant.contactor_closed, "contactor open")  # type: ignore[union-attr]
     assert bench.sim.plant.pack_current_a == 0.0
     assert db["ch4.current_cmd"].value == 0.0
 
@@ -154,10 +137,10 @@ async def test_a_stopped_simulator_turns_its_tags_bad_and_a_restart_brings_them_
     db = bench.db
     assert all(db[t].good for t in tags)
     await server.stop()
-    await wait_for(lambda: all(db[t].quality is Quality.BAD for t in tags), f"{device} BAD")
-    await wait_for(lambda: db[f"{device}.connected"].value is False, f"{device} disconnected")
+    await wait_until(lambda: all(db[t].quality is Quality.BAD for t in tags), f"{device} BAD")
+    await wait_until(lambda: db[f"{device}.connected"].value is False, f"{device} disconnected")
     await server.start()
-    await wait_for(lambda: all(db[t].good for t in tags), f"{device} GOOD again")
+    await wait_until(lambda: all(db[t].good for t in tags), f"{device} GOOD again")
     assert db[f"{device}.connected"].value is True
 
 
@@ -165,12 +148,12 @@ async def test_losing_the_supply_while_charging_trips_the_channel_safe(bench: Be
     db = bench.db
     db.write("ch4.manual_current", 2.0)
     db.write("ch4.enable", True)
-    await wait_for(lambda: abs(v(bench, "ch4.current") - 2.0) < 0.01, "charging")
+    await wait_until(lambda: abs(v(bench, "ch4.current") - 2.0) < 0.01, "charging")
     assert bench.sim is not None
     await bench.sim.devices["ea"].stop()
-    await wait_for(lambda: db["ch4.state"].value == "faulted", "channel tripped on comm loss")
+    await wait_until(lambda: db["ch4.state"].value == "faulted", "channel tripped on comm loss")
     assert db["contactor.cmd"].value is False
-    await wait_for(lambda: not bench.sim.plant.contactor_closed, "contactor open")  # type: ignore[union-attr]
+    await wait_until(lambda: not bench.sim.plant.contactor_closed, "contactor open")  # type: ignore[union-attr]
 
 
 def _http(method: str, url: str, body: object) -> None:
@@ -187,28 +170,8 @@ async def test_sigkill_of_the_supervisor_lets_the_supply_watchdog_switch_the_out
     plant.set_contactor(True)  # the contactor is not part of this test
     ea = EaSimulator(plant)
     await ea.start()
-    io_map = {
-        "bench": "watchdog",
-        "hmi": {"port": 0},
-        "devices": {
-            "ea": {
-                "driver": "ea-psb",
-                "host": "127.0.0.1",
-                "port": ea.port,
-                "poll_period_s": 0.1,
-                "watchdog_s": 1.0,
-            }
-        },
-        "channels": [
-            {
-                "name": "ch0",
-                "source": {"device": "ea"},
-                "chemistry": "liion",
-                "capacity_ah": 10.0,
-                "limits": {"current_a": [-5, 5], "voltage_v": [12.0, 16.8]},
-            }
-        ],
-    }
+    io_map = ea_only_io_map("watchdog", {"port": ea.port, "poll_period_s": 0.1, "watchdog_s": 1.0})
+    io_map["hmi"] = {"port": 0}
     path = tmp_path / "watchdog.yaml"
     path.write_text(yaml.safe_dump(io_map), encoding="utf-8")
     proc = subprocess.Popen(  # noqa: ASYNC220 - Popen only starts it; waits go to threads
@@ -230,10 +193,10 @@ async def test_sigkill_of_the_supervisor_lets_the_supply_watchdog_switch_the_out
         url = m.group(1)
         await asyncio.to_thread(_http, "PUT", f"{url}/tags/ch0.manual_current", {"value": 2.0})
         await asyncio.to_thread(_http, "PUT", f"{url}/tags/ch0.enable", {"value": True})
-        await wait_for(lambda: plant.supply.output_on and plant.pack_current_a > 1.9, "charging")
+        await wait_until(lambda: plant.supply.output_on and plant.pack_current_a > 1.9, "charging")
         proc.send_signal(signal.SIGKILL)
         await asyncio.to_thread(proc.wait, 10)
-        await wait_for(lambda: not plant.supply.output_on, "watchdog switched the output off")
+        await wait_until(lambda: not plant.supply.output_on, "watchdog switched the output off")
         assert plant.pack_current_a == 0.0
         assert ea.watchdog_trips >= 1
     finally:
@@ -257,7 +220,7 @@ async def test_a_cccv_step_on_the_ea_channel_sets_the_supply_cv_voltage(
     runner.command("start")
     assert bench.sim is not None
     plant = bench.sim.plant
-    await wait_for(
+    await wait_until(
         lambda: plant.supply.volt_set_v == pytest.approx(16.4) and plant.pack_current_a > 1.9,
         "CC-CV charge with the supply's voltage set to the CV target",
     )
@@ -293,7 +256,7 @@ async def test_supervisor_sim_serves_the_devices_for_a_supervisor_started_withou
         stop = asyncio.Event()
         task = asyncio.create_task(b.run(stop))
         try:
-            await wait_for(
+            await wait_until(
                 lambda: (
                     all(b.db[f"{d}.connected"].value is True for d in ("adam", "ea", "bms"))
                     and b.db["pack.voltage"].good

@@ -6,7 +6,6 @@ import json
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -21,6 +20,7 @@ from supervisor.app import build_bench
 from supervisor.core.clock import VirtualClock
 from supervisor.devices.chadeche.sim import SimChadecheBus, SimulatedBoards
 from supervisor.devices.registry import load_bench
+from supervisor.testing import free_tcp_port
 
 ROOT = Path(__file__).resolve().parents[2]
 SIM = ROOT / "io_maps" / "sim.yaml"
@@ -143,9 +143,7 @@ def test_supervisor_run_serves_the_api_charges_on_request_and_exits_0_on_sigterm
     # sim.yaml on free loopback ports, so a bench already running here does not collide.
     data = yaml.safe_load(SIM.read_text(encoding="utf-8"))
     for dev in ("adam", "ea", "bms"):
-        with socket.socket() as sock:
-            sock.bind(("127.0.0.1", 0))
-            data["devices"][dev]["port"] = sock.getsockname()[1]
+        data["devices"][dev]["port"] = free_tcp_port()
     io_map = tmp_path / "sim.yaml"
     io_map.write_text(yaml.safe_dump(data), encoding="utf-8")
     ea_port = data["devices"]["ea"]["port"]

@@ -1,24 +1,36 @@
-"""ADAM-5000/TCP driver on the virtual clock, through the in-process link to a simulated unit;
-the in-process link's timeouts and outages; the pymodbus link's error mapping (fake client);
-the simulated unit's answers; the registration's wiring.
+"""ADAM-5000/TCP driver: its contract on both transports; on the virtual clock, through the
+in-process link, its timeouts, outages and backoff; the pymodbus link's error mapping (fake
+client); the simulated unit's answers; the registration's wiring.
 
-Modbus TCP itself (framing, bit and word order over the wire, a real server restarting on
-its port) is tested in ``tests/integration/test_adam.py``.
+The contract (:class:`TestDriverOnBothTransports`) runs each test on the in-process link
+(virtual clock) and over Modbus TCP on loopback (real clock, marked ``integration``): the
+same assertions whatever carries the requests (STYLE.md "Contract tests rerunnable on
+hardware"). What only Modbus TCP has (a raw pymodbus client, pymodbus's own failures, a
+silent server on wall time) is tested in ``tests/integration/test_adam.py``.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import AsyncIterator, Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
 import pytest
 import yaml
+from adam_rig import (
+    TIMEOUT_S,
+    AdamRig,
+    inputs_all,
+    make_unit,
+    open_rig,
+    reconnect_on_every_poll,
+    seed002_inputs,
+)
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+from rig_transports import IN_PROCESS, clock_for, on_both_transports
 
-import supervisor.devices.adam.transport as transport
+import supervisor.devices.adam.transport as adam_transport
 import supervisor.devices.base as base
 from supervisor.app import build_bench
 from supervisor.core.clock import VirtualClock
@@ -41,92 +53,23 @@ from supervisor.devices.kind import DriverWiring, SimWiring
 from supervisor.devices.registry import bench_from_data, load_bench
 from supervisor.sim.plant import make_plant
 
-TIMEOUT_S = 0.5
 
-# Seed 002 layout: 5017 (slot 0), two 5018 (slots 1, 2; slot 2 in two's complement), 5060.
-MODULES = {0: "5017", 1: "5018", 2: "5018", 3: "5060"}
-FORMATS = {2: "twos"}
-
-
-@dataclass
-class Bench:
-    clock: VirtualClock
-    unit: AdamUnit
-    link: InProcessLink
-    driver: AdamDriver
-    inputs: dict[tuple[int, int], float | None] = field(default_factory=dict)
-    relay_calls: dict[tuple[int, int], list[bool]] = field(default_factory=dict)
-
-
-def make_unit(
-    bench_inputs: dict[tuple[int, int], float | None], calls: dict[tuple[int, int], list[bool]]
-) -> AdamUnit:
-    """The seed 002 unit; its inputs read ``bench_inputs``, its relays record into ``calls``."""
-
-    def source(key: tuple[int, int]) -> Callable[[], float | None]:
-        return lambda: bench_inputs.get(key)
-
-    def sink(key: tuple[int, int]) -> Callable[[bool], None]:
-        return lambda state: calls.setdefault(key, []).append(state)
-
-    analog = {
-        (slot, ch): source((slot, ch))
-        for slot, kind in MODULES.items()
-        if kind != "5060"
-        for ch in range(8 if kind == "5017" else 7)
-    }
-    relays = {(3, ch): sink((3, ch)) for ch in range(6)}
-    return AdamUnit(MODULES, analog, relays, raw_format=FORMATS)
-
-
-def seed002_inputs() -> dict[tuple[int, int], float | None]:
-    inputs: dict[tuple[int, int], float | None] = {(0, ch): 0.0 for ch in range(8)}
-    inputs.update({(slot, ch): 20.0 for slot in (1, 2) for ch in range(7)})
-    return inputs
-
-
-def driver_modules() -> dict[int, AdamModule]:
-    return {s: AdamModule(k, FORMATS.get(s, "offset")) for s, k in MODULES.items()}
-
-
-async def make_bench() -> Bench:
-    clock = VirtualClock()
-    inputs = seed002_inputs()
-    calls: dict[tuple[int, int], list[bool]] = {}
-    unit = make_unit(inputs, calls)
-    await unit.start()
-    link = InProcessLink("adam1", clock, unit, timeout_s=TIMEOUT_S)
-    driver = AdamDriver("adam1", clock, link, driver_modules())
-    return Bench(clock, unit, link, driver, inputs, calls)
+@pytest.fixture
+async def bench(
+    transport: str, virtual_clock: VirtualClock, monkeypatch: pytest.MonkeyPatch
+) -> AsyncIterator[AdamRig]:
+    """The seed 002 rig on ``transport`` (in process unless the test runs on both); it
+    reconnects on every poll: these tests drive time by calling poll()."""
+    reconnect_on_every_poll(monkeypatch)
+    async with open_rig(transport, clock_for(transport, virtual_clock)) as rig:
+        yield rig
 
 
 @pytest.fixture
-async def bench(monkeypatch: pytest.MonkeyPatch) -> AsyncIterator[Bench]:
-    # Reconnect on every poll: these tests drive time by calling poll(); the backoff itself
-    # is specified by the tests that use ``backoff_bench``.
-    monkeypatch.setattr(base, "BACKOFF_START_S", 0.0)
-    monkeypatch.setattr(base, "BACKOFF_MAX_S", 0.0)
-    b = await make_bench()
-    try:
-        yield b
-    finally:
-        await b.driver.close()
-        await b.unit.stop()
-
-
-@pytest.fixture
-async def backoff_bench() -> AsyncIterator[Bench]:
-    """The same bench with PolledDriver's real backoff (time moves only on the virtual clock)."""
-    b = await make_bench()
-    try:
-        yield b
-    finally:
-        await b.driver.close()
-        await b.unit.stop()
-
-
-def _inputs_all(driver: AdamDriver, quality: Quality, reason: Reason) -> bool:
-    return all(s.quality == quality and s.reason == reason for s in driver.image().values())
+async def backoff_bench(virtual_clock: VirtualClock) -> AsyncIterator[AdamRig]:
+    """The in-process rig with PolledDriver's real backoff (time moves only on virtual time)."""
+    async with open_rig(IN_PROCESS, virtual_clock) as rig:
+        yield rig
 
 
 # --- points and construction ---------------------------------------------------------------
@@ -146,7 +89,7 @@ def test_points() -> None:
     assert pts["slot3.do5_fb"].direction == "in" and pts["slot3.do5_fb"].dtype == "bool"
     assert "slot3.do6" not in pts
     # Before any poll every input is BAD, never connected.
-    assert _inputs_all(driver, Quality.BAD, Reason.NOT_CONNECTED)
+    assert inputs_all(driver, Quality.BAD, Reason.NOT_CONNECTED)
     with pytest.raises(ValueError):
         driver.write("slot3.do0", 0.5)
     with pytest.raises(KeyError):
@@ -173,195 +116,236 @@ def test_links_refuse_bad_settings() -> None:
         InProcessLink("adam1", VirtualClock(), unit, timeout_s=-1.0)
 
 
-# --- the driver through the in-process link ---------------------------------------------------
-async def test_analog_values_arrive_in_volts_and_degc(bench: Bench) -> None:
-    bench.inputs[(0, 2)] = 4.0  # e.g. LEM at +300 A
-    bench.inputs[(1, 0)] = 25.0
-    bench.inputs[(2, 6)] = -20.5  # two's complement slot
-    await bench.driver.poll()
-    img = bench.driver.image()
-    assert bench.driver.connected
-    assert img["slot0.ai2"].quality == Quality.GOOD
-    assert img["slot0.ai2"].value == pytest.approx(4.0, abs=lsb("5017"))
-    assert img["slot1.tc0"].value == pytest.approx(25.0, abs=lsb("5018"))
-    assert img["slot2.tc6"].value == pytest.approx(-20.5, abs=lsb("5018", "twos"))
-    assert img["slot3.do0_fb"].value is False
-    assert _inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
+# --- the driver's contract: the same on the in-process link and over Modbus TCP ---------------
+@on_both_transports
+class TestDriverOnBothTransports:
+    """Word and bit order, exception and short answers, outages and the safe state: what
+    the unit answers reaches the driver the same way through either link (over TCP, after
+    pymodbus on both ends)."""
 
-    # Values are live: sampled again on every read.
-    bench.inputs[(0, 2)] = -3.5
-    bench.inputs[(1, 0)] = 31.25
-    await bench.driver.poll()
-    img = bench.driver.image()
-    assert img["slot0.ai2"].value == pytest.approx(-3.5, abs=lsb("5017"))
-    assert img["slot1.tc0"].value == pytest.approx(31.25, abs=lsb("5018"))
+    async def test_analog_values_arrive_in_volts_and_degc(self, bench: AdamRig) -> None:
+        """Registers big-endian on the wire, both raw formats: what the unit encodes is what
+        the driver decodes."""
+        bench.inputs[(0, 2)] = 4.0  # e.g. LEM at +300 A
+        bench.inputs[(1, 0)] = 25.0
+        bench.inputs[(2, 6)] = -20.5  # two's complement slot
+        await bench.driver.poll()
+        img = bench.driver.image()
+        assert bench.driver.connected
+        assert img["slot0.ai2"].quality == Quality.GOOD
+        assert img["slot0.ai2"].value == pytest.approx(4.0, abs=lsb("5017"))
+        assert img["slot1.tc0"].value == pytest.approx(25.0, abs=lsb("5018"))
+        assert img["slot2.tc6"].value == pytest.approx(-20.5, abs=lsb("5018", "twos"))
+        assert img["slot3.do0_fb"].value is False
+        assert inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
+
+        # Values are live: sampled again on every read.
+        bench.inputs[(0, 2)] = -3.5
+        bench.inputs[(1, 0)] = 31.25
+        await bench.driver.poll()
+        img = bench.driver.image()
+        assert img["slot0.ai2"].value == pytest.approx(-3.5, abs=lsb("5017"))
+        assert img["slot1.tc0"].value == pytest.approx(31.25, abs=lsb("5018"))
+
+    async def test_open_thermocouple_is_bad_sensor_failure(self, bench: AdamRig) -> None:
+        bench.inputs[(1, 3)] = None
+        bench.inputs[(2, 4)] = None
+        await bench.driver.poll()
+        img = bench.driver.image()
+        for point in ("slot1.tc3", "slot2.tc4"):
+            assert img[point].value is None
+            assert img[point].quality == Quality.BAD
+            assert img[point].reason == Reason.SENSOR_FAILURE
+        assert img["slot1.tc2"].quality == Quality.GOOD
+
+        bench.inputs[(1, 3)] = 22.0
+        await bench.driver.poll()
+        assert bench.driver.image()["slot1.tc3"].quality == Quality.GOOD
+        assert bench.driver.image()["slot1.tc3"].value == pytest.approx(22.0, abs=lsb("5018"))
+
+    async def test_relay_write_calls_callback_and_reads_back(self, bench: AdamRig) -> None:
+        """Coil bit order: FC05 on coil 50 is relay 2 of slot 3, and FC01 unpacks it there."""
+        await bench.driver.poll()
+        bench.driver.write("slot3.do2", True)
+        await bench.driver.poll()
+        assert bench.relay_calls == {(3, 2): [True]}
+        assert bench.unit.relay_state(3, 2) is True
+        img = bench.driver.image()
+        assert img["slot3.do2_fb"].value is True
+        assert img["slot3.do2_fb"].quality == Quality.GOOD
+        assert img["slot3.do1_fb"].value is False
+
+        bench.driver.write("slot3.do2", False)
+        await bench.driver.poll()
+        assert bench.relay_calls == {(3, 2): [True, False]}
+        assert bench.driver.image()["slot3.do2_fb"].value is False
+
+    async def test_relay_that_does_not_follow_is_a_write_fault(self, bench: AdamRig) -> None:
+        await bench.driver.poll()
+        bench.unit.stick_relay(3, 1, False)
+        bench.driver.write("slot3.do1", True)
+        await bench.driver.poll()
+        assert "write did not verify" in bench.driver.last_error
+        assert not bench.driver.connected
+        assert inputs_all(bench.driver, Quality.BAD, Reason.COMM_FAILURE)
+
+    async def test_modbus_exception_on_one_slot_leaves_the_others_good(
+        self, bench: AdamRig
+    ) -> None:
+        await bench.driver.poll()
+        bench.unit.fail_next_reads(1, 0x04, slot=1)
+        await bench.driver.poll()
+        img = bench.driver.image()
+        assert bench.driver.connected
+        for point, sample in img.items():
+            if point.startswith("slot1."):
+                assert (sample.quality, sample.reason) == (Quality.BAD, Reason.DEVICE_ERROR)
+            else:
+                assert (sample.quality, sample.reason) == (Quality.GOOD, Reason.NONE), point
+        assert "0x04" in bench.driver.last_error
+        assert any("exception 0x04" in line for line in bench.driver.raw_log)
+
+        await bench.driver.poll()
+        assert inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
+
+    async def test_exception_answer_names_the_request_and_its_meaning(self, bench: AdamRig) -> None:
+        bench.unit.fail_next_reads(1, 0x04, slot=1)
+        await bench.driver.poll()
+        assert bench.driver.last_error == "slot1 FC03 @8x7: Modbus exception 0x04 (device failure)"
+
+    async def test_modbus_exception_on_relay_slot(self, bench: AdamRig) -> None:
+        await bench.driver.poll()
+        bench.unit.fail_next_reads(1, 0x02, slot=3)
+        await bench.driver.poll()
+        img = bench.driver.image()
+        assert img["slot3.do0_fb"].reason == Reason.DEVICE_ERROR
+        assert img["slot0.ai0"].quality == Quality.GOOD
+
+    async def test_the_link_passes_an_exception_answer_on_and_stays_connected(
+        self, bench: AdamRig
+    ) -> None:
+        await bench.link.connect()
+        with pytest.raises(ModbusExceptionAnswer) as info:
+            await bench.link.read_registers(40, 8)  # nothing in slot 5
+        assert info.value.code == 0x02
+        assert bench.link.connected  # a refused request is no comm loss
+
+    @pytest.mark.parametrize(
+        ("slot", "points", "other", "message"),
+        [
+            (0, [f"slot0.ai{k}" for k in range(8)], "slot1.tc0", "7 registers back for 8"),
+            (3, [f"slot3.do{k}_fb" for k in range(6)], "slot0.ai0", "0 coils back for 6"),
+        ],
+        ids=["registers", "coils"],
+    )
+    async def test_a_short_answer_makes_that_slot_bad(
+        self, bench: AdamRig, slot: int, points: list[str], other: str, message: str
+    ) -> None:
+        await bench.driver.poll()
+        bench.unit.short_next_reads(1, slot=slot)
+        await bench.driver.poll()
+        img = bench.driver.image()
+        assert bench.driver.connected
+        for point in points:
+            assert (img[point].quality, img[point].reason) == (Quality.BAD, Reason.COMM_FAILURE)
+        assert img[other].quality == Quality.GOOD
+        assert message in bench.driver.last_error
+
+        await bench.driver.poll()
+        assert inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
+
+    async def test_lost_simulator_marks_everything_bad_then_recovers(self, bench: AdamRig) -> None:
+        await bench.driver.poll()
+        assert inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
+        served = bench.server.addresses()
+
+        await bench.server.stop()
+        await bench.driver.poll()
+        assert not bench.driver.connected
+        assert inputs_all(bench.driver, Quality.BAD, Reason.COMM_FAILURE)
+        # Old values are kept for diagnostics, but never GOOD.
+        assert bench.driver.image()["slot1.tc0"].value == pytest.approx(20.0, abs=lsb("5018"))
+
+        await bench.driver.poll()  # reconnect attempt fails: still BAD
+        assert inputs_all(bench.driver, Quality.BAD, Reason.COMM_FAILURE)
+
+        await bench.server.start()
+        assert bench.server.addresses() == served  # over TCP: the same port again
+        bench.inputs[(0, 0)] = 1.5
+        await bench.driver.poll()
+        assert bench.driver.connected
+        assert inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
+        assert bench.driver.image()["slot0.ai0"].value == pytest.approx(1.5, abs=lsb("5017"))
+
+    async def test_relay_states_are_kept_across_an_outage(self, bench: AdamRig) -> None:
+        await bench.driver.poll()
+        bench.driver.write("slot3.do4", True)
+        await bench.driver.poll()
+        await bench.server.stop()
+        await bench.server.start()
+        await bench.driver.poll()  # finds its old link dead (the old value stays, BAD)
+        assert bench.driver.image()["slot3.do4_fb"].value is True
+        await bench.driver.poll()  # reconnects and reads the relay back
+        assert bench.driver.connected
+        assert bench.driver.image()["slot3.do4_fb"].value is True
+        assert bench.driver.image()["slot3.do4_fb"].quality == Quality.GOOD
+
+    async def test_safe_state_switches_every_relay_off(self, bench: AdamRig) -> None:
+        await bench.driver.poll()
+        for ch in (0, 3, 5):
+            bench.driver.write(f"slot3.do{ch}", True)
+        await bench.driver.poll()
+        assert all(bench.unit.relay_state(3, ch) for ch in (0, 3, 5))
+
+        bench.driver.write("slot3.do1", True)  # queued, dropped by the safe state
+        await bench.driver.safe_state()
+        assert not any(bench.unit.relay_state(3, ch) for ch in range(6))
+        for ch in range(6):
+            assert bench.relay_calls[(3, ch)][-1] is False
+        await bench.driver.poll()
+        assert all(bench.driver.image()[f"slot3.do{ch}_fb"].value is False for ch in range(6))
+
+    async def test_safe_state_connects_when_needed_and_goes_on_past_failures(
+        self, bench: AdamRig
+    ) -> None:
+        bench.unit.stick_relay(3, 0, True)  # welded contact
+        await bench.driver.safe_state()  # never polled: connects by itself; logs, never raises
+        assert bench.unit.relay_state(3, 0) is True
+        assert not any(bench.unit.relay_state(3, ch) for ch in range(1, 6))
+        assert all(bench.relay_calls[(3, ch)] == [False] for ch in range(1, 6))
+
+    async def test_safe_state_without_device_does_not_raise(self, bench: AdamRig) -> None:
+        await bench.server.stop()
+        await bench.driver.safe_state()
+
+    async def test_a_request_on_a_closed_link_is_refused(self, bench: AdamRig) -> None:
+        with pytest.raises(DeviceIOError, match="not connected"):
+            await bench.link.read_coils(48, 6)
+        await bench.link.connect()
+        await bench.link.close()
+        with pytest.raises(DeviceIOError, match="not connected"):
+            await bench.link.write_coil(48, True)
+        assert bench.relay_calls == {}
+
+    async def test_connect_logs_where_it_connected(
+        self, bench: AdamRig, caplog: pytest.LogCaptureFixture
+    ) -> None:
+        with caplog.at_level(logging.INFO, logger="supervisor.devices.adam.driver"):
+            await bench.driver.poll()
+        assert f"adam1: connected to {bench.address}" in caplog.messages
 
 
-async def test_samples_are_stamped_with_the_injected_clock(bench: Bench) -> None:
-    bench.clock.advance(12.5)
+# --- in process: samples on the injected clock ------------------------------------------------
+async def test_samples_are_stamped_with_the_injected_clock(
+    bench: AdamRig, virtual_clock: VirtualClock
+) -> None:
+    virtual_clock.advance(12.5)
     await bench.driver.poll()
     assert {s.t for s in bench.driver.image().values()} == {12.5}
 
 
-async def test_open_thermocouple_is_bad_sensor_failure(bench: Bench) -> None:
-    bench.inputs[(1, 3)] = None
-    bench.inputs[(2, 4)] = None
-    await bench.driver.poll()
-    img = bench.driver.image()
-    for point in ("slot1.tc3", "slot2.tc4"):
-        assert img[point].value is None
-        assert img[point].quality == Quality.BAD
-        assert img[point].reason == Reason.SENSOR_FAILURE
-    assert img["slot1.tc2"].quality == Quality.GOOD
-
-    bench.inputs[(1, 3)] = 22.0
-    await bench.driver.poll()
-    assert bench.driver.image()["slot1.tc3"].quality == Quality.GOOD
-    assert bench.driver.image()["slot1.tc3"].value == pytest.approx(22.0, abs=lsb("5018"))
-
-
-async def test_relay_write_calls_callback_and_reads_back(bench: Bench) -> None:
-    await bench.driver.poll()
-    bench.driver.write("slot3.do2", True)
-    await bench.driver.poll()
-    assert bench.relay_calls == {(3, 2): [True]}
-    assert bench.unit.relay_state(3, 2) is True
-    img = bench.driver.image()
-    assert img["slot3.do2_fb"].value is True
-    assert img["slot3.do2_fb"].quality == Quality.GOOD
-    assert img["slot3.do1_fb"].value is False
-
-    bench.driver.write("slot3.do2", False)
-    await bench.driver.poll()
-    assert bench.relay_calls == {(3, 2): [True, False]}
-    assert bench.driver.image()["slot3.do2_fb"].value is False
-
-
-async def test_relay_that_does_not_follow_is_a_write_fault(bench: Bench) -> None:
-    await bench.driver.poll()
-    bench.unit.stick_relay(3, 1, False)
-    bench.driver.write("slot3.do1", True)
-    await bench.driver.poll()
-    assert "write did not verify" in bench.driver.last_error
-    assert not bench.driver.connected
-    assert _inputs_all(bench.driver, Quality.BAD, Reason.COMM_FAILURE)
-
-
-async def test_modbus_exception_on_one_slot_leaves_the_others_good(bench: Bench) -> None:
-    await bench.driver.poll()
-    bench.unit.fail_next_reads(1, 0x04, slot=1)
-    await bench.driver.poll()
-    img = bench.driver.image()
-    assert bench.driver.connected
-    for point, sample in img.items():
-        if point.startswith("slot1."):
-            assert (sample.quality, sample.reason) == (Quality.BAD, Reason.DEVICE_ERROR)
-        else:
-            assert (sample.quality, sample.reason) == (Quality.GOOD, Reason.NONE), point
-    assert "0x04" in bench.driver.last_error
-    assert any("exception 0x04" in line for line in bench.driver.raw_log)
-
-    await bench.driver.poll()
-    assert _inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
-
-
-async def test_exception_answer_names_the_request_and_its_meaning(bench: Bench) -> None:
-    bench.unit.fail_next_reads(1, 0x04, slot=1)
-    await bench.driver.poll()
-    assert bench.driver.last_error == "slot1 FC03 @8x7: Modbus exception 0x04 (device failure)"
-
-
-async def test_modbus_exception_on_relay_slot(bench: Bench) -> None:
-    await bench.driver.poll()
-    bench.unit.fail_next_reads(1, 0x02, slot=3)
-    await bench.driver.poll()
-    img = bench.driver.image()
-    assert img["slot3.do0_fb"].reason == Reason.DEVICE_ERROR
-    assert img["slot0.ai0"].quality == Quality.GOOD
-
-
-async def test_short_read_makes_that_slot_bad(bench: Bench) -> None:
-    await bench.driver.poll()
-    bench.unit.short_next_reads(1, slot=0)
-    await bench.driver.poll()
-    img = bench.driver.image()
-    assert bench.driver.connected
-    assert all(
-        img[f"slot0.ai{k}"].quality == Quality.BAD
-        and img[f"slot0.ai{k}"].reason == Reason.COMM_FAILURE
-        for k in range(8)
-    )
-    assert img["slot1.tc0"].quality == Quality.GOOD
-    assert "7 registers back for 8" in bench.driver.last_error
-
-    await bench.driver.poll()
-    assert _inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
-
-
-async def test_short_coil_answer_makes_the_relay_slot_bad(bench: Bench) -> None:
-    await bench.driver.poll()
-    bench.unit.short_next_reads(1, slot=3)
-    await bench.driver.poll()
-    img = bench.driver.image()
-    assert bench.driver.connected
-    assert all(img[f"slot3.do{k}_fb"].reason == Reason.COMM_FAILURE for k in range(6))
-    assert img["slot0.ai0"].quality == Quality.GOOD
-    assert "0 coils back for 6" in bench.driver.last_error
-
-
-async def test_lost_simulator_marks_everything_bad_then_recovers(bench: Bench) -> None:
-    await bench.driver.poll()
-    assert _inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
-
-    await bench.unit.stop()
-    await bench.driver.poll()
-    assert not bench.driver.connected
-    assert _inputs_all(bench.driver, Quality.BAD, Reason.COMM_FAILURE)
-    # Old values are kept for diagnostics, but never GOOD.
-    assert bench.driver.image()["slot1.tc0"].value == pytest.approx(20.0, abs=lsb("5018"))
-
-    await bench.driver.poll()  # reconnect attempt fails: still BAD
-    assert _inputs_all(bench.driver, Quality.BAD, Reason.COMM_FAILURE)
-
-    await bench.unit.start()
-    bench.inputs[(0, 0)] = 1.5
-    await bench.driver.poll()
-    assert bench.driver.connected
-    assert _inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
-    assert bench.driver.image()["slot0.ai0"].value == pytest.approx(1.5, abs=lsb("5017"))
-
-
-async def test_safe_state_switches_every_relay_off(bench: Bench) -> None:
-    await bench.driver.poll()
-    for ch in (0, 3, 5):
-        bench.driver.write(f"slot3.do{ch}", True)
-    await bench.driver.poll()
-    assert all(bench.unit.relay_state(3, ch) for ch in (0, 3, 5))
-
-    bench.driver.write("slot3.do1", True)  # queued, dropped by the safe state
-    await bench.driver.safe_state()
-    assert not any(bench.unit.relay_state(3, ch) for ch in range(6))
-    for ch in range(6):
-        assert bench.relay_calls[(3, ch)][-1] is False
-    await bench.driver.poll()
-    assert all(bench.driver.image()[f"slot3.do{ch}_fb"].value is False for ch in range(6))
-
-
-async def test_safe_state_connects_when_needed_and_goes_on_past_failures(bench: Bench) -> None:
-    bench.unit.stick_relay(3, 0, True)  # welded contact
-    await bench.driver.safe_state()  # never polled: connects by itself; logs, never raises
-    assert bench.unit.relay_state(3, 0) is True
-    assert not any(bench.unit.relay_state(3, ch) for ch in range(1, 6))
-    assert all(bench.relay_calls[(3, ch)] == [False] for ch in range(1, 6))
-
-
-async def test_safe_state_without_device_does_not_raise(bench: Bench) -> None:
-    await bench.unit.stop()
-    await bench.driver.safe_state()
-
-
 # --- no answer: timeouts on the injected clock -------------------------------------------------
-async def test_a_silent_unit_times_out_after_timeout_s_of_virtual_time(bench: Bench) -> None:
+async def test_a_silent_unit_times_out_after_timeout_s_of_virtual_time(bench: AdamRig) -> None:
     await bench.driver.poll()
     bench.unit.mute()
     t0 = bench.clock.now()
@@ -369,16 +353,16 @@ async def test_a_silent_unit_times_out_after_timeout_s_of_virtual_time(bench: Be
     # One request waits its timeout (the first slot's read), then the poll gives up.
     assert bench.clock.now() == pytest.approx(t0 + TIMEOUT_S)
     assert not bench.driver.connected
-    assert _inputs_all(bench.driver, Quality.BAD, Reason.COMM_FAILURE)
+    assert inputs_all(bench.driver, Quality.BAD, Reason.COMM_FAILURE)
     assert bench.driver.last_error == f"adam1: slot0 FC03 @0x8: no answer in {TIMEOUT_S} s"
 
     bench.unit.mute(False)
     await bench.driver.poll()
     assert bench.driver.connected
-    assert _inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
+    assert inputs_all(bench.driver, Quality.GOOD, Reason.NONE)
 
 
-async def test_a_silent_unit_loses_the_relay_write(bench: Bench) -> None:
+async def test_a_silent_unit_loses_the_relay_write(bench: AdamRig) -> None:
     await bench.driver.poll()
     bench.unit.mute()
     bench.driver.write("slot3.do0", True)
@@ -388,7 +372,7 @@ async def test_a_silent_unit_loses_the_relay_write(bench: Bench) -> None:
     assert bench.relay_calls == {}
 
 
-async def test_timeout_raises_device_timeout_naming_the_request(bench: Bench) -> None:
+async def test_timeout_raises_device_timeout_naming_the_request(bench: AdamRig) -> None:
     await bench.link.connect()
     bench.unit.mute()
     with pytest.raises(DeviceTimeout, match=r"^adam1: no answer in 0.5 s$"):
@@ -399,14 +383,14 @@ async def test_timeout_raises_device_timeout_naming_the_request(bench: Bench) ->
 
 
 # --- unplugged: refused connects, dropped links, backoff --------------------------------------
-async def test_an_unplugged_unit_refuses_to_connect(bench: Bench) -> None:
+async def test_an_unplugged_unit_refuses_to_connect(bench: AdamRig) -> None:
     await bench.unit.stop()
     with pytest.raises(DeviceIOError, match="cannot connect to in-process simulator adam"):
         await bench.link.connect()
     assert not bench.link.connected
 
 
-async def test_unplugging_drops_an_open_link_until_it_connects_again(bench: Bench) -> None:
+async def test_unplugging_drops_an_open_link_until_it_connects_again(bench: AdamRig) -> None:
     await bench.link.connect()
     assert bench.link.connected
     await bench.unit.stop()
@@ -423,17 +407,9 @@ async def test_unplugging_drops_an_open_link_until_it_connects_again(bench: Benc
     assert await bench.link.read_coils(48, 6) == [False] * 6
 
 
-async def test_a_request_on_a_closed_link_is_refused(bench: Bench) -> None:
-    with pytest.raises(DeviceIOError, match="not connected"):
-        await bench.link.read_coils(48, 6)
-    await bench.link.connect()
-    await bench.link.close()
-    with pytest.raises(DeviceIOError, match="not connected"):
-        await bench.link.write_coil(48, True)
-    assert bench.relay_calls == {}
-
-
-async def test_driver_reconnects_with_polled_driver_backoff(backoff_bench: Bench) -> None:
+async def test_driver_reconnects_with_polled_driver_backoff(
+    backoff_bench: AdamRig, virtual_clock: VirtualClock
+) -> None:
     b = backoff_bench
     await b.driver.poll()
     await b.unit.stop()
@@ -442,31 +418,23 @@ async def test_driver_reconnects_with_polled_driver_backoff(backoff_bench: Bench
     assert (b.driver.connected, b.driver.failures) == (False, 1)
     assert "not connected" in b.driver.last_error
 
-    b.clock.advance(base.BACKOFF_START_S / 2)
+    virtual_clock.advance(base.BACKOFF_START_S / 2)
     await b.driver.poll()  # not due yet: no attempt
     assert b.driver.failures == 1
 
-    b.clock.advance(base.BACKOFF_START_S / 2)
+    virtual_clock.advance(base.BACKOFF_START_S / 2)
     await b.driver.poll()  # due: refused, the backoff doubles
     assert b.driver.failures == 2
     assert "cannot connect to in-process simulator adam" in b.driver.last_error
 
     await b.unit.start()
-    b.clock.advance(2 * base.BACKOFF_START_S - 0.01)
+    virtual_clock.advance(2 * base.BACKOFF_START_S - 0.01)
     await b.driver.poll()  # the unit is back, but the next attempt is not due yet
     assert not b.driver.connected and b.driver.failures == 2
-    b.clock.advance(0.01)
+    virtual_clock.advance(0.01)
     await b.driver.poll()
     assert b.driver.connected
-    assert _inputs_all(b.driver, Quality.GOOD, Reason.NONE)
-
-
-async def test_connect_logs_where_it_connected(
-    bench: Bench, caplog: pytest.LogCaptureFixture
-) -> None:
-    with caplog.at_level(logging.INFO, logger="supervisor.devices.adam.driver"):
-        await bench.driver.poll()
-    assert "adam1: connected to in-process simulator adam" in caplog.messages
+    assert inputs_all(b.driver, Quality.GOOD, Reason.NONE)
 
 
 # --- the simulated unit's answers ---------------------------------------------------------------
@@ -614,7 +582,7 @@ class FakeClient:
 
 @pytest.fixture
 def fake_client(monkeypatch: pytest.MonkeyPatch) -> type[FakeClient]:
-    monkeypatch.setattr(transport, "AsyncModbusTcpClient", FakeClient)
+    monkeypatch.setattr(adam_transport, "AsyncModbusTcpClient", FakeClient)
     monkeypatch.setattr(FakeClient, "made", [])
     monkeypatch.setattr(FakeClient, "outcome", _Answer())
     monkeypatch.setattr(FakeClient, "accept", True)
