@@ -24,7 +24,7 @@ from supervisor.devices.kind import DriverWiring
 from supervisor.devices.registry import REGISTRY, Registry
 from supervisor.publish.display import ChadecheDisplay
 from supervisor.publish.results import ResultCollector
-from supervisor.safety import SafetyPhase
+from supervisor.safety import AlarmManager, SafetyPhase, build_safety
 from supervisor.scan import (
     InputBinding,
     LogicPhase,
@@ -54,6 +54,7 @@ class Bench:
     sim: SimulatedBench | None = None
     runners: dict[str, ChainRunner] = field(default_factory=dict)
     safety: SafetyPhase = field(default_factory=SafetyPhase)
+    alarms: AlarmManager | None = None
     results: dict[str, ResultCollector] = field(default_factory=dict)
     displays: dict[str, ChadecheDisplay] = field(default_factory=dict)
     _started: bool = False
@@ -257,8 +258,8 @@ def build_bench(
             voltage_tag=c.voltage_tag,
             current_tag=c.current_tag,
             contactor_tag=c.contactor_tag,
-            permissives=tuple(c.permissives),
             has_output_switch=pts.output is not None,
+            has_output_feedback=pts.output_fb is not None,
             has_voltage_setpoint=pts.voltage_set is not None,
         )
         drv = drivers[c.source.device]
@@ -270,6 +271,8 @@ def build_bench(
         outputs.append(OutputBinding(ch.current_cmd, drv, pts.current_set))
         if ch.output_cmd is not None and pts.output is not None:
             outputs.append(OutputBinding(ch.output_cmd, drv, pts.output))
+        if ch.output_fb is not None and pts.output_fb is not None:
+            inputs.append(InputBinding(ch.output_fb, drv, pts.output_fb, None, st))
         if ch.voltage_cmd is not None and pts.voltage_set is not None:
             outputs.append(OutputBinding(ch.voltage_cmd, drv, pts.voltage_set))
         channels[c.name] = ch
@@ -283,7 +286,8 @@ def build_bench(
     for c in cfg.channels:
         displays[c.name] = ChadecheDisplay(c.name, dba=c.source.board or 0)
         runners[c.name].samplers.append(displays[c.name])
-    safety = SafetyPhase()
+    alarms = AlarmManager(clock)
+    safety = build_safety(cfg, db, alarms)
     phases = ScanPhases(
         derived=[LogicPhase(f"derive:{n}", ch.derive) for n, ch in channels.items()],
         safety=[LogicPhase("safety", safety.run)],
@@ -302,5 +306,15 @@ def build_bench(
         publishers=publishers or [],
     )
     return Bench(
-        cfg, clock, db, engine, drivers, channels, sim, runners, safety=safety, displays=displays
+        cfg,
+        clock,
+        db,
+        engine,
+        drivers,
+        channels,
+        sim,
+        runners,
+        safety=safety,
+        alarms=alarms,
+        displays=displays,
     )

@@ -221,6 +221,9 @@ class ChainRunner:
             except OperatorError as exc:
                 log.warning("%s", exc)
                 self._emit("message", str(exc))
+        if self.port.trip_aborts and self.state in ACTIVE:
+            # DESIGN.md "Safety": the e-stop aborts the test (a hold would leave it resumable).
+            self._set_state(State.ABORTING, f"channel trip: {self.port.fault_text()}")
         state = self.state
         if state in AUTO_NEXT:
             self._set_state(AUTO_NEXT[state], "done")
@@ -268,8 +271,9 @@ class ChainRunner:
         values = conditions.values(now, r)
         st = values["step_time"]
         assert isinstance(st, float)
-        # Recipe limits (and the step's own, e.g. a profile row's): hold, latched alarm.
-        why = self._limit_violation(values, step, behaviour.limits(st))
+        # Recipe limits (and the step's own, e.g. a profile row's): hold, latched alarm;
+        # armed once the power path is closed (the battery is what they are about).
+        why = self._limit_violation(values, step, behaviour.limits(st)) if port.limits_armed else ""
         if why:
             self._alarm(why)
             self._set_state(State.HOLDING, why)

@@ -34,6 +34,8 @@ class ChannelPort:
     discharged_wh: Tag
     current_cmd: Tag
     fault: Tag
+    fault_action: Tag  # "abort" when a trip aborts the test (the e-stop), else "hold"
+    armed: Tag  # the power path is closed: the recipe's limits apply
     # Written (mode is also read).
     mode: Tag
     enable: Tag
@@ -58,6 +60,17 @@ class ChannelPort:
     def fault_text(self) -> str:
         """The channel's latched trip, "" when there is none."""
         return str(self.fault.value or "")
+
+    @property
+    def trip_aborts(self) -> bool:
+        """The channel's trip aborts the test (an e-stop), rather than holding it."""
+        return bool(self.fault.value) and self.fault_action.value == "abort"
+
+    @property
+    def limits_armed(self) -> bool:
+        """Recipe limits apply: before the contactor closes the source's terminals do not
+        see the battery, and a limit would trip on a reading of 0 V."""
+        return self.armed.value is True
 
     def take_control(self) -> None:
         """Hand the channel to its chain at the start of a test: Auto mode, and the manual

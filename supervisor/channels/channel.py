@@ -1,4 +1,10 @@
-"""One channel's per-scan logic: derived values, protection, setpoint selection."""
+"""One channel's per-scan logic: derived values, then setpoint selection and clamping.
+
+Protection is not decided here: the safety phase (``supervisor/safety/guard.py``) runs
+between ``derive`` and ``drive`` and publishes what the outputs may do (``chN.fault``,
+``chN.limit.charge_a``/``discharge_a``); ``drive`` obeys it, so no request — Manual or a
+step chain's — can override a trip.
+"""
 
 from __future__ import annotations
 
@@ -47,8 +53,8 @@ class Channel:
         voltage_tag: str | None = None,
         current_tag: str | None = None,
         contactor_tag: str | None = None,
-        permissives: tuple[str, ...] = (),
         has_output_switch: bool = False,
+        has_output_feedback: bool = False,
         has_voltage_setpoint: bool = False,
     ) -> None:
         self.name = name
@@ -69,7 +75,6 @@ class Channel:
             _spec(f"{n}.current", unit="A", range=(lo, hi), description="+ charges the cell")
         )
         self.temperature = add(_spec(f"{n}.temperature", unit="degC", description="Cell temp."))
-        self._temp_src = temperature_tag
         # Measurements taken from other tags (e.g. LEM sensor, voltage board on the ADAM).
         self._copies = [
             (self.voltage, voltage_tag),
@@ -77,7 +82,6 @@ class Channel:
             (self.temperature, temperature_tag),
         ]
         self._contactor = db[contactor_tag] if contactor_tag else None
-        self._permissives = [db[p] for p in permissives]
         # Derived values.
         self.power = add(_spec(f"{n}.power", unit="W", history=hist_fast))
         self.charge_ah = add(
@@ -137,9 +141,36 @@ class Channel:
             if has_voltage_setpoint
             else None
         )
+        self.output_fb = (
+            add(_spec(f"{n}.output_fb", dtype="bool", description="Output on, read back"))
+            if has_output_feedback
+            else None
+        )
         self.clamped = add(_spec(f"{n}.clamped", dtype="bool", initial=False))
-        self.fault = add(_spec(f"{n}.fault", dtype="str", initial=""))
         self.state = add(_spec(f"{n}.state", dtype="str", initial="off"))
+        # What the safety phase allows (written by supervisor/safety, read here).
+        self.fault = add(
+            _spec(f"{n}.fault", dtype="str", initial="", description="First-out latched trip")
+        )
+        self.fault_action = add(
+            _spec(f"{n}.fault_action", dtype="str", initial="", description="hold or abort")
+        )
+        self.first_out = add(_spec(f"{n}.first_out", dtype="str", initial=""))
+        self.armed = add(
+            _spec(
+                f"{n}.armed",
+                dtype="bool",
+                initial=contactor_tag is None,
+                description="Power path closed: recipe limits and cross-checks apply",
+            )
+        )
+        self.charge_limit = add(
+            _spec(f"{n}.limit.charge_a", unit="A", initial=hi, description="Allowed charge")
+        )
+        self.discharge_limit = add(
+            _spec(f"{n}.limit.discharge_a", unit="A", initial=-lo, description="Allowed discharge")
+        )
+        self.logic_error = add(_spec(f"{n}.logic_error", dtype="str", initial=""))
         for t in (self.charge_ah, self.charged_ah, self.discharged_ah):
             db.update(t, 0.0)
         for t in (self.energy_wh, self.charged_wh, self.discharged_wh):
@@ -159,7 +190,16 @@ class Channel:
             db.update(self.voltage_cmd, limits.voltage_v[1])
         db.update(self.current_cmd, 0.0)
         db.update(self.clamped, False)
-        db.update(self.fault, "")
+        for t in (
+            self.fault,
+            self.fault_action,
+            self.first_out,
+            self.armed,
+            self.charge_limit,
+            self.discharge_limit,
+            self.logic_error,
+        ):
+            db.update(t, t.value)
         self._prev_i: float | None = None
         self._prev_p: float | None = None
         self._last_clamp_req: float | None = None
@@ -173,7 +213,7 @@ class Channel:
         self._guarded(self._derive, dt)
 
     def drive(self, now: float, dt: float) -> None:
-        """Setpoint selection, protection (latched trips), clamping, the output commands."""
+        """Setpoint selection, clamping to what safety allows, the output commands."""
         self._guarded(self._drive, dt)
 
     def run(self, now: float, dt: float) -> None:
@@ -186,8 +226,12 @@ class Channel:
             phase(dt)
         except Exception as exc:  # logic error: this channel goes safe, the scan goes on
             log.exception("%s: channel logic failed", self.name)
-            self._trip(f"internal error: {exc}")
-            self.db.update(self.current_cmd, 0.0)
+            self.go_safe()
+            # The safety phase trips the channel on it (latched, until reset).
+            self.db.update(self.logic_error, f"{type(exc).__name__}: {exc}")
+        else:
+            if phase == self._drive and self.logic_error.value:
+                self.db.update(self.logic_error, "")
 
     def _derive(self, dt: float) -> None:
         db = self.db
@@ -208,13 +252,7 @@ class Channel:
 
     def _drive(self, dt: float) -> None:
         db = self.db
-        request = self._request()
-        active = self._active()
-        if active:
-            self._check_permissives()
-        self._protect(request)
-        if self.ack.value:
-            self._acknowledge()
+        request, active = self._request(), self._active()
         if self.fault.value:
             request, active = 0.0, False
         db.update(self.current_cmd, self._clamp(request))
@@ -251,13 +289,6 @@ class Channel:
             return bool(self.enable.value)
         return bool(self.auto_active.value)
 
-    def _check_permissives(self) -> None:
-        for p in self._permissives:
-            if not (p.good and p.value is True):
-                why = "is false" if p.good else f"is {p.quality.name} ({p.reason})"
-                self._trip(f"permissive {p.name} {why}")
-                return
-
     def _request(self) -> float:
         if self.mode.value == Mode.MANUAL.value:
             if not self.enable.value:
@@ -267,64 +298,26 @@ class Channel:
             return self.auto_current.as_float()
         return 0.0
 
-    def _protect(self, request: float) -> None:
-        """Trip (latched) on a lost input or a hard limit crossed in the driving direction."""
-        if self.fault.value or request == 0.0:
-            return
-        v = self.voltage
-        if not v.good:
-            self._trip(f"voltage input {v.quality.name} ({v.reason})")
-            return
-        vv = v.as_float()
-        vlo, vhi = self.limits.voltage_v
-        if request > 0 and vv >= vhi:
-            self._trip(f"voltage {vv:.3f} V at or above hard limit {vhi} V while charging")
-        elif request < 0 and vv <= vlo:
-            self._trip(f"voltage {vv:.3f} V at or below hard limit {vlo} V while discharging")
-        tlo, thi = self.limits.temperature_c
-        t = self.temperature
-        if (tlo is not None or thi is not None) and self._temp_src is not None:
-            if not t.good:
-                self._trip(f"temperature input {t.quality.name} ({t.reason})")
-                return
-            tv = t.as_float()
-            if thi is not None and tv >= thi:
-                self._trip(f"temperature {tv:.1f} degC at or above limit {thi} degC")
-            elif tlo is not None and tv <= tlo:
-                self._trip(f"temperature {tv:.1f} degC at or below limit {tlo} degC")
-
     def _clamp(self, request: float) -> float:
+        """Into the hard current limits, and into what the safety phase allows this scan
+        (nothing towards a crossed voltage limit, less near a BMS cell limit)."""
         lo, hi = self.limits.current_a
         if not math.isfinite(request):
-            self._trip(f"non-finite current request {request!r}")
-            return 0.0
+            raise ValueError(f"non-finite current request {request!r}")
         out = min(max(request, lo), hi)
-        clamped = out != request
+        hard = out != request
+        allowed = min(out, self.charge_limit.as_float(hi)) if out > 0 else out
+        allowed = max(allowed, -self.discharge_limit.as_float(-lo)) if allowed < 0 else allowed
+        clamped = allowed != request
         if clamped and request != self._last_clamp_req:
+            why = f"hard limits [{lo}, {hi}] A" if hard and allowed == out else "safety limits"
             log.warning(
-                "%s: setpoint %.4f A clamped to %.4f A (hard limits [%s, %s] A)",
-                self.name,
-                request,
-                out,
-                lo,
-                hi,
+                "%s: setpoint %.4f A clamped to %.4f A (%s)", self.name, request, allowed, why
             )
+        out = allowed
         self._last_clamp_req = request if clamped else None
         self.db.update(self.clamped, clamped)
         return out
-
-    def _trip(self, why: str) -> None:
-        if not self.fault.value:
-            log.error("%s: tripped: %s", self.name, why)
-        self.db.update(self.fault, why)
-        # Never re-energised on its own: the operator must enable again after ack.
-        self.db.update(self.enable, False)
-
-    def _acknowledge(self) -> None:
-        self.db.update(self.ack, False)
-        if self.fault.value:
-            log.info("%s: fault acknowledged: %s", self.name, self.fault.value)
-            self.db.update(self.fault, "")
 
     def _state_name(self) -> str:
         if self.fault.value:

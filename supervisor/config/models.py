@@ -148,6 +148,7 @@ class SourcePoints:
     current: str
     current_set: str
     output: str | None = None  # an output switch (EA: ``OUTP``)
+    output_fb: str | None = None  # its read-back (EA: ``OUTP?``)
     voltage_set: str | None = None  # a CV target (EA: ``VOLT`` while charging)
 
 
@@ -239,6 +240,9 @@ class ChannelLimits(Strict):
     current_a: tuple[float, float] = Field(description="[max discharge (<=0), max charge (>=0)]")
     voltage_v: tuple[float, float]
     temperature_c: tuple[float | None, float | None] = (None, None)
+    trip_delay_s: float = Field(
+        0.0, ge=0, le=60, description="a crossing must last this long before it trips"
+    )
 
     @model_validator(mode="after")
     def _ordered(self) -> ChannelLimits:
@@ -250,6 +254,47 @@ class ChannelLimits(Strict):
         tlo, thi = self.temperature_c
         if tlo is not None and thi is not None and tlo >= thi:
             raise ValueError("temperature_c must be [low, high] with low < high")
+        return self
+
+
+class FeedbackConfig(Strict):
+    """Each output with a read-back must agree with it within ``delay_s`` (S7 discrepancy)."""
+
+    delay_s: float = Field(1.0, gt=0, le=60, description="discrepancy time")
+    current_tolerance_a: float | None = Field(
+        None,
+        gt=0,
+        description="measured current vs setpoint, once settled (None: not checked, e.g. a"
+        " source without a current sensor)",
+    )
+
+
+class VoltageCheck(Strict):
+    """Another measurement of the channel's voltage (seed 002 measures the pack three ways:
+    voltage board, supply terminals, BMS): a disagreement beyond the tolerance for the
+    delay is a fault, so a broken sense wire does not go unnoticed."""
+
+    tag: str = Field(pattern=TAG_PATTERN)
+    tolerance_v: float = Field(gt=0)
+    delay_s: float = Field(2.0, ge=0, le=600)
+
+
+class BmsLimits(Strict):
+    """Limits the BMS reports against: charge/discharge currents are derated as a cell
+    approaches its limit, and the channel trips beyond it (seed 002 §2.1)."""
+
+    cell_max_tag: str | None = Field(None, pattern=TAG_PATTERN)
+    cell_min_tag: str | None = Field(None, pattern=TAG_PATTERN)
+    temperature_tag: str | None = Field(None, pattern=TAG_PATTERN)
+    cell_voltage_v: tuple[float, float] = Field(description="[lowest, highest] cell voltage")
+    derate_band_v: float = Field(0.05, gt=0, description="full current until this close")
+    temperature_max_c: float | None = None
+    trip_delay_s: float = Field(1.0, ge=0, le=60)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> BmsLimits:
+        if self.cell_voltage_v[0] >= self.cell_voltage_v[1]:
+            raise ValueError("cell_voltage_v must be [low, high] with low < high")
         return self
 
 
@@ -273,6 +318,71 @@ class ChannelConfig(Strict):
     permissives: list[str] = Field(
         [], description="boolean tags that must all be true and GOOD to drive current"
     )
+    contactor_feedback_tag: str | None = Field(
+        None,
+        pattern=TAG_PATTERN,
+        description="boolean tag: the contactor's auxiliary contact (true = really closed)",
+    )
+    feedback: FeedbackConfig = Field(
+        FeedbackConfig(), description="outputs against their read-backs (S7 discrepancy)"
+    )
+    voltage_checks: list[VoltageCheck] = Field(
+        [], description="other measurements of the same voltage that must agree with it"
+    )
+    bms: BmsLimits | None = Field(None, description="BMS-reported limits that clamp setpoints")
+
+
+# --- safety (DESIGN.md "Safety") --------------------------------------------------------------
+Severity = Literal["low", "medium", "high", "critical"]
+
+
+class EstopConfig(Strict):
+    """The hardware e-stop, sensed on an input (seed 002 §1.5: 5 V while the circuit is
+    closed): it trips every channel at once, aborts their recipes and opens the software
+    e-stop relay; it resets only once the circuit is closed again."""
+
+    tag: str = Field(pattern=TAG_PATTERN, description="boolean tag, true while circuit closed")
+    relay_tag: str | None = Field(
+        None, pattern=TAG_PATTERN, description="software e-stop relay output (opened on trip)"
+    )
+
+
+class InterlockConfig(Strict):
+    """A condition on one tag that trips channels (latched until acknowledged and reset)."""
+
+    id: str = Field(pattern=NAME_PATTERN)
+    tag: str = Field(pattern=TAG_PATTERN)
+    above: float | None = None
+    below: float | None = None
+    equals: bool | None = Field(None, description="a boolean tag trips at this value")
+    deadband: float = Field(0.0, ge=0, description="how far back it must be to reset")
+    delay_s: float = Field(0.0, ge=0, le=600, description="on-delay before it trips")
+    channels: list[str] | None = Field(None, description="channels it trips (default: all)")
+    action: Literal["hold", "abort"] = "hold"
+    severity: Severity = "high"
+    message: str = ""
+
+    @model_validator(mode="after")
+    def _one_condition(self) -> InterlockConfig:
+        given = [k for k in ("above", "below", "equals") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError("an interlock needs exactly one of above, below or equals")
+        return self
+
+
+class HeartbeatConfig(Strict):
+    """An output the scan toggles for a hardware watchdog relay in series with the contactor
+    coil: when the supervisor dies, the toggling stops and the relay opens the contactor
+    (deploy/watchdog-wiring.md)."""
+
+    tag: str = Field(pattern=TAG_PATTERN)
+    period_s: float = Field(0.5, ge=0.05, le=10, description="time between two toggles")
+
+
+class SafetyConfig(Strict):
+    estop: EstopConfig | None = None
+    interlocks: list[InterlockConfig] = []
+    heartbeat: HeartbeatConfig | None = None
 
 
 class SimPoint(Strict):
@@ -305,6 +415,7 @@ class BenchConfig(Strict):
     devices: dict[str, DeviceConfig] = Field(min_length=1)
     tags: list[TagMapping] = []
     channels: list[ChannelConfig] = []
+    safety: SafetyConfig = SafetyConfig()
     simulation: SimulationConfig | None = None
 
     device_kinds: ClassVar[tuple[type[DeviceConfig], ...]] = ()

@@ -1,9 +1,32 @@
 """Safety: the scan phase that runs after derived values and before the step chains.
 
-Interlocks, alarms and feedback monitoring register here as checks (the safety issue fills
-it); running before the chains and owning their own outputs, no recipe can override them.
+Every trip and alarm of the bench is evaluated here, every scan, in order: the e-stop, the
+I/O map's interlocks, tag alarm limits, each channel's guard, the watchdog heartbeat.
+Running before the chains and publishing what the outputs may do, no recipe can override
+it. One alarm model (``alarms.AlarmManager``, ISA-18.2) holds every alarm's state.
 """
 
+from supervisor.safety.alarms import (
+    Alarm,
+    AlarmEvent,
+    AlarmManager,
+    AlarmState,
+    Severity,
+    Transition,
+)
+from supervisor.safety.build import build_safety
+from supervisor.safety.guard import ChannelGuard
 from supervisor.safety.phase import SafetyCheck, SafetyPhase
 
-__all__ = ["SafetyCheck", "SafetyPhase"]
+__all__ = [
+    "Alarm",
+    "AlarmEvent",
+    "AlarmManager",
+    "AlarmState",
+    "ChannelGuard",
+    "SafetyCheck",
+    "SafetyPhase",
+    "Severity",
+    "Transition",
+    "build_safety",
+]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from typing import Protocol
+from typing import Any, Protocol
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +34,7 @@ class SafetyPhase:
     def __init__(self, checks: Sequence[SafetyCheck] = ()) -> None:
         self.checks: list[SafetyCheck] = list(checks)
         self.errors = 0
+        self.guards: dict[str, Any] = {}  # channel name -> its ChannelGuard
 
     def run(self, now: float, dt: float) -> None:
         for check in self.checks:

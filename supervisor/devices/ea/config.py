@@ -42,6 +42,7 @@ SOURCE_POINTS: Final = SourcePoints(
     current="current",
     current_set="current_set",
     output="output",
+    output_fb="output_on",
     voltage_set="voltage_set",
 )
 

@@ -1,0 +1,271 @@
+"""The alarm model (ISA-18.2): one place that knows every alarm, its state and its history.
+
+An alarm is raised and cleared by the checks that own it (interlocks, channel guards, tag
+limits), evaluated every scan; people acknowledge, reset and shelve it. States, from
+``Alarm.state``:
+
+- ``normal``: condition absent, nothing to acknowledge;
+- ``active, unacknowledged`` / ``active, acknowledged``: condition present;
+- ``returned, unacknowledged``: the condition went away before anyone acknowledged it;
+- ``latched`` (trips only): condition gone and acknowledged, the trip still holds its
+  channel until someone resets it. A reset is refused while the cause is still present.
+
+A trip is a latched alarm (``latched=True``): its channel stays safe until the alarm is
+acknowledged AND reset. The first trip of a group (a channel) since the group was last
+clear is marked first-out. Shelving hides a nuisance alarm for a while (it is still
+evaluated and logged); a trip cannot be shelved. Every transition goes to the log (time,
+actor) and to the listeners (result files, historian, OPC UA events).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from enum import IntEnum, StrEnum
+
+from supervisor.core.clock import Clock
+from supervisor.core.errors import OperatorError
+
+log = logging.getLogger(__name__)
+
+LOG_LENGTH = 2000
+"""Transitions kept in memory (the historian keeps them all)."""
+
+
+class Severity(IntEnum):
+    """On the OPC UA 1–1000 scale, so clients and screens can use the number as it is."""
+
+    LOW = 200
+    MEDIUM = 500
+    HIGH = 700
+    CRITICAL = 900
+
+    @classmethod
+    def named(cls, name: str) -> Severity:
+        return cls[name.upper()]
+
+
+class AlarmState(StrEnum):
+    NORMAL = "normal"
+    ACTIVE_UNACKED = "active, unacknowledged"
+    ACTIVE_ACKED = "active, acknowledged"
+    RETURNED_UNACKED = "returned, unacknowledged"
+    LATCHED = "latched"  # a trip whose cause is gone, acknowledged, awaiting reset
+
+
+class Transition(StrEnum):
+    ACTIVATED = "activated"
+    CLEARED = "cleared"
+    ACKNOWLEDGED = "acknowledged"
+    RESET = "reset"
+    SHELVED = "shelved"
+    UNSHELVED = "unshelved"
+
+
+@dataclass
+class Alarm:
+    id: str
+    group: str  # a channel name, or "" for the whole bench
+    severity: Severity
+    latched: bool  # a trip: holds its group until acknowledged and reset
+    affects: tuple[str, ...] | None = None  # a bench-wide trip's channels (None: all)
+    message: str = ""
+    action: str = "hold"  # what a trip does to its channels: "hold" or "abort"
+    active: bool = False  # the condition is present now
+    acked: bool = True
+    tripped: bool = False  # a trip that has not been reset yet
+    first_out: bool = False
+    activated_t: float | None = None
+    shelved_until: float | None = None
+    acked_by: str = ""
+
+    @property
+    def state(self) -> AlarmState:
+        if self.active:
+            return AlarmState.ACTIVE_ACKED if self.acked else AlarmState.ACTIVE_UNACKED
+        if not self.acked:
+            return AlarmState.RETURNED_UNACKED
+        return AlarmState.LATCHED if self.tripped else AlarmState.NORMAL
+
+    @property
+    def in_alarm(self) -> bool:
+        """Annunciated: not normal (shelving aside)."""
+        return self.state is not AlarmState.NORMAL
+
+    def shelved(self, now: float) -> bool:
+        return self.shelved_until is not None and now < self.shelved_until
+
+
+@dataclass(frozen=True, slots=True)
+class AlarmEvent:
+    t: float  # Clock.now()
+    wall: float
+    alarm_id: str
+    group: str
+    transition: Transition
+    state: AlarmState
+    severity: Severity
+    message: str
+    actor: str = ""
+
+
+@dataclass
+class AlarmManager:
+    clock: Clock
+    listeners: list[Callable[[AlarmEvent], None]] = field(default_factory=list)
+    history: deque[AlarmEvent] = field(default_factory=lambda: deque(maxlen=LOG_LENGTH))
+    _alarms: dict[str, Alarm] = field(default_factory=dict)
+
+    # --- declaration ------------------------------------------------------------------
+    def declare(
+        self,
+        alarm_id: str,
+        *,
+        group: str = "",
+        severity: Severity = Severity.HIGH,
+        latched: bool = False,
+        action: str = "hold",
+        affects: tuple[str, ...] | None = None,
+    ) -> Alarm:
+        """An alarm its owner will raise and clear (declared once, at wiring)."""
+        if alarm_id in self._alarms:
+            raise ValueError(f"alarm {alarm_id!r} is declared twice")
+        alarm = Alarm(alarm_id, group, severity, latched, affects, action=action)
+        self._alarms[alarm_id] = alarm
+        return alarm
+
+    def __getitem__(self, alarm_id: str) -> Alarm:
+        try:
+            return self._alarms[alarm_id]
+        except KeyError:
+            raise OperatorError(f"unknown alarm {alarm_id!r}") from None
+
+    def __iter__(self) -> Iterator[Alarm]:
+        return iter(self._alarms.values())
+
+    def __contains__(self, alarm_id: object) -> bool:
+        return alarm_id in self._alarms
+
+    # --- evaluation (by the owning check, every scan) ----------------------------------
+    def set(self, alarm: Alarm, active: bool, message: str = "") -> None:
+        """The condition as its owner sees it this scan (idempotent; only edges log)."""
+        now = self.clock.now()
+        if alarm.shelved_until is not None and now >= alarm.shelved_until:
+            alarm.shelved_until = None
+            self._event(alarm, Transition.UNSHELVED, "shelving expired")
+        if active and message:
+            alarm.message = message
+        if active == alarm.active:
+            return
+        alarm.active = active
+        if active:
+            alarm.acked = False
+            alarm.activated_t = now
+            if alarm.latched and not alarm.tripped:
+                alarm.tripped = True
+                # First-out: the first trip of its group since the group was last clear.
+                alarm.first_out = not any(
+                    a.tripped and a is not alarm and a.group == alarm.group
+                    for a in self._alarms.values()
+                )
+            self._event(alarm, Transition.ACTIVATED, alarm.message)
+        else:
+            self._event(alarm, Transition.CLEARED, alarm.message)
+
+    # --- people -----------------------------------------------------------------------
+    def acknowledge(self, alarm_id: str, actor: str) -> Alarm:
+        alarm = self[alarm_id]
+        if alarm.acked:
+            raise OperatorError(f"alarm {alarm_id} is not waiting for an acknowledgement")
+        alarm.acked = True
+        alarm.acked_by = actor
+        self._event(alarm, Transition.ACKNOWLEDGED, alarm.message, actor)
+        return alarm
+
+    def reset(self, alarm_id: str, actor: str) -> Alarm:
+        """Release a trip (acknowledging it if needed); refused while its cause is present."""
+        alarm = self[alarm_id]
+        if not alarm.tripped:
+            raise OperatorError(f"alarm {alarm_id} is not a trip waiting for a reset")
+        if alarm.active:
+            raise OperatorError(
+                f"cannot reset {alarm_id}: the cause is still present ({alarm.message})"
+            )
+        if not alarm.acked:
+            self.acknowledge(alarm_id, actor)
+        alarm.tripped = False
+        alarm.first_out = False
+        self._event(alarm, Transition.RESET, alarm.message, actor)
+        return alarm
+
+    def shelve(self, alarm_id: str, duration_s: float, actor: str) -> Alarm:
+        alarm = self[alarm_id]
+        if alarm.latched:
+            raise OperatorError(
+                f"alarm {alarm_id} is a trip: it protects its channel and cannot be shelved"
+            )
+        if not 0 < duration_s <= 7 * 86400:
+            raise OperatorError(f"shelving lasts between 0 s and 7 days, not {duration_s:g} s")
+        alarm.shelved_until = self.clock.now() + duration_s
+        self._event(alarm, Transition.SHELVED, f"for {duration_s:g} s", actor)
+        return alarm
+
+    def unshelve(self, alarm_id: str, actor: str) -> Alarm:
+        alarm = self[alarm_id]
+        if alarm.shelved_until is None:
+            raise OperatorError(f"alarm {alarm_id} is not shelved")
+        alarm.shelved_until = None
+        self._event(alarm, Transition.UNSHELVED, "by request", actor)
+        return alarm
+
+    # --- views ------------------------------------------------------------------------
+    def in_alarm(self, group: str | None = None) -> list[Alarm]:
+        """Annunciated alarms (not shelved), optionally of one group, first-out first."""
+        now = self.clock.now()
+        out = [
+            a
+            for a in self._alarms.values()
+            if a.in_alarm and not a.shelved(now) and (group is None or a.group == group)
+        ]
+        out.sort(key=lambda a: (not a.first_out, a.activated_t or 0.0))
+        return out
+
+    def trips(self, channel: str) -> list[Alarm]:
+        """Trips holding ``channel``: its own and the bench-wide ones that reach it,
+        first-out first."""
+        out = [
+            a
+            for a in self._alarms.values()
+            if a.tripped
+            and (
+                a.group == channel
+                or (a.group == "" and (a.affects is None or channel in a.affects))
+            )
+        ]
+        out.sort(key=lambda a: (not a.first_out, a.activated_t or 0.0))
+        return out
+
+    def _event(self, alarm: Alarm, transition: Transition, message: str, actor: str = "") -> None:
+        now = self.clock.now()
+        ev = AlarmEvent(
+            now,
+            self.clock.to_wall(now),
+            alarm.id,
+            alarm.group,
+            transition,
+            alarm.state,
+            alarm.severity,
+            message,
+            actor,
+        )
+        self.history.append(ev)
+        by = f" by {actor}" if actor else ""
+        level = logging.WARNING if transition is Transition.ACTIVATED else logging.INFO
+        log.log(level, "alarm %s %s%s: %s", alarm.id, transition.value, by, message)
+        for fn in self.listeners:
+            try:
+                fn(ev)
+            except Exception:
+                log.exception("alarm listener failed")

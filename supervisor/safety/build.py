@@ -1,0 +1,29 @@
+"""The safety phase of a bench, from its I/O map."""
+
+from __future__ import annotations
+
+from supervisor.config.models import BenchConfig
+from supervisor.safety.alarms import AlarmManager
+from supervisor.safety.guard import ChannelGuard
+from supervisor.safety.interlocks import Estop, Heartbeat, Interlock, TagAlarms
+from supervisor.safety.phase import SafetyCheck, SafetyPhase
+from supervisor.tags import TagDB
+
+
+def build_safety(cfg: BenchConfig, db: TagDB, alarms: AlarmManager) -> SafetyPhase:
+    """Checks in the order they must run: bench-wide trips first (so a channel's first-out
+    is the e-stop when the e-stop came first), then tag alarms, then each channel's guard,
+    then the heartbeat (it stops when anything before it crashes the scan)."""
+    checks: list[SafetyCheck] = []
+    s = cfg.safety
+    if s.estop is not None:
+        checks.append(Estop(s.estop, db, alarms))
+    checks += [Interlock(i, db, alarms) for i in s.interlocks]
+    checks.append(TagAlarms(db, alarms))
+    guards = [ChannelGuard(c, db, alarms) for c in cfg.channels]
+    checks += guards
+    if s.heartbeat is not None:
+        checks.append(Heartbeat(s.heartbeat, db))
+    phase = SafetyPhase(checks)
+    phase.guards = {g.name: g for g in guards}
+    return phase

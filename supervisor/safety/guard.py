@@ -1,0 +1,394 @@
+"""A channel's protection: every trip that holds it, and what its outputs may do this scan.
+
+Run in the safety phase (after the channels' derived values, before the step chains), so
+it sees this scan's measurements and no recipe can override it. For each channel it
+
+- raises its trips (latched alarms, ISA-18.2) from: a lost voltage input while driving,
+  a hard voltage or temperature limit crossed, a permissive lost, an output that disagrees
+  with its read-back (contactor coil vs its auxiliary contact, supply output vs ``OUTP?``,
+  measured current vs setpoint once settled — S7-GRAPH discrepancy monitoring), another
+  measurement of the same voltage that disagrees (a broken sense wire), BMS limits, and a
+  fault in the channel's own logic;
+- publishes what the outputs may do: ``chN.limit.charge_a`` / ``chN.limit.discharge_a``
+  (0 in a direction blocked by a crossed limit — so no current ever flows towards it —
+  derated near a BMS cell limit), ``chN.fault`` (first-out trip, "" when none),
+  ``chN.fault_action`` (``abort`` when a trip aborts the recipe, e.g. the e-stop, else
+  ``hold``), ``chN.armed`` (the power path is closed: recipe limits and cross-checks apply);
+- takes the operator's ``chN.ack``: acknowledge, and reset the trips whose cause is gone.
+
+A new trip drops the channel's Manual ``enable``: it is never re-energised on its own.
+The channel (``supervisor/channels``) only reads these tags; it never decides a trip.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from supervisor.config.models import ChannelConfig
+from supervisor.core.errors import OperatorError
+from supervisor.safety.alarms import Alarm, AlarmManager, Severity
+from supervisor.safety.delay import OnDelay
+from supervisor.tags import Tag, TagDB
+
+log = logging.getLogger(__name__)
+
+AUTO = "auto"  # the value of chN.mode under a step chain
+REGULATION_MARGIN = 0.02
+"""A source holding a voltage (CV, or the supply's own limit) may give less current than
+set: the current-feedback check only expects the full setpoint while the voltage is more
+than this fraction away from the voltage it regulates at."""
+
+
+@dataclass
+class _Check:
+    """One trip of this channel: its alarm, its on-delay and its condition this scan."""
+
+    alarm: Alarm
+    delay: OnDelay
+    condition: Callable[[], str]  # "" when fine, else why it trips
+
+
+class ChannelGuard:
+    """The safety check of one channel (a ``SafetyCheck`` of the safety phase)."""
+
+    def __init__(self, cfg: ChannelConfig, db: TagDB, alarms: AlarmManager) -> None:
+        self.name = cfg.name
+        self.cfg = cfg
+        self.db = db
+        self.alarms = alarms
+        n = cfg.name
+        self._v = db[f"{n}.voltage"]
+        self._i = db[f"{n}.current"]
+        self._temp = db[f"{n}.temperature"]
+        self._cmd = db[f"{n}.current_cmd"]
+        self._manual = db[f"{n}.manual_current"]
+        self._enable = db[f"{n}.enable"]
+        self._mode = db[f"{n}.mode"]
+        self._auto = db[f"{n}.auto_current"]
+        self._auto_active = db[f"{n}.auto_active"]
+        self._auto_voltage = db[f"{n}.auto_voltage"]
+        self._ack = db[f"{n}.ack"]
+        self._logic_error = db[f"{n}.logic_error"]
+        self._output_cmd = db.get(f"{n}.output_cmd")
+        self._output_fb = db.get(f"{n}.output_fb")
+        self._fault = db[f"{n}.fault"]
+        self._action = db[f"{n}.fault_action"]
+        self._first_out = db[f"{n}.first_out"]
+        self._armed = db[f"{n}.armed"]
+        self._charge_limit = db[f"{n}.limit.charge_a"]
+        self._discharge_limit = db[f"{n}.limit.discharge_a"]
+        self._contactor = db[cfg.contactor_tag] if cfg.contactor_tag else None
+        self._contactor_fb = db[cfg.contactor_feedback_tag] if cfg.contactor_feedback_tag else None
+        self._current_tol = cfg.feedback.current_tolerance_a
+        self._cmd_version = self._cmd.version
+        self._checks: list[_Check] = []
+        self._build_checks()
+
+    # --- declaration --------------------------------------------------------------------
+    def _check(self, key: str, condition: Callable[[], str], delay_s: float = 0.0) -> Alarm:
+        alarm = self.alarms.declare(
+            f"{self.name}.{key}", group=self.name, severity=Severity.HIGH, latched=True
+        )
+        self._checks.append(_Check(alarm, OnDelay(delay_s), condition))
+        return alarm
+
+    def _build_checks(self) -> None:
+        cfg = self.cfg
+        lim = cfg.limits
+        self._check("internal", self._internal)
+        self._check("voltage_input", self._voltage_input)
+        self._check("voltage_high", self._voltage_high, lim.trip_delay_s)
+        self._check("voltage_low", self._voltage_low, lim.trip_delay_s)
+        if cfg.temperature_tag is not None and lim.temperature_c != (None, None):
+            self._check("temperature", self._temperature, lim.trip_delay_s)
+        for tag in cfg.permissives:
+            self._check(f"permissive.{tag}", self._permissive(self.db[tag], f"permissive.{tag}"))
+        delay = cfg.feedback.delay_s
+        if self._contactor is not None and self._contactor_fb is not None:
+            self._check("contactor_feedback", self._contactor_discrepancy, delay)
+        if self._output_cmd is not None and self._output_fb is not None:
+            self._check("output_feedback", self._output_discrepancy, delay)
+        if self._current_tol is not None:
+            self._check("current_feedback", self._current_discrepancy, delay)
+        for vc in cfg.voltage_checks:
+            other = self.db[vc.tag]
+            self._check(
+                f"voltage_check.{vc.tag}",
+                self._voltage_disagrees(other, vc.tolerance_v),
+                vc.delay_s,
+            )
+        bms = cfg.bms
+        if bms is not None:
+            self._bms_tags = {
+                k: self.db[t]
+                for k, t in (
+                    ("cell_max", bms.cell_max_tag),
+                    ("cell_min", bms.cell_min_tag),
+                    ("temperature", bms.temperature_tag),
+                )
+                if t is not None
+            }
+            self._check("bms", self._bms_limits, bms.trip_delay_s)
+
+    # --- the scan -----------------------------------------------------------------------
+    def evaluate(self, now: float, dt: float) -> None:
+        db = self.db
+        db.update(self._armed, self._power_path_closed())
+        for check in self._checks:
+            why = check.condition()
+            active = check.delay.update(bool(why), now)
+            was_tripped = check.alarm.tripped
+            self.alarms.set(check.alarm, active, why)
+            if check.alarm.tripped and not was_tripped:
+                log.error("%s: tripped: %s", self.name, why)
+                # Never re-energised on its own: the operator must enable again after reset.
+                db.update(self._enable, False)
+        if self._ack.value:
+            db.update(self._ack, False)
+            try:
+                self.reset("operator")
+            except OperatorError as exc:
+                log.warning("%s", exc)
+        self._publish_trips()
+        charge, discharge = self._admission()
+        db.update(self._charge_limit, charge)
+        db.update(self._discharge_limit, discharge)
+
+    def fail_safe(self, why: str) -> None:
+        """The guard itself failed: hold the channel with no current in either direction."""
+        self.db.update(self._charge_limit, 0.0)
+        self.db.update(self._discharge_limit, 0.0)
+        self.db.update(self._fault, why)
+        self.db.update(self._action, "hold")
+        self.db.update(self._enable, False)
+
+    def reset(self, actor: str) -> list[str]:
+        """Acknowledge every alarm holding the channel and reset the trips whose cause is
+        gone; raise OperatorError naming those whose cause is still present."""
+        refused: list[str] = []
+        done: list[str] = []
+        for alarm in self.alarms.trips(self.name):
+            try:
+                self.alarms.reset(alarm.id, actor)
+                done.append(alarm.id)
+            except OperatorError as exc:
+                if not alarm.acked:
+                    self.alarms.acknowledge(alarm.id, actor)
+                refused.append(str(exc))
+        self._publish_trips()
+        if refused:
+            raise OperatorError(f"{self.name}: " + "; ".join(refused))
+        if done:
+            log.info("%s: reset by %s: %s", self.name, actor, ", ".join(done))
+        return done
+
+    def _publish_trips(self) -> None:
+        trips = self.alarms.trips(self.name)
+        db = self.db
+        if trips:
+            db.update(self._fault, trips[0].message)
+            abort = any(a.action == "abort" for a in trips)
+            db.update(self._action, "abort" if abort else "hold")
+            db.update(self._first_out, trips[0].id)
+        else:
+            db.update(self._fault, "")
+            db.update(self._action, "")
+            db.update(self._first_out, "")
+
+    # --- what the outputs may do ----------------------------------------------------------
+    def _admission(self) -> tuple[float, float]:
+        """Charge and discharge magnitudes allowed this scan."""
+        if self._fault.value:
+            return 0.0, 0.0
+        lo, hi = self.cfg.limits.current_a
+        charge, discharge = hi, -lo
+        v = self._v
+        if v.good:
+            vv = v.as_float()
+            vlo, vhi = self.cfg.limits.voltage_v
+            if vv >= vhi:
+                charge = 0.0
+            if vv <= vlo:
+                discharge = 0.0
+        bms = self.cfg.bms
+        if bms is not None:
+            cmax, cmin = self._bms_tags.get("cell_max"), self._bms_tags.get("cell_min")
+            lo_v, hi_v = bms.cell_voltage_v
+            band = bms.derate_band_v
+            if cmax is not None:
+                charge *= _derate(cmax, hi_v - cmax.as_float(), band)
+            if cmin is not None:
+                discharge *= _derate(cmin, cmin.as_float() - lo_v, band)
+        return charge, discharge
+
+    # --- conditions -----------------------------------------------------------------------
+    def _intended_a(self) -> float:
+        """The current asked for (Manual setpoint, or the chain's request) — or flowing."""
+        if self._mode.value == AUTO:
+            asked = self._auto.as_float() if self._auto_active.value else 0.0
+        else:
+            asked = self._manual.as_float() if self._enable.value else 0.0
+        return asked if asked != 0.0 else self._cmd.as_float()
+
+    def _active(self) -> bool:
+        if self._mode.value == AUTO:
+            return bool(self._auto_active.value)
+        return bool(self._enable.value)
+
+    def _power_path_closed(self) -> bool:
+        if self._contactor is None:
+            return True
+        fb = self._contactor_fb
+        if fb is not None:
+            return fb.good and fb.value is True
+        return self._contactor.value is True
+
+    def _internal(self) -> str:
+        err = self._logic_error.value
+        return f"internal error: {err}" if err else ""
+
+    def _voltage_input(self) -> str:
+        v = self._v
+        if v.good or self._intended_a() == 0.0:
+            return ""
+        return f"voltage input {v.quality.name} ({v.reason})"
+
+    def _voltage_high(self) -> str:
+        v, hi = self._v, self.cfg.limits.voltage_v[1]
+        if v.good and self._intended_a() > 0 and v.as_float() >= hi:
+            return f"voltage {v.as_float():.3f} V at or above hard limit {hi} V while charging"
+        return ""
+
+    def _voltage_low(self) -> str:
+        v, lo = self._v, self.cfg.limits.voltage_v[0]
+        if v.good and self._intended_a() < 0 and v.as_float() <= lo:
+            return f"voltage {v.as_float():.3f} V at or below hard limit {lo} V while discharging"
+        return ""
+
+    def _temperature(self) -> str:
+        tlo, thi = self.cfg.limits.temperature_c
+        t = self._temp
+        if not t.good:
+            if self._intended_a() == 0.0:
+                return ""
+            return f"temperature input {t.quality.name} ({t.reason})"
+        tv = t.as_float()
+        if thi is not None and tv >= thi:
+            return f"temperature {tv:.1f} degC at or above limit {thi} degC"
+        if tlo is not None and tv <= tlo:
+            return f"temperature {tv:.1f} degC at or below limit {tlo} degC"
+        return ""
+
+    def _permissive(self, tag: Tag, key: str) -> Callable[[], str]:
+        alarm_id = f"{self.name}.{key}"
+
+        def condition() -> str:
+            if tag.good and tag.value is True:
+                return ""
+            # Needed to drive; once it has tripped, its absence keeps the trip from being
+            # reset (the cause is still present even though nothing drives any more).
+            if not (self._active() or self.alarms[alarm_id].tripped):
+                return ""
+            why = "is false" if tag.good else f"is {tag.quality.name} ({tag.reason})"
+            return f"permissive {tag.name} {why}"
+
+        return condition
+
+    def _contactor_discrepancy(self) -> str:
+        cmd, fb = self._contactor, self._contactor_fb
+        assert cmd is not None and fb is not None
+        want = cmd.value is True
+        if not fb.good:
+            return (
+                f"contactor feedback {fb.name} is {fb.quality.name} ({fb.reason})" if want else ""
+            )
+        if (fb.value is True) == want:
+            return ""
+        state = "closed" if fb.value else "open"
+        return f"contactor {state} ({fb.name}) while commanded {'closed' if want else 'open'}"
+
+    def _output_discrepancy(self) -> str:
+        cmd, fb = self._output_cmd, self._output_fb
+        assert cmd is not None and fb is not None
+        if not fb.good:
+            return ""  # a lost supply trips through its inputs; nothing to compare with
+        want = cmd.value is True
+        if (fb.value is True) == want:
+            return ""
+        return (
+            f"supply output {'on' if fb.value else 'off'} while commanded {'on' if want else 'off'}"
+        )
+
+    def _current_discrepancy(self) -> str:
+        tol = self._current_tol
+        assert tol is not None
+        cmd, i = self._cmd.as_float(), self._i
+        if self._cmd.version != self._cmd_version:
+            # A new setpoint restarts the settling time (the on-delay restarts with it).
+            self._cmd_version = self._cmd.version
+            return ""
+        if not i.good or not self._power_path_closed():
+            return ""
+        ii = i.as_float()
+        if cmd * ii < 0 and abs(ii) > tol:
+            return f"current {ii:.3f} A flows the wrong way for a setpoint of {cmd:.3f} A"
+        if abs(ii) > abs(cmd) + tol:
+            return f"current {ii:.3f} A above its setpoint {cmd:.3f} A"
+        if abs(ii) < abs(cmd) - tol and not self._regulating_voltage(cmd):
+            return f"current {ii:.3f} A against {cmd:.3f} A commanded"
+        return ""
+
+    def _regulating_voltage(self, cmd: float) -> bool:
+        """Near the voltage the source regulates at, less current than set is normal."""
+        v = self._v
+        if not v.good:
+            return False
+        vlo, vhi = self.cfg.limits.voltage_v
+        cv = self._auto_voltage.as_float() if self._mode.value == AUTO else 0.0
+        target = (cv if cv > 0 else vhi) if cmd > 0 else vlo
+        return abs(v.as_float() - target) <= REGULATION_MARGIN * abs(target)
+
+    def _voltage_disagrees(self, other: Tag, tolerance_v: float) -> Callable[[], str]:
+        def condition() -> str:
+            v = self._v
+            if not (v.good and other.good and self._power_path_closed()):
+                return ""
+            diff = v.as_float() - other.as_float()
+            if abs(diff) <= tolerance_v:
+                return ""
+            return (
+                f"voltage {v.as_float():.3f} V and {other.name} {other.as_float():.3f} V"
+                f" disagree by {abs(diff):.3f} V (tolerance {tolerance_v:g} V)"
+            )
+
+        return condition
+
+    def _bms_limits(self) -> str:
+        bms = self.cfg.bms
+        assert bms is not None
+        lo_v, hi_v = bms.cell_voltage_v
+        for key, tag in self._bms_tags.items():
+            if not tag.good:
+                if self._intended_a() == 0.0:
+                    continue
+                return f"BMS value {tag.name} is {tag.quality.name} ({tag.reason})"
+            x = tag.as_float()
+            if key == "cell_max" and x > hi_v:
+                return f"BMS cell voltage {x:.3f} V above {hi_v:g} V"
+            if key == "cell_min" and x < lo_v:
+                return f"BMS cell voltage {x:.3f} V below {lo_v:g} V"
+            tmax = bms.temperature_max_c
+            if key == "temperature" and tmax is not None and x >= tmax:
+                return f"BMS temperature {x:.1f} degC at or above {tmax:g} degC"
+        return ""
+
+
+def _derate(tag: Tag, headroom: float, band: float) -> float:
+    """Full current with at least ``band`` of headroom, tapering to 0 at the limit; a BMS
+    value that is not GOOD allows nothing (the BMS check trips the channel)."""
+    if not tag.good or not math.isfinite(headroom):
+        return 0.0
+    return min(1.0, max(0.0, headroom / band))

@@ -1,0 +1,176 @@
+"""Bench-wide trips and alarms: the e-stop, the I/O map's interlocks, tag alarm limits,
+and the heartbeat of the contactor's hardware watchdog.
+
+- **E-stop** (seed 002 §1.5): the sense input reads true while the circuit is closed. Not
+  true, or not GOOD (fail safe: a lost ADAM is a pressed e-stop), trips every channel at
+  once, aborts their recipes and opens the software e-stop relay. It resets only once the
+  circuit is closed again.
+- **Interlocks** (``safety.interlocks`` in the I/O map): a tag above, below or equal to a
+  value (a value that is not GOOD trips too), with an on-delay and a deadband for the way
+  back; latched; they hold (or abort) the channels they name, all by default.
+- **Tag alarm limits** (``alarms:`` of a tag mapping: HH/H/L/LL with deadband and on-delay):
+  plain alarms, not trips: they go away when the value comes back (ISA-18.2).
+- **Heartbeat**: an output toggled every ``period_s`` for a hardware watchdog relay in series
+  with the contactor coil (deploy/watchdog-wiring.md); when the supervisor dies, the
+  toggling stops and the watchdog opens the contactor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from supervisor.config.models import EstopConfig, HeartbeatConfig, InterlockConfig
+from supervisor.safety.alarms import Alarm, AlarmManager, Severity
+from supervisor.safety.delay import OnDelay
+from supervisor.tags import Tag, TagDB
+from supervisor.tags.spec import AlarmLimits
+
+
+class Estop:
+    name = "estop"
+
+    def __init__(self, cfg: EstopConfig, db: TagDB, alarms: AlarmManager) -> None:
+        self.sense = db[cfg.tag]
+        self.relay = db[cfg.relay_tag] if cfg.relay_tag else None
+        self.db = db
+        self.alarm = alarms.declare(
+            "estop", severity=Severity.CRITICAL, latched=True, action="abort"
+        )
+        self.alarms = alarms
+
+    def evaluate(self, now: float, dt: float) -> None:
+        s = self.sense
+        if s.good and s.value is True:
+            self.alarms.set(self.alarm, False)
+        else:
+            why = "is false (circuit open)" if s.good else f"is {s.quality.name} ({s.reason})"
+            self.alarms.set(self.alarm, True, f"e-stop: {s.name} {why}")
+        if self.relay is not None:
+            # The software e-stop relay is closed only while no e-stop trip holds the bench.
+            self.db.update(self.relay, not self.alarm.tripped)
+
+    def fail_safe(self, why: str) -> None:
+        if self.relay is not None:
+            self.db.update(self.relay, False)
+
+
+class Interlock:
+    def __init__(self, cfg: InterlockConfig, db: TagDB, alarms: AlarmManager) -> None:
+        self.name = f"interlock.{cfg.id}"
+        self.cfg = cfg
+        self.tag = db[cfg.tag]
+        self.delay = OnDelay(cfg.delay_s)
+        self.alarms = alarms
+        self.alarm = alarms.declare(
+            self.name,
+            severity=Severity.named(cfg.severity),
+            latched=True,
+            action=cfg.action,
+            affects=tuple(cfg.channels) if cfg.channels is not None else None,
+        )
+
+    def evaluate(self, now: float, dt: float) -> None:
+        why = self._condition()
+        self.alarms.set(self.alarm, self.delay.update(bool(why), now), why)
+
+    def _condition(self) -> str:
+        cfg, t = self.cfg, self.tag
+        label = cfg.message or f"interlock {cfg.id}"
+        if not t.good:
+            return f"{label}: {t.name} is {t.quality.name} ({t.reason})"
+        # On the way back the value must pass the deadband (no chattering at the limit).
+        back = self.alarm.active
+        if cfg.equals is not None:
+            hit = t.value is cfg.equals
+            shown = str(t.value).lower()
+        else:
+            x = t.as_float()
+            shown = f"{x:g} {t.spec.unit}".strip()
+            if cfg.above is not None:
+                hit = x > cfg.above - (cfg.deadband if back else 0.0)
+            else:
+                assert cfg.below is not None
+                hit = x < cfg.below + (cfg.deadband if back else 0.0)
+        if not hit:
+            return ""
+        limit = (
+            f"= {str(cfg.equals).lower()}"
+            if cfg.equals is not None
+            else f"> {cfg.above:g}"
+            if cfg.above is not None
+            else f"< {cfg.below:g}"
+        )
+        return f"{label}: {t.name} {shown} {limit}"
+
+    def fail_safe(self, why: str) -> None:
+        self.alarms.set(self.alarm, True, why)
+
+
+@dataclass
+class _Level:
+    key: str  # HH, H, L, LL
+    limit: float
+    high: bool
+    alarm: Alarm
+    delay: OnDelay
+
+
+class TagAlarms:
+    """HH/H/L/LL limits of every tag that declares them (plain alarms, not trips)."""
+
+    name = "tag alarm limits"
+
+    def __init__(self, db: TagDB, alarms: AlarmManager) -> None:
+        self.alarms = alarms
+        self._tags: list[tuple[Tag, AlarmLimits, list[_Level]]] = []
+        for tag in db:
+            lim = tag.spec.alarms
+            if lim is None:
+                continue
+            levels: list[_Level] = []
+            for key, high, severity in (
+                ("HH", True, Severity.HIGH),
+                ("H", True, Severity.MEDIUM),
+                ("L", False, Severity.MEDIUM),
+                ("LL", False, Severity.HIGH),
+            ):
+                value = getattr(lim, key.lower())
+                if value is not None:
+                    alarm = alarms.declare(f"{tag.name}.{key}", severity=severity)
+                    levels.append(_Level(key, value, high, alarm, OnDelay(lim.delay_s)))
+            self._tags.append((tag, lim, levels))
+
+    def evaluate(self, now: float, dt: float) -> None:
+        for tag, lim, levels in self._tags:
+            if not tag.good:
+                continue  # its quality says it already; no limit applies to an unknown value
+            x = tag.as_float()
+            unit = tag.spec.unit
+            for lv in levels:
+                back = lv.alarm.active
+                db = lim.deadband if back else 0.0
+                hit = x >= lv.limit - db if lv.high else x <= lv.limit + db
+                op = ">=" if lv.high else "<="
+                why = f"{tag.name} {x:g} {unit} {op} {lv.key} {lv.limit:g} {unit}"
+                self.alarms.set(lv.alarm, lv.delay.update(hit, now), why)
+
+    def fail_safe(self, why: str) -> None:
+        return None  # plain alarms: nothing to make safe
+
+
+class Heartbeat:
+    name = "heartbeat"
+
+    def __init__(self, cfg: HeartbeatConfig, db: TagDB) -> None:
+        self.tag = db[cfg.tag]
+        self.period_s = cfg.period_s
+        self.db = db
+        self._next_t: float | None = None
+
+    def evaluate(self, now: float, dt: float) -> None:
+        if self._next_t is None or now >= self._next_t - 1e-9:
+            self.db.update(self.tag, not bool(self.tag.value))
+            self._next_t = now + self.period_s
+
+    def fail_safe(self, why: str) -> None:
+        return None  # stopping the toggling is what opens the contactor
