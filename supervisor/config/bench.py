@@ -57,6 +57,7 @@ def check_bench(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError
     checker.devices()
     checker.tags()
     checker.channels()
+    checker.safety()
     checker.simulation()
     return sorted(checker.errors, key=lambda e: (e.line or 0, e.col or 0))
 
@@ -202,6 +203,61 @@ class _Checker:
                 self.err(
                     ("channels", i, "permissives", k), f"permissive {ref!r} is not a declared tag"
                 )
+        if ch.contactor_feedback_tag is not None:
+            self._declared(("channels", i, "contactor_feedback_tag"), ch.contactor_feedback_tag)
+            if ch.contactor_tag is None:
+                self.err(
+                    ("channels", i, "contactor_feedback_tag"),
+                    "a contactor feedback needs the contactor_tag it reads back",
+                )
+        for k, vc in enumerate(ch.voltage_checks):
+            self._declared(("channels", i, "voltage_checks", k, "tag"), vc.tag)
+        if ch.bms is not None:
+            for field in ("cell_max_tag", "cell_min_tag", "temperature_tag"):
+                ref = getattr(ch.bms, field)
+                if ref is not None:
+                    self._declared(("channels", i, "bms", field), ref)
+
+    def _declared(self, path: Path_, ref: str) -> bool:
+        if ref in self.tag_index:
+            return True
+        self.err(path, f"{ref!r} is not a tag declared under tags:")
+        return False
+
+    def _is_output(self, ref: str) -> bool:
+        m = self.cfg.tags[self.tag_index[ref]]
+        dev = self.cfg.devices.get(m.device)
+        info = dev.points().get(m.point) if dev is not None else None
+        return info is not None and _is_relay(info)
+
+    # --- the bench's safety: e-stop, interlocks, heartbeat -------------------------------
+    def safety(self) -> None:
+        s = self.cfg.safety
+        if s.estop is not None:
+            self._declared(("safety", "estop", "tag"), s.estop.tag)
+            relay = s.estop.relay_tag
+            at: Path_ = ("safety", "estop", "relay_tag")
+            if relay is not None and self._declared(at, relay) and not self._is_output(relay):
+                self.err(at, f"relay_tag {relay!r} must map a relay output (slotN.doK)")
+        channels = {c.name for c in self.cfg.channels}
+        seen: set[str] = set()
+        for k, il in enumerate(s.interlocks):
+            if il.id in seen:
+                self.err(("safety", "interlocks", k, "id"), f"duplicate interlock id {il.id!r}")
+            seen.add(il.id)
+            self._declared(("safety", "interlocks", k, "tag"), il.tag)
+            for j, name in enumerate(il.channels or []):
+                if name not in channels:
+                    known = ", ".join(sorted(channels)) or "none"
+                    self.err(
+                        ("safety", "interlocks", k, "channels", j),
+                        f"unknown channel {name!r} (channels: {known})",
+                    )
+        hb = s.heartbeat
+        if hb is not None:
+            at = ("safety", "heartbeat", "tag")
+            if self._declared(at, hb.tag) and not self._is_output(hb.tag):
+                self.err(at, f"heartbeat tag {hb.tag!r} must map a relay or digital output")
 
     # --- the simulated plant's wiring ---------------------------------------------------
     def simulation(self) -> None:

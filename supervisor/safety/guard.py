@@ -100,6 +100,8 @@ class ChannelGuard:
         lim = cfg.limits
         self._check("internal", self._internal)
         self._check("voltage_input", self._voltage_input)
+        self._check("current_input", self._current_input)
+        self._check("source", self._source_lost)
         self._check("voltage_high", self._voltage_high, lim.trip_delay_s)
         self._check("voltage_low", self._voltage_low, lim.trip_delay_s)
         if cfg.temperature_tag is not None and lim.temperature_c != (None, None):
@@ -255,6 +257,19 @@ class ChannelGuard:
         if v.good or self._intended_a() == 0.0:
             return ""
         return f"voltage input {v.quality.name} ({v.reason})"
+
+    def _current_input(self) -> str:
+        i = self._i
+        if i.good or self._intended_a() == 0.0:
+            return ""
+        return f"current input {i.quality.name} ({i.reason})"
+
+    def _source_lost(self) -> str:
+        # The scan engine declares the device's status tag (after the safety phase is built).
+        connected = self.db.get(f"{self.cfg.source.device}.connected")
+        if connected is None or connected.value is not False or self._intended_a() == 0.0:
+            return ""
+        return f"source {self.cfg.source.device} lost ({connected.name} is false)"
 
     def _voltage_high(self) -> str:
         v, hi = self._v, self.cfg.limits.voltage_v[1]

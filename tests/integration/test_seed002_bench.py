@@ -124,7 +124,8 @@ async def test_pressing_the_estop_trips_the_channel_opens_the_contactor_and_kill
     ("device", "tags"),
     [
         ("adam", ["pack.current", "pack.voltage", "pack.temp", "contactor.fb"]),
-        ("ea", ["ch4.voltage", "ch4.current"]),
+        # ch4 measures its voltage on the battery side (voltage board); the supply its own.
+        ("ea", ["ea.voltage", "ch4.current"]),
         ("bms", ["bms.voltage", "bms.current", "bms.cell_min"]),
     ],
 )
