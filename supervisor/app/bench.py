@@ -70,6 +70,8 @@ class Bench:
             no_cv_reason=spec.no_cv_reason,
             capacity_ah=c.capacity_ah,
             current_limits_a=c.limits.current_a,
+            voltage_limits_v=c.limits.voltage_v,
+            temperature_limits_c=c.limits.temperature_c,
             tags=self.tag_dims(),
         )
 

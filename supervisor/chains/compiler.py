@@ -2,8 +2,10 @@
 
 Every error names file:line:column: goto targets that do not exist, unknown actions,
 expressions that do not type-check (``voltage >= 300 mA``), unknown parameters, loops
-that never let time pass, steps that can never end, and steps the channel's hardware
-cannot do (CV on a Chadèche board).
+that never let time pass, steps that can never end, steps the channel's hardware
+cannot do (CV on a Chadèche board), and values that do not fit the channel's hard limits
+(a one-cell recipe on a pack channel): the recipe's ``limits:`` windows, every voltage
+setpoint and every current a step asks for.
 """
 
 from __future__ import annotations
@@ -13,7 +15,9 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Final
 
+from supervisor.chains.behaviours import MIN_POWER_VOLTAGE_V
 from supervisor.chains.expr import Expr, ExprError, Signature, compile_condition
 from supervisor.chains.profile_csv import read_profile_csv
 from supervisor.chains.program import (
@@ -58,6 +62,17 @@ CC_ONLY = frozenset(
 )
 WITH_CV = CC_ONLY | {"cv", "cccv"}
 
+LIMIT_EPS: Final = 1e-12
+"""A value equal to a limit up to float noise is within it."""
+
+SCALE_MISMATCH_RATIO: Final = 1.25
+"""A voltage beyond a channel's limit by more than this factor of the limit is not a tuning
+slip but another scale (4.2 V on a 12–16.8 V four-cell pack): say so in the refusal."""
+
+OTHER_CELL_HINT: Final = "a recipe for another cell or cell count?"
+
+Window = tuple[float | None, float | None]
+
 
 @dataclass
 class Target:
@@ -68,6 +83,9 @@ class Target:
     no_cv_reason: str = "its source drives a constant current only (no voltage regulation)"
     capacity_ah: float | None = None
     current_limits_a: tuple[float, float] | None = None
+    voltage_limits_v: tuple[float, float] | None = None
+    temperature_limits_c: Window | None = None
+    """The channel's hard limits (None: unknown, nothing checked); a None bound: open."""
     tags: Mapping[str, Dim] = field(default_factory=dict)
 
 
@@ -149,6 +167,7 @@ class _Compiler:
             self._pair(r.limits.current, ("limits", "current"), Dim.CURRENT, Dim.C_RATE),
             self._pair(r.limits.temperature, ("limits", "temperature"), Dim.TEMPERATURE),
         )
+        self._check_windows(limits)
         if self.errors:
             self.errors.sort(key=lambda e: (e.line or 0, e.col or 0))
             raise ConfigErrors(self.errors)
@@ -336,23 +355,36 @@ class _Compiler:
                     self.err((*path, "duration"), "rest gives a duration already; keep one")
                 duration = duration if duration is not None else rd
         elif kind in ("charge", "discharge"):
-            amps = self._current(getattr(s, kind), (*path, kind))
+            raw = getattr(s, kind)
+            amps = self._current(raw, (*path, kind))
             kw["current_a"] = amps if kind == "charge" else -amps
+            # At the step's key, as this refusal always pointed (the value follows it).
+            self._check_amps(s, kw["current_a"], raw, (*path, kind), at_key=True)
         elif kind == "cv" and s.cv is not None:
-            kw["voltage_v"] = parse_quantity(s.cv.voltage).value
-            kw["current_a"] = self._current(s.cv.current_limit, (*path, "cv", "current_limit"))
+            at = (*path, "cv")
+            kw["voltage_v"] = self._setpoint_volts(s, s.cv.voltage, (*at, "voltage"))
+            kw["current_a"] = self._current(s.cv.current_limit, (*at, "current_limit"))
+            self._check_amps(s, kw["current_a"], s.cv.current_limit, (*at, "current_limit"))
         elif kind == "cccv" and s.cccv is not None:
-            kw["voltage_v"] = parse_quantity(s.cccv.voltage).value
-            kw["current_a"] = self._current(s.cccv.current, (*path, "cccv", "current"))
+            at = (*path, "cccv")
+            kw["voltage_v"] = self._setpoint_volts(s, s.cccv.voltage, (*at, "voltage"))
+            kw["current_a"] = self._current(s.cccv.current, (*at, "current"))
+            self._check_amps(s, kw["current_a"], s.cccv.current, (*at, "current"))
         elif kind == "power":
-            kw["power_w"] = parse_quantity(s.power).value if s.power is not None else 0.0
+            power_w = parse_quantity(s.power).value if s.power is not None else 0.0
+            self._check_power(s, power_w, (*path, "power"))
+            kw["power_w"] = power_w
         elif kind == "pulse" and s.pulse is not None:
-            kw["current_a"] = self._current(s.pulse.current, (*path, "pulse", "current"))
+            at = (*path, "pulse", "current")
+            kw["current_a"] = self._current(s.pulse.current, at)
+            self._check_amps(s, kw["current_a"], s.pulse.current, at)
             kw["pulse_on_s"] = parse_quantity(s.pulse.on_time).value
             kw["pulse_off_s"] = parse_quantity(s.pulse.off_time).value
             kw["pulse_count"] = s.pulse.count
         elif kind == "profile" and s.profile is not None:
-            kw["profile"] = self._profile(s.profile, (*path, "profile"))
+            points = self._profile(s.profile, (*path, "profile"))
+            self._check_profile(s, points, (*path, "profile"))
+            kw["profile"] = points
             kw["profile_repeat"] = s.profile.repeat
         elif kind == "sleep":
             kw["sleep_s"] = self._time(s.sleep, (*path, "sleep"))
@@ -362,7 +394,6 @@ class _Compiler:
         elif kind == "goto" and s.goto is not None:
             a = self.action(f"goto {s.goto}", (*path, "goto"))
             kw["goto"] = a.target if a is not None else None
-        self._check_current(kw, s, path)
         advance: Action | None = None
         if s.advance is True:
             advance = Action(ActionKind.NEXT)
@@ -392,18 +423,114 @@ class _Compiler:
             **kw,  # type: ignore[arg-type]
         )
 
-    def _check_current(self, kw: dict[str, object], s: Step, path: tuple[str | int, ...]) -> None:
+    # --- what the channel's hard limits allow -------------------------------------------
+    def _where(self) -> str:
+        return f"channel {self.target.channel}" if self.target.channel else "the channel"
+
+    def _check_amps(
+        self,
+        s: Step,
+        amps: object,
+        written: object,
+        path: tuple[str | int, ...],
+        at_key: bool = False,
+        what: str = "",
+    ) -> None:
+        """A current the step asks for (+ charges), within the channel's current limits."""
         lim = self.target.current_limits_a
-        amps = kw.get("current_a")
-        if lim is None or not isinstance(amps, float):
+        if lim is None or not isinstance(amps, int | float):
             return
         lo, hi = lim
-        if not lo - 1e-12 <= amps <= hi + 1e-12:
+        if lo - LIMIT_EPS <= amps <= hi + LIMIT_EPS:
+            return
+        rate = ""
+        if isinstance(written, str) and _is_c_rate(written) and self.capacity_ah is not None:
+            rate = f" ({written.strip()} of {self.capacity_ah:g} Ah)"
+        self.err(
+            path,
+            f"step {s.id!r}{what} asks {amps:g} A{rate}; {self._where()} allows [{lo:g}, {hi:g}] A",
+            at_key=at_key,
+        )
+
+    def _setpoint_volts(
+        self, s: Step, written: str | float | int, path: tuple[str | int, ...]
+    ) -> float:
+        """A CV target, within the channel's voltage limits (not checked where the step
+        cannot run at all: the capability refusal says enough)."""
+        volts = parse_quantity(written).value
+        lim = self.target.voltage_limits_v
+        if lim is not None and s.kind in self.target.capabilities:
+            lo, hi = lim
+            if not lo - LIMIT_EPS <= volts <= hi + LIMIT_EPS:
+                self.err(
+                    path,
+                    f"step {s.id!r} asks {volts:g} V; {self._where()} allows"
+                    f" [{lo:g}, {hi:g}] V{_scale_hint((volts,), lim)}",
+                )
+        return volts
+
+    def _check_power(self, s: Step, power_w: float, path: tuple[str | int, ...]) -> None:
+        """I = P / V (``ConstantPower``): above the channel's low voltage limit the current
+        is at most P / V_low. No simple bound when that limit reaches zero volts."""
+        vlim, ilim = self.target.voltage_limits_v, self.target.current_limits_a
+        if vlim is None or ilim is None or vlim[0] <= MIN_POWER_VOLTAGE_V:
+            return
+        amps = power_w / vlim[0]
+        lo, hi = ilim
+        if not lo - LIMIT_EPS <= amps <= hi + LIMIT_EPS:
             self.err(
-                (*path, s.kind),
-                f"step {s.id!r} asks {amps:g} A; channel {self.target.channel} allows"
-                f" [{lo:g}, {hi:g}] A",
-                at_key=True,
+                path,
+                f"step {s.id!r} asks {power_w:g} W: up to {amps:.3g} A at the"
+                f" {vlim[0]:g} V low limit; {self._where()} allows [{lo:g}, {hi:g}] A",
+            )
+
+    def _check_profile(
+        self, s: Step, points: tuple[ProfilePoint, ...], path: tuple[str | int, ...]
+    ) -> None:
+        """Each row's current and voltage window within the channel's limits. A CSV row has
+        no position in the recipe: the refusal points at ``file:`` and names the row."""
+        assert s.profile is not None
+        inline = s.profile.rows is not None
+        vlim = self.target.voltage_limits_v
+        for k, p in enumerate(points):
+            row = f" profile row {k + 1}" if inline else f" profile {s.profile.file} row {k + 1}"
+            at: tuple[str | int, ...] = (*path, "rows", k) if inline else (*path, "file")
+            self._check_amps(s, p.current_a, None, (*at, "current") if inline else at, what=row)
+            if vlim is None:
+                continue
+            lo, hi = vlim
+            for name, volts in (("v_min", p.v_min), ("v_max", p.v_max)):
+                if volts is None or lo - LIMIT_EPS <= volts <= hi + LIMIT_EPS:
+                    continue
+                self.err(
+                    (*at, name) if inline else at,
+                    f"step {s.id!r}{row}: {name} {volts:g} V is outside {self._where()}'s"
+                    f" voltage limits [{lo:g}, {hi:g}] V{_scale_hint((volts,), vlim)}",
+                )
+
+    def _check_windows(self, limits: Limits) -> None:
+        """The recipe's ``limits:`` inside the channel's hard limits: a recipe that would
+        let the cell go where the channel trips was written for something else."""
+        t = self.target
+        for name, window, hard, field_, unit in (
+            ("voltage", limits.voltage_v, t.voltage_limits_v, "voltage_v", "V"),
+            ("current", limits.current_a, t.current_limits_a, "current_a", "A"),
+            ("temperature", limits.temperature_c, t.temperature_limits_c, "temperature_c", "degC"),
+        ):
+            if hard is None:
+                continue
+            outside = [k for k, b in enumerate(window) if b is not None and not _within(b, hard)]
+            if not outside:
+                continue
+            apart = _apart(window, hard)
+            hint = ""
+            if name == "voltage":
+                hint = _scale_hint([b for b in window if b is not None], hard)
+            self.err(
+                ("limits", name, outside[0]),
+                f"recipe limits {name} {_fmt_window(window)} {unit}"
+                f" {'lie outside' if apart else 'reach beyond'} {self._where()}'s hard limits"
+                f" {field_} {_fmt_window(hard)} {unit}{hint}",
             )
 
     def _profile(self, p: ProfileSpec, path: tuple[str | int, ...]) -> tuple[ProfilePoint, ...]:
@@ -458,3 +585,36 @@ class _Compiler:
                     f"loop with no exit and no duration: {path_ids}",
                 )
                 return
+
+
+def _is_c_rate(text: str) -> bool:
+    try:
+        return parse_quantity(text).dim is Dim.C_RATE
+    except UnitError:
+        return False
+
+
+def _within(value: float, window: Window) -> bool:
+    lo, hi = window
+    return (lo is None or value >= lo - LIMIT_EPS) and (hi is None or value <= hi + LIMIT_EPS)
+
+
+def _apart(a: Window, b: Window) -> bool:
+    """No value lies in both windows (None: open on that side)."""
+    return (a[1] is not None and b[0] is not None and a[1] < b[0] - LIMIT_EPS) or (
+        a[0] is not None and b[1] is not None and a[0] > b[1] + LIMIT_EPS
+    )
+
+
+def _scale_hint(volts: Sequence[float], window: Window) -> str:
+    """The hint for voltages beyond the window by more than ``SCALE_MISMATCH_RATIO``."""
+    lo, hi = window
+    r = SCALE_MISMATCH_RATIO
+    for v in volts:
+        if (lo is not None and lo > 0 and v * r < lo) or (hi is not None and hi > 0 and v > hi * r):
+            return f" ({OTHER_CELL_HINT})"
+    return ""
+
+
+def _fmt_window(window: Window) -> str:
+    return "[" + ", ".join("null" if b is None else f"{b:g}" for b in window) + "]"

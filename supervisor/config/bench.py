@@ -157,6 +157,7 @@ class _Checker:
                     f"{spec.noun} drives at most {spec.max_current_a} A;"
                     f" limits [{lo}, {hi}] A exceed it",
                 )
+            self._rating(i, ch, spec)
         for dname, spec in sources.items():
             if spec.owner_required and (dname, -1) not in owners:
                 self.err(
@@ -164,6 +165,25 @@ class _Checker:
                     f"{spec.title} {dname!r} drives no channel; a channel gives it its limits",
                     at_key=True,
                 )
+
+    def _rating(self, i: int, ch: ChannelConfig, spec: SourceSpec) -> None:
+        """Limits within the unit's rating: the driver refuses them only at connect, and
+        then the source never connects."""
+        at: Path_ = ("channels", i, "limits")
+        vlo, vhi = ch.limits.voltage_v
+        if spec.rated_voltage_v is not None and vhi > spec.rated_voltage_v:
+            self.err(
+                (*at, "voltage_v"),
+                f"channel {ch.name!r} limits voltage_v [{vlo:g}, {vhi:g}] V exceed"
+                f" {spec.rating} ({spec.rated_voltage_v:g} V)",
+            )
+        ilo, ihi = ch.limits.current_a
+        if spec.rated_current_a is not None and max(-ilo, ihi) > spec.rated_current_a:
+            self.err(
+                (*at, "current_a"),
+                f"channel {ch.name!r} limits current_a [{ilo:g}, {ihi:g}] A exceed"
+                f" {spec.rating} ({spec.rated_current_a:g} A)",
+            )
 
     def _source(self, i: int, device: str, sources: dict[str, SourceSpec]) -> SourceSpec | None:
         dev = self.cfg.devices.get(device)

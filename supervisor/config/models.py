@@ -166,6 +166,14 @@ class SourceSpec:
     """Board addresses configured on this device."""
     max_current_a: float | None = None
     """Hardware maximum of the current, either direction; limits beyond it are refused."""
+    rated_voltage_v: float | None = None
+    """The unit's rated (nominal) voltage; channel voltage limits above it are refused.
+    None: unknown before connect."""
+    rated_current_a: float | None = None
+    """The unit's rated current, either direction; channel current limits beyond it are
+    refused. None: unknown before connect."""
+    rating: str = ""
+    """What the rating comes from, as messages name it: "the PSB 10060-60 rating"."""
     regulates_voltage: bool = False
     """Can hold a constant voltage (CV, CC-CV steps)."""
     no_cv_reason: str = ""

@@ -12,7 +12,8 @@ import pytest
 from supervisor.cli.main import main
 from supervisor.config.schema import bench_schema
 from supervisor.core.errors import ConfigErrors
-from supervisor.devices.registry import BENCH_MODEL, load_bench
+from supervisor.devices.ea.config import EaDevice, model_rating
+from supervisor.devices.registry import BENCH_MODEL, bench_from_data, load_bench
 
 ROOT = Path(__file__).resolve().parents[2]
 BAD = ROOT / "tests" / "data" / "bad_io_maps"
@@ -35,6 +36,45 @@ CASES = [
     ("limit_beyond_hardware.yaml", 11, 25, "at most 0.4 A"),
     ("board_not_on_bus.yaml", 7, 18, "board address 0 is already used"),
     ("bad_yaml.yaml", 5, 12, "YAML syntax error"),
+    (
+        "ea_voltage_above_model_rating.yaml",
+        11,
+        47,
+        "channel 'ch4' limits voltage_v [0, 80] V exceed the PSB 10060-60 rating (60 V)",
+    ),
+    (
+        "ea_current_above_model_rating.yaml",
+        12,
+        18,
+        "channel 'ch0' limits current_a [-60, 40] A exceed the ELR 10200-50 rating (50 A)",
+    ),
+    (
+        "ea_model_unreadable.yaml",
+        6,
+        21,
+        "cannot read a rating from expected_model 'PSB 60V 60A': expected '<series> 1VVVV-A'",
+    ),
+    (
+        "ea_sim_model_not_expected.yaml",
+        8,
+        16,
+        "sim_model 'PSB 10060-60' would be refused at connect (remove it: it defaults to"
+        " expected_model): it is not the expected_model 'ELR 10200-50' of device 'ea'",
+    ),
+    (
+        "ea_sim_nominal_not_rating.yaml",
+        8,
+        20,
+        "sim_nominal_v 80 V differs from 60 V (remove it: it defaults to the rating),"
+        " the PSB 10060-60 rating of device 'ea'",
+    ),
+    (
+        "ea_limits_above_sim_nominal.yaml",
+        12,
+        25,
+        "channel 'ch4' limits current_a [-20, 20] A exceed the simulated unit's"
+        " sim_nominal_v/sim_nominal_a rating (10 A)",
+    ),
 ]
 
 
@@ -92,3 +132,75 @@ def test_the_schema_rejects_unknown_keys_for_editors() -> None:
     schema = bench_schema(BENCH_MODEL)
     assert schema["additionalProperties"] is False
     assert "period_s" in json.dumps(schema)
+
+
+# --- an EA channel within its unit's rating ------------------------------------------------
+@pytest.mark.parametrize(
+    ("model", "volts", "amps"),
+    [
+        ("ELR 10200-50", 200.0, 50.0),  # seed 002's unit (devices.md)
+        ("PSB 10060-60", 60.0, 60.0),
+        ("PSB 10750-60", 750.0, 60.0),
+        ("ea-psb  10060-1000 4U", 60.0, 1000.0),  # spelt as the driver compares models
+    ],
+)
+def test_an_ea_model_name_gives_its_nominal_voltage_and_current(
+    model: str, volts: float, amps: float
+) -> None:
+    rating = model_rating(model)
+    assert rating is not None
+    assert (rating.voltage_v, rating.current_a) == (volts, amps)
+
+
+@pytest.mark.parametrize("model", ["PSB 60V 60A", "PSB10060-60", "PSB 9080-60", "PSB 10000-60"])
+def test_a_name_without_the_10000_series_form_gives_no_rating(model: str) -> None:
+    assert model_rating(model) is None
+
+
+def _ea_bench(ea: dict[str, object], limits: dict[str, object]) -> dict[str, object]:
+    return {
+        "bench": "b",
+        "devices": {"ea": {"driver": "ea-psb", "host": "127.0.0.1", **ea}},
+        "channels": [
+            {"name": "ch0", "source": {"device": "ea"}, "capacity_ah": 10.0, "limits": limits}
+        ],
+    }
+
+
+def test_the_simulated_unit_defaults_to_the_expected_model_and_its_rating() -> None:
+    cfg = bench_from_data(
+        _ea_bench(
+            {"sim": True, "expected_model": "ELR 10200-50"},
+            {"current_a": [-50, 50], "voltage_v": [40.0, 200.0]},
+        )
+    )
+    ea = cfg.devices["ea"]
+    assert isinstance(ea, EaDevice)
+    assert (ea.sim_model, ea.sim_nominal_v, ea.sim_nominal_a) == ("ELR 10200-50", 200.0, 50.0)
+
+
+def test_a_simulated_unit_without_an_expected_model_keeps_its_defaults() -> None:
+    cfg = bench_from_data(
+        _ea_bench({"sim": True}, {"current_a": [-60, 60], "voltage_v": [0.0, 60.0]})
+    )
+    ea = cfg.devices["ea"]
+    assert isinstance(ea, EaDevice)
+    assert (ea.sim_model, ea.sim_nominal_v, ea.sim_nominal_a) == ("PSB 10060-60", 60.0, 60.0)
+
+
+def test_limits_above_the_simulated_nominal_voltage_are_refused_before_connect() -> None:
+    with pytest.raises(ConfigErrors) as info:
+        bench_from_data(
+            _ea_bench({"sim": True}, {"current_a": [-20, 20], "voltage_v": [12.0, 61.0]})
+        )
+    assert [e.message for e in info.value.errors] == [
+        "channel 'ch0' limits voltage_v [12, 61] V exceed the simulated unit's"
+        " sim_nominal_v/sim_nominal_a rating (60 V)"
+    ]
+
+
+def test_a_real_unit_named_by_no_model_is_left_to_the_driver_at_connect() -> None:
+    # Nothing tells its rating before *IDN? and SYST:NOM? (the driver checks them then).
+    data = _ea_bench({}, {"current_a": [-500, 500], "voltage_v": [0.0, 900.0]})
+    data["devices"]["ea"]["host"] = "192.168.0.3"  # type: ignore[index]
+    assert bench_from_data(data).channels[0].limits.voltage_v == (0.0, 900.0)

@@ -6,11 +6,14 @@ from pathlib import Path
 
 import pytest
 
+from supervisor.app import build_bench
 from supervisor.chains.compiler import CC_ONLY, Target, compile_recipe
 from supervisor.cli.main import main
 from supervisor.config.recipe import load_recipe, load_recipe_text
+from supervisor.core.clock import VirtualClock
 from supervisor.core.errors import ConfigErrors
 from supervisor.devices.chadeche.config import NO_CV_REASON
+from supervisor.devices.registry import load_bench
 
 ROOT = Path(__file__).resolve().parents[2]
 BAD = ROOT / "tests" / "data" / "bad_recipes"
@@ -120,3 +123,171 @@ steps:
     recipe, pos = load_recipe_text(text, "r.yaml")
     acts = [str(t.action) for t in compile_recipe(recipe, pos, "r.yaml").steps[0].transitions]
     assert acts == ["next", "next_cycle", "goto b", "sleep until 20:00", "sleep 5400 s", "end"]
+
+
+# --- a recipe must fit the channel's hard limits (refused before start) ------------------
+# ch4 of io_maps/sim.yaml: a four-cell Li-ion pack on the EA supply.
+PACK = Target(
+    channel="ch4",
+    capacity_ah=10.0,
+    current_limits_a=(-20.0, 20.0),
+    voltage_limits_v=(12.0, 16.8),
+    temperature_limits_c=(None, 55.0),
+)
+LIION = ROOT / "recipes" / "liion-cccv-cycle.yaml"
+
+
+def refusals(text: str, target: Target = PACK, file: str = "r.yaml") -> list[str]:
+    """Every refusal of ``text`` on ``target``, as file:line:col: message."""
+    recipe, pos = load_recipe_text(text, file)
+    with pytest.raises(ConfigErrors) as info:
+        compile_recipe(recipe, pos, file, target)
+    return [e.location_message() for e in info.value.errors]
+
+
+async def test_a_one_cell_recipe_is_refused_on_the_pack_channel_of_the_sim_bench() -> None:
+    bench = build_bench(load_bench(ROOT / "io_maps" / "sim.yaml"), VirtualClock(), in_process=True)
+    try:
+        with pytest.raises(ConfigErrors) as info:
+            bench.load_recipe("ch4", LIION)
+        assert [e.location_message() for e in info.value.errors] == [
+            f"{LIION}:14:13: recipe limits voltage [2.8, 4.3] V lie outside channel ch4's"
+            " hard limits voltage_v [12, 16.8] V (a recipe for another cell or cell count?)",
+            f"{LIION}:20:37: step 'charge' asks 4.2 V; channel ch4 allows [12, 16.8] V"
+            " (a recipe for another cell or cell count?)",
+        ]
+        assert bench.runners["ch4"].program is None  # nothing loaded
+    finally:
+        await bench.shutdown()
+
+
+def test_check_without_a_channel_still_accepts_the_one_cell_recipe(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert main(["check", str(LIION)]) == 0
+    assert "liion-cccv-cycle.yaml: OK" in capsys.readouterr().out
+
+
+def test_a_recipe_voltage_window_reaching_beyond_the_channel_is_refused_without_the_hint() -> None:
+    text = "recipe: r\nlimits:\n  voltage: [11.5 V, 16.8 V]\nsteps:\n  - {id: a, rest: 1 s}\n"
+    assert refusals(text) == [
+        "r.yaml:3:13: recipe limits voltage [11.5, 16.8] V reach beyond channel ch4's"
+        " hard limits voltage_v [12, 16.8] V"
+    ]
+
+
+def test_recipe_current_and_temperature_windows_must_lie_within_the_channel() -> None:
+    text = (
+        "recipe: r\ncapacity: 10 Ah\nlimits:\n"
+        "  current: [-3 C, 1 C]\n"
+        "  temperature: [null, 60 degC]\n"
+        "steps:\n  - {id: a, rest: 1 s}\n"
+    )
+    assert refusals(text) == [
+        "r.yaml:4:13: recipe limits current [-30, 10] A reach beyond channel ch4's"
+        " hard limits current_a [-20, 20] A",
+        "r.yaml:5:23: recipe limits temperature [null, 60] degC reach beyond channel ch4's"
+        " hard limits temperature_c [null, 55] degC",
+    ]
+
+
+def test_a_cv_voltage_outside_the_channel_is_refused_at_the_value() -> None:
+    text = (
+        "recipe: r\nsteps:\n"
+        "  - {id: hold, cv: {voltage: 17 V, current_limit: 1 A}, duration: 1 h}\n"
+    )
+    assert refusals(text) == ["r.yaml:3:30: step 'hold' asks 17 V; channel ch4 allows [12, 16.8] V"]
+
+
+def test_c_rates_and_nested_currents_are_checked_and_named_as_written() -> None:
+    text = (
+        "recipe: r\ncapacity: 10 Ah\nsteps:\n"
+        "  - {id: fast, cccv: {current: 3 C, voltage: 16.4 V}, duration: 1 h}\n"
+        "  - {id: hold, cv: {voltage: 16.4 V, current_limit: 25 A}, duration: 1 h}\n"
+        "  - id: dcir\n"
+        "    pulse: {current: -2.5 C, on_time: 10 s, off_time: 10 s}\n"
+    )
+    assert refusals(text) == [
+        "r.yaml:4:32: step 'fast' asks 30 A (3 C of 10 Ah); channel ch4 allows [-20, 20] A",
+        "r.yaml:5:53: step 'hold' asks 25 A; channel ch4 allows [-20, 20] A",
+        "r.yaml:7:22: step 'dcir' asks -25 A (-2.5 C of 10 Ah); channel ch4 allows [-20, 20] A",
+    ]
+
+
+def test_a_power_step_is_refused_when_its_current_at_the_low_voltage_limit_is_too_high() -> None:
+    text = (
+        "recipe: r\nsteps:\n"
+        "  - {id: ok, power: 200 W, duration: 1 h}\n"
+        "  - {id: heavy, power: -300 W, duration: 1 h}\n"
+    )
+    assert refusals(text) == [
+        "r.yaml:4:24: step 'heavy' asks -300 W: up to -25 A at the 12 V low limit;"
+        " channel ch4 allows [-20, 20] A"
+    ]
+
+
+def test_profile_row_currents_and_voltage_windows_must_fit_the_channel() -> None:
+    text = (
+        "recipe: r\nsteps:\n"
+        "  - id: p\n"
+        "    profile:\n"
+        "      rows:\n"
+        "        - {t: 0, current: 5, v_min: 12.5, v_max: 16.5}\n"
+        "        - {t: 60, current: -25, v_min: 3.0}\n"
+        "        - {t: 120, current: 0}\n"
+    )
+    assert refusals(text) == [
+        "r.yaml:7:28: step 'p' profile row 2 asks -25 A; channel ch4 allows [-20, 20] A",
+        "r.yaml:7:40: step 'p' profile row 2: v_min 3 V is outside channel ch4's voltage"
+        " limits [12, 16.8] V (a recipe for another cell or cell count?)",
+    ]
+
+
+def test_a_profile_csv_row_beyond_the_channel_is_refused_at_the_file_naming_the_row(
+    tmp_path: Path,
+) -> None:
+    (tmp_path / "load.csv").write_text("t;I;V\n0;2;12/16.8\n60;30;12/16.8\n120;0\n")
+    recipe = tmp_path / "r.yaml"
+    recipe.write_text("recipe: r\nsteps:\n  - {id: p, profile: {file: load.csv}}\n")
+    assert refusals(recipe.read_text(), file=str(recipe)) == [
+        f"{recipe}:3:29: step 'p' profile load.csv row 2 asks 30 A; channel ch4 allows [-20, 20] A"
+    ]
+
+
+def test_parameter_defaults_in_conditions_are_left_to_the_operator() -> None:
+    # v_max is a cell's 4.2 V, but conditions compare measurements: nothing to refuse.
+    text = (
+        "recipe: r\nparameters: {v_max: 4.2 V}\nsteps:\n"
+        "  - id: a\n    charge: 2 A\n    duration: 1 h\n"
+        "    until:\n      - voltage >= v_max: next\n"
+    )
+    recipe, pos = load_recipe_text(text, "r.yaml")
+    assert compile_recipe(recipe, pos, "r.yaml", PACK).steps[0].current_a == 2.0
+
+
+def test_a_recipe_within_the_pack_channel_is_accepted() -> None:
+    text = (
+        "recipe: pack\ncapacity: 10 Ah\nlimits:\n"
+        "  voltage: [12 V, 16.8 V]\n  current: [-1 C, 1 C]\n  temperature: [0 degC, 55 degC]\n"
+        "steps:\n"
+        "  - {id: c, cccv: {current: 0.5 C, voltage: 16.4 V}, duration: 3 h}\n"
+        "  - {id: d, discharge: 2 C, duration: 1 h}\n"
+        "  - {id: p, power: -240 W, duration: 1 h}\n"
+    )
+    recipe, pos = load_recipe_text(text, "r.yaml")
+    program = compile_recipe(recipe, pos, "r.yaml", PACK)
+    assert [s.current_a for s in program.steps[:2]] == [5.0, -20.0]
+
+
+@pytest.mark.parametrize("channel", ["ch0", "ch1", "ch3"])  # ch2 allows 0.2 A only
+async def test_the_case_study_recipe_still_loads_on_every_chadeche_channel_of_the_sim_bench(
+    channel: str, tmp_path: Path
+) -> None:
+    bench = build_bench(load_bench(ROOT / "io_maps" / "sim.yaml"), VirtualClock(), in_process=True)
+    try:
+        runner = bench.load_recipe(
+            channel, ROOT / "recipes" / "nimh-ds2710.yaml", results_dir=tmp_path
+        )
+        assert runner.program is not None
+    finally:
+        await bench.shutdown()
