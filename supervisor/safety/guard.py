@@ -83,6 +83,7 @@ class ChannelGuard:
         self._contactor = db[cfg.contactor_tag] if cfg.contactor_tag else None
         self._contactor_fb = db[cfg.contactor_feedback_tag] if cfg.contactor_feedback_tag else None
         self._current_tol = cfg.feedback.current_tolerance_a
+        self._closing = OnDelay(cfg.feedback.delay_s)  # coil on, no feedback: settle time
         self._cmd_version = self._cmd.version
         self._checks: list[_Check] = []
         self._build_checks()
@@ -138,7 +139,7 @@ class ChannelGuard:
     # --- the scan -----------------------------------------------------------------------
     def evaluate(self, now: float, dt: float) -> None:
         db = self.db
-        db.update(self._armed, self._power_path_closed())
+        db.update(self._armed, self._power_path_closed(now))
         for check in self._checks:
             why = check.condition()
             active = check.delay.update(bool(why), now)
@@ -240,13 +241,17 @@ class ChannelGuard:
             return bool(self._auto_active.value)
         return bool(self._enable.value)
 
-    def _power_path_closed(self) -> bool:
+    def _power_path_closed(self, now: float | None = None) -> bool:
+        """The battery is on the source: the contactor's auxiliary contact says closed, or
+        (without one) its coil has been on for the discrepancy time."""
         if self._contactor is None:
             return True
         fb = self._contactor_fb
         if fb is not None:
             return fb.good and fb.value is True
-        return self._contactor.value is True
+        if now is None:
+            return bool(self._armed.value)
+        return self._closing.update(self._contactor.value is True, now)
 
     def _internal(self) -> str:
         err = self._logic_error.value

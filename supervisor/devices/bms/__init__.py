@@ -24,10 +24,14 @@ def bus_factory(dev: BmsDevice) -> Callable[[], can.BusABC]:
 
 
 def _driver(name: str, dev: BmsDevice, wiring: DriverWiring) -> Driver:
+    factory = bus_factory(dev)
+    sim = wiring.simulator
+    if isinstance(sim, SimulatedBms):  # in process: no socket, frames pumped on the clock
+        factory = sim.link
     return BmsDriver(
         name,
         wiring.clock,
-        bus_factory(dev),
+        factory,
         poll_period_s=dev.poll_period_s,
         stale_factor=dev.stale_factor,
     )
@@ -44,6 +48,7 @@ def _simulator(name: str, dev: BmsDevice, wiring: SimWiring) -> DeviceSimulator:
         channel=dev.channel,
         host=dev.host,
         port=dev.port,
+        in_process=wiring.in_process,
     )
 
 

@@ -28,8 +28,9 @@ import logging
 import queue
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 import can
 
@@ -38,6 +39,12 @@ from supervisor.devices.bms.protocol import FRAME_IDS, BmsValues, encode_values,
 from supervisor.sim.plant import BenchPlant
 
 log = logging.getLogger(__name__)
+
+
+class FrameSink(Protocol):
+    """Where the simulator sends its frames: a python-can bus, or the in-process pipe."""
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None: ...
 
 
 class BmsSimulator:
@@ -52,7 +59,7 @@ class BmsSimulator:
 
     def __init__(
         self,
-        bus: can.BusABC,
+        bus: FrameSink,
         clock: Clock,
         source: Callable[[], BmsValues],
         *,
@@ -74,6 +81,7 @@ class BmsSimulator:
         self.send_errors = 0
         self._task: asyncio.Task[None] | None = None
         self._error_logged = False
+        self._deadlines: dict[int, float] | None = None
 
     @property
     def running(self) -> bool:
@@ -105,21 +113,29 @@ class BmsSimulator:
             )
         )
 
+    def pump(self, now: float) -> float:
+        """Send the frames due at ``now``; the next deadline. The sending task calls it after
+        each sleep; in process (no task: a virtual clock moves only when the scan sleeps) the
+        driver's end of the link calls it before it reads."""
+        deadlines = self._deadlines
+        if deadlines is None:
+            deadlines = self._deadlines = dict.fromkeys(self._periods, now)
+        due = [frame_id for frame_id, t in deadlines.items() if t <= now]
+        if due and not self.paused:
+            self._send_frames(due, now)
+        for frame_id in due:
+            period = self._periods[frame_id]
+            t = deadlines[frame_id] + period
+            if t <= now:  # overrun: skip the missed periods
+                t = now + period
+            deadlines[frame_id] = t
+        return min(deadlines.values())
+
     async def _run(self) -> None:
-        start = self._clock.now()
-        deadlines = dict.fromkeys(self._periods, start)
+        nxt = self.pump(self._clock.now())
         while True:
-            await self._clock.sleep_until(min(deadlines.values()))
-            now = self._clock.now()
-            due = [frame_id for frame_id, t in deadlines.items() if t <= now]
-            if due and not self.paused:
-                self._send_frames(due, now)
-            for frame_id in due:
-                period = self._periods[frame_id]
-                t = deadlines[frame_id] + period
-                if t <= now:  # overrun: skip the missed periods
-                    t = now + period
-                deadlines[frame_id] = t
+            await self._clock.sleep_until(nxt)
+            nxt = self.pump(self._clock.now())
 
     def _send_frames(self, due: list[int], now: float) -> None:
         try:
@@ -410,10 +426,53 @@ def plant_values(plant: BenchPlant, cells_series: int) -> Callable[[], BmsValues
     return values
 
 
+class InProcessCanBus(can.BusABC):
+    """The driver's end of an in-process link to a :class:`BmsSimulator`: each read first
+    lets the simulator send what is due at ``clock.now()`` — deterministic on a virtual
+    clock, where no simulator task may sleep on its own."""
+
+    MAX_QUEUED = 10_000
+
+    def __init__(self, clock: Clock, **kwargs: Any) -> None:
+        self._clock = clock
+        self._frames: deque[can.Message] = deque(maxlen=self.MAX_QUEUED)
+        self.sender: BmsSimulator | None = None
+        self.channel_info = "in-process BMS link"
+        super().__init__(channel="in-process", **kwargs)
+
+    def deliver(self, msg: can.Message, timeout: float | None = None) -> None:
+        """The simulator's side (a ``FrameSink``)."""
+        self._frames.append(msg)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        return None  # the BMS only broadcasts; nothing listens to the supervisor here
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self._is_shutdown:
+            raise can.CanOperationError("in-process BMS link is shut down")
+        if not self._frames and self.sender is not None:
+            self.sender.pump(self._clock.now())
+        return (self._frames.popleft() if self._frames else None), False
+
+
+class _Sink:
+    """The simulator's side of the in-process link: frames go to the driver's current
+    reader (none before the driver opens its bus, as on a bus nobody listens to)."""
+
+    def __init__(self) -> None:
+        self.reader: InProcessCanBus | None = None
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        reader = self.reader
+        if reader is not None and not reader._is_shutdown:
+            reader.deliver(msg)
+
+
 class SimulatedBms:
-    """A BMS on the plant's pack, sending on python-can's ``virtual`` bus (in process) or
-    through a :class:`SocketcandServer` on loopback (another process connects with
-    python-can's socketcand client)."""
+    """A BMS on the plant's pack, sending on python-can's ``virtual`` bus, through a
+    :class:`SocketcandServer` on loopback (another process connects with python-can's
+    socketcand client), or — ``in_process`` — straight to the driver's
+    :class:`InProcessCanBus` (``link()``)."""
 
     def __init__(
         self,
@@ -425,19 +484,35 @@ class SimulatedBms:
         channel: str,
         host: str = "127.0.0.1",
         port: int = 0,
+        in_process: bool = False,
     ) -> None:
         self.name = name
+        self.clock = clock
         self.server: SocketcandServer | None = None
         self._virtual_bus: can.BusABC | None = None
-        bus: can.BusABC
-        if interface == "virtual":
+        self._sink: _Sink | None = None
+        bus: FrameSink
+        if in_process:
+            bus = self._sink = _Sink()
+        elif interface == "virtual":
             bus = self._virtual_bus = can.Bus(interface="virtual", channel=channel)
         else:
             self.server = SocketcandServer(host, port, channel=channel)
             bus = self.server.bus
         self.sender = BmsSimulator(bus, clock, source)
 
+    def link(self) -> InProcessCanBus:
+        """A new driver's bus in process (the driver shuts its bus down at each reconnect)."""
+        if self._sink is None:
+            raise RuntimeError(f"BMS simulator {self.name} is not in process")
+        reader = InProcessCanBus(self.clock)
+        reader.sender = self.sender
+        self._sink.reader = reader
+        return reader
+
     async def start(self) -> None:
+        if self._sink is not None:
+            return  # in process: frames are pumped by the driver's reads, no task
         if self.server is not None:
             await self.server.start()
         await self.sender.start()
