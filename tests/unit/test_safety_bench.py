@@ -125,3 +125,37 @@ async def test_the_estop_trips_every_channel_at_once(bench: Bench) -> None:
     assert all("e-stop" in f for f in faults.values()), faults
     assert v(bench, "ch0.current_cmd") == 0.0 and v(bench, "ch4.current_cmd") == 0.0
     assert bench.alarms is not None and bench.alarms["estop"].first_out
+
+
+# --- finding 2: outputs that do not match their read-backs --------------------------------------
+async def test_a_supply_switched_off_behind_the_supervisors_back_trips_the_channel(
+    bench: Bench,
+) -> None:
+    # A second supervisor started by mistake connected and switched the supply safe: the
+    # first must not go on showing "charging" with 0 A against 2 A commanded.
+    bench.db.write("ch4.manual_current", 2.0)
+    bench.db.write("ch4.enable", True)
+    await run_scans(bench.engine, 30)
+    assert v(bench, "ch4.state") == "charging"
+    assert bench.sim is not None
+    ea = bench.sim.devices["ea"]
+    ea.handle_line(b"OUTP OFF\n")  # type: ignore[attr-defined]
+    await run_scans(bench.engine, 30)  # 3 s: beyond the 1 s discrepancy time
+    fault = v(bench, "ch4.fault")
+    assert "supply output off while commanded on" in fault or "against 2.000 A" in fault, fault
+    assert v(bench, "ch4.state") == "faulted"
+    assert v(bench, "contactor.cmd") is False
+
+
+async def test_a_contactor_opened_behind_the_supervisors_back_trips_the_channel(
+    bench: Bench,
+) -> None:
+    bench.db.write("ch4.manual_current", 2.0)
+    bench.db.write("ch4.enable", True)
+    await run_scans(bench.engine, 30)
+    assert bench.sim is not None
+    adam = bench.sim.devices["adam"]
+    adam.write_coils(3 * 16 + 0, [False])  # type: ignore[attr-defined]  # slot 3, relay 0
+    await run_scans(bench.engine, 30)
+    assert v(bench, "ch4.state") == "faulted", v(bench, "ch4.fault")
+    assert v(bench, "ch4.current_cmd") == 0.0
