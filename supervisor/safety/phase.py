@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Protocol
+
+if TYPE_CHECKING:
+    from supervisor.safety.guard import ChannelGuard
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +37,7 @@ class SafetyPhase:
     def __init__(self, checks: Sequence[SafetyCheck] = ()) -> None:
         self.checks: list[SafetyCheck] = list(checks)
         self.errors = 0
-        self.guards: dict[str, Any] = {}  # channel name -> its ChannelGuard
+        self.guards: dict[str, ChannelGuard] = {}  # channel name -> its guard
 
     def run(self, now: float, dt: float) -> None:
         for check in self.checks:
