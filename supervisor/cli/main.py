@@ -356,6 +356,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         )
     if args.what == "seed002":
         return asyncio.run(benchmarks.seed002_benchmark(str(DEFAULT_IO_MAP)))
+    if args.what == "faults":
+        from supervisor.app import faults
+
+        for line in faults.table(asyncio.run(faults.run_all())):
+            _out(line)
+        return EXIT_OK
     if args.what == "dry-run":
         from supervisor.app.dryrun import dry_run, format_report
 
@@ -437,7 +443,7 @@ def build_parser() -> argparse.ArgumentParser:
     ca.set_defaults(func=cmd_calibrate)
 
     b = sub.add_parser("bench", help="benchmarks that print figures")
-    b.add_argument("what", choices=["scan", "manual", "seed002", "dry-run"])
+    b.add_argument("what", choices=["scan", "manual", "seed002", "dry-run", "faults"])
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
     b.add_argument("--tags", type=int, default=1000, help="scan: number of tags")
     b.add_argument("--period-ms", type=float, default=10.0, help="scan: period in ms")

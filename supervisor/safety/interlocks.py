@@ -1,10 +1,11 @@
 """Bench-wide trips and alarms: the e-stop, the I/O map's interlocks, tag alarm limits,
 and the heartbeat of the contactor's hardware watchdog.
 
-- **E-stop** (seed 002 §1.5): the sense input reads true while the circuit is closed. Not
-  true, or not GOOD (fail safe: a lost ADAM is a pressed e-stop), trips every channel at
-  once, aborts their recipes and opens the software e-stop relay. It resets only once the
-  circuit is closed again.
+- **E-stop** (seed 002 §1.5): the sense input reads true while the circuit is closed. False
+  trips every channel at once, aborts their recipes and opens the software e-stop relay; it
+  resets only once the circuit is closed again. A sense that is not GOOD (the ADAM lost)
+  cannot show a press: it trips every channel too (fail safe), but holds their tests rather
+  than aborting them — the hardware e-stop still cuts the supply's mains on its own.
 - **Interlocks** (``safety.interlocks`` in the I/O map): a tag above, below or equal to a
   value (a value that is not GOOD trips too), with an on-delay and a deadband for the way
   back; latched; they hold (or abort) the channels they name, all by default.
@@ -36,18 +37,20 @@ class Estop:
         self.alarm = alarms.declare(
             "estop", severity=Severity.CRITICAL, latched=True, action="abort"
         )
+        self.unknown = alarms.declare(
+            "estop.unknown", severity=Severity.HIGH, latched=True, action="hold"
+        )
         self.alarms = alarms
 
     def evaluate(self, now: float, dt: float) -> None:
         s = self.sense
-        if s.good and s.value is True:
-            self.alarms.set(self.alarm, False)
-        else:
-            why = "is false (circuit open)" if s.good else f"is {s.quality.name} ({s.reason})"
-            self.alarms.set(self.alarm, True, f"e-stop: {s.name} {why}")
+        pressed = s.good and s.value is not True
+        self.alarms.set(self.alarm, pressed, f"e-stop: {s.name} is false (circuit open)")
+        why = f"e-stop state unknown: {s.name} is {s.quality.name} ({s.reason})"
+        self.alarms.set(self.unknown, not s.good, why)
         if self.relay is not None:
             # The software e-stop relay is closed only while no e-stop trip holds the bench.
-            self.db.update(self.relay, not self.alarm.tripped)
+            self.db.update(self.relay, not (self.alarm.tripped or self.unknown.tripped))
 
     def fail_safe(self, why: str) -> None:
         if self.relay is not None:
