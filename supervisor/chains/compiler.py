@@ -166,6 +166,7 @@ class _Compiler:
             self._pair(r.limits.voltage, ("limits", "voltage"), Dim.VOLTAGE),
             self._pair(r.limits.current, ("limits", "current"), Dim.CURRENT, Dim.C_RATE),
             self._pair(r.limits.temperature, ("limits", "temperature"), Dim.TEMPERATURE),
+            self._time(r.limits.delay, ("limits", "delay")) or 0.0,
         )
         self._check_windows(limits)
         if self.errors:

@@ -46,6 +46,7 @@ from supervisor.chains.states import (
     decide,
 )
 from supervisor.core.clock import Clock
+from supervisor.core.delay import OnDelay
 from supervisor.core.errors import OperatorError
 from supervisor.core.records import ChainEvent, Record, Sampler
 from supervisor.tags import Access, Tag, TagDB, TagSpec
@@ -107,6 +108,7 @@ class ChainRunner:
         self._conditions: ConditionValues | None = None
         self._log_rules: LogRules | None = None
         self._limits: tuple[LimitCheck, ...] = ()
+        self._limit_delay = OnDelay(0.0)
         n = port.name
         db.add(
             TagSpec(
@@ -159,6 +161,7 @@ class ChainRunner:
         self._conditions = ConditionValues(self.port, self.db, program)
         self._log_rules = LogRules(program)
         lim = program.limits
+        self._limit_delay = OnDelay(lim.delay_s)
         self._limits = (
             ("voltage", lim.voltage_v, "V"),
             ("current", lim.current_a, "A"),
@@ -274,7 +277,7 @@ class ChainRunner:
         # Recipe limits (and the step's own, e.g. a profile row's): hold, latched alarm;
         # armed once the power path is closed (the battery is what they are about).
         why = self._limit_violation(values, step, behaviour.limits(st)) if port.limits_armed else ""
-        if why:
+        if self._limit_delay.update(bool(why), now):
             self._alarm(why)
             self._set_state(State.HOLDING, why)
             return

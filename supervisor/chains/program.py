@@ -125,6 +125,7 @@ class Limits:
     voltage_v: tuple[float | None, float | None] = (None, None)
     current_a: tuple[float | None, float | None] = (None, None)
     temperature_c: tuple[float | None, float | None] = (None, None)
+    delay_s: float = 0.0  # a crossing holds only once it has lasted this long
 
 
 @dataclass(frozen=True)

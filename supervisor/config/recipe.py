@@ -306,6 +306,12 @@ class Limits(Strict):
     voltage: tuple[Q | None, Q | None] | None = None
     current: tuple[Q | None, Q | None] | None = None
     temperature: tuple[Q | None, Q | None] | None = None
+    delay: Q | None = Field(None, description="a crossing must last this long to hold (trip delay)")
+
+    @field_validator("delay")
+    @classmethod
+    def _delay(cls, v: Q | None) -> Any:
+        return _q(v, Dim.TIME)
 
     @field_validator("voltage")
     @classmethod

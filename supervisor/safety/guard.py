@@ -28,9 +28,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from supervisor.config.models import ChannelConfig
+from supervisor.core.delay import OnDelay
 from supervisor.core.errors import OperatorError
 from supervisor.safety.alarms import Alarm, AlarmManager, Severity
-from supervisor.safety.delay import OnDelay
 from supervisor.tags import Tag, TagDB
 
 log = logging.getLogger(__name__)

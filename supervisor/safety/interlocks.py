@@ -21,8 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from supervisor.config.models import EstopConfig, HeartbeatConfig, InterlockConfig
+from supervisor.core.delay import OnDelay
 from supervisor.safety.alarms import Alarm, AlarmManager, Severity
-from supervisor.safety.delay import OnDelay
 from supervisor.tags import Tag, TagDB
 from supervisor.tags.spec import AlarmLimits
 

@@ -291,3 +291,18 @@ async def test_the_case_study_recipe_still_loads_on_every_chadeche_channel_of_th
         assert runner.program is not None
     finally:
         await bench.shutdown()
+
+
+def test_recipe_limits_carry_a_trip_delay() -> None:
+    recipe, pos = load_recipe_text(
+        "recipe: r\nlimits: {voltage: [1 V, 1.8 V], delay: 2 s}\nsteps:\n  - {id: a, rest: 1 h}\n",
+        "r.yaml",
+    )
+    program = compile_recipe(recipe, pos, "r.yaml")
+    assert program.limits.delay_s == 2.0
+    with pytest.raises(ConfigErrors, match="r.yaml:2:40: limits.delay: .2 V. is a voltage"):
+        bad, pos = load_recipe_text(
+            "recipe: r\nlimits: {voltage: [1 V, 1.8 V], delay: 2 V}\nsteps:\n  - {id: a, rest: 1 h}\n",
+            "r.yaml",
+        )
+        compile_recipe(bad, pos, "r.yaml")

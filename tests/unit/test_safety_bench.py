@@ -159,3 +159,18 @@ async def test_a_contactor_opened_behind_the_supervisors_back_trips_the_channel(
     await run_scans(bench.engine, 30)
     assert v(bench, "ch4.state") == "faulted", v(bench, "ch4.fault")
     assert v(bench, "ch4.current_cmd") == 0.0
+
+
+async def test_a_recipe_limit_holds_only_once_the_crossing_lasted_its_delay(
+    bench: Bench, tmp_path: Path
+) -> None:
+    text = (
+        "recipe: delayed\nlimits: {voltage: [0 V, 1.0 V], delay: 5 s}\n"
+        "steps:\n  - {id: charge, charge: 100 mA, duration: 1 h}\n"
+    )
+    run_recipe(bench, tmp_path, "ch0", text)  # a NiMH cell at about 1.3 V: over 1.0 V
+    await run_scans(bench.engine, 30)
+    assert v(bench, "ch0.chain.state") == State.RUNNING.value
+    await run_scans(bench.engine, 30)
+    assert v(bench, "ch0.chain.state") == State.HELD.value
+    assert v(bench, "ch0.chain.alarm").startswith("limit: voltage")
