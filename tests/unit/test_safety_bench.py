@@ -165,7 +165,7 @@ async def test_a_recipe_limit_holds_only_once_the_crossing_lasted_its_delay(
     bench: Bench, tmp_path: Path
 ) -> None:
     text = (
-        "recipe: delayed\nlimits: {voltage: [0 V, 1.0 V], delay: 5 s}\n"
+        "recipe: delayed\nlimits: {voltage: [0.9 V, 1.0 V], delay: 5 s}\n"
         "steps:\n  - {id: charge, charge: 100 mA, duration: 1 h}\n"
     )
     run_recipe(bench, tmp_path, "ch0", text)  # a NiMH cell at about 1.3 V: over 1.0 V
