@@ -41,6 +41,19 @@ def io_map(tmp: Path) -> Path:
     return path
 
 
+def chadeche_map(tmp: Path) -> str:
+    """sim.yaml's Chadèche stack alone (nothing to serve on the network)."""
+    data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
+    data["devices"] = {"chadeche": data["devices"]["chadeche"]}
+    data["channels"] = [c for c in data["channels"] if c["source"]["device"] == "chadeche"]
+    data.pop("tags", None)
+    data.pop("simulation", None)
+    data["state_dir"] = str(tmp / "state")
+    path = tmp / "chadeche.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    return str(path)
+
+
 def recipe(tmp: Path, text: str = DISCHARGE, name: str = "r.yaml") -> str:
     path = tmp / name
     path.write_text(text, encoding="utf-8")
