@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from supervisor.chains.engine import ChainRunner
 from supervisor.chains.port import ChannelPort
 from supervisor.chains.states import FINAL
 from supervisor.channels import Channel, ChannelLimits, Mode
+from supervisor.commands import Command, CommandPath
 from supervisor.config.models import BenchConfig, LinearScaling, TagMapping
 from supervisor.config.recipe import load_recipe
 from supervisor.core.clock import Clock
@@ -58,6 +60,30 @@ class Bench:
     results: dict[str, ResultCollector] = field(default_factory=dict)
     displays: dict[str, ChadecheDisplay] = field(default_factory=dict)
     _started: bool = False
+    commands: CommandPath = field(init=False)
+    """The one path of operator commands (HTTP, command line, the ``chN.command`` tags)."""
+
+    def __post_init__(self) -> None:
+        self.commands = CommandPath(
+            self.db,
+            self.clock,
+            self.runners,
+            self.safety.guards,
+            self.alarms,
+            loader=lambda ch, file, params: self.load_recipe(ch, file, dict(params)).test_id,
+        )
+        for name, runner in self.runners.items():
+            runner.command_handler = self._command_tag(name)
+
+    def _command_tag(self, channel: str) -> Callable[[str], None]:
+        """What a write of ``chN.command`` by an older client does: the same command path,
+        so that a refusal is recorded with its reason like any other."""
+
+        def handle(value: str) -> None:
+            tag = f"{channel}.command"
+            self.commands.execute(Command.write(tag, value, actor=f"operator via {tag}"))
+
+        return handle
 
     def target(self, channel: str) -> Target:
         """What a recipe may ask of this channel (checked before start)."""
@@ -84,7 +110,10 @@ class Bench:
         test_id: str | None = None,
     ) -> ChainRunner:
         """Compile a recipe for a channel (refused before start if it cannot run there),
-        load it, and record its result files under ``results_dir/<test id>/``."""
+        load it, and record its result files under ``results_dir/<test id>/``.
+
+        Loading does not touch the channel's mode or enable; it is refused while a test is
+        under way or while the operator drives the channel in Manual (enable on)."""
         if channel not in self.runners:
             raise OperatorError(f"unknown channel {channel!r} ({', '.join(self.runners)})")
         recipe, pos = load_recipe(path)
@@ -281,7 +310,9 @@ def build_bench(
 
     # The chain sees its channel through the channel's tags only (chains/port.py).
     runners = {
-        name: ChainRunner(ChannelPort.from_tags(db, name, Mode.AUTO.value), db, clock)
+        name: ChainRunner(
+            ChannelPort.from_tags(db, name, Mode.AUTO.value, Mode.MANUAL.value), db, clock
+        )
         for name in channels
     }
     displays: dict[str, ChadecheDisplay] = {}

@@ -38,6 +38,7 @@ from supervisor.chains.states import (
     COMMANDS,
     ENERGISED,
     FINAL,
+    LOADABLE,
     OPCUA_CODE,
     TABLE,
     Situation,
@@ -99,6 +100,9 @@ class ChainRunner:
         self.recorders: list[Callable[[Record], None]] = []
         self.samplers: list[Sampler] = []
         self.events: deque[ChainEvent] = deque(maxlen=1000)
+        # Set by the composition root: a command written to ``chN.command`` (by an older
+        # client) goes through the bench's one command path, which checks and records it.
+        self.command_handler: Callable[[str], None] | None = None
         self.progress = Progress()
         self._r = RunState()
         self._alarm_latched = False
@@ -154,7 +158,9 @@ class ChainRunner:
 
     # --- loading and commands ----------------------------------------------------------
     def load(self, program: Program, test_id: str | None = None) -> None:
-        check_load(self.name, self.state)
+        """Load a recipe; mode and enable are left as they are (refused while the operator
+        drives the channel in Manual)."""
+        check_load(self.name, self.state, self.port.manual_driven)
         self.program = program
         # Each step's behaviour is chosen once, here: the scan never looks at a kind name.
         self._behaviours = behaviours_for(program.steps)
@@ -178,6 +184,8 @@ class ChainRunner:
             has_program=self.program is not None,
             channel_fault=self.port.fault_text(),
             alarm=str(self._get("alarm")) if self._alarm_latched else None,
+            in_manual=not self.port.in_auto,
+            manual_enabled=self.port.enable.value is True,
         )
 
     def command(self, cmd: str, actor: str = "operator") -> None:
@@ -197,9 +205,22 @@ class ChainRunner:
         if cmd == "advance":
             self._pending_advance = True  # acted on by the next running scan
             return
-        if cmd == "reset" and self.program is not None:
-            self._r = RunState(test_id=self._r.test_id)
+        if cmd == "reset":
+            if self.program is not None:
+                self._r = RunState(test_id=self._r.test_id)
+            # The test is over: the channel goes back to the operator, Manual, disabled, at
+            # 0 A (an explicit, recorded part of the reset, never left in Auto).
+            self.port.release_control()
+            self._set_state(nxt, f"reset by {actor}; channel in manual, enable off, 0 A")
+            return
         self._set_state(nxt, f"{cmd} by {actor}")
+
+    def record_command(self, text: str) -> None:
+        """An operator command concerning this channel, accepted or refused (from the
+        command path, which has logged it): into this chain's events, and into the test's
+        timeline while a test is under way."""
+        under_way = self.state not in LOADABLE
+        self._emit("command" if under_way else "message", text, quiet=True)
 
     def _start(self, actor: str) -> None:
         assert self.program is not None
@@ -209,6 +230,7 @@ class ChainRunner:
         r.q0_ah = self.port.charge_ah.as_float()
         r.test0 = self.port.counters()
         r.cycle = 1
+        # Start hands the channel to its chain: Auto mode, the manual enable dropped.
         self.port.take_control()
         r.cycle0 = self.port.counters()
         self._set_state(State.RUNNING, f"start by {actor}")
@@ -219,11 +241,14 @@ class ChainRunner:
         cmd = self._cmd.value
         if cmd:
             self.db.update(self._cmd, "")
-            try:
-                self.command(str(cmd))
-            except OperatorError as exc:
-                log.warning("%s", exc)
-                self._emit("message", str(exc))
+            if self.command_handler is not None:
+                self.command_handler(str(cmd))  # checked, answered and recorded there
+            else:
+                try:
+                    self.command(str(cmd))
+                except OperatorError as exc:
+                    log.warning("%s", exc)
+                    self._emit("message", str(exc))
         if self.port.trip_aborts and self.state in ACTIVE:
             # DESIGN.md "Safety": the e-stop aborts the test (a hold would leave it resumable).
             self._set_state(State.ABORTING, f"channel trip: {self.port.fault_text()}")
@@ -572,7 +597,7 @@ class ChainRunner:
             self._r.end_reason = cause
         self._emit("state", f"{old.value} → {state.value} ({cause})")
 
-    def _emit(self, kind: str, text: str) -> None:
+    def _emit(self, kind: str, text: str, quiet: bool = False) -> None:
         now = self.clock.now()
         r = self._r
         step_id = ""
@@ -583,7 +608,8 @@ class ChainRunner:
         )
         self.events.append(ev)
         self._set("last_event", text)
-        log.info("%s: %s", self.name, text)
+        if not quiet:
+            log.info("%s: %s", self.name, text)
         for fn in self.listeners:
             try:
                 fn(ev)

@@ -39,19 +39,23 @@ class ChannelPort:
     # Written (mode is also read).
     mode: Tag
     enable: Tag
+    manual_current: Tag
     auto_current: Tag
     auto_voltage: Tag
     auto_active: Tag
+    manual_mode: str = "manual"  # the value of ``chN.mode`` that gives it to the operator
 
     @classmethod
-    def from_tags(cls, db: TagDB, channel: str, auto_mode: str) -> ChannelPort:
+    def from_tags(
+        cls, db: TagDB, channel: str, auto_mode: str, manual_mode: str = "manual"
+    ) -> ChannelPort:
         """The port of channel ``channel`` from its ``<channel>.<field>`` tags."""
         tags = {
             f.name: db[f"{channel}.{f.name}"]
             for f in fields(cls)
-            if f.name not in ("name", "db", "auto_mode")
+            if f.name not in ("name", "db", "auto_mode", "manual_mode")
         }
-        return cls(name=channel, db=db, auto_mode=auto_mode, **tags)
+        return cls(name=channel, db=db, auto_mode=auto_mode, manual_mode=manual_mode, **tags)
 
     @property
     def in_auto(self) -> bool:
@@ -77,6 +81,20 @@ class ChannelPort:
         enable dropped so that a later switch to Manual does not re-energise by itself."""
         self.db.update(self.mode, self.auto_mode)
         self.db.update(self.enable, False)
+
+    def release_control(self) -> None:
+        """Give the channel back to the operator when its test is reset: Manual, enable
+        off, setpoint 0 A (bumpless: nothing flows until the operator asks for it)."""
+        db = self.db
+        db.update(self.manual_current, 0.0)
+        db.update(self.enable, False)
+        db.update(self.mode, self.manual_mode)
+        self.request(0.0, 0.0, False)
+
+    @property
+    def manual_driven(self) -> bool:
+        """The operator drives the channel: Manual mode with enable on."""
+        return not self.in_auto and self.enable.value is True
 
     def request(self, current_a: float, voltage_v: float, active: bool) -> None:
         """This scan's request: current (A, + charges), CV target (V, 0: none), and

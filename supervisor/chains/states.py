@@ -13,6 +13,11 @@ State model (OPC UA ``StateEnumeration`` numbers in ``chN.chain.state_code``)::
 ``ack`` is accepted in every state (it acknowledges a latched alarm, ISA-18.2) and does
 not change the state; ``advance`` is accepted while Running and stays Running (the
 operator's CTRL-Z of seed 000, acted on by the next scan).
+
+Auto and Manual (DESIGN.md "Recipes"): a mode change is an explicit command, never a side
+effect. A channel the operator drives in Manual (enable on) is not taken from them by a
+``start`` or a load: they turn enable off first. A test held in Manual resumes only once
+the channel is handed back to its chain (mode auto).
 """
 
 from __future__ import annotations
@@ -83,6 +88,7 @@ ENERGISED = (State.RUNNING,)  # the only state in which the chain asks for curre
 ACTIVE = (State.RUNNING, State.HOLDING, State.HELD, State.RESUMING)  # a test is under way
 FINAL = (State.COMPLETE, State.STOPPED, State.ABORTED)
 LOADABLE = (State.IDLE, *FINAL)
+MANUAL_DRIVEN = "the channel is driven in manual (enable on): turn enable off first"
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,6 +98,8 @@ class Situation:
     has_program: bool = False
     channel_fault: str = ""  # the channel's latched trip ("" when none)
     alarm: str | None = None  # the chain's latched alarm text (None when none)
+    in_manual: bool = False  # the channel is in Manual mode (operator setpoints)
+    manual_enabled: bool = False  # ... and the operator's enable is on
 
 
 def decide(channel: str, state: State, command: str, situation: Situation) -> State:
@@ -111,18 +119,27 @@ def decide(channel: str, state: State, command: str, situation: Situation) -> St
         if not situation.has_program:
             raise OperatorError(f"{channel}: no recipe loaded")
         _no_fault(channel, situation)
+        if situation.in_manual and situation.manual_enabled:
+            raise OperatorError(f"{channel}: cannot start while {MANUAL_DRIVEN}")
     elif command == "resume":
         # ISA-18.2 / S7-GRAPH: a latched alarm is acknowledged before running again.
         if situation.alarm is not None:
             raise OperatorError(f"{channel}: acknowledge the alarm first ({situation.alarm})")
         _no_fault(channel, situation)
+        if situation.in_manual:
+            raise OperatorError(
+                f"{channel}: the channel is in manual: switch it to auto before resuming"
+            )
     return allowed[command]
 
 
-def check_load(channel: str, state: State) -> None:
-    """A recipe is loaded only when no test is under way."""
+def check_load(channel: str, state: State, manual_driven: bool = False) -> None:
+    """A recipe is loaded only when no test is under way, and never from under an
+    operator driving the channel in Manual (loading does not touch mode or enable)."""
     if state not in LOADABLE:
         raise OperatorError(f"{channel}: cannot load a recipe while {state.value}")
+    if manual_driven:
+        raise OperatorError(f"{channel}: cannot load a recipe while {MANUAL_DRIVEN}")
 
 
 def _no_fault(channel: str, situation: Situation) -> None:

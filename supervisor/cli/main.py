@@ -42,6 +42,7 @@ def _setup_logging(level: str) -> None:
 # --- run -----------------------------------------------------------------------------
 async def _run(args: argparse.Namespace) -> int:
     from supervisor.app import build_bench
+    from supervisor.commands import Command, Verb
     from supervisor.core.clock import RealClock
     from supervisor.devices.registry import load_bench
     from supervisor.hmi import HttpApi
@@ -53,19 +54,23 @@ async def _run(args: argparse.Namespace) -> int:
     # The e-stop button presses the simulated plant's e-stop (seed 002 bench only).
     estop = bench.sim.press_estop if bench.sim is not None and bench.sim.served else None
 
-    def load(channel: str, file: str, params: dict[str, str]) -> str:
-        if not Path(file).exists():
-            raise ConfigError(f"{file}: no such recipe")
-        return bench.load_recipe(channel, file, params).test_id
-
-    api = HttpApi(bench.db, clock, cfg.hmi.host, port, estop=estop, load_recipe=load)
+    api = HttpApi(bench.db, clock, cfg.hmi.host, port, estop=estop, commands=bench.commands)
     for spec in args.recipe:
         channel, _, file = spec.partition("=")
         if not file:
             raise ConfigError(f"--recipe {spec!r}: expected CHANNEL=FILE, e.g. ch0=recipes/x.yaml")
-        load(channel, file, _params(args.param))
-        if args.start:
-            bench.runners[channel].command("start", actor="command line")
+        # The same command path as the HTTP API: load (and start) checked and recorded.
+        verb = Verb.START if args.start else Verb.LOAD
+        result = bench.commands.execute(
+            Command.channel(
+                channel, verb, "command line", recipe=file, parameters=_params(args.param)
+            )
+        )
+        if not result.accepted:
+            _err(f"supervisor: --recipe {spec}: {verb.value} refused: {result.reason}")
+            for line in result.details[1:]:
+                _err(f"  {line}")
+            return EXIT_USAGE
     for display in bench.displays.values():
         display.period_s = 10.0 if args.verbose else 60.0
     stop = asyncio.Event()

@@ -1,7 +1,13 @@
-"""A small JSON API: read tags, write operator tags. Listens on loopback by default.
+"""A small JSON API: read tags, give commands, see alarms. Listens on loopback by default.
 
-Writes go through ``TagDB.write`` so access level, type and range are checked in one
-place; the scan picks the new value up at its next start.
+Every write and command goes through the bench's one command path (``supervisor.commands``):
+it is checked (role, state, interlocks), recorded with its actor, and answered
+``{"accepted": bool, "reason": str, ...}`` with the status of its result — 200 accepted,
+400 a wrong argument type or value, 403 a read-only tag or a command the actor may not
+give, 404 an unknown tag, channel, alarm or recipe, 409 refused in this state or by an
+interlock, 422 a recipe refused (``details``: file:line:col). A write of a channel's
+``command``, ``mode``, ``manual_current``, ``enable`` or ``ack`` tag is that command. The
+scan takes the effect at its next start.
 """
 
 from __future__ import annotations
@@ -12,9 +18,10 @@ from typing import Any
 
 from aiohttp import web
 
+from supervisor.commands import Command, CommandPath, Result, ResultKind, Verb
 from supervisor.core.clock import Clock
-from supervisor.core.errors import ConfigError, ConfigErrors, OperatorError
-from supervisor.tags import Access, Tag, TagDB
+from supervisor.safety import Alarm, AlarmEvent
+from supervisor.tags import Tag, TagDB
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +41,45 @@ def tag_json(tag: Tag, clock: Clock) -> dict[str, Any]:
     }
 
 
+def alarm_json(alarm: Alarm, clock: Clock) -> dict[str, Any]:
+    now = clock.now()
+    until = alarm.shelved_until if alarm.shelved(now) else None
+    return {
+        "id": alarm.id,
+        "group": alarm.group,
+        "state": alarm.state.value,
+        "severity": int(alarm.severity),
+        "severity_name": alarm.severity.name.lower(),
+        "message": alarm.message,
+        "latched": alarm.latched,
+        "tripped": alarm.tripped,
+        "first_out": alarm.first_out,
+        "action": alarm.action,
+        "activated_time": (
+            clock.to_wall(alarm.activated_t) if alarm.activated_t is not None else None
+        ),
+        "acked_by": alarm.acked_by,
+        "shelved": alarm.shelved(now),
+        "shelved_until": clock.to_wall(until) if until is not None else None,
+    }
+
+
+def alarm_event_json(ev: AlarmEvent) -> dict[str, Any]:
+    return {
+        "time": ev.wall,
+        "alarm": ev.alarm_id,
+        "group": ev.group,
+        "transition": ev.transition.value,
+        "state": ev.state.value,
+        "severity": int(ev.severity),
+        "message": ev.message,
+        "actor": ev.actor,
+    }
+
+
+ALARM_ACTIONS = ("acknowledge", "reset", "shelve", "unshelve")
+
+
 class HttpApi:
     def __init__(
         self,
@@ -42,11 +88,12 @@ class HttpApi:
         host: str = "127.0.0.1",
         port: int = 8080,
         estop: Callable[[bool], None] | None = None,
-        load_recipe: Callable[[str, str, dict[str, str]], str] | None = None,
+        commands: CommandPath | None = None,
     ):
         self.db = db
         self._estop = estop
-        self._load_recipe = load_recipe
+        # Without a bench (``supervisor sim``'s control API) writes still take the path.
+        self.commands = commands if commands is not None else CommandPath(db, clock)
         self.clock = clock
         self.host = host
         self.port = port
@@ -57,10 +104,12 @@ class HttpApi:
                 web.get("/api/tags", self._list),
                 web.get("/api/tags/{name}", self._get),
                 web.put("/api/tags/{name}", self._put),
+                web.put("/api/channels/{channel}/recipe", self._recipe),
+                web.post("/api/channels/{channel}/commands/{verb}", self._channel_command),
+                web.get("/api/alarms", self._alarms),
+                web.post("/api/alarms/{alarm}/{action}", self._alarm_command),
             ]
         )
-        if load_recipe is not None:
-            app.add_routes([web.put("/api/channels/{channel}/recipe", self._recipe)])
         if estop is not None:
             # Simulation only: the e-stop button of the simulated bench.
             app.add_routes([web.put("/api/sim/estop", self._sim_estop)])
@@ -97,32 +146,90 @@ class HttpApi:
             return web.json_response({"error": "unknown tag"}, status=404)
         return web.json_response(tag_json(tag, self.clock))
 
-    async def _recipe(self, request: web.Request) -> web.Response:
-        """Load a recipe on a channel: ``{"file": "recipes/x.yaml", "parameters": {...}}``."""
-        channel = request.match_info["channel"]
+    # --- commands -------------------------------------------------------------------------
+    @staticmethod
+    def actor(request: web.Request) -> str:
+        """Who sends the command. The hook for users: until the API authenticates them,
+        everyone on the (loopback) API is the operator."""
+        return "operator"
+
+    def _answer(self, command: Command) -> web.Response:
+        result = self.commands.execute(command)
+        return self._respond(result)
+
+    def _respond(self, result: Result) -> web.Response:
+        body = result.as_json()
+        if result.tag is not None and result.tag in self.db:
+            body["tag"] = tag_json(self.db[result.tag], self.clock)
+        return web.json_response(body, status=result.http_status)
+
+    def _bad(self, reason: str, kind: ResultKind = ResultKind.BAD_ARGUMENT) -> web.Response:
+        """A request that is not a command yet (no JSON, an unknown route verb)."""
+        return self._respond(Result.refused(kind, reason))
+
+    async def _body(self, request: web.Request, empty_ok: bool) -> dict[str, Any] | None:
+        """The JSON object of the body ({} for an empty body when ``empty_ok``), or None."""
+        if empty_ok and not await request.read():
+            return {}
         try:
             body = await request.json()
         except ValueError:
-            body = None
-        if not isinstance(body, dict) or not isinstance(body.get("file"), str):
-            return web.json_response({"error": 'body must be {"file": "...", ...}'}, status=400)
-        params = body.get("parameters") or {}
-        if not isinstance(params, dict):
-            return web.json_response({"error": "parameters must be a mapping"}, status=400)
-        assert self._load_recipe is not None
+            return None
+        return body if isinstance(body, dict) else None
+
+    async def _recipe(self, request: web.Request) -> web.Response:
+        """Load a recipe on a channel: ``{"file": "recipes/x.yaml", "parameters": {...}}``."""
+        channel = request.match_info["channel"]
+        body = await self._body(request, empty_ok=False)
+        if body is None or not isinstance(body.get("file"), str):
+            return self._bad('body must be JSON {"file": "...", "parameters": {...}}')
+        args = {"recipe": body.pop("file"), **body}
+        return self._answer(Command.channel(channel, Verb.LOAD, self.actor(request), **args))
+
+    async def _channel_command(self, request: web.Request) -> web.Response:
+        """``POST /api/channels/{ch}/commands/{verb}`` with the verb's arguments as JSON."""
+        channel, name = request.match_info["channel"], request.match_info["verb"]
+        verb = Verb.parse(name)
+        if verb is None:
+            return self._bad(f"unknown command {name!r}", ResultKind.NOT_FOUND)
+        args = await self._body(request, empty_ok=True)
+        if args is None:
+            return self._bad(f"{name}: the arguments must be a JSON object")
+        return self._answer(Command.channel(channel, verb, self.actor(request), **args))
+
+    async def _alarm_command(self, request: web.Request) -> web.Response:
+        """``POST /api/alarms/{id}/acknowledge|reset|shelve|unshelve`` (shelve:
+        ``{"duration_s": 3600}``)."""
+        alarm, action = request.match_info["alarm"], request.match_info["action"]
+        if action not in ALARM_ACTIONS:
+            return self._bad(
+                f"unknown alarm command {action!r} ({', '.join(ALARM_ACTIONS)})",
+                ResultKind.NOT_FOUND,
+            )
+        args = await self._body(request, empty_ok=True)
+        if args is None:
+            return self._bad(f"{action}: the arguments must be a JSON object")
+        return self._answer(Command.alarm(alarm, Verb(action), self.actor(request), **args))
+
+    async def _alarms(self, request: web.Request) -> web.Response:
+        """Alarms not in their normal state (first-out first), and the latest transitions
+        (``?limit=N``, default 200, newest last)."""
         try:
-            test_id = self._load_recipe(
-                channel, body["file"], {k: str(v) for k, v in params.items()}
-            )
-        except ConfigErrors as exc:
-            return web.json_response(
-                {"error": "recipe refused", "details": [e.location_message() for e in exc.errors]},
-                status=422,
-            )
-        except (ConfigError, OperatorError) as exc:
-            return web.json_response({"error": str(exc)}, status=409)
-        log.info("http: recipe %s loaded on %s (test %s)", body["file"], channel, test_id)
-        return web.json_response({"channel": channel, "test_id": test_id})
+            limit = int(request.query.get("limit", "200"))
+        except ValueError:
+            return self._bad("limit must be an integer")
+        alarms = self.commands.alarms
+        active = [] if alarms is None else [a for a in alarms if a.in_alarm]
+        active.sort(key=lambda a: (not a.first_out, a.activated_t or 0.0))
+        history = list(alarms.history)[-limit:] if alarms is not None and limit > 0 else []
+        return web.json_response(
+            {
+                "accepted": True,
+                "reason": "",
+                "active": [alarm_json(a, self.clock) for a in active],
+                "history": [alarm_event_json(e) for e in history],
+            }
+        )
 
     async def _sim_estop(self, request: web.Request) -> web.Response:
         try:
@@ -137,18 +244,9 @@ class HttpApi:
         return web.json_response({"pressed": body["pressed"]})
 
     async def _put(self, request: web.Request) -> web.Response:
+        """``PUT /api/tags/{name}`` ``{"value": ...}``: a write through the command path."""
         name = request.match_info["name"]
-        if name not in self.db:
-            return web.json_response({"error": f"unknown tag {name!r}"}, status=404)
-        try:
-            body = await request.json()
-        except ValueError:
-            return web.json_response({"error": 'body must be JSON {"value": ...}'}, status=400)
-        if not isinstance(body, dict) or "value" not in body:
-            return web.json_response({"error": 'body must be JSON {"value": ...}'}, status=400)
-        try:
-            tag = self.db.write(name, body["value"], Access.OPERATOR)
-        except OperatorError as exc:
-            return web.json_response({"error": str(exc)}, status=403)
-        log.info("http: %s := %r", name, tag.value)
-        return web.json_response(tag_json(tag, self.clock))
+        body = await self._body(request, empty_ok=False)
+        if body is None or "value" not in body:
+            return self._bad('body must be JSON {"value": ...}')
+        return self._answer(Command.write(name, body["value"], self.actor(request)))

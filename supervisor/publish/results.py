@@ -116,7 +116,8 @@ class ResultCollector:
     def on_event(self, ev: ChainEvent) -> None:
         if self.first_t is None:
             self.first_t = ev.t
-        if ev.kind in ("step", "state", "alarm"):
+        # "command": an operator command of the running test, accepted or refused, by whom.
+        if ev.kind in ("step", "state", "alarm", "command"):
             self.timeline.append(
                 {
                     "test_time_s": round(ev.t - self.first_t, 3),

@@ -1,0 +1,34 @@
+"""The one command path (DESIGN.md "Safety"): operator commands checked (role, state,
+interlocks), executed, recorded with their actor, and answered accepted or refused with
+the reason. Every client — the HTTP API, the command line, OPC UA methods — uses it.
+
+Layer: above chains, safety and channels (it drives them), below app (which builds it).
+"""
+
+from supervisor.commands.model import (
+    HTTP_STATUS,
+    Command,
+    CommandEvent,
+    Result,
+    ResultKind,
+    Target,
+    TargetKind,
+    Verb,
+)
+from supervisor.commands.path import CommandPath, RecipeLoader
+from supervisor.commands.roles import EveryoneOperates, Roles
+
+__all__ = [
+    "HTTP_STATUS",
+    "Command",
+    "CommandEvent",
+    "CommandPath",
+    "EveryoneOperates",
+    "RecipeLoader",
+    "Result",
+    "ResultKind",
+    "Roles",
+    "Target",
+    "TargetKind",
+    "Verb",
+]

@@ -1,0 +1,533 @@
+"""The one command path (DESIGN.md "Safety"): every operator command is checked — role,
+target, arguments, state, interlocks — executed, recorded with its actor, and answered
+accepted or refused with the reason.
+
+Checks, in order:
+
+1. **role** (``Roles``: everyone operates until there are users) → forbidden;
+2. **target**: the channel, alarm or tag exists → not found;
+3. **arguments**: their names, types and values → bad argument;
+4. **state**: the chain's ISA-88 table and its guards (``chains.states.decide``), and Auto
+   vs Manual (a manual setpoint or enable is refused while the chain drives the channel)
+   → refused;
+5. **interlocks**: a channel held by a trip, or with an unacknowledged alarm, refuses
+   ``start``, ``resume`` and ``enable on``, naming the alarm (ISA-18.2 / S7-GRAPH: alarms
+   are acknowledged before running again) → refused.
+
+Mode changes are explicit commands, never side effects (ISA-88 / PLC practice: bumpless
+transfer). Switching to Manual while a chain runs holds the chain first, and Manual starts
+at 0 A with enable off — or, with ``keep_setpoint``, from the present setpoint with the
+power stage as it was. ``start`` hands the channel to its chain (Auto), and resetting a
+finished test gives it back (Manual, enable off, 0 A; ``ChainRunner``).
+
+Every command is recorded: a ``CommandEvent`` in a bounded log, logged with its context,
+handed to the listeners, and into the chain's events of the channel it concerns (so the
+result files' timeline holds the commands of a running test).
+
+Commands run on the event loop between two scans (the scan is synchronous), so a command
+sees one consistent process image and its effect is taken by the next scan.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from supervisor.chains.engine import ChainRunner
+from supervisor.chains.states import MANUAL_DRIVEN, State
+from supervisor.channels import Mode
+from supervisor.commands.model import (
+    ALARM_VERBS,
+    BENCH_VERBS,
+    CHAIN_VERBS,
+    CHANNEL_VERBS,
+    Command,
+    CommandEvent,
+    Result,
+    ResultKind,
+    TargetKind,
+    Verb,
+)
+from supervisor.commands.roles import EveryoneOperates, Roles
+from supervisor.core.clock import Clock
+from supervisor.core.errors import ConfigError, ConfigErrors, OperatorError
+from supervisor.safety import AlarmManager, ChannelGuard
+from supervisor.tags import Access, TagDB
+
+log = logging.getLogger(__name__)
+
+LOG_LENGTH = 1000
+"""Commands kept in memory (the chain events and the result files keep theirs)."""
+
+RecipeLoader = Callable[[str, str, Mapping[str, str]], str]
+"""Load a recipe file on a channel with parameter overrides; returns the test id. Raises
+``ConfigErrors``/``ConfigError`` for a recipe refused, ``OperatorError`` for a state."""
+
+# A channel's operator tags that are commands: their writes take the command's checks.
+CHANNEL_COMMAND_TAGS = ("command", "mode", "manual_current", "enable", "ack")
+IN_AUTO = "channel {ch} is in auto (step chain): switch to manual first"
+RUNNING = (State.RUNNING, State.RESUMING)
+
+
+class Refusal(Exception):
+    """Raised by a check: the command is refused, of this kind, for this reason."""
+
+    def __init__(self, kind: ResultKind, reason: str, details: tuple[str, ...] = ()) -> None:
+        super().__init__(reason)
+        self.kind = kind
+        self.reason = reason
+        self.details = details
+
+
+class CommandPath:
+    """``execute(Command) -> Result``, for every client of a bench."""
+
+    def __init__(
+        self,
+        db: TagDB,
+        clock: Clock,
+        runners: Mapping[str, ChainRunner] | None = None,
+        guards: Mapping[str, ChannelGuard] | None = None,
+        alarms: AlarmManager | None = None,
+        loader: RecipeLoader | None = None,
+        roles: Roles | None = None,
+    ) -> None:
+        self.db = db
+        self.clock = clock
+        self.runners: Mapping[str, ChainRunner] = runners or {}
+        self.guards: Mapping[str, ChannelGuard] = guards or {}
+        self.alarms = alarms
+        self.loader = loader
+        self.roles: Roles = roles or EveryoneOperates()
+        self.log: deque[CommandEvent] = deque(maxlen=LOG_LENGTH)
+        self.listeners: list[Callable[[CommandEvent], None]] = []
+
+    # --- the entry ------------------------------------------------------------------------
+    def execute(self, command: Command) -> Result:
+        """Check, execute and record ``command``; never raises for a refusal."""
+        done, tag = command, None
+        try:
+            if command.verb is Verb.WRITE:
+                # A write of a channel's command tag is that command (and is recorded so).
+                translated = self._as_channel_command(command)
+                if translated is not None:
+                    done, tag = translated, str(command.args["tag"])
+            result = self._dispatch(done)
+        except Refusal as r:
+            result = Result.refused(r.kind, r.reason, r.details)
+        except Exception as exc:  # a bug: the command is refused and recorded, not lost
+            log.exception("command %s on %s failed", command.describe(), command.target)
+            result = Result.refused(ResultKind.INTERNAL, f"internal error: {exc}")
+        if tag is not None and result.tag is None:
+            result = replace(result, tag=tag)
+        self._record(done, result)
+        return result
+
+    def _dispatch(self, command: Command) -> Result:
+        """Execute ``command`` or raise ``Refusal``."""
+        why = self.roles.refuses(command)
+        if why:
+            raise Refusal(ResultKind.FORBIDDEN, why)
+        kind = command.target.kind
+        if kind is TargetKind.CHANNEL:
+            return self._channel(command)
+        if kind is TargetKind.ALARM:
+            return self._alarm(command)
+        if command.verb not in BENCH_VERBS:
+            raise Refusal(ResultKind.NOT_FOUND, f"the bench has no command {command.verb.value}")
+        return self._write(command, command.args)
+
+    # --- channels -----------------------------------------------------------------------
+    def _channel(self, c: Command) -> Result:
+        name = c.target.name
+        runner = self.runners.get(name)
+        if runner is None:
+            known = ", ".join(self.runners) or "none"
+            raise Refusal(ResultKind.NOT_FOUND, f"unknown channel {name!r} (channels: {known})")
+        v, a = c.verb, c.args
+        if v not in CHANNEL_VERBS:
+            ok = ", ".join(x.value for x in CHANNEL_VERBS)
+            raise Refusal(ResultKind.NOT_FOUND, f"a channel has no command {v.value} ({ok})")
+        if v is Verb.LOAD:
+            _only(c, "recipe", "parameters")
+            return self._load(name, _text(a, "recipe"), _parameters(a))
+        if v is Verb.START:
+            _only(c, "recipe", "parameters")
+            return self._start(name, runner, a, c.actor)
+        if v in CHAIN_VERBS:
+            _only(c)
+            return self._chain(name, runner, v, c.actor)
+        if v is Verb.ACKNOWLEDGE:
+            _only(c)
+            return self._acknowledge(name, runner, c.actor)
+        if v is Verb.MODE:
+            _only(c, "value", "keep_setpoint")
+            mode = _text(a, "value")
+            if mode not in (Mode.AUTO.value, Mode.MANUAL.value):
+                raise Refusal(
+                    ResultKind.BAD_ARGUMENT, f"{name}: mode is auto or manual, not {mode!r}"
+                )
+            keep = _flag(a, "keep_setpoint", default=False)
+            return self._mode(name, runner, mode, keep, c.actor)
+        if v is Verb.MANUAL_CURRENT:
+            _only(c, "value")
+            return self._manual_current(name, runner, _number(a, "value", "A"))
+        if v is Verb.ENABLE:
+            _only(c, "value")
+            return self._enable(name, runner, _flag(a, "value"))
+        return self._write(c, a)  # one of this channel's other tags
+
+    def _load(self, name: str, recipe: str, parameters: dict[str, str]) -> Result:
+        if self.loader is None:
+            raise Refusal(ResultKind.NOT_FOUND, "this bench does not load recipes")
+        if not Path(recipe).is_file():
+            raise Refusal(ResultKind.NOT_FOUND, f"{recipe}: no such recipe")
+        try:
+            test_id = self.loader(name, recipe, parameters)
+        except ConfigErrors as exc:
+            details = tuple(e.location_message() for e in exc.errors)
+            raise Refusal(
+                ResultKind.INVALID_RECIPE, f"{name}: recipe refused: {details[0]}", details
+            ) from None
+        except ConfigError as exc:
+            msg = exc.location_message()
+            raise Refusal(
+                ResultKind.INVALID_RECIPE, f"{name}: recipe refused: {msg}", (msg,)
+            ) from None
+        except OperatorError as exc:
+            raise Refusal(ResultKind.REFUSED, str(exc)) from None
+        runner = self.runners[name]
+        program = runner.program.name if runner.program is not None else ""
+        return Result.ok(
+            f"{name}: recipe {program} loaded (test {test_id})",
+            channel=name,
+            test_id=test_id,
+            recipe=program,
+        )
+
+    def _start(self, name: str, runner: ChainRunner, a: Mapping[str, Any], actor: str) -> Result:
+        # Interlocks and Manual first: a refused start must not load the recipe either.
+        self._interlocks(name, runner, "start")
+        if runner.port.manual_driven:
+            raise Refusal(ResultKind.REFUSED, f"{name}: cannot start while {MANUAL_DRIVEN}")
+        loaded = ""
+        if a.get("recipe") is not None:
+            self._load(name, _text(a, "recipe"), _parameters(a))
+            loaded = f"recipe {runner.program.name if runner.program else ''} loaded, "
+        was_auto = runner.port.in_auto
+        self._run_chain(runner, "start", actor)
+        mode = "" if was_auto else " (mode manual → auto)"
+        return Result.ok(
+            f"{name}: {loaded}test {runner.test_id} started: the step chain drives the "
+            f"channel{mode}",
+            channel=name,
+            test_id=runner.test_id,
+            state=runner.state.value,
+        )
+
+    def _chain(self, name: str, runner: ChainRunner, verb: Verb, actor: str) -> Result:
+        if verb is Verb.RESUME:
+            self._interlocks(name, runner, "resume")
+        before = runner.state
+        self._run_chain(runner, verb.value, actor)
+        after = runner.state
+        text = f"{name}: {verb.value}: {before.value} → {after.value}"
+        if verb is Verb.ADVANCE:
+            text = f"{name}: advance: acted on by the next scan"
+        elif verb is Verb.RESET:
+            text += "; the channel is in manual, enable off, 0 A"
+        return Result.ok(text, channel=name, state=after.value)
+
+    @staticmethod
+    def _run_chain(runner: ChainRunner, command: str, actor: str) -> None:
+        try:
+            runner.command(command, actor=actor)
+        except OperatorError as exc:
+            raise Refusal(ResultKind.REFUSED, str(exc)) from None
+
+    def _acknowledge(self, name: str, runner: ChainRunner, actor: str) -> Result:
+        """Acknowledge what holds the channel: the chain's latched alarm, and its trips
+        (ISA-18.2: each is reset once acknowledged and its cause gone)."""
+        done: list[str] = []
+        alarm = runner.situation().alarm
+        if alarm is not None:
+            self._run_chain(runner, "ack", actor)
+            done.append(f"chain alarm acknowledged ({alarm})")
+        guard = self.guards.get(name)
+        if guard is not None:
+            try:
+                reset = guard.reset(actor)
+            except OperatorError as exc:
+                also = f" ({'; '.join(done)})" if done else ""
+                raise Refusal(
+                    ResultKind.REFUSED,
+                    f"{exc}; acknowledged{also}: reset once the cause is gone",
+                ) from None
+            if reset:
+                done.append("reset: " + ", ".join(reset))
+        return Result.ok(f"{name}: " + ("; ".join(done) or "nothing to acknowledge"))
+
+    def _mode(self, name: str, runner: ChainRunner, mode: str, keep: bool, actor: str) -> Result:
+        port, db = runner.port, self.db
+        if mode == Mode.AUTO.value:
+            if port.in_auto:
+                return Result.ok(f"{name}: already in auto", tag=port.mode.name)
+            if port.manual_driven:
+                amps = port.manual_current.as_float()
+                raise Refusal(
+                    ResultKind.REFUSED,
+                    f"{name}: cannot switch to auto while the channel is driven in manual"
+                    f" (enable on, {amps:g} A): turn enable off first",
+                )
+            db.update(port.mode, Mode.AUTO.value)
+            then = " (Held: resume to continue the test)" if runner.state is State.HELD else ""
+            return Result.ok(
+                f"{name}: mode auto: the step chain drives the channel{then}", tag=port.mode.name
+            )
+        if not port.in_auto:
+            return Result.ok(f"{name}: already in manual", tag=port.mode.name)
+        done: list[str] = []
+        if runner.state in RUNNING:
+            before = runner.state
+            self._run_chain(runner, "hold", actor)  # the chain first: it stops requesting
+            done.append(f"chain held (was {before.value})")
+        # Bumpless (finding 9): never a setpoint staged earlier. From the present setpoint
+        # with the power stage as it was, when asked; else from 0 A, disabled.
+        present = port.current_cmd.as_float()
+        energised = port.auto_active.value is True and not port.fault_text()
+        amps, enable = (present, energised and present != 0.0) if keep else (0.0, False)
+        db.update(port.manual_current, amps)
+        db.update(port.enable, enable)
+        db.update(port.mode, Mode.MANUAL.value)
+        done.append(f"manual setpoint {amps:g} A" + (" (kept)" if keep else ""))
+        done.append("enable on" if enable else "enable off")
+        return Result.ok(f"{name}: mode manual: " + ", ".join(done), tag=port.mode.name)
+
+    def _manual_current(self, name: str, runner: ChainRunner, amps: float) -> Result:
+        port = runner.port
+        if port.in_auto:
+            raise Refusal(ResultKind.REFUSED, IN_AUTO.format(ch=name))
+        self.db.update(port.manual_current, amps)
+        off = "" if port.enable.value is True else " (enable is off: nothing flows yet)"
+        return Result.ok(f"{name}: manual setpoint {amps:g} A{off}", tag=port.manual_current.name)
+
+    def _enable(self, name: str, runner: ChainRunner, on: bool) -> Result:
+        port = runner.port
+        if port.in_auto:
+            raise Refusal(ResultKind.REFUSED, IN_AUTO.format(ch=name))
+        if on:
+            self._interlocks(name, runner, "enable")
+        self.db.update(port.enable, on)
+        amps = port.manual_current.as_float()
+        text = f"{name}: enable on at {amps:g} A" if on else f"{name}: enable off"
+        return Result.ok(text, tag=port.enable.name)
+
+    def _interlocks(self, name: str, runner: ChainRunner, what: str) -> None:
+        """Refuse ``what`` while a trip holds the channel or one of its alarms waits for an
+        acknowledgement (the alarm named, and what to do)."""
+        alarms = self.alarms
+        if alarms is not None:
+            for a in alarms.trips(name):
+                if a.active:
+                    todo = "its cause is still present"
+                elif not a.acked:
+                    todo = "acknowledge it"
+                else:
+                    todo = "reset it"
+                raise Refusal(
+                    ResultKind.REFUSED,
+                    f"{name}: {what} refused: tripped by {a.id} ({a.message}): {todo}",
+                )
+            for a in alarms.in_alarm(name):
+                if not a.acked:
+                    raise Refusal(
+                        ResultKind.REFUSED,
+                        f"{name}: {what} refused: alarm {a.id} is unacknowledged ({a.message})",
+                    )
+        fault = runner.port.fault_text()
+        if fault:
+            raise Refusal(ResultKind.REFUSED, f"{name}: {what} refused: channel fault ({fault})")
+        alarm = runner.situation().alarm
+        if what == "start" and alarm is not None:
+            raise Refusal(
+                ResultKind.REFUSED, f"{name}: start refused: acknowledge the alarm first ({alarm})"
+            )
+
+    # --- alarms -------------------------------------------------------------------------
+    def _alarm(self, c: Command) -> Result:
+        alarm_id = c.target.name
+        alarms = self.alarms
+        if alarms is None or alarm_id not in alarms:
+            raise Refusal(ResultKind.NOT_FOUND, f"unknown alarm {alarm_id!r}")
+        v = c.verb
+        if v not in ALARM_VERBS:
+            ok = ", ".join(x.value for x in ALARM_VERBS)
+            raise Refusal(ResultKind.NOT_FOUND, f"an alarm has no command {v.value} ({ok})")
+        try:
+            if v is Verb.SHELVE:
+                _only(c, "duration_s")
+                alarm = alarms.shelve(alarm_id, _number(c.args, "duration_s", "s"), c.actor)
+            else:
+                _only(c)
+                if v is Verb.ACKNOWLEDGE:
+                    alarm = alarms.acknowledge(alarm_id, c.actor)
+                elif v is Verb.RESET:
+                    alarm = alarms.reset(alarm_id, c.actor)
+                else:
+                    alarm = alarms.unshelve(alarm_id, c.actor)
+        except OperatorError as exc:
+            raise Refusal(ResultKind.REFUSED, str(exc)) from None
+        return Result.ok(f"alarm {alarm_id} {v.value}: now {alarm.state.value}", alarm=alarm_id)
+
+    # --- tags ---------------------------------------------------------------------------
+    def _as_channel_command(self, c: Command) -> Command | None:
+        """A write of ``chN.command|mode|manual_current|enable|ack`` as the channel command
+        it is (so it takes that command's checks); None for any other tag."""
+        _only(c, "tag", "value")
+        name = _text(c.args, "tag")
+        t = c.target
+        if t.kind is TargetKind.CHANNEL and not name.startswith(f"{t.name}."):
+            raise Refusal(ResultKind.BAD_ARGUMENT, f"{name} is not a tag of channel {t.name}")
+        if "value" not in c.args:
+            raise Refusal(ResultKind.BAD_ARGUMENT, f"{name}: no value to write")
+        value = c.args["value"]
+        channel, _, field = name.partition(".")
+        if channel not in self.runners or field not in CHANNEL_COMMAND_TAGS:
+            return None
+        if field == "command":
+            verb = Verb.parse(value) if isinstance(value, str) else None
+            if verb is None or verb not in (*CHAIN_VERBS, Verb.ACKNOWLEDGE):
+                ok = ", ".join([*(x.value for x in CHAIN_VERBS), "ack"])
+                raise Refusal(ResultKind.BAD_ARGUMENT, f"{name}: unknown command {value!r} ({ok})")
+            return Command.channel(channel, verb, c.actor)
+        if field == "ack":
+            if _flag(c.args, "value") is not True:
+                raise Refusal(ResultKind.BAD_ARGUMENT, f"write true to {name} to acknowledge")
+            return Command.channel(channel, Verb.ACKNOWLEDGE, c.actor)
+        verb = {"mode": Verb.MODE, "manual_current": Verb.MANUAL_CURRENT, "enable": Verb.ENABLE}[
+            field
+        ]
+        return Command.channel(channel, verb, c.actor, value=value)
+
+    def _write(self, c: Command, a: Mapping[str, Any]) -> Result:
+        _only(c, "tag", "value")
+        name = _text(a, "tag")
+        tag = self.db.get(name)
+        if tag is None:
+            raise Refusal(ResultKind.NOT_FOUND, f"unknown tag {name!r}")
+        if "value" not in a:
+            raise Refusal(ResultKind.BAD_ARGUMENT, f"{name}: no value to write")
+        spec = tag.spec
+        if spec.access is Access.READ_ONLY:
+            raise Refusal(ResultKind.FORBIDDEN, f"{name} is read-only")
+        access = self.roles.access_of(c.actor)
+        if access < spec.access:
+            raise Refusal(ResultKind.FORBIDDEN, f"{name} needs {spec.access.name.lower()} access")
+        try:
+            value = spec.coerce(a["value"])
+        except (TypeError, ValueError) as exc:
+            raise Refusal(ResultKind.BAD_ARGUMENT, str(exc)) from None
+        try:
+            self.db.write(name, value, access)
+        except OperatorError as exc:  # a choice or a range: the value is wrong
+            raise Refusal(ResultKind.BAD_ARGUMENT, str(exc)) from None
+        return Result.ok(f"{name} := {tag.value!r}", tag=name)
+
+    # --- the record -----------------------------------------------------------------------
+    def _record(self, c: Command, result: Result) -> None:
+        now = self.clock.now()
+        channel = self._channel_of(c)
+        ev = CommandEvent(
+            now,
+            self.clock.to_wall(now),
+            c.actor,
+            str(c.target),
+            c.describe(),
+            result.accepted,
+            result.kind,
+            result.reason,
+            channel,
+        )
+        self.log.append(ev)
+        level = logging.INFO if result.accepted else logging.WARNING
+        log.log(level, "command on %s: %s", ev.target, ev.text)
+        runner = self.runners.get(channel)
+        if runner is not None:
+            try:
+                runner.record_command(ev.text)
+            except Exception:
+                log.exception("%s: recording a command failed", channel)
+        for fn in self.listeners:
+            try:
+                fn(ev)
+            except Exception:
+                log.exception("command listener failed")
+
+    def _channel_of(self, c: Command) -> str:
+        t = c.target
+        if t.kind is TargetKind.CHANNEL:
+            return t.name if t.name in self.runners else ""
+        if t.kind is TargetKind.ALARM:
+            alarms = self.alarms
+            if alarms is not None and t.name in alarms and alarms[t.name].group in self.runners:
+                return alarms[t.name].group
+            return ""
+        tag = c.args.get("tag")
+        channel = tag.partition(".")[0] if isinstance(tag, str) else ""
+        return channel if channel in self.runners else ""
+
+
+# --- arguments ------------------------------------------------------------------------------
+def _only(c: Command, *allowed: str) -> None:
+    """Unknown arguments are errors (STYLE.md: never silently drop an entry)."""
+    unknown = sorted(set(c.args) - set(allowed))
+    if unknown:
+        expected = ", ".join(allowed) or "none"
+        raise Refusal(
+            ResultKind.BAD_ARGUMENT,
+            f"{c.verb.value}: unknown argument {', '.join(unknown)} (expected: {expected})",
+        )
+
+
+def _text(a: Mapping[str, Any], key: str) -> str:
+    x = a.get(key)
+    if not isinstance(x, str) or not x:
+        raise Refusal(ResultKind.BAD_ARGUMENT, f"{key} must be a text, not {x!r}")
+    return x
+
+
+def _number(a: Mapping[str, Any], key: str, unit: str) -> float:
+    x = a.get(key)
+    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+        raise Refusal(ResultKind.BAD_ARGUMENT, f"{key} must be a number ({unit}), not {x!r}")
+    return float(x)
+
+
+_TRUE = ("true", "on", "yes", "1")
+_FALSE = ("false", "off", "no", "0")
+
+
+def _flag(a: Mapping[str, Any], key: str, default: bool | None = None) -> bool:
+    x = a.get(key, default)
+    if isinstance(x, bool):
+        return x
+    if isinstance(x, str) and x.strip().lower() in (*_TRUE, *_FALSE):
+        return x.strip().lower() in _TRUE
+    raise Refusal(ResultKind.BAD_ARGUMENT, f"{key} must be true or false, not {x!r}")
+
+
+def _parameters(a: Mapping[str, Any]) -> dict[str, str]:
+    p = a.get("parameters") or {}
+    if not isinstance(p, Mapping):
+        raise Refusal(ResultKind.BAD_ARGUMENT, f"parameters must be a mapping, not {p!r}")
+    out: dict[str, str] = {}
+    for k, v in p.items():
+        if not isinstance(k, str) or isinstance(v, Mapping | list):
+            raise Refusal(ResultKind.BAD_ARGUMENT, f"parameter {k!r}: {v!r} is not a value")
+        out[k] = str(v)
+    return out

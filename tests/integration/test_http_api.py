@@ -1,0 +1,291 @@
+"""The HTTP API against the real aiohttp server on loopback: every write and command goes
+through the command path and is answered ``{"accepted", "reason", ...}`` with its status
+(200, 400, 403, 404, 409, 422). The bench runs on the virtual clock; requests are made
+between scans, as a screen makes them between two scans of a real bench.
+
+The findings users reported each have a test here (``test_finding_…``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import pytest
+from commandrig import CV_ON_CHADECHE, DISCHARGE, recipe, started_bench
+
+from supervisor.app import Bench
+from supervisor.chains.states import State
+from supervisor.hmi import HttpApi
+from supervisor.testing import run_scans
+
+pytestmark = pytest.mark.integration
+
+
+@dataclass
+class Client:
+    bench: Bench
+    api: HttpApi
+    session: aiohttp.ClientSession
+
+    async def call(self, method: str, path: str, body: Any = None) -> tuple[int, Any]:
+        kw: dict[str, Any] = {} if body is None else {"json": body}
+        async with self.session.request(method, self.api.url + path, **kw) as resp:
+            return resp.status, await resp.json()
+
+    async def put_tag(self, name: str, value: Any) -> tuple[int, Any]:
+        return await self.call("PUT", f"/tags/{name}", {"value": value})
+
+    async def command(self, channel: str, verb: str, **args: Any) -> tuple[int, Any]:
+        return await self.call("POST", f"/channels/{channel}/commands/{verb}", args)
+
+    async def scans(self, n: int) -> None:
+        await run_scans(self.bench.engine, n)
+
+    def value(self, tag: str) -> Any:
+        return self.bench.db[tag].value
+
+
+@pytest.fixture
+async def client(tmp_path: Path) -> AsyncIterator[Client]:
+    bench = await started_bench(tmp_path)
+    api = HttpApi(bench.db, bench.clock, "127.0.0.1", 0, commands=bench.commands)
+    await api.start()
+    try:
+        async with aiohttp.ClientSession() as session:
+            yield Client(bench, api, session)
+    finally:
+        await api.stop()
+        await bench.shutdown()
+
+
+async def press_estop(c: Client, pressed: bool = True) -> None:
+    assert c.bench.sim is not None
+    c.bench.sim.press_estop(pressed)
+    await c.scans(10)
+
+
+async def start_discharge(c: Client, tmp_path: Path) -> None:
+    status, body = await c.command("ch0", "start", recipe=recipe(tmp_path, DISCHARGE))
+    assert status == 200 and body["accepted"] is True, body
+    await c.scans(20)
+    assert c.value("ch0.current_cmd") == pytest.approx(-0.2)
+
+
+# --- the findings ----------------------------------------------------------------------------
+async def test_finding_7_a_refused_command_tag_write_answers_409_with_the_reason(
+    client: Client,
+) -> None:
+    status, body = await client.put_tag("ch0.command", "resume")
+    assert status == 409
+    assert body == {
+        "accepted": False,
+        "reason": "ch0: resume is not allowed while Idle (allowed: start)",
+        "kind": "refused",
+        "tag": body["tag"],
+    }
+    assert body["tag"]["name"] == "ch0.command" and body["tag"]["value"] == ""
+
+
+async def test_finding_7_loading_leaves_manual_alone_and_is_refused_while_enabled(
+    client: Client, tmp_path: Path
+) -> None:
+    assert (await client.put_tag("ch0.manual_current", 0.1))[0] == 200
+    assert (await client.put_tag("ch0.enable", True))[0] == 200
+    status, body = await client.call("PUT", "/channels/ch0/recipe", {"file": recipe(tmp_path)})
+    assert status == 409
+    assert body["reason"] == (
+        "ch0: cannot load a recipe while the channel is driven in manual (enable on):"
+        " turn enable off first"
+    )
+    await client.scans(3)
+    assert (client.value("ch0.mode"), client.value("ch0.enable")) == ("manual", True)
+    assert client.value("ch0.current_cmd") == pytest.approx(0.1)
+    assert (await client.put_tag("ch0.enable", False))[0] == 200
+    status, body = await client.call("PUT", "/channels/ch0/recipe", {"file": recipe(tmp_path)})
+    assert status == 200 and body["channel"] == "ch0" and body["test_id"]
+    assert (client.value("ch0.mode"), client.value("ch0.enable")) == ("manual", False)
+
+
+async def test_finding_7_after_abort_and_reset_the_channel_is_manual_disabled_at_0_a(
+    client: Client, tmp_path: Path
+) -> None:
+    await start_discharge(client, tmp_path)
+    assert client.value("ch0.mode") == "auto"
+    assert (await client.put_tag("ch0.command", "abort"))[0] == 200
+    await client.scans(2)
+    status, body = await client.put_tag("ch0.command", "reset")
+    assert status == 200 and body["accepted"] is True
+    assert "the channel is in manual, enable off, 0 A" in body["reason"]
+    await client.scans(2)
+    assert client.value("ch0.mode") == "manual"
+    assert client.value("ch0.enable") is False
+    assert client.value("ch0.manual_current") == 0.0
+    assert client.value("ch0.current_cmd") == 0.0
+
+
+async def test_finding_9_switching_to_manual_mid_recipe_is_bumpless(
+    client: Client, tmp_path: Path
+) -> None:
+    assert (await client.put_tag("ch0.manual_current", 0.3))[0] == 200  # staged in Manual
+    await start_discharge(client, tmp_path)
+    for tag, value in (("ch0.manual_current", 0.3), ("ch0.enable", True)):
+        status, body = await client.put_tag(tag, value)
+        assert status == 409
+        assert body["reason"] == "channel ch0 is in auto (step chain): switch to manual first"
+    status, body = await client.put_tag("ch0.mode", "manual")
+    assert status == 200
+    assert body["reason"] == (
+        "ch0: mode manual: chain held (was Running), manual setpoint 0 A, enable off"
+    )
+    seen = []
+    for _ in range(5):
+        await client.scans(1)
+        seen.append(client.value("ch0.current_cmd"))
+    assert seen == [0.0] * 5  # from −0.2 A to 0 A, never to the staged +0.3 A
+    assert client.bench.runners["ch0"].state is State.HELD
+
+
+async def test_finding_9_manual_from_the_present_setpoint_when_asked(
+    client: Client, tmp_path: Path
+) -> None:
+    await start_discharge(client, tmp_path)
+    status, body = await client.command("ch0", "mode", value="manual", keep_setpoint=True)
+    assert status == 200 and "manual setpoint -0.2 A (kept), enable on" in body["reason"]
+    await client.scans(5)
+    assert client.value("ch0.current_cmd") == pytest.approx(-0.2)
+
+
+async def test_finding_4_ack_while_the_estop_is_pressed_answers_409_with_the_reason(
+    client: Client,
+) -> None:
+    await press_estop(client)
+    status, body = await client.put_tag("ch0.ack", True)
+    assert status == 409
+    assert body["accepted"] is False
+    assert body["reason"].startswith(
+        "ch0: cannot reset estop: the cause is still present (e-stop: estop.ok is false"
+    )
+    await press_estop(client, False)
+    status, body = await client.put_tag("ch0.ack", True)
+    assert (status, body["reason"]) == (200, "ch0: reset: estop")
+
+
+# --- status codes --------------------------------------------------------------------------------
+async def test_an_accepted_write_answers_200_with_the_tag(client: Client) -> None:
+    status, body = await client.put_tag("ch0.manual_current", 0.25)
+    assert status == 200
+    assert body["accepted"] is True and body["kind"] == "accepted"
+    assert body["reason"] == "ch0: manual setpoint 0.25 A (enable is off: nothing flows yet)"
+    assert body["tag"]["value"] == 0.25 and body["tag"]["unit"] == "A"
+
+
+@pytest.mark.parametrize(
+    ("method", "path", "body", "status", "reason"),
+    [
+        ("PUT", "/tags/ch0.manual_current", {"value": "abc"}, 400, "must be a number (A)"),
+        ("PUT", "/tags/ch0.mode", {"value": "semi"}, 400, "mode is auto or manual"),
+        ("PUT", "/tags/ch0.enable", {"value": 7}, 400, "must be true or false"),
+        ("PUT", "/tags/ch0.manual_current", {"val": 1}, 400, 'body must be JSON {"value": ...}'),
+        ("POST", "/channels/ch0/commands/hold", {"now": 1}, 400, "unknown argument now"),
+        ("PUT", "/channels/ch0/recipe", {"recipe": "x"}, 400, 'body must be JSON {"file"'),
+        ("PUT", "/tags/ch0.voltage", {"value": 3}, 403, "ch0.voltage is read-only"),
+        ("PUT", "/tags/nope.tag", {"value": 3}, 404, "unknown tag 'nope.tag'"),
+        ("POST", "/channels/ch9/commands/hold", None, 404, "unknown channel 'ch9'"),
+        ("POST", "/channels/ch0/commands/jump", None, 404, "unknown command 'jump'"),
+        ("POST", "/alarms/nope/acknowledge", None, 404, "unknown alarm 'nope'"),
+        ("POST", "/alarms/estop/explode", None, 404, "unknown alarm command 'explode'"),
+        ("PUT", "/channels/ch0/recipe", {"file": "nope.yaml"}, 404, "nope.yaml: no such recipe"),
+        ("POST", "/channels/ch0/commands/start", None, 409, "ch0: no recipe loaded"),
+        ("POST", "/alarms/estop/reset", None, 409, "estop is not a trip waiting for a reset"),
+    ],
+)
+async def test_a_refusal_answers_its_status_and_the_reason(
+    client: Client, method: str, path: str, body: Any, status: int, reason: str
+) -> None:
+    got, answer = await client.call(method, path, body)
+    assert got == status, answer
+    assert answer["accepted"] is False
+    assert reason in answer["reason"]
+
+
+async def test_a_body_that_is_not_json_is_a_bad_argument(client: Client) -> None:
+    url = client.api.url + "/tags/ch0.enable"
+    async with client.session.put(url, data=b"true please") as resp:
+        assert resp.status == 400
+        assert (await resp.json())["accepted"] is False
+
+
+async def test_a_refused_recipe_answers_422_with_every_error_located(
+    client: Client, tmp_path: Path
+) -> None:
+    bad = recipe(tmp_path, CV_ON_CHADECHE, "cv.yaml")
+    status, body = await client.call("PUT", "/channels/ch0/recipe", {"file": bad})
+    assert status == 422 and body["accepted"] is False
+    assert body["details"] and body["details"][0].startswith(f"{bad}:")
+
+
+# --- channel commands, alarms ------------------------------------------------------------------
+async def test_channel_commands_start_hold_resume_stop_reset_over_http(
+    client: Client, tmp_path: Path
+) -> None:
+    status, body = await client.command(
+        "ch0", "start", recipe=recipe(tmp_path), parameters={"unused": "1 V"}
+    )
+    assert status == 422 and "unused" in body["reason"]  # an unknown parameter is refused
+    status, body = await client.command("ch0", "start", recipe=recipe(tmp_path))
+    assert (status, body["state"]) == (200, "Running")
+    assert body["test_id"] == client.bench.runners["ch0"].test_id
+    assert (await client.command("ch0", "hold"))[0] == 200
+    await client.scans(2)
+    status, body = await client.command("ch0", "resume")
+    assert (status, body["state"]) == (200, "Resuming")
+    status, body = await client.command("ch0", "reset")
+    assert status == 409 and "reset is not allowed while Resuming" in body["reason"]
+    assert (await client.command("ch0", "stop"))[0] == 200
+    await client.scans(2)
+    status, body = await client.command("ch0", "reset")
+    assert (status, body["state"]) == (200, "Idle")
+
+
+async def test_alarms_are_listed_with_their_history_and_commanded_by_id(
+    client: Client,
+) -> None:
+    await press_estop(client)
+    status, body = await client.call("GET", "/alarms")
+    assert status == 200 and body["accepted"] is True
+    active = {a["id"]: a for a in body["active"]}
+    estop = active["estop"]
+    assert estop["state"] == "active, unacknowledged" and estop["tripped"] is True
+    assert estop["severity_name"] == "critical" and estop["first_out"] is True
+    assert "room.temp.H" in active  # a plain alarm: above its H limit
+    assert ("estop", "activated") in [(e["alarm"], e["transition"]) for e in body["history"]]
+
+    status, body = await client.call("POST", "/alarms/estop/acknowledge")
+    assert (status, body["reason"]) == (200, "alarm estop acknowledge: now active, acknowledged")
+    status, body = await client.call("POST", "/alarms/room.temp.H/shelve", {"duration_s": 600})
+    assert status == 200 and body["alarm"] == "room.temp.H"
+    status, body = await client.call("POST", "/alarms/estop/shelve", {"duration_s": 600})
+    assert status == 409 and "cannot be shelved" in body["reason"]
+    await press_estop(client, False)
+    assert (await client.call("POST", "/alarms/estop/reset"))[0] == 200
+    status, body = await client.call("GET", "/alarms?limit=2")
+    assert [a["id"] for a in body["active"]] == ["room.temp.H"]
+    assert body["active"][0]["shelved"] is True
+    assert [(e["transition"], e["actor"]) for e in body["history"]] == [
+        ("cleared", ""),
+        ("reset", "operator"),
+    ]
+
+
+async def test_every_http_command_is_recorded_with_its_actor(client: Client) -> None:
+    await client.put_tag("ch0.command", "hold")
+    await client.put_tag("ch0.manual_current", 0.1)
+    events = list(client.bench.commands.log)[-2:]
+    assert [(e.actor, e.command, e.accepted) for e in events] == [
+        ("operator", "hold", False),
+        ("operator", "manual_current 0.1 A", True),
+    ]
