@@ -48,6 +48,7 @@ def chadeche_map(tmp: Path) -> str:
     data["channels"] = [c for c in data["channels"] if c["source"]["device"] == "chadeche"]
     data.pop("tags", None)
     data.pop("simulation", None)
+    data.pop("safety", None)  # the seed-002 e-stop and its tags are not in this bench
     data["state_dir"] = str(tmp / "state")
     path = tmp / "chadeche.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")

@@ -300,9 +300,10 @@ def test_recipe_limits_carry_a_trip_delay() -> None:
     )
     program = compile_recipe(recipe, pos, "r.yaml")
     assert program.limits.delay_s == 2.0
-    with pytest.raises(ConfigErrors, match="r.yaml:2:40: limits.delay: .2 V. is a voltage"):
-        bad, pos = load_recipe_text(
-            "recipe: r\nlimits: {voltage: [1 V, 1.8 V], delay: 2 V}\nsteps:\n  - {id: a, rest: 1 h}\n",
-            "r.yaml",
+    with pytest.raises(ConfigErrors, match=r"r\.yaml:2:40: limits\.delay: .2 V. is a voltage"):
+        text = (
+            "recipe: r\nlimits: {voltage: [1 V, 1.8 V], delay: 2 V}\n"
+            "steps:\n  - {id: a, rest: 1 h}\n"
         )
+        bad, pos = load_recipe_text(text, "r.yaml")
         compile_recipe(bad, pos, "r.yaml")
