@@ -356,6 +356,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
         )
     if args.what == "seed002":
         return asyncio.run(benchmarks.seed002_benchmark(str(DEFAULT_IO_MAP)))
+    if args.what == "estop":
+        logging.disable(logging.ERROR)  # every press trips the channel, logged at ERROR
+        return asyncio.run(
+            benchmarks.estop_benchmark(str(DEFAULT_IO_MAP), args.presses, args.period_ms / 1000)
+        )
     if args.what == "dry-run":
         from supervisor.app.dryrun import dry_run, format_report
 
@@ -437,10 +442,11 @@ def build_parser() -> argparse.ArgumentParser:
     ca.set_defaults(func=cmd_calibrate)
 
     b = sub.add_parser("bench", help="benchmarks that print figures")
-    b.add_argument("what", choices=["scan", "manual", "seed002", "dry-run"])
+    b.add_argument("what", choices=["scan", "manual", "seed002", "dry-run", "estop"])
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
     b.add_argument("--tags", type=int, default=1000, help="scan: number of tags")
-    b.add_argument("--period-ms", type=float, default=10.0, help="scan: period in ms")
+    b.add_argument("--period-ms", type=float, default=10.0, help="scan, estop: period in ms")
+    b.add_argument("--presses", type=int, default=100, help="estop: e-stop presses")
     b.add_argument("--seconds", type=float, default=10.0, help="scan: wall seconds to run")
     b.add_argument("--hours", type=float, default=10.0, help="manual: simulated hours")
     b.set_defaults(func=cmd_bench)
