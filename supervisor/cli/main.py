@@ -90,11 +90,17 @@ async def _run(args: argparse.Namespace) -> int:
             _out(f"simulated {line}")
         _out(f'simulated e-stop button: PUT {api.url}/sim/estop {{"pressed": true}}')
     _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
+    unconfirmed: dict[str, str] = {}
     try:
         await bench.run(stop)
     finally:
-        await bench.shutdown()
+        unconfirmed = await bench.shutdown()
         await api.stop()
+    if unconfirmed:
+        # Said only when every device confirmed it: an unreachable supply is not "safe".
+        for device, why in unconfirmed.items():
+            _out(f"stopped: safe state NOT confirmed for {device}: {why}")
+        return EXIT_FAIL
     _out("stopped: all outputs safe")
     return EXIT_OK
 
@@ -121,7 +127,9 @@ async def _sim(args: argparse.Namespace) -> int:
     if sim is None or not sim.served:
         _err(f"{args.io_map}: no device has sim: true; nothing to serve")
         return EXIT_USAGE
-    control = HttpApi(TagDB(), clock, "127.0.0.1", args.control_port, estop=sim.press_estop)
+    control = HttpApi(
+        TagDB(), clock, "127.0.0.1", args.control_port, estop=sim.press_estop, sim_state=sim.state
+    )
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -137,6 +145,7 @@ async def _sim(args: argparse.Namespace) -> int:
     for line in sim.addresses():
         _out(line)
     _out(f'e-stop button: PUT {control.url}/sim/estop {{"pressed": true}}')
+    _out(f"plant state: GET {control.url}/sim/state")
     try:
         await stop.wait()
     finally:
