@@ -38,6 +38,7 @@ bench: $(STAMP)
 	$(BIN)/supervisor bench dry-run --recipe recipes/nimh-25h-slow-cycle.yaml
 	$(BIN)/supervisor bench seed002
 	$(BIN)/supervisor bench faults
+	$(BIN)/supervisor bench estop --presses 100 --period-ms 10
 
 schema: $(STAMP)
 	$(BIN)/supervisor schema --out .

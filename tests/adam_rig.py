@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
-from typing import Final, Protocol
+from typing import Any, Final, Protocol
 
 import pytest
 from rig_transports import IN_PROCESS, TCP
@@ -47,8 +47,11 @@ class Pluggable(Protocol):
     def addresses(self) -> list[str]: ...
 
 
-def make_unit(bench_inputs: Inputs, calls: RelayCalls) -> AdamUnit:
-    """The seed 002 unit; its inputs read ``bench_inputs``, its relays record into ``calls``."""
+def make_unit(
+    bench_inputs: Inputs, calls: RelayCalls, clock: Clock | None = None, **unit: Any
+) -> AdamUnit:
+    """The seed 002 unit; its inputs read ``bench_inputs``, its relays record into ``calls``;
+    with a ``clock`` it has a host watchdog (``unit``: more :class:`AdamUnit` settings)."""
 
     def source(key: tuple[int, int]) -> Callable[[], float | None]:
         return lambda: bench_inputs.get(key)
@@ -63,7 +66,7 @@ def make_unit(bench_inputs: Inputs, calls: RelayCalls) -> AdamUnit:
         for ch in range(8 if kind == "5017" else 7)
     }
     relays = {(3, ch): sink((3, ch)) for ch in range(6)}
-    return AdamUnit(MODULES, analog, relays, raw_format=FORMATS)
+    return AdamUnit(MODULES, analog, relays, raw_format=FORMATS, clock=clock, **unit)
 
 
 def seed002_inputs() -> Inputs:
@@ -112,30 +115,34 @@ class AdamRig:
 
 
 @asynccontextmanager
-async def open_rig(transport: str, clock: Clock) -> AsyncIterator[AdamRig]:
-    """The seed 002 unit plugged in, a link to it over ``transport``, its driver (not polled
-    yet); on exit the driver is closed and the unit unplugged."""
+async def open_rig(
+    transport: str, clock: Clock, unit: dict[str, Any] | None = None, **driver: Any
+) -> AsyncIterator[AdamRig]:
+    """The seed 002 unit plugged in (on ``clock``: its host watchdog runs on it; ``unit``:
+    more :class:`AdamUnit` settings), a link to it over ``transport``, its driver (not
+    polled yet; ``driver``: more :class:`AdamDriver` settings); on exit the driver is closed
+    and the unit unplugged."""
     inputs = seed002_inputs()
     calls: RelayCalls = {}
-    unit = make_unit(inputs, calls)
+    unit_ = make_unit(inputs, calls, clock, **(unit or {}))
     server: Pluggable
     link: InProcessLink | PymodbusTcpLink
     if transport == IN_PROCESS:
-        server = unit
-        await unit.start()
-        link = InProcessLink("adam1", clock, unit, timeout_s=TIMEOUT_S)
+        server = unit_
+        await unit_.start()
+        link = InProcessLink("adam1", clock, unit_, timeout_s=TIMEOUT_S)
         address = "in-process simulator adam"
     elif transport == TCP:
-        sim = AdamSimulator(unit, host=LOOPBACK, port=0)
+        sim = AdamSimulator(unit_, host=LOOPBACK, port=0)
         server = sim
         await sim.start()
         link = PymodbusTcpLink("adam1", sim.host, sim.port, timeout_s=TIMEOUT_S)
         address = f"{LOOPBACK}:{sim.port}"
     else:
         raise ValueError(f"unknown transport {transport!r}")
-    driver = AdamDriver("adam1", clock, link, driver_modules())
+    adam = AdamDriver("adam1", clock, link, driver_modules(), **driver)
     try:
-        yield AdamRig(transport, clock, unit, server, link, driver, address, inputs, calls)
+        yield AdamRig(transport, clock, unit_, server, link, adam, address, inputs, calls)
     finally:
-        await driver.close()
+        await adam.close()
         await server.stop()

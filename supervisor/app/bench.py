@@ -168,8 +168,12 @@ class Bench:
         await self.start()
         await self.engine.run(stop)
 
-    async def shutdown(self) -> None:
-        """Every output to its safe state, then close; continue past failures."""
+    async def shutdown(self) -> dict[str, str]:
+        """Every output to its safe state, then close; continue past failures.
+
+        Returns the devices that could not confirm their safe state, each with why (empty:
+        every device confirmed it). A stop never claims what it did not see.
+        """
         for ch in self.channels.values():
             ch.go_safe()
         self.engine.scan_once()  # queue the zero setpoints
@@ -177,12 +181,19 @@ class Bench:
             runner = self.runners[name]
             if runner.state not in FINAL:
                 collector.close("supervisor stopped", runner.state.value)
-        for d in self.drivers.values():
+        unconfirmed: dict[str, str] = {}
+        for name, d in self.drivers.items():
             try:
                 await d.poll()  # flush the queued safe writes through the normal path
             except Exception:
                 log.exception("%s: flushing safe writes failed", d.name)
-            await d.safe_state()
+            try:
+                why = await d.safe_state()
+            except Exception as exc:  # a driver bug must not hide the others' state
+                log.exception("%s: safe state failed", d.name)
+                why = f"safe state failed: {exc}"
+            if why is not None:
+                unconfirmed[name] = why
             try:
                 await d.close()
             except Exception:
@@ -190,7 +201,15 @@ class Bench:
         if self.sim is not None:
             await self.sim.stop()
         self._started = False
-        log.info("bench %s: all outputs safe", self.cfg.bench)
+        if unconfirmed:
+            log.error(
+                "bench %s: safe state NOT confirmed for %s",
+                self.cfg.bench,
+                "; ".join(f"{n}: {why}" for n, why in unconfirmed.items()),
+            )
+        else:
+            log.info("bench %s: all outputs safe", self.cfg.bench)
+        return unconfirmed
 
 
 def _tag_spec(m: TagMapping, dtype: DType) -> TagSpec:

@@ -194,3 +194,138 @@ async def seed002_benchmark(io_map: str) -> int:
         await task
         await bench.shutdown()
     return 0
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _seed002_file(io_map: str, folder: str, period_s: float | None = None) -> str:
+    """The seed 002 part of ``io_map`` (ADAM, EA, BMS and the EA channel) on free loopback
+    ports, written into ``folder``; ``period_s`` overrides the scan period."""
+    from pathlib import Path
+
+    import yaml
+
+    data = yaml.safe_load(Path(io_map).read_text(encoding="utf-8"))
+    data["devices"] = {k: v for k, v in data["devices"].items() if k in ("adam", "ea", "bms")}
+    data["channels"] = [c for c in data["channels"] if c["source"]["device"] == "ea"]
+    for dev in data["devices"].values():
+        dev["port"] = _free_port()
+    if period_s is not None:
+        data.setdefault("scan", {})["period_s"] = period_s
+    path = Path(folder) / "seed002.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    return str(path)
+
+
+ESTOP_PHASE_SPREAD_S = 0.25
+"""Each press waits a random 0..this after the channel is charging, so that it falls at any
+phase of the scan and of every driver's poll."""
+ESTOP_RELEASE_LIMIT_S = 30.0
+"""Bound on one press or one re-arm: reaching it stops the benchmark with a message (it is
+a hang, not a figure)."""
+
+
+async def estop_benchmark(io_map: str, presses: int = 100, period_s: float = 0.01) -> int:
+    """E-stop latency on the seed 002 bench of ``io_map`` at a ``period_s`` scan, over
+    loopback with the real drivers on the real clock.
+
+    Each press is :meth:`SimulatedBench.press_estop` (what ``PUT /api/sim/estop`` does) while
+    the EA channel charges at 2 A, at a random phase of the scan and the polls. Measured
+    through the plant and the tags only: "supply off" when the plant's supply output is off
+    and the channel's ``output_cmd`` is false; "contactor open" when the plant's battery
+    contactor is open.
+    Between presses the e-stop is released and the channel re-armed through the tags it has
+    (``ack``, ``manual_current``, ``enable``).
+    """
+    import random
+    import tempfile
+
+    from supervisor.app import build_bench
+    from supervisor.devices.registry import load_bench
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = load_bench(_seed002_file(io_map, tmp, period_s))
+    bench = build_bench(cfg, RealClock())
+    (channel,) = (c.name for c in cfg.channels)
+    db = bench.db
+    sim = bench.sim
+    assert sim is not None
+    plant = sim.plant
+    stop = asyncio.Event()
+    await bench.start()
+    task = asyncio.create_task(bench.run(stop))
+
+    async def until(what: str, pred) -> None:  # type: ignore[no-untyped-def]
+        t0 = time.perf_counter()
+        while not pred():
+            if time.perf_counter() - t0 > ESTOP_RELEASE_LIMIT_S:
+                raise RuntimeError(f"e-stop benchmark: gave up waiting for {what}")
+            await asyncio.sleep(0.005)
+
+    supply_s: list[float] = []
+    contactor_s: list[float] = []
+    rng = random.Random(2)  # same press phases on every run
+    try:
+        await until(
+            "the devices",
+            lambda: (
+                all(db[f"{d}.connected"].value is True for d in ("adam", "ea", "bms"))
+                and db["estop.ok"].value is True
+            ),
+        )
+        for _ in range(presses):
+            db.write(f"{channel}.ack", True)
+            await until("the fault to clear", lambda: not db[f"{channel}.fault"].value)
+            db.write(f"{channel}.manual_current", 2.0)
+            db.write(f"{channel}.enable", True)
+            await until(
+                "the channel to charge",
+                lambda: (
+                    plant.supply.output_on
+                    and plant.contactor_closed
+                    and db[f"{channel}.output_cmd"].value is True
+                ),
+            )
+            # A random phase against every poll and scan period (the slowest poll is 0.2 s).
+            await asyncio.sleep(rng.uniform(0.0, ESTOP_PHASE_SPREAD_S))
+            t0 = time.perf_counter()
+            sim.press_estop(True)
+            supply = contactor = None
+            while supply is None or contactor is None:
+                now = time.perf_counter()
+                if now - t0 > ESTOP_RELEASE_LIMIT_S:
+                    raise RuntimeError("e-stop benchmark: the press never took effect")
+                if (
+                    supply is None
+                    and not plant.supply.output_on
+                    and db[f"{channel}.output_cmd"].value is False
+                ):
+                    supply = now - t0
+                if contactor is None and not plant.contactor_closed:
+                    contactor = now - t0
+                await asyncio.sleep(0.0005)
+            supply_s.append(supply)
+            contactor_s.append(contactor)
+            sim.press_estop(False)
+            await until("the e-stop sense", lambda: db["estop.ok"].value is True)
+    finally:
+        stop.set()
+        await task
+        await bench.shutdown()
+    p = ScanStats.percentile
+    st = bench.engine.stats
+    _say(
+        f"e-stop benchmark: seed 002 bench of {io_map}, scan {_ms(period_s)}, {presses} presses,"
+        " real drivers over loopback"
+    )
+    for label, xs in (("supply off", supply_s), ("contactor open", contactor_s)):
+        _say(f"  {label:<15} p50 {_ms(p(xs, 50))}  p99 {_ms(p(xs, 99))}  max {_ms(max(xs))}")
+    _say("  (supply off: plant output off and output_cmd false; contactor open: plant)")
+    _say(f"  scans {st.count}, overruns {st.overruns}, deadlines skipped {st.skipped}")
+    return 0

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import Any
 
 from supervisor.config.models import BenchConfig
 from supervisor.core.clock import Clock
@@ -47,6 +48,29 @@ class SimulatedBench:
 
     def press_estop(self, pressed: bool = True) -> None:
         self.plant.set_estop(pressed)
+
+    def state(self) -> dict[str, Any]:
+        """What the plant is doing now, as JSON-ready values (``GET /api/sim/state``): the
+        battery contactor (and what holds it), the e-stop, the supply, the pack."""
+        p = self.plant
+        s = p.supply
+        return {
+            "contactor_closed": p.contactor_closed,
+            "contactor_coil_on": p.contactor_coil_on,
+            "watchdog_relay_fitted": p.watchdog_timeout_s is not None,
+            "watchdog_relay_closed": p.watchdog_relay_closed,
+            "heartbeat_toggles": p.heartbeat_toggles,
+            "estop_pressed": p.estop_pressed,
+            "supply": {
+                "output_on": s.output_on,
+                "remote": s.remote,
+                "energised": p.supply_energised,
+                "volt_set_v": s.volt_set_v,
+                "curr_set_a": s.curr_set_a,
+                "sink_curr_set_a": s.sink_curr_set_a,
+            },
+            "pack": {"current_a": p.pack_current_a, "voltage_v": p.pack_voltage_v},
+        }
 
 
 def build_simulation(

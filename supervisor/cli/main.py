@@ -95,11 +95,17 @@ async def _run(args: argparse.Namespace) -> int:
             _out(f"simulated {line}")
         _out(f'simulated e-stop button: PUT {api.url}/sim/estop {{"pressed": true}}')
     _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
+    unconfirmed: dict[str, str] = {}
     try:
         await bench.run(stop)
     finally:
-        await bench.shutdown()
+        unconfirmed = await bench.shutdown()
         await api.stop()
+    if unconfirmed:
+        # Said only when every device confirmed it: an unreachable supply is not "safe".
+        for device, why in unconfirmed.items():
+            _out(f"stopped: safe state NOT confirmed for {device}: {why}")
+        return EXIT_FAIL
     _out("stopped: all outputs safe")
     return EXIT_OK
 
@@ -126,7 +132,9 @@ async def _sim(args: argparse.Namespace) -> int:
     if sim is None or not sim.served:
         _err(f"{args.io_map}: no device has sim: true; nothing to serve")
         return EXIT_USAGE
-    control = HttpApi(TagDB(), clock, "127.0.0.1", args.control_port, estop=sim.press_estop)
+    control = HttpApi(
+        TagDB(), clock, "127.0.0.1", args.control_port, estop=sim.press_estop, sim_state=sim.state
+    )
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -142,6 +150,7 @@ async def _sim(args: argparse.Namespace) -> int:
     for line in sim.addresses():
         _out(line)
     _out(f'e-stop button: PUT {control.url}/sim/estop {{"pressed": true}}')
+    _out(f"plant state: GET {control.url}/sim/state")
     try:
         await stop.wait()
     finally:
@@ -367,6 +376,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
         for line in faults.table(asyncio.run(faults.run_all())):
             _out(line)
         return EXIT_OK
+    if args.what == "estop":
+        logging.disable(logging.ERROR)  # every press trips the channel, logged at ERROR
+        return asyncio.run(
+            benchmarks.estop_benchmark(str(DEFAULT_IO_MAP), args.presses, args.period_ms / 1000)
+        )
     if args.what == "dry-run":
         from supervisor.app.dryrun import dry_run, format_report
 
@@ -448,10 +462,11 @@ def build_parser() -> argparse.ArgumentParser:
     ca.set_defaults(func=cmd_calibrate)
 
     b = sub.add_parser("bench", help="benchmarks that print figures")
-    b.add_argument("what", choices=["scan", "manual", "seed002", "dry-run", "faults"])
+    b.add_argument("what", choices=["scan", "manual", "seed002", "dry-run", "faults", "estop"])
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
     b.add_argument("--tags", type=int, default=1000, help="scan: number of tags")
-    b.add_argument("--period-ms", type=float, default=10.0, help="scan: period in ms")
+    b.add_argument("--period-ms", type=float, default=10.0, help="scan, estop: period in ms")
+    b.add_argument("--presses", type=int, default=100, help="estop: e-stop presses")
     b.add_argument("--seconds", type=float, default=10.0, help="scan: wall seconds to run")
     b.add_argument("--hours", type=float, default=10.0, help="manual: simulated hours")
     b.set_defaults(func=cmd_bench)

@@ -284,12 +284,30 @@ class _Checker:
         sim = self.cfg.simulation
         if sim is None:
             return
-        for name in ("lem_current", "voltage_board", "estop_sense", "contactor"):
+        relays = ("contactor", "watchdog_relay")
+        for name in ("lem_current", "voltage_board", "estop_sense", "contactor_feedback", *relays):
             sp = getattr(sim, name)
             if sp is not None:
-                self._sim_point(("simulation", name), sp, relay=name == "contactor")
+                self._sim_point(("simulation", name), sp, relay=name in relays)
         for k, sp in enumerate(sim.thermocouples):
             self._sim_point(("simulation", "thermocouples", k), sp, relay=False)
+        wd, coil = sim.watchdog_relay, sim.contactor
+        if (
+            wd is not None
+            and coil is not None
+            and (wd.device, wd.point) == (coil.device, coil.point)
+        ):
+            path: Path_ = ("simulation", "watchdog_relay", "point")
+            m = self.pos.value(path) or self.pos.nearest(path)
+            self.errors.append(
+                ConfigError(
+                    f"the heartbeat {wd.point!r} is also the contactor coil relay; the watchdog"
+                    " relay needs its own output (seed 002 §1.5: in series with the coil)",
+                    self.file,
+                    m.line,
+                    m.col,
+                )
+            )
 
     def _sim_point(self, path: Path_, sp: SimPoint, relay: bool) -> None:
         dev = self.cfg.devices.get(sp.device)

@@ -398,6 +398,16 @@ class SimPoint(Strict):
     point: str
 
 
+class SimWatchdogRelay(SimPoint):
+    """The hardware watchdog relay in series with the contactor coil (DESIGN.md "Safety"),
+    fed by the heartbeat relay output ``point`` that the supervisor toggles: its contact is
+    closed only while that output changed state within ``timeout_s``."""
+
+    timeout_s: float = Field(
+        1.5, gt=0, le=60, description="watchdog time: contact opens this long after the last toggle"
+    )
+
+
 class SimulationConfig(Strict):
     """The simulated seed-002 plant: one pack behind the EA supply, seen by ADAM and BMS."""
 
@@ -409,7 +419,17 @@ class SimulationConfig(Strict):
     voltage_board_ratio: float = Field(0.1, gt=0, description="1:10 divider board")
     estop_sense: SimPoint | None = None
     thermocouples: list[SimPoint] = []
-    contactor: SimPoint | None = None
+    contactor: SimPoint | None = Field(None, description="relay output driving the contactor coil")
+    watchdog_relay: SimWatchdogRelay | None = Field(
+        None,
+        description="hardware watchdog relay in series with the contactor coil, fed by this"
+        " heartbeat relay output; null: not fitted (the contactor follows its coil relay)",
+    )
+    contactor_feedback: SimPoint | None = Field(
+        None,
+        description="analog input wired to the contactor's auxiliary contact: 5 V while the"
+        " contactor is really closed, 0 V when open",
+    )
 
 
 class BenchConfig(Strict):

@@ -4,10 +4,17 @@ Every concrete driver implements the four ``_`` hooks; this class owns the polic
 must be the same everywhere: a failed poll never leaves an old value looking GOOD, a
 lost device is logged once and its recovery once (Home Assistant practice), reconnects
 back off exponentially, and the safe state is attempted even when things are failing.
+
+Output writes leave when the scan queues them (DESIGN.md "Safety"): ``write()`` wakes the
+driver's own task, which writes the pending outputs at once (:meth:`PolledDriver.flush`),
+between its polls, without reading the inputs; on a virtual clock the scan engine calls
+:meth:`PolledDriver.flush` right after each scan instead. One lock serialises polls,
+flushes, the safe state and close, so a write never interleaves with a poll's requests.
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from abc import ABC, abstractmethod
 from collections import deque
@@ -35,6 +42,10 @@ class PolledDriver(ABC):
         self.poll_period_s = poll_period_s
         self._image: dict[str, Sample] = {}
         self._pending: dict[str, Value] = {}
+        self._io_cycle = asyncio.Lock()
+        """Held by every exchange with the device (poll, flush, safe state, close)."""
+        self._wake = asyncio.Event()
+        """Set by ``write()``: the driver's task flushes without waiting for its next poll."""
         self._connected = False
         self._lost_logged = False
         self._backoff_s = BACKOFF_START_S
@@ -80,67 +91,124 @@ class PolledDriver(ABC):
     def image(self) -> Mapping[str, Sample]:
         return self._image
 
+    @property
+    def pending(self) -> Mapping[str, Value]:
+        """Writes queued and not sent yet (latest value per point)."""
+        return self._pending
+
     def write(self, point: str, value: Value) -> None:
-        """Queue a write; the latest value per point wins. Never blocks."""
+        """Queue a write; the latest value per point wins. Never blocks: it wakes the
+        driver's task, which sends it at once (see :meth:`flush`)."""
         info = self.points().get(point)
         if info is None or info.direction != "out":
             raise KeyError(f"{self.name}: no output point {point!r}")
         self._pending[point] = value
+        self._wake.set()
 
     async def poll(self) -> None:
         """One poll cycle: (re)connect if due, flush writes, read inputs."""
-        now = self.clock.now()
-        if not self._connected:
-            if now < self._next_connect_t:
-                return
+        async with self._io_cycle:
+            now = self.clock.now()
+            if not self._connected:
+                if now < self._next_connect_t:
+                    return
+                try:
+                    await self._connect()
+                except (TimeoutError, SupervisorError, OSError) as exc:
+                    self._fail(exc, now)
+                    return
+                self._connected = True
+                self._backoff_s = BACKOFF_START_S
             try:
-                await self._connect()
+                await self._write_pending()
+                samples = await self._read()
             except (TimeoutError, SupervisorError, OSError) as exc:
                 self._fail(exc, now)
                 return
-            self._connected = True
-            self._backoff_s = BACKOFF_START_S
-        try:
-            while self._pending:
-                point, value = next(iter(self._pending.items()))
-                del self._pending[point]
-                await self._write(point, value)
-            samples = await self._read()
-        except (TimeoutError, SupervisorError, OSError) as exc:
-            self._fail(exc, now)
-            return
-        self.polls += 1
-        self._image.update(samples)
-        if self._lost_logged:
-            log.info("%s: device recovered", self.name)
-            self._lost_logged = False
+            self.polls += 1
+            self._image.update(samples)
+            if self._lost_logged:
+                log.info("%s: device recovered", self.name)
+                self._lost_logged = False
+
+    async def flush(self) -> None:
+        """Send the queued writes now, each verified by its read-back, without reading the
+        inputs. Nothing happens while the device is not connected: the next poll connects
+        (with its backoff) and sends them. A write that fails is a failed poll (every input
+        BAD, reconnect), as in :meth:`poll`."""
+        async with self._io_cycle:
+            if not (self._connected and self._pending):
+                return
+            now = self.clock.now()
+            try:
+                await self._write_pending()
+            except (TimeoutError, SupervisorError, OSError) as exc:
+                self._fail(exc, now)
 
     async def run(self) -> None:
-        """Poll forever at ``poll_period_s`` on absolute deadlines (cancel to stop)."""
+        """Poll forever at ``poll_period_s`` on absolute deadlines (cancel to stop); in
+        between, send queued writes as soon as ``write()`` wakes it."""
         next_t = self.clock.now()
         while True:
-            await self.poll()
-            next_t += self.poll_period_s
-            now = self.clock.now()
-            if next_t < now:  # overrun: no burst catch-up
-                next_t = now
-            await self.clock.sleep_until(next_t)
+            if self.clock.now() >= next_t:
+                await self.poll()
+                next_t += self.poll_period_s
+                now = self.clock.now()
+                if next_t < now:  # overrun: no burst catch-up
+                    next_t = now
+            else:
+                await self.flush()
+            await self._idle_until(next_t)
 
-    async def safe_state(self) -> None:
-        """Best effort: drop queued writes and drive outputs safe; log and go on on failure."""
-        self._pending.clear()
-        try:
-            await self._safe()
-        except (TimeoutError, SupervisorError, OSError) as exc:
-            log.error("%s: could not reach safe state: %s", self.name, exc)
+    async def safe_state(self) -> str | None:
+        """Best effort: drop queued writes and drive outputs safe; log and go on on failure.
+
+        Returns None when the device confirmed its safe state, else why it could not be
+        confirmed (for the shutdown report: a stop must never claim what it did not see).
+        """
+        async with self._io_cycle:
+            self._pending.clear()
+            try:
+                await self._safe()
+            except (TimeoutError, SupervisorError, OSError) as exc:
+                log.error("%s: could not reach safe state: %s", self.name, exc)
+                return str(exc).removeprefix(f"{self.name}: ") or type(exc).__name__
+            return None
 
     async def close(self) -> None:
-        try:
-            await self._disconnect()
-        finally:
-            self._connected = False
+        async with self._io_cycle:
+            try:
+                await self._disconnect()
+            finally:
+                self._connected = False
 
     # --- internals -------------------------------------------------------------
+    async def _write_pending(self) -> None:
+        """Write every queued output in turn (the caller holds the I/O lock); a point
+        written again meanwhile is sent again with its latest value."""
+        while self._pending:
+            point, value = next(iter(self._pending.items()))
+            del self._pending[point]
+            await self._write(point, value)
+
+    async def _idle_until(self, t: float) -> None:
+        """Wait until ``t`` or until ``write()`` queues something that can be sent."""
+        if self._pending and self._connected:
+            return
+        self._wake.clear()
+        delay = t - self.clock.now()
+        if delay <= 0:
+            return
+        if self.clock.virtual:
+            # Virtual time only moves when someone sleeps; the engine flushes in lockstep.
+            await self.clock.sleep_until(t)
+            return
+        try:
+            async with asyncio.timeout(delay):
+                await self._wake.wait()
+        except TimeoutError:
+            pass
+
     def _fail(self, exc: BaseException, now: float) -> None:
         self.failures += 1
         self.last_error = str(exc)

@@ -89,9 +89,11 @@ class HttpApi:
         port: int = 8080,
         estop: Callable[[bool], None] | None = None,
         commands: CommandPath | None = None,
+        sim_state: Callable[[], dict[str, Any]] | None = None,
     ):
         self.db = db
         self._estop = estop
+        self._sim_state = sim_state
         # Without a bench (``supervisor sim``'s control API) writes still take the path.
         self.commands = commands if commands is not None else CommandPath(db, clock)
         self.clock = clock
@@ -113,6 +115,10 @@ class HttpApi:
         if estop is not None:
             # Simulation only: the e-stop button of the simulated bench.
             app.add_routes([web.put("/api/sim/estop", self._sim_estop)])
+        if sim_state is not None:
+            # Simulation only: what the simulated plant does (contactor, supply), so that a
+            # test or a person can see the hardware's side, not only the supervisor's.
+            app.add_routes([web.get("/api/sim/state", self._sim_state_get)])
         self.app = app
 
     @property
@@ -242,6 +248,10 @@ class HttpApi:
         self._estop(body["pressed"])
         log.warning("simulation: e-stop %s", "PRESSED" if body["pressed"] else "released")
         return web.json_response({"pressed": body["pressed"]})
+
+    async def _sim_state_get(self, request: web.Request) -> web.Response:
+        assert self._sim_state is not None
+        return web.json_response(self._sim_state())
 
     async def _put(self, request: web.Request) -> web.Response:
         """``PUT /api/tags/{name}`` ``{"value": ...}``: a write through the command path."""

@@ -242,16 +242,17 @@ class ChannelGuard:
         return bool(self._enable.value)
 
     def _power_path_closed(self, now: float | None = None) -> bool:
-        """The battery is on the source: the contactor's auxiliary contact says closed, or
-        (without one) its coil has been on for the discrepancy time."""
+        """The battery is on the source and the readings have settled: the contactor's
+        auxiliary contact (or, without one, its coil) has said closed for the discrepancy
+        time — a source polled slower than the contactor still shows its old terminal
+        voltage for a moment after it closes."""
         if self._contactor is None:
             return True
-        fb = self._contactor_fb
-        if fb is not None:
-            return fb.good and fb.value is True
         if now is None:
             return bool(self._armed.value)
-        return self._closing.update(self._contactor.value is True, now)
+        fb = self._contactor_fb
+        closed = fb.good and fb.value is True if fb is not None else self._contactor.value is True
+        return self._closing.update(closed, now)
 
     def _internal(self) -> str:
         err = self._logic_error.value

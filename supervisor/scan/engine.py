@@ -4,7 +4,10 @@
    logic sees one consistent snapshot; an input older than its stale limit turns BAD.
 2. Logic: phases in order (derived values, interlocks and alarms, step chains). An
    exception in a phase is counted and logged; the phase's owner decides what goes safe.
-3. Outputs: output tags whose value changed are queued to their driver (never awaited).
+3. Outputs: output tags whose value changed are queued to their driver (never awaited);
+   the driver's own task sends them at once (DESIGN.md "Safety": output writes leave when
+   the scan queues them). On a virtual clock the engine flushes them in lockstep right
+   after the scan, so virtual-clock runs see the same order of events.
 4. Publish: every publisher gets the scan end; publishers never block the scan.
 
 Deadlines are absolute (start + k·period). After an overrun the engine does not burst
@@ -152,6 +155,14 @@ class ScanEngine:
                 nxt = due + d.poll_period_s
                 self._next_poll[id(d)] = nxt if nxt > now else now + d.poll_period_s
 
+    async def flush_drivers(self) -> None:
+        """Lockstep mode (virtual clock): send the writes this scan queued, in order, as the
+        drivers' own tasks do on a real clock as soon as they are queued."""
+        for d in self.drivers:
+            flush = getattr(d, "flush", None)  # a Driver that only polls has none
+            if flush is not None:
+                await flush()
+
     def scan_once(self) -> None:
         """Inputs, logic, outputs, publish — synchronous: the scan never awaits I/O."""
         t0 = time.perf_counter()
@@ -273,6 +284,8 @@ class ScanEngine:
                 self.stats.jitters_s.append(jitter)
                 self.db.update(jtag, jitter)
             self.scan_once()
+            if clock.virtual:
+                await self.flush_drivers()
             done += 1
             k += 1
             nxt = start + k * self.period_s

@@ -6,6 +6,14 @@ voltage, the voltage board, the BMS frames and the thermocouples alike.
 
 Physics is integrated lazily: every access first calls ``advance()``, which steps the
 battery from the last update to ``clock.now()`` with the current that was flowing.
+
+The battery contactor (seed 002 §1.5) is closed only while its coil is energised: through
+the ADAM 5060 relay (the software e-stop) and, when fitted, through the contact of a
+hardware watchdog relay in series with it (DESIGN.md "Safety"). That watchdog relay is fed by
+a heartbeat output the supervisor toggles; its contact opens ``watchdog_timeout_s`` after
+the last toggle, so a dead supervisor disconnects the battery. Its opening instant is
+integrated like everything else: the current stops at that instant, not when someone next
+looks.
 """
 
 from __future__ import annotations
@@ -40,11 +48,18 @@ class BenchPlant:
     battery: BatteryModel
     ambient_c: float = 25.0
     supply: SupplyState = field(default_factory=SupplyState)
-    # Battery contactor, closed by the ADAM 5060 relay (the software e-stop, seed 002 §1.5).
-    contactor_closed: bool = False
+    # The contactor coil relay (ADAM 5060, the software e-stop, seed 002 §1.5).
+    contactor_coil_on: bool = False
     # Hardware e-stop: cuts the supply's mains through its own contactor (seed 002 §1.5).
     estop_pressed: bool = False
-    # Supply mains present (False while the e-stop is pressed).
+    watchdog_timeout_s: float | None = None
+    """The hardware watchdog relay in series with the coil: its contact opens this long after
+    the heartbeat output last changed state. None: not fitted (the coil relay alone)."""
+    heartbeat_on: bool = False
+    """Last state of the heartbeat output feeding the watchdog relay."""
+    heartbeat_toggles: int = 0
+    _heartbeat_t: float | None = None  # last toggle; None: never toggled (contact open)
+    _watchdog_open: bool = True  # the watchdog relay's contact, as of ``_t``
     _t: float | None = None
     _current_a: float = 0.0
 
@@ -54,13 +69,47 @@ class BenchPlant:
         if self._t is None:
             self._t = now
             self._current_a = self._regulate()
+        expiry = self._watchdog_expiry()
+        if expiry is not None and expiry < now:
+            # The watchdog relay opened in between: the current flowed until then only.
+            if expiry > self._t:
+                self.battery.step(self._current_a, expiry - self._t)
+                self._t = expiry
+            self._watchdog_open = True
+            self._current_a = self._regulate()
         dt = now - self._t
         if dt > 0:
             self.battery.step(self._current_a, dt)
             self._t = now
             self._current_a = self._regulate()
         # dt == 0: nothing moved since the last regulation. Change settings through
-        # set_supply/set_contactor/set_estop (they regulate), not by assigning fields.
+        # set_supply/set_contactor/set_estop/set_heartbeat (they regulate), not by
+        # assigning fields.
+
+    def _watchdog_expiry(self) -> float | None:
+        """When the watchdog relay's contact opens (it is closed now), else None."""
+        if self.watchdog_timeout_s is None or self._watchdog_open or self._heartbeat_t is None:
+            return None
+        return self._heartbeat_t + self.watchdog_timeout_s
+
+    # --- the contactor ----------------------------------------------------------------
+    @property
+    def watchdog_relay_closed(self) -> bool:
+        """The watchdog relay's contact (True when none is fitted): closed while the heartbeat
+        toggled within ``watchdog_timeout_s``."""
+        self.advance()
+        return self.watchdog_timeout_s is None or not self._watchdog_open
+
+    @property
+    def contactor_closed(self) -> bool:
+        """The battery contactor itself (what its auxiliary contact reports): its coil relay
+        on and, when fitted, the watchdog relay's contact closed."""
+        self.advance()
+        return self._contactor_closed()
+
+    def _contactor_closed(self) -> bool:
+        watchdog_ok = self.watchdog_timeout_s is None or not self._watchdog_open
+        return self.contactor_coil_on and watchdog_ok
 
     # --- what the sensors see --------------------------------------------------------
     @property
@@ -87,7 +136,7 @@ class BenchPlant:
     def supply_voltage_v(self) -> float:
         """What the supply measures at its terminals."""
         self.advance()
-        if self.contactor_closed:
+        if self._contactor_closed():
             return self.battery.voltage_at(self._current_a)
         return self.supply.volt_set_v if self.supply_energised else 0.0
 
@@ -102,8 +151,21 @@ class BenchPlant:
         self._current_a = self._regulate()
 
     def set_contactor(self, closed: bool) -> None:
+        """The coil relay (the contactor closes with it unless the watchdog relay is open)."""
         self.advance()
-        self.contactor_closed = closed
+        self.contactor_coil_on = closed
+        self._current_a = self._regulate()
+
+    def set_heartbeat(self, on: bool) -> None:
+        """The heartbeat output feeding the watchdog relay: a change of state retriggers it
+        (its contact closes, or stays closed, for ``watchdog_timeout_s`` more)."""
+        self.advance()
+        if on == self.heartbeat_on:
+            return
+        self.heartbeat_on = on
+        self.heartbeat_toggles += 1
+        self._heartbeat_t = self.clock.now()
+        self._watchdog_open = False
         self._current_a = self._regulate()
 
     def set_estop(self, pressed: bool) -> None:
@@ -122,7 +184,7 @@ class BenchPlant:
         the terminal voltage and sources when above (reference devices.md, EA section).
         """
         s = self.supply
-        if not (self.supply_energised and self.contactor_closed):
+        if not (self.supply_energised and self._contactor_closed()):
             return 0.0
         v_pack = self.battery.voltage_at
         i_src = max(0.0, s.curr_set_a)
@@ -162,4 +224,10 @@ def make_cell(cell: SimCell) -> BatteryModel:
 def make_plant(sim: SimulationConfig | None, clock: Clock) -> BenchPlant:
     """The seed-002 plant of an I/O map's ``simulation:`` section (defaults when absent)."""
     sc = sim or SimulationConfig()
-    return BenchPlant(clock, make_cell(sc.pack), ambient_c=sc.ambient_c)
+    wd = sc.watchdog_relay
+    return BenchPlant(
+        clock,
+        make_cell(sc.pack),
+        ambient_c=sc.ambient_c,
+        watchdog_timeout_s=None if wd is None else wd.timeout_s,
+    )

@@ -111,9 +111,12 @@ async def test_the_unit_switches_off_when_the_socket_closes_silently(
     d = rig.make_driver(watchdog_s=0.3, poll_period_s=0.1)
     await d.poll()
     await charge(d, 2.0)
-    await d.close()
+    # The socket goes away without a word (a crash): not close(), which now switches the
+    # output off and releases the lock itself (test_ea_driver.py).
+    await d._drop_transport()
     await wait_until(lambda: not rig.plant.supply.output_on, "the watchdog switched the output off")
     assert not sim.remote
+    assert sim.watchdog_trips == 1
 
 
 async def test_sim_disconnect_alone_does_not_switch_the_output_off(

@@ -729,7 +729,8 @@ async def test_registration_links_the_driver_to_its_simulator_in_process(root: P
     assert img["slot0.ai1"].value == pytest.approx(plant.pack_voltage_v * 0.1, abs=lsb("5017"))
     assert img["slot0.ai2"].value == pytest.approx(5.0, abs=lsb("5017"))
     assert img["slot1.tc0"].value == pytest.approx(plant.pack_temperature_c, abs=lsb("5018"))
-    driver.write("slot3.do0", True)  # the battery contactor
+    driver.write("slot3.do0", True)  # the battery contactor coil
+    driver.write("slot3.do5", True)  # a first heartbeat toggle for its watchdog relay
     await driver.poll()
     assert plant.contactor_closed
     await driver.close()

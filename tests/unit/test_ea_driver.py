@@ -49,6 +49,7 @@ from supervisor.devices.ea import (
 from supervisor.devices.ea.protocol import MAX_LINE_BYTES, QUES_OCP_BIT, WATCHDOG_ENABLE_HEADER
 from supervisor.devices.registry import bench_from_data
 from supervisor.sim.plant import BenchPlant
+from supervisor.testing import wait_until
 
 MakeDriver = Callable[..., EaDriver]
 
@@ -349,6 +350,43 @@ class TestDriverOnBothTransports:
         with caplog.at_level(logging.ERROR, logger="supervisor.devices.base"):
             await d.safe_state()
         assert any("safe state" in r.getMessage() for r in caplog.records)
+
+    async def test_safe_state_says_whether_it_was_confirmed(
+        self, driver: EaDriver, make_driver: MakeDriver
+    ) -> None:
+        await charge(driver, 2.0)
+        assert await driver.safe_state() is None
+        why = await make_driver().safe_state()  # never connected
+        assert why is not None and "not connected" in why
+
+    # --- a clean close ---------------------------------------------------------------------
+    async def test_a_clean_close_switches_off_zeroes_the_set_values_then_releases_the_lock(
+        self, driver: EaDriver, sim: EaSimulator, plant: BenchPlant
+    ) -> None:
+        await charge(driver, 2.0)
+        await driver.close()
+        # Over TCP the last line reaches the unit just after close() returns.
+        await wait_until(lambda: not sim.remote, "the remote lock released")
+        s = plant.supply
+        assert (s.output_on, s.volt_set_v, s.curr_set_a, s.sink_curr_set_a) == (False, 0, 0, 0)
+        assert sim.lines[-4:] == [
+            "CURR 0; SINK:CURR 0; VOLT 0",
+            "OUTP OFF",
+            "CURR?; SINK:CURR?; OUTP?",
+            "SYST:LOCK OFF",
+        ]
+        assert sim.handle_line(b"SYST:LOCK:OWN?\n") == "NONE"  # the front panel may take it
+
+    async def test_a_close_that_cannot_confirm_the_output_off_keeps_the_lock(
+        self, driver: EaDriver, sim: EaSimulator, caplog: pytest.LogCaptureFixture
+    ) -> None:
+        await charge(driver, 2.0)
+        sim.corrupt_next_reply("CURR?", "#!garbage")
+        with caplog.at_level(logging.WARNING, logger="supervisor.devices.ea.driver"):
+            await driver.close()
+        assert "SYST:LOCK OFF" not in sim.lines
+        assert sim.remote  # the unit's watchdog switches it off: watchdog_s after the last line
+        assert any("remote lock kept" in r.getMessage() for r in caplog.records)
 
 
 # --- in process: writes refused before any I/O, a silent device on virtual time ---------------

@@ -33,8 +33,12 @@ def _driver(name: str, dev: AdamDevice, wiring: DriverWiring) -> Driver:
         name,
         wiring.clock,
         link,
-        {slot: AdamModule(m.kind, m.raw_format) for slot, m in sorted(dev.modules.items())},
+        {
+            slot: AdamModule(m.kind, m.raw_format, m.poll_period_s)
+            for slot, m in sorted(dev.modules.items())
+        },
         poll_period_s=dev.poll_period_s,
+        host_watchdog_s=dev.host_watchdog_s,
     )
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Final, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from supervisor.config.models import NetworkDevice, Strict
 from supervisor.core.driver import PointInfo
@@ -50,7 +50,14 @@ MODULE_KINDS: Final[Mapping[str, ModuleKind]] = MappingProxyType(
 
 MIN_POLL_PERIOD_5017_S: Final = 0.1
 """UNVERIFIED (devices.md [U]): the 5017 converts about 10 samples/s in total; polling
-faster only re-reads old values and loads the unit."""
+faster only re-reads old values and loads the unit. A slot may still be read faster on
+purpose (its own ``poll_period_s``): for a level such as the e-stop sense (seed 002 §1.5),
+re-reading is what we want, so that the supervisor sees a change as soon as the module has
+converted it, not up to a whole slow poll period later."""
+
+HOST_WATCHDOG_POLL_RATIO: Final = 3.0
+"""``host_watchdog_s`` must be at least this many (fastest) poll periods: every poll is the
+keep-alive, it must come well within the unit's timeout (as for the EA's watchdog)."""
 
 
 def slot_points(slot: int, kind: str) -> list[PointInfo]:
@@ -82,6 +89,13 @@ def catalog(modules: Mapping[int, str]) -> dict[str, PointInfo]:
 class AdamModuleConfig(Strict):
     kind: Literal["5017", "5018", "5060", "5069"]
     raw_format: Literal["offset", "twos"] = "offset"
+    poll_period_s: float | None = Field(
+        None,
+        gt=0,
+        le=10,
+        description="read this slot this often (default: the device's poll_period_s); a"
+        " safety input (the e-stop sense) at the scan rate, thermocouples slower",
+    )
 
 
 class AdamDevice(NetworkDevice):
@@ -91,6 +105,13 @@ class AdamDevice(NetworkDevice):
     port: int = Field(502, ge=1, le=65535)
     unit_id: int = Field(1, ge=0, le=255)
     modules: dict[int, AdamModuleConfig] = Field(min_length=1)
+    host_watchdog_s: float | None = Field(
+        None,
+        gt=0,
+        description="arm the unit's host (communication) watchdog: with no request for this"
+        " long it switches every relay off (the contactor opens when the supervisor dies);"
+        " null: not armed",
+    )
 
     @field_validator("modules")
     @classmethod
@@ -99,6 +120,38 @@ class AdamDevice(NetworkDevice):
             if slot not in SLOTS:
                 raise ValueError(f"slot {slot} does not exist (ADAM-5000/TCP slots are 0..7)")
         return v
+
+    def slot_period_s(self, slot: int) -> float:
+        """How often ``slot`` is read."""
+        own = self.modules[slot].poll_period_s
+        return self.poll_period_s if own is None else own
+
+    @property
+    def fastest_period_s(self) -> float:
+        """The driver's own poll period: its fastest slot's."""
+        return min(self.slot_period_s(slot) for slot in self.modules)
+
+    @model_validator(mode="after")
+    def _periods(self) -> AdamDevice:
+        for slot in self.modules:
+            if self.slot_period_s(slot) >= self.stale_after_s:
+                raise ValueError(
+                    f"slot {slot} is read every {self.slot_period_s(slot):g} s, not faster than"
+                    f" stale_after_s ({self.stale_after_s:g} s): its values would read stale"
+                )
+        if self.host_watchdog_s is not None:
+            # Imported here: the codec imports this catalog.
+            from supervisor.devices.adam.protocol import host_watchdog_counts
+
+            host_watchdog_counts(self.host_watchdog_s)  # ValueError names what is wrong
+            fastest = self.fastest_period_s
+            if self.host_watchdog_s < HOST_WATCHDOG_POLL_RATIO * fastest - 1e-9:
+                raise ValueError(
+                    f"host_watchdog_s ({self.host_watchdog_s:g}) must be at least"
+                    f" {HOST_WATCHDOG_POLL_RATIO:g} x the fastest poll period ({fastest:g} s)"
+                    " so the keep-alive beats the unit's timeout"
+                )
+        return self
 
     def points(self) -> Mapping[str, PointInfo]:
         return catalog({slot: m.kind for slot, m in self.modules.items()})

@@ -132,10 +132,12 @@ class ModbusExceptionAnswer(Exception):
 
 @dataclass(frozen=True)
 class AdamModule:
-    """One I/O module in a slot: its type and, for analog inputs, the raw number format."""
+    """One I/O module in a slot: its type, for analog inputs the raw number format, and how
+    often the driver reads it (``None``: the driver's default period)."""
 
     kind: str
     raw_format: str = DEFAULT_RAW_FORMAT
+    poll_period_s: float | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in MODULE_KINDS:
@@ -144,6 +146,11 @@ class AdamModule:
             raise ValueError(
                 f"unknown raw format {self.raw_format!r}; known: {', '.join(RAW_FORMATS)}"
             )
+        period = self.poll_period_s
+        if period is not None and (
+            isinstance(period, bool) or not math.isfinite(period) or period <= 0
+        ):
+            raise ValueError(f"poll_period_s must be a number of seconds > 0, got {period!r}")
 
     @property
     def spec(self) -> ModuleKind:
@@ -245,3 +252,73 @@ def is_burnout(raw: int, fmt: str = DEFAULT_RAW_FORMAT) -> bool:
     _check_format(fmt)
     _check_raw(raw)
     return raw in TC_BURNOUT_RAW[fmt]
+
+
+# --- host (communication) watchdog ----------------------------------------------------
+# The ADAM-5000/TCP's own watchdog: when no host talks to it for its timeout, its outputs
+# go to their safe values (DESIGN.md "Safety": the contactor opens when the supervisor
+# dies). devices.md gives no Modbus register for it, and no Advantech document giving them
+# was found: EVERY address and value below is UNVERIFIED, a placeholder laid out like the
+# host watchdogs of comparable Modbus TCP I/O (a timeout register where 0 disarms, a safe
+# value per output, e.g. CREVIS NA-9189 0x1020 in 100 ms units, ICP DAS ET-7000 safe values
+# [S]). Read the unit's manual (or the ADAM-5000/TCP utility's Modbus traffic) and correct
+# them here; the driver, the simulated unit and the tests all follow.
+
+HOST_WATCHDOG_TIMEOUT_REGISTER: Final = 0x0100
+"""UNVERIFIED: holding register of the host watchdog timeout in :data:`HOST_WATCHDOG_UNIT_S`
+counts; writing a count arms (and re-arms) it, 0 disarms it. Written FC06, read back FC03."""
+
+HOST_WATCHDOG_REFRESH_REGISTER: Final = 0x0101
+"""UNVERIFIED: the "host OK" register: writing :data:`HOST_WATCHDOG_REFRESH_VALUE` restarts
+the timer (used only when :data:`HOST_WATCHDOG_NEEDS_REFRESH`)."""
+
+HOST_WATCHDOG_REFRESH_VALUE: Final = 1
+"""UNVERIFIED: what a "host OK" write carries."""
+
+HOST_WATCHDOG_SAFE_VALUES_REGISTER: Final = 0x0108
+"""UNVERIFIED: holding register ``0x0108 + slot``: the safe value of that relay slot, bit
+``ch`` = relay ``ch`` energised after a timeout. The driver writes 0 (every relay off: the
+contactor coil de-energised, as after a power cycle)."""
+
+HOST_WATCHDOG_UNIT_S: Final = 0.1
+"""UNVERIFIED: one count of the timeout register. The ADAM-4000 ASCII command family counts
+its host watchdog in 100 ms units (``~AA2<flag><timeout><safe>``, 01..FF) [S]."""
+
+HOST_WATCHDOG_MAX_COUNTS: Final = 0xFFFF
+"""UNVERIFIED: the largest timeout the register holds (a 16-bit register)."""
+
+HOST_WATCHDOG_NEEDS_REFRESH: Final = False
+"""UNVERIFIED: False: any Modbus request counts as host communication (as for ICP DAS
+ET-7000 and WAGO 750 couplers [S]); every poll then keeps the watchdog alive. True: the unit
+wants an explicit "host OK" (as the ASCII ``~**`` command [S]): the driver writes
+:data:`HOST_WATCHDOG_REFRESH_REGISTER` on every poll and the simulated unit counts only
+those writes."""
+
+HOST_WATCHDOG_REGISTERS: Final = range(
+    HOST_WATCHDOG_TIMEOUT_REGISTER, HOST_WATCHDOG_SAFE_VALUES_REGISTER + len(SLOTS)
+)
+"""Every register of the host watchdog block (outside the analog block ``0..8·8-1``)."""
+
+
+def host_watchdog_counts(timeout_s: float) -> int:
+    """The timeout register value for ``timeout_s`` (ValueError if the register cannot hold
+    it: not a whole number of :data:`HOST_WATCHDOG_UNIT_S`, or out of range)."""
+    if isinstance(timeout_s, bool) or not math.isfinite(timeout_s):
+        raise ValueError(f"host watchdog timeout must be a number of seconds, got {timeout_s!r}")
+    counts = round(timeout_s / HOST_WATCHDOG_UNIT_S)
+    if abs(counts * HOST_WATCHDOG_UNIT_S - timeout_s) > 1e-6:
+        raise ValueError(
+            f"host watchdog timeout {timeout_s:g} s is not a multiple of"
+            f" {HOST_WATCHDOG_UNIT_S:g} s (the unit's register counts in those)"
+        )
+    if not 1 <= counts <= HOST_WATCHDOG_MAX_COUNTS:
+        top = HOST_WATCHDOG_MAX_COUNTS * HOST_WATCHDOG_UNIT_S
+        raise ValueError(
+            f"host watchdog timeout {timeout_s:g} s is outside {HOST_WATCHDOG_UNIT_S:g}..{top:g} s"
+        )
+    return counts
+
+
+def host_watchdog_seconds(counts: int) -> float:
+    """Inverse of :func:`host_watchdog_counts` (0: disarmed)."""
+    return counts * HOST_WATCHDOG_UNIT_S

@@ -7,13 +7,16 @@ request is answered by the unit (its values, its exception answers, its faults);
 does the framing, the bit packing of coils and the word order. The in-process link calls
 the same unit directly.
 
-``stop()`` then ``start()`` models a network outage: same port again, relay states kept.
-Only bind 127.0.0.1 in tests.
+``stop()`` then ``start()`` models a network outage: same port again, relay states kept
+(unless the unit's host watchdog, once armed, switched them off meanwhile: it is checked
+by a task every :data:`CHECK_PERIOD_S` while served, on the unit's clock, which must then
+be a real clock; and lazily before every request). Only bind 127.0.0.1 in tests.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 from collections.abc import Callable
 from typing import Final
@@ -34,6 +37,7 @@ from supervisor.devices.adam.protocol import (
     FC_WRITE_MULTIPLE_REGISTERS,
     FC_WRITE_SINGLE_COIL,
     FC_WRITE_SINGLE_REGISTER,
+    HOST_WATCHDOG_REGISTERS,
     REGISTERS_PER_SLOT,
     ModbusExceptionAnswer,
 )
@@ -53,8 +57,12 @@ _REGISTER_FUNCTIONS: Final = frozenset(
         23,  # read/write multiple registers
     }
 )
+_REGISTER_WRITES: Final = frozenset({FC_WRITE_SINGLE_REGISTER, FC_WRITE_MULTIPLE_REGISTERS})
 _N_REGISTERS: Final = REGISTERS_PER_SLOT * len(SLOTS)
 _N_COILS: Final = COILS_PER_SLOT * len(SLOTS)
+
+CHECK_PERIOD_S: Final = 0.02
+"""How often a served unit enforces its host watchdog between requests (as the EA's)."""
 
 
 class AdamSimulator:
@@ -76,6 +84,7 @@ class AdamSimulator:
         self.unit_id = unit_id
         self._truncate_next = False
         self._server: ModbusTcpServer | None = None
+        self._checker: asyncio.Task[None] | None = None
 
     @property
     def name(self) -> str:
@@ -104,7 +113,16 @@ class AdamSimulator:
             # refuses addresses outside the configured modules.
             [SimData(0, values=[False] * _N_COILS, datatype=DataType.BITS)],
             [SimData(0, values=[False] * COILS_PER_SLOT, datatype=DataType.BITS)],
-            [SimData(0, count=_N_REGISTERS, values=0, datatype=DataType.REGISTERS)],
+            # The host watchdog's registers are holding registers after the analog block.
+            [
+                SimData(0, count=_N_REGISTERS, values=0, datatype=DataType.REGISTERS),
+                SimData(
+                    HOST_WATCHDOG_REGISTERS[0],
+                    count=len(HOST_WATCHDOG_REGISTERS),
+                    values=0,
+                    datatype=DataType.REGISTERS,
+                ),
+            ],
             [SimData(0, count=_N_REGISTERS, values=0, datatype=DataType.REGISTERS)],
         )
         device = SimDevice(self.unit_id, simdata=blocks, action=self._action)
@@ -120,6 +138,9 @@ class AdamSimulator:
             self._port = int(sockets[0].getsockname()[1])
         self._server = server
         await self.unit.start()
+        if self.unit.clock is not None and not self.unit.clock.virtual:
+            name = f"adam-sim-{self._port}-check"
+            self._checker = asyncio.create_task(self._check_loop(), name=name)
         log.info("ADAM simulator listening on %s:%d", self.host, self._port)
 
     async def stop(self) -> None:
@@ -127,6 +148,11 @@ class AdamSimulator:
         server, self._server = self._server, None
         if server is None:
             return
+        checker, self._checker = self._checker, None
+        if checker is not None:
+            checker.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await checker
         await self.unit.stop()
         await server.shutdown()  # type: ignore[no-untyped-call]
         # Let the transports deliver their connection_lost callbacks.
@@ -139,6 +165,13 @@ class AdamSimulator:
 
     async def __aexit__(self, *_exc: object) -> None:
         await self.stop()
+
+    async def _check_loop(self) -> None:
+        clock = self.unit.clock
+        assert clock is not None
+        while True:
+            self.unit.check()
+            await clock.sleep_until(clock.now() + CHECK_PERIOD_S)
 
     # --- pymodbus hooks ------------------------------------------------------------
     def _silent(self) -> bool:
@@ -177,7 +210,11 @@ class AdamSimulator:
         try:
             if function_code in _REGISTER_FUNCTIONS:
                 if set_values is not None:
+                    # Accepted: pymodbus stores the values and echoes the request.
                     self.unit.write_registers(address, [int(v) for v in set_values])
+                    return None
+                if function_code in _REGISTER_WRITES:
+                    return None  # pymodbus reading back what it stored, for the echo
                 values = self.unit.read_registers(function_code, address, count)
                 registers[address - start_address : address - start_address + len(values)] = values
                 self._truncate_next = len(values) < count
@@ -213,6 +250,9 @@ class AdamSimulator:
 # --- wiring from an I/O map --------------------------------------------------------------
 ESTOP_SENSE_HEALTHY_V: Final = 5.0
 """Seed 002 §1.5: the e-stop sense input reads 5 V while the e-stop circuit is closed."""
+CONTACTOR_AUX_CLOSED_V: Final = 5.0
+"""The contactor's auxiliary contact, wired like the e-stop sense: 5 V while the contactor
+is really closed, 0 V when open (or unpowered: fail-safe)."""
 
 
 def _split(point: str) -> tuple[int, int]:
@@ -227,7 +267,8 @@ def plant_simulator(
 ) -> AdamUnit:
     """The simulated unit ``name``, its inputs and relays wired to the plant as the I/O map's
     ``simulation:`` section says (LEM sensor, voltage board, e-stop sense, thermocouples,
-    battery contactor).
+    battery contactor coil, its auxiliary contact, the watchdog relay's heartbeat), on the
+    plant's clock (its host watchdog runs on it).
 
     The unit itself is the server-less simulator (an in-process link calls it); serve it
     with :class:`AdamSimulator` for a driver or a tool on the network."""
@@ -257,8 +298,12 @@ def plant_simulator(
         if MODULE_KINDS[m.kind].family == "thermocouple":
             for ch in range(MODULE_KINDS[m.kind].points):
                 analog.setdefault((slot, ch), lambda: sc.ambient_c)
+    if (k := mine(sc.contactor_feedback)) is not None:
+        analog[k] = lambda: CONTACTOR_AUX_CLOSED_V if plant.contactor_closed else 0.0
     if (k := mine(sc.contactor)) is not None:
         relays[k] = plant.set_contactor
+    if (k := mine(sc.watchdog_relay)) is not None:
+        relays[k] = plant.set_heartbeat
     return AdamUnit(
         {slot: m.kind for slot, m in dev.modules.items()},
         analog,
@@ -269,4 +314,5 @@ def plant_simulator(
             if MODULE_KINDS[m.kind].family != "relay"
         },
         name=name,
+        clock=plant.clock,
     )

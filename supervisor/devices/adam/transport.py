@@ -2,7 +2,8 @@
 
 :class:`ModbusLink` is exactly what :class:`~supervisor.devices.adam.driver.AdamDriver`
 needs of Modbus: open/close, FC01, the register read that
-:data:`~supervisor.devices.adam.protocol.ANALOG_READ_FUNCTION` names (FC03 or FC04), FC05.
+:data:`~supervisor.devices.adam.protocol.ANALOG_READ_FUNCTION` names (FC03 or FC04), FC05,
+and for the host watchdog's registers FC06 and FC03.
 Answers are plain Python values; failures are typed:
 
 - :class:`~supervisor.devices.adam.protocol.ModbusExceptionAnswer` (with the exception
@@ -76,6 +77,14 @@ class ModbusLink(Protocol):
         """FC05: set one coil (the unit echoes the request)."""
         ...
 
+    async def write_register(self, address: int, value: int) -> None:
+        """FC06: set one holding register (the unit echoes the request)."""
+        ...
+
+    async def read_holding_registers(self, address: int, count: int) -> list[int]:
+        """FC03 whatever :data:`ANALOG_READ_FUNCTION` is (configuration registers)."""
+        ...
+
 
 class PymodbusTcpLink:
     """Modbus TCP to ``host:port``, device ``unit_id``, through pymodbus's async client.
@@ -143,6 +152,15 @@ class PymodbusTcpLink:
 
     async def write_coil(self, address: int, value: bool) -> None:
         await self._call(lambda c: c.write_coil(address, value, device_id=self.unit_id))
+
+    async def write_register(self, address: int, value: int) -> None:
+        await self._call(lambda c: c.write_register(address, value, device_id=self.unit_id))
+
+    async def read_holding_registers(self, address: int, count: int) -> list[int]:
+        rsp = await self._call(
+            lambda c: c.read_holding_registers(address, count=count, device_id=self.unit_id)
+        )
+        return [int(r) & 0xFFFF for r in rsp.registers]
 
     async def _call(
         self, request: Callable[[AsyncModbusTcpClient], Awaitable[ModbusPDU]]
@@ -221,6 +239,14 @@ class InProcessLink:
     async def write_coil(self, address: int, value: bool) -> None:
         await self._exchange()
         self.unit.write_coils(address, [value])
+
+    async def write_register(self, address: int, value: int) -> None:
+        await self._exchange()
+        self.unit.write_registers(address, [value])
+
+    async def read_holding_registers(self, address: int, count: int) -> list[int]:
+        await self._exchange()
+        return self.unit.read_registers(FC_READ_HOLDING_REGISTERS, address, count)
 
     async def _exchange(self) -> None:
         """Check that the request reaches the unit and that it answers."""

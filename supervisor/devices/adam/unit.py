@@ -8,7 +8,13 @@ it answers, laid out as :mod:`supervisor.devices.adam.protocol` says:
 - relays of 5060/5069 slots are coils: a write calls the relay callbacks with the new state,
   FC01 reads back the stored state;
 - addresses outside the configured modules answer exception 0x02 (illegal address), as does
-  any write to the analog registers.
+  any write to the analog registers;
+- with a clock, the host (communication) watchdog of
+  :mod:`~supervisor.devices.adam.protocol` (its registers are UNVERIFIED placeholders): once
+  armed, no request for its timeout sets every relay to its safe value (off, as after a
+  power cycle). Checked lazily, like the EA simulator's watchdog: before every request and
+  whenever :meth:`AdamUnit.check` is called (a served unit has a checker task calling it on
+  a real clock), and acted on the clock at that instant.
 
 Both ends use it: :class:`~supervisor.devices.adam.sim.AdamSimulator` serves it over Modbus
 TCP (pymodbus), :class:`~supervisor.devices.adam.transport.InProcessLink` calls it directly
@@ -23,6 +29,7 @@ import logging
 from collections.abc import Callable, Mapping, Sequence
 from typing import Final
 
+from supervisor.core.clock import Clock
 from supervisor.devices.adam.config import MODULE_KINDS, SLOTS
 from supervisor.devices.adam.protocol import (
     COILS_PER_SLOT,
@@ -36,10 +43,18 @@ from supervisor.devices.adam.protocol import (
     FC_READ_INPUT_REGISTERS,
     FC_WRITE_MULTIPLE_COILS,
     FC_WRITE_SINGLE_COIL,
+    HOST_WATCHDOG_MAX_COUNTS,
+    HOST_WATCHDOG_NEEDS_REFRESH,
+    HOST_WATCHDOG_REFRESH_REGISTER,
+    HOST_WATCHDOG_REFRESH_VALUE,
+    HOST_WATCHDOG_REGISTERS,
+    HOST_WATCHDOG_SAFE_VALUES_REGISTER,
+    HOST_WATCHDOG_TIMEOUT_REGISTER,
     RAW_FORMATS,
     TC_OPEN_WIRE_RAW,
     ModbusExceptionAnswer,
     coil_slot_channel,
+    host_watchdog_seconds,
     register_slot_channel,
     value_to_raw,
 )
@@ -59,6 +74,10 @@ class AdamUnit:
     thermocouple; channels without a callable read 0 V (5017) or open wire (5018).
     ``relays[(slot, ch)]`` is called with the new state on every write of that relay.
     ``raw_format`` maps slot → ``"offset"``/``"twos"`` (default offset binary).
+    ``clock``: the unit's own time (the plant's); without one it has no host watchdog (its
+    registers answer illegal address). ``watchdog_needs_refresh``: only "host OK" writes
+    keep the host watchdog alive, not every request (see
+    :data:`~supervisor.devices.adam.protocol.HOST_WATCHDOG_NEEDS_REFRESH`).
     """
 
     def __init__(
@@ -68,6 +87,9 @@ class AdamUnit:
         relays: Mapping[tuple[int, int], RelaySink] | None = None,
         raw_format: Mapping[int, str] | None = None,
         name: str = "adam",
+        *,
+        clock: Clock | None = None,
+        watchdog_needs_refresh: bool = HOST_WATCHDOG_NEEDS_REFRESH,
     ) -> None:
         analog = analog or {}
         relays = relays or {}
@@ -110,6 +132,12 @@ class AdamUnit:
         self._muted = False
         self._running = False
         self._outages = 0
+        self.clock = clock
+        self._wd_needs_refresh = watchdog_needs_refresh
+        self._wd_counts = 0  # 0: disarmed
+        self._wd_safe = {s: 0 for s, k in modules.items() if MODULE_KINDS[k].family == "relay"}
+        self._wd_last_t: float | None = None  # last host request; None: timer stopped
+        self.host_watchdog_trips = 0
 
     @staticmethod
     def _check_point(
@@ -179,6 +207,44 @@ class AdamUnit:
     def muted(self) -> bool:
         return self._muted
 
+    # --- host watchdog -------------------------------------------------------------------
+    @property
+    def host_watchdog_s(self) -> float | None:
+        """The armed host watchdog timeout; None while disarmed."""
+        return host_watchdog_seconds(self._wd_counts) if self._wd_counts else None
+
+    def check(self) -> None:
+        """What the unit did on its own since the last request, at ``clock.now()``: once
+        armed, no request for longer than its timeout (at exactly the timeout it still
+        holds) sets every relay to its safe value."""
+        timeout_s = self.host_watchdog_s
+        if timeout_s is None or self._wd_last_t is None or self.clock is None:
+            return
+        silent_s = self.clock.now() - self._wd_last_t
+        if silent_s <= timeout_s:
+            return
+        self._wd_last_t = None  # tripped: the timer restarts with the next request
+        self.host_watchdog_trips += 1
+        log.warning(
+            "ADAM simulator %s: host watchdog: no request for %.3f s (timeout %g s), every"
+            " relay to its safe value",
+            self.name,
+            silent_s,
+            timeout_s,
+        )
+        for key in self._coils:
+            slot, ch = key
+            self._set_relay(key, bool(self._wd_safe[slot] >> ch & 1))
+
+    def _host_request(self, refresh: bool = False) -> None:
+        """A request reached the unit: first what it did meanwhile, then the timer restarts
+        (with ``watchdog_needs_refresh``, only a "host OK" write restarts it)."""
+        if self.clock is None:
+            return
+        self.check()
+        if refresh or not self._wd_needs_refresh:
+            self._wd_last_t = self.clock.now()
+
     def relay_state(self, slot: int, ch: int) -> bool:
         """Stored state of a relay (what FC01 reads back)."""
         return self._coils[(slot, ch)]
@@ -203,10 +269,15 @@ class AdamUnit:
     def read_registers(self, function_code: int, address: int, count: int) -> list[int]:
         """FC03/FC04: ``count`` raw 16-bit values from ``address`` (one fewer when a short
         answer is armed). Raises :class:`ModbusExceptionAnswer`."""
+        self._host_request()
         if function_code not in _REGISTER_READS:
             raise ModbusExceptionAnswer(EXC_ILLEGAL_FUNCTION)
         if count < 1:
             raise ModbusExceptionAnswer(EXC_ILLEGAL_VALUE)
+        if self._in_watchdog_block(address, count):
+            if function_code != FC_READ_HOLDING_REGISTERS:
+                raise ModbusExceptionAnswer(EXC_ILLEGAL_ADDRESS)  # holding registers only
+            return [self._watchdog_register(reg) for reg in range(address, address + count)]
         slots = self._register_slots(address, count)
         short = self._read_faults(slots)
         try:
@@ -224,6 +295,7 @@ class AdamUnit:
         Coils past a module's last relay (inside its 16-coil slot) read False.
         Raises :class:`ModbusExceptionAnswer`.
         """
+        self._host_request()
         slots = self._coil_read_slots(address, count)
         short = self._read_faults(slots)
         states = [
@@ -235,6 +307,7 @@ class AdamUnit:
     def write_coils(self, address: int, values: Sequence[bool]) -> None:
         """FC05 (one value) or FC15: set relays, calling their callbacks; a stuck relay
         keeps its state. Raises :class:`ModbusExceptionAnswer`."""
+        self._host_request()
         if not values:
             raise ModbusExceptionAnswer(EXC_ILLEGAL_VALUE)
         for coil in range(address, address + len(values)):
@@ -242,22 +315,81 @@ class AdamUnit:
                 raise ModbusExceptionAnswer(EXC_ILLEGAL_ADDRESS)
         try:
             for i, value in enumerate(values):
-                key = coil_slot_channel(address + i)
-                state = self._stuck.get(key, bool(value))
-                self._coils[key] = state
-                sink = self._relays.get(key)
-                if sink is not None:
-                    sink(state)
+                self._set_relay(coil_slot_channel(address + i), bool(value))
         except Exception as exc:
             fc = FC_WRITE_SINGLE_COIL if len(values) == 1 else FC_WRITE_MULTIPLE_COILS
             log.exception("ADAM simulator: callable failed (FC%02d @%d)", fc, address)
             raise ModbusExceptionAnswer(EXC_DEVICE_FAILURE) from exc
 
     def write_registers(self, address: int, values: Sequence[int]) -> None:
-        """FC06/FC16: refused, analog inputs are read-only."""
-        raise ModbusExceptionAnswer(EXC_ILLEGAL_ADDRESS)
+        """FC06/FC16: the host watchdog's registers (with a clock); anything else is
+        refused, analog inputs are read-only."""
+        refresh = list(values) == [HOST_WATCHDOG_REFRESH_VALUE] and (
+            address == HOST_WATCHDOG_REFRESH_REGISTER
+        )
+        self._host_request(refresh=refresh)
+        if not values:
+            raise ModbusExceptionAnswer(EXC_ILLEGAL_VALUE)
+        if not self._in_watchdog_block(address, len(values)):
+            raise ModbusExceptionAnswer(EXC_ILLEGAL_ADDRESS)
+        for reg, value in zip(range(address, address + len(values)), values, strict=True):
+            self._set_watchdog_register(reg, int(value))
 
     # --- internals -----------------------------------------------------------------
+    def _set_relay(self, key: tuple[int, int], value: bool) -> None:
+        """Drive one relay (a stuck one keeps its state) and tell its sink."""
+        state = self._stuck.get(key, value)
+        self._coils[key] = state
+        sink = self._relays.get(key)
+        if sink is not None:
+            sink(state)
+
+    def _in_watchdog_block(self, address: int, count: int) -> bool:
+        if self.clock is None or address not in HOST_WATCHDOG_REGISTERS:
+            return False
+        if address + count - 1 not in HOST_WATCHDOG_REGISTERS:
+            raise ModbusExceptionAnswer(EXC_ILLEGAL_ADDRESS)
+        return True
+
+    def _safe_value_slot(self, reg: int) -> int | None:
+        slot = reg - HOST_WATCHDOG_SAFE_VALUES_REGISTER
+        return slot if slot in self._wd_safe else None
+
+    def _watchdog_register(self, reg: int) -> int:
+        if reg == HOST_WATCHDOG_TIMEOUT_REGISTER:
+            return self._wd_counts
+        if reg == HOST_WATCHDOG_REFRESH_REGISTER:
+            return 0
+        slot = self._safe_value_slot(reg)
+        if slot is None:
+            raise ModbusExceptionAnswer(EXC_ILLEGAL_ADDRESS)
+        return self._wd_safe[slot]
+
+    def _set_watchdog_register(self, reg: int, value: int) -> None:
+        if not 0 <= value <= HOST_WATCHDOG_MAX_COUNTS:
+            raise ModbusExceptionAnswer(EXC_ILLEGAL_VALUE)
+        if reg == HOST_WATCHDOG_TIMEOUT_REGISTER:
+            self._wd_counts = value
+            assert self.clock is not None  # no watchdog block without a clock
+            self._wd_last_t = self.clock.now() if value else None
+            if value:
+                log.info(
+                    "ADAM simulator %s: host watchdog armed, %g s",
+                    self.name,
+                    host_watchdog_seconds(value),
+                )
+            return
+        if reg == HOST_WATCHDOG_REFRESH_REGISTER:
+            if value != HOST_WATCHDOG_REFRESH_VALUE:
+                raise ModbusExceptionAnswer(EXC_ILLEGAL_VALUE)
+            return
+        slot = self._safe_value_slot(reg)
+        if slot is None:
+            raise ModbusExceptionAnswer(EXC_ILLEGAL_ADDRESS)
+        if value >> MODULE_KINDS[self.modules[slot]].points:
+            raise ModbusExceptionAnswer(EXC_ILLEGAL_VALUE)  # a relay the module lacks
+        self._wd_safe[slot] = value
+
     def _read_faults(self, slots: set[int]) -> bool:
         """Apply the armed read faults to a read touching ``slots``: raise the armed
         exception answer, or return True if this answer must be short."""

@@ -13,6 +13,9 @@ Points:
 
 Safety of the link (devices.md "EA-PSB 10000"):
 
+- a clean ``close()`` zeroes the set values, switches the output off, checks both, then
+  releases the remote lock (``SYST:LOCK OFF``); if it cannot, the lock stays and the watchdog
+  acts;
 - every (re)connect takes remote, zeroes the set values and switches the output OFF, and sets
   the protections from the limits: the driver never re-energises on its own. Energising
   writes (``output`` true, non-zero ``current_set``) queued while a lost link was down are
@@ -211,10 +214,43 @@ class EaDriver(PolledDriver):
         self._was_connected = True
 
     async def _disconnect(self) -> None:
-        # Outputs are left as they are (run safe_state() first); with the link gone the
-        # unit's watchdog switches the output off after watchdog_s.
+        """A clean close: zero set values, output off (verified), then give the unit back
+        to its front panel (``SYST:LOCK OFF``), so that nobody finds it locked in remote
+        after a stop. If any of that fails, the lock is kept and the link dropped: the
+        unit's watchdog then switches the output off ``watchdog_s`` after the last command
+        (as when the supervisor dies)."""
         async with self._io_lock:
+            if self._link is not None:
+                try:
+                    await self._release_remote()
+                except (DeviceIOError, ProtocolError) as exc:
+                    log.warning(
+                        "%s: remote lock kept at close (%s); the unit's watchdog switches the"
+                        " output off %g s after the last command",
+                        self.name,
+                        exc,
+                        self.watchdog_s,
+                    )
             await self._drop_transport()
+
+    async def _release_remote(self) -> None:
+        """De-energise, check it, release the lock (the caller holds the I/O lock)."""
+        self._direction = 0
+        self._last_current = 0.0
+        await self._exchange(join_commands(["CURR 0", "SINK:CURR 0", "VOLT 0"]), 0)
+        await self._exchange("OUTP OFF", 0)
+        curr, sink, outp = await self._exchange(join_commands(["CURR?", "SINK:CURR?", "OUTP?"]), 3)
+        if (
+            parse_number(curr, self.name, "A") != 0.0
+            or parse_number(sink, self.name, "A") != 0.0
+            or parse_on_off(outp, self.name)
+        ):
+            raise DeviceIOError(
+                self.name,
+                f"not de-energised before release: CURR? {curr}, SINK:CURR? {sink}, OUTP? {outp}",
+            )
+        await self._exchange("SYST:LOCK OFF", 0)
+        log.info("%s: output off, set values zero, remote lock released", self.name)
 
     async def _read(self) -> dict[str, Sample]:
         async with self._transaction():
