@@ -13,8 +13,12 @@ import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
+
+if TYPE_CHECKING:
+    from supervisor.config.models import BenchConfig
 
 log = logging.getLogger("supervisor")
 
@@ -41,12 +45,32 @@ def _setup_logging(level: str) -> None:
 
 # --- run -----------------------------------------------------------------------------
 async def _run(args: argparse.Namespace) -> int:
-    from supervisor.app import build_bench
-    from supervisor.core.clock import RealClock
+    from supervisor.app.lock import BenchBusy, BenchLock
     from supervisor.devices.registry import load_bench
-    from supervisor.hmi import HttpApi
 
     cfg = load_bench(args.io_map)
+    # One bench, one supervisor (DESIGN.md "Safety"): the lock comes before anything that
+    # touches a device, a simulator or a port; the kernel drops it when this process dies.
+    lock = BenchLock(cfg.state_dir, cfg.bench)
+    try:
+        lock.acquire()
+    except BenchBusy as exc:
+        _err(f"supervisor: {exc}")
+        return EXIT_USAGE
+    except OSError as exc:
+        _err(f"supervisor: cannot take the bench lock {lock.path}: {exc.strerror or exc}")
+        return EXIT_USAGE
+    try:
+        return await _run_locked(args, cfg)
+    finally:
+        lock.release()
+
+
+async def _run_locked(args: argparse.Namespace, cfg: BenchConfig) -> int:
+    from supervisor.app import build_bench
+    from supervisor.core.clock import RealClock
+    from supervisor.hmi import HttpApi
+
     clock = RealClock()
     bench = build_bench(cfg, clock, simulate=not args.no_sim)
     port = cfg.hmi.port if args.http_port is None else args.http_port
