@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 
 if TYPE_CHECKING:
+    from supervisor.app import Bench
     from supervisor.config.models import BenchConfig
 
 log = logging.getLogger("supervisor")
@@ -69,10 +70,25 @@ async def _run(args: argparse.Namespace) -> int:
 async def _run_locked(args: argparse.Namespace, cfg: BenchConfig) -> int:
     from supervisor.app import build_bench
     from supervisor.core.clock import RealClock
-    from supervisor.hmi import HttpApi
 
     clock = RealClock()
     bench = build_bench(cfg, clock, simulate=not args.no_sim)
+    # Before anything runs: a test that was under way comes back Held (DESIGN.md "Safety").
+    restored = bench.retain()
+    try:
+        return await _serve(args, cfg, bench, restored)
+    finally:
+        if bench.retention is not None:  # left before the bench ran (a bad --recipe)
+            bench.retention.close()
+            bench.retention = None
+
+
+async def _serve(
+    args: argparse.Namespace, cfg: BenchConfig, bench: Bench, restored: list[str]
+) -> int:
+    from supervisor.hmi import HttpApi
+
+    clock = bench.clock
     port = cfg.hmi.port if args.http_port is None else args.http_port
     # The e-stop button presses the simulated plant's e-stop (seed 002 bench only).
     estop = bench.sim.press_estop if bench.sim is not None and bench.sim.served else None
@@ -113,6 +129,8 @@ async def _run_locked(args: argparse.Namespace, cfg: BenchConfig) -> int:
         for line in bench.sim.addresses():
             _out(f"simulated {line}")
         _out(f'simulated e-stop button: PUT {api.url}/sim/estop {{"pressed": true}}')
+    for line in restored:
+        _out(f"retained state: {line}")
     _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
     try:
         await bench.run(stop)
