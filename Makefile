@@ -37,6 +37,7 @@ bench: $(STAMP)
 	$(BIN)/supervisor bench manual --hours 10
 	$(BIN)/supervisor bench dry-run --recipe recipes/nimh-25h-slow-cycle.yaml
 	$(BIN)/supervisor bench seed002
+	$(BIN)/supervisor bench kill-restart --iterations 20
 
 schema: $(STAMP)
 	$(BIN)/supervisor schema --out .

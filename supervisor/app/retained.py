@@ -8,8 +8,9 @@ a restart a channel whose test was under way comes back Held at the same step wi
 ``resume`` available, never re-energised on its own (seed 001 saves its context before
 every alarm so that an interrupted test resumes later).
 
-When: at the end of every scan in which a channel's chain changed step or state or an alarm
-changed (chain events, alarm events), and every ``retain.period_s``. The scan only builds
+When: at the end of every scan in which a channel's chain changed step or state, wrote a
+result record, or an alarm changed (chain events, records, alarm events), and every
+``retain.period_s``. The scan only builds
 plain documents (``Retention.on_scan`` is a scan publisher); ``RetainStore``'s worker
 thread writes them. A write failure raises the ``retain.write`` alarm until a write
 succeeds again; an unreadable state file, or a test that cannot be brought back (its
@@ -31,7 +32,7 @@ from supervisor.chains.run import ChainSnapshot
 from supervisor.chains.states import ACTIVE, State
 from supervisor.config.recipe import load_recipe_text
 from supervisor.core.errors import ConfigError, ConfigErrors
-from supervisor.core.records import ChainEvent
+from supervisor.core.records import ChainEvent, Record
 from supervisor.publish.results import TIMELINE_KINDS, ResultCollector
 from supervisor.publish.retain import STATE_NAME, Document, RetainStore
 from supervisor.safety import AlarmEvent, Severity
@@ -136,6 +137,9 @@ class Retention:
         self._bench_tags = [t for t in db if t.spec.retain and t.name not in owned]
         for name, runner in bench.runners.items():
             runner.listeners.append(self._chain_listener(name))
+            # Saved with every result record too, so that the counters a restart brings
+            # back are those of the last BDF row (not older: the file would go backwards).
+            runner.recorders.append(self._record_listener(name))
         alarms.listeners.append(self._on_alarm)
 
     @classmethod
@@ -155,6 +159,12 @@ class Retention:
                 self._dirty.add(channel)
 
         return on_event
+
+    def _record_listener(self, channel: str) -> Callable[[Record], None]:
+        def on_record(rec: Record) -> None:
+            self._dirty.add(channel)
+
+        return on_record
 
     def _on_alarm(self, ev: AlarmEvent) -> None:
         self._alarms_dirty = True

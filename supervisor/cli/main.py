@@ -398,6 +398,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         )
     if args.what == "seed002":
         return asyncio.run(benchmarks.seed002_benchmark(str(DEFAULT_IO_MAP)))
+    if args.what == "kill-restart":
+        return benchmarks.kill_restart_benchmark(args.iterations, args.seed)
     if args.what == "dry-run":
         from supervisor.app.dryrun import dry_run, format_report
 
@@ -479,12 +481,14 @@ def build_parser() -> argparse.ArgumentParser:
     ca.set_defaults(func=cmd_calibrate)
 
     b = sub.add_parser("bench", help="benchmarks that print figures")
-    b.add_argument("what", choices=["scan", "manual", "seed002", "dry-run"])
+    b.add_argument("what", choices=["scan", "manual", "seed002", "dry-run", "kill-restart"])
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
     b.add_argument("--tags", type=int, default=1000, help="scan: number of tags")
     b.add_argument("--period-ms", type=float, default=10.0, help="scan: period in ms")
     b.add_argument("--seconds", type=float, default=10.0, help="scan: wall seconds to run")
     b.add_argument("--hours", type=float, default=10.0, help="manual: simulated hours")
+    b.add_argument("--iterations", type=int, default=20, help="kill-restart: kills")
+    b.add_argument("--seed", type=int, default=1, help="kill-restart: seed of the kill times")
     b.set_defaults(func=cmd_bench)
     return p
 
