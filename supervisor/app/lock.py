@@ -39,7 +39,7 @@ class BenchLock:
     """The exclusive lock of one bench's state directory (``acquire`` / ``release``)."""
 
     def __init__(self, state_dir: str | Path, bench: str) -> None:
-        self.path = Path(state_dir) / LOCK_NAME
+        self.path = Path(state_dir).absolute() / LOCK_NAME
         self.bench = bench
         self._fd: int | None = None
 

@@ -97,14 +97,20 @@ class RetainStore:
                 loaded.documents = self._read()
             except (sqlite3.Error, ValueError) as exc:
                 loaded.problem = str(exc) or type(exc).__name__
-                loaded.moved_to = self._move_aside()
+                try:
+                    loaded.moved_to = self._move_aside()
+                except OSError as move_exc:
+                    loaded.problem += f"; could not move it aside: {move_exc}"
                 log.error(
                     "retained state %s unreadable (%s): moved to %s; every channel starts Idle",
                     self.path,
                     loaded.problem,
                     loaded.moved_to,
                 )
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:  # the writer reports it (and retries) at its first write
+            log.error("retained state %s: cannot create its folder: %s", self.path, exc)
         self._start()
         return loaded
 

@@ -178,3 +178,17 @@ async def test_a_clean_shutdown_says_supervisor_stopped_and_leaves_the_test_resu
     assert s["end_reason"] == "supervisor stopped"
     assert s["complete"] is False  # it comes back Held at the next start
     assert s["duration_s"] == pytest.approx(42.0, abs=1.0)
+
+
+async def test_a_test_aborted_by_a_trip_names_the_alarm(tmp_path: Path) -> None:
+    b = await loaded(tmp_path, CHARGE_ONLY)
+    assert b.alarms is not None
+    # A trip that aborts (as the e-stop does), raised by its owner.
+    trip = b.alarms.declare("ch0.test_trip", group="ch0", latched=True, action="abort")
+    b.runners["ch0"].command("start")
+    await b.engine.run_for(10.0)
+    b.alarms.set(trip, True, "e-stop: estop.ok is false (circuit open)")
+    await b.engine.run_for(2.0)
+    s = summary(tmp_path)
+    assert s["state"] == "Aborted"
+    assert s["end_reason"] == "aborted: channel trip: e-stop: estop.ok is false (circuit open)"
