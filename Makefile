@@ -39,6 +39,7 @@ bench: $(STAMP)
 	$(BIN)/supervisor bench seed002
 	$(BIN)/supervisor bench faults
 	$(BIN)/supervisor bench estop --presses 100 --period-ms 10
+	$(BIN)/supervisor bench kill-restart --iterations 20
 
 schema: $(STAMP)
 	$(BIN)/supervisor schema --out .

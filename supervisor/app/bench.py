@@ -8,24 +8,26 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from supervisor.app.retained import RecipeSource, Retention
 from supervisor.app.simulation import SimulatedBench, build_simulation
 from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target, compile_recipe
 from supervisor.chains.engine import ChainRunner
 from supervisor.chains.port import ChannelPort
-from supervisor.chains.states import FINAL
+from supervisor.chains.states import ACTIVE, FINAL
 from supervisor.channels import Channel, ChannelLimits, Mode
 from supervisor.commands import Command, CommandPath
 from supervisor.config.models import BenchConfig, LinearScaling, TagMapping
-from supervisor.config.recipe import load_recipe
+from supervisor.config.recipe import load_recipe_text
+from supervisor.config.text import decode_yaml
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver, DType
-from supervisor.core.errors import OperatorError
+from supervisor.core.errors import ConfigError, ConfigErrors, OperatorError
 from supervisor.core.records import ChainEvent, Record
 from supervisor.core.units import UNITS, Dim
 from supervisor.devices.kind import DriverWiring
 from supervisor.devices.registry import REGISTRY, Registry
 from supervisor.publish.display import ChadecheDisplay
-from supervisor.publish.results import ResultCollector
+from supervisor.publish.results import TIMELINE_KINDS, ResultCollector
 from supervisor.safety import AlarmManager, SafetyPhase, build_safety
 from supervisor.scan import (
     InputBinding,
@@ -59,6 +61,8 @@ class Bench:
     alarms: AlarmManager | None = None
     results: dict[str, ResultCollector] = field(default_factory=dict)
     displays: dict[str, ChadecheDisplay] = field(default_factory=dict)
+    recipes: dict[str, RecipeSource] = field(default_factory=dict)
+    retention: Retention | None = None
     _started: bool = False
     commands: CommandPath = field(init=False)
     """The one path of operator commands (HTTP, command line, the ``chN.command`` tags)."""
@@ -116,23 +120,41 @@ class Bench:
         under way or while the operator drives the channel in Manual (enable on)."""
         if channel not in self.runners:
             raise OperatorError(f"unknown channel {channel!r} ({', '.join(self.runners)})")
-        recipe, pos = load_recipe(path)
+        # Compiled from the text read here, which is what the retained state keeps: a
+        # restart recompiles the same recipe even if the file changed or moved since.
+        text = read_recipe_text(path)
+        recipe, pos = load_recipe_text(text, str(path))
         program = compile_recipe(recipe, pos, str(path), self.target(channel), overrides or {})
         runner = self.runners[channel]
         runner.load(program, test_id)
         folder = (results_dir or Path(self.cfg.state_dir) / "results") / runner.test_id
         c = self.cfg.channels[[c.name for c in self.cfg.channels].index(channel)]
+        # No file yet: the collector creates them when the test starts.
         collector = ResultCollector(
             channel, program.name, runner.test_id, folder, dba=c.source.board or 0
         )
-        runner.listeners[:] = [e for e in runner.listeners if not getattr(e, "_results", False)]
-        runner.recorders[:] = [r for r in runner.recorders if not getattr(r, "_results", False)]
+        self.attach_results(channel, collector)
+        self.recipes[channel] = RecipeSource(
+            str(path), text, dict(overrides or {}), str(folder.resolve())
+        )
+        return runner
+
+    def attach_results(self, channel: str, collector: ResultCollector) -> None:
+        """Feed ``channel``'s chain events and records to ``collector`` (instead of the
+        previous test's): the summary is rewritten at every timeline event, final when
+        the test ends."""
+        self.detach_results(channel)
+        runner = self.runners[channel]
 
         def on_event(ev: ChainEvent) -> None:
+            if collector.first_t is None and runner.state not in ACTIVE:
+                return  # not this test's yet (e.g. the next recipe being loaded)
             collector.on_event(ev)
             if ev.kind == "state" and runner.state in FINAL:
-                collector.close(runner.end_reason, runner.state.value)
-                log.info("%s: results in %s", channel, folder)
+                collector.close(runner.end_reason, runner.state.value, now=ev.t)
+                log.info("%s: results in %s", channel, collector.folder)
+            elif ev.kind in TIMELINE_KINDS:
+                collector.checkpoint(runner.state.value, now=ev.t)
 
         def on_record(rec: Record) -> None:
             collector.on_record(rec)
@@ -142,7 +164,20 @@ class Bench:
         runner.listeners.append(on_event)
         runner.recorders.append(on_record)
         self.results[channel] = collector
-        return runner
+
+    def detach_results(self, channel: str) -> None:
+        runner = self.runners[channel]
+        runner.listeners[:] = [e for e in runner.listeners if not getattr(e, "_results", False)]
+        runner.recorders[:] = [r for r in runner.recorders if not getattr(r, "_results", False)]
+        self.results.pop(channel, None)
+
+    def retain(self) -> list[str]:
+        """Keep this bench's state under ``<state_dir>/state.sqlite``: bring back what the
+        last run left (before the first scan), then save it from every scan on. Returns
+        what the restore did or could not do, one line each."""
+        if self.retention is None:
+            self.retention = Retention.attach(self)
+        return self.retention.report
 
     def tag_dims(self) -> dict[str, Dim]:
         out: dict[str, Dim] = {}
@@ -177,10 +212,18 @@ class Bench:
         for ch in self.channels.values():
             ch.go_safe()
         self.engine.scan_once()  # queue the zero setpoints
+        now = self.clock.now()
         for name, collector in self.results.items():
             runner = self.runners[name]
-            if runner.state not in FINAL:
-                collector.close("supervisor stopped", runner.state.value)
+            if runner.state in ACTIVE:
+                # Not the end of the test: it is retained and comes back Held at the next
+                # start, so its summary is not final.
+                collector.close("supervisor stopped", runner.state.value, complete=False, now=now)
+            elif runner.state not in FINAL:
+                collector.close("supervisor stopped", runner.state.value, now=now)
+        if self.retention is not None:
+            self.retention.close()
+            self.retention = None
         unconfirmed: dict[str, str] = {}
         for name, d in self.drivers.items():
             try:
@@ -210,6 +253,22 @@ class Bench:
         else:
             log.info("bench %s: all outputs safe", self.cfg.bench)
         return unconfirmed
+
+
+def read_recipe_text(path: str | Path) -> str:
+    """A recipe file's text (ConfigErrors naming the file when it cannot be read)."""
+    file = str(path)
+    try:
+        data = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise ConfigErrors([ConfigError("file not found", file)]) from None
+    except OSError as exc:
+        why = f"cannot read file: {exc.strerror or exc}"
+        raise ConfigErrors([ConfigError(why, file)]) from None
+    try:
+        return decode_yaml(data, file).text
+    except ConfigError as exc:
+        raise ConfigErrors([exc]) from None
 
 
 def _tag_spec(m: TagMapping, dtype: DType) -> TagSpec:

@@ -30,7 +30,7 @@ from supervisor.chains.conditions import ConditionValues, Values
 from supervisor.chains.port import ChannelPort
 from supervisor.chains.program import Action, ActionKind, CompiledStep, Program
 from supervisor.chains.progress import Progress
-from supervisor.chains.run import RunState
+from supervisor.chains.run import ChainSnapshot, RunState
 from supervisor.chains.sampling import LogRules, build_record
 from supervisor.chains.states import (
     ACTIVE,
@@ -58,6 +58,7 @@ __all__ = [
     "TABLE",
     "ChainEvent",
     "ChainRunner",
+    "ChainSnapshot",
     "Record",
     "State",
     "seconds_until",
@@ -161,6 +162,13 @@ class ChainRunner:
         """Load a recipe; mode and enable are left as they are (refused while the operator
         drives the channel in Manual)."""
         check_load(self.name, self.state, self.port.manual_driven)
+        self._install(program)
+        self._r = RunState(test_id=test_id or time.strftime("%Y%m%d-%H%M%S") + f"-{self.name}")
+        self._set("recipe", program.name)
+        self._set("test_id", self._r.test_id)
+        self._set_state(State.IDLE, f"recipe {program.name} loaded")
+
+    def _install(self, program: Program) -> None:
         self.program = program
         # Each step's behaviour is chosen once, here: the scan never looks at a kind name.
         self._behaviours = behaviours_for(program.steps)
@@ -173,10 +181,82 @@ class ChainRunner:
             ("current", lim.current_a, "A"),
             ("temperature", lim.temperature_c, "degC"),
         )
-        self._r = RunState(test_id=test_id or time.strftime("%Y%m%d-%H%M%S") + f"-{self.name}")
+
+    # --- retained state (DESIGN.md "Safety": a restart brings the test back Held) -------
+    def snapshot(self) -> ChainSnapshot | None:
+        """The test as a restart needs it (None when no recipe is loaded). Cheap: plain
+        values copied in the scan; writing them is someone else's job, off the scan."""
+        program = self.program
+        if program is None:
+            return None
+        now = self.clock.now()
+        r = self._r
+        conditions = self._conditions
+        return r.freeze(
+            state=self.state.value,
+            recipe=program.name,
+            step_id=program.steps[r.step].id if r.step_count else "",
+            alarm=str(self._get("alarm") or "") if self._alarm_latched else "",
+            peak_v=conditions.peak_v if conditions is not None else None,
+            now=now,
+            wall=self.clock.to_wall(now),
+            to_wall=None if r.sleep_until_t is None else self.clock.to_wall(r.sleep_until_t),
+        )
+
+    def restore(self, snapshot: ChainSnapshot, program: Program) -> float:
+        """Bring back a test saved by ``snapshot`` (by this or another process), with
+        ``program`` compiled from the same recipe: Held at the same step, with its step
+        time, cycle, counter baselines and latched alarm, ``resume`` available; nothing is
+        energised until someone resumes (seed 001: the context is saved so that an
+        interrupted test resumes later). Returns the time the test was away (s).
+
+        Only a test under way (Running, Holding, Held, Resuming) is restored; the caller
+        keeps the channel Idle for any other. ValueError when the snapshot does not fit
+        ``program``.
+        """
+        check_load(self.name, self.state)
+        if snapshot.state not in {s.value for s in ACTIVE}:
+            raise ValueError(f"{self.name}: a {snapshot.state} test is not resumed")
+        if not 0 <= snapshot.step < len(program.steps):
+            raise ValueError(
+                f"{self.name}: step {snapshot.step + 1} is beyond the {len(program.steps)}"
+                f" steps of recipe {program.name}"
+            )
+        if snapshot.step_id and program.steps[snapshot.step].id != snapshot.step_id:
+            raise ValueError(
+                f"{self.name}: step {snapshot.step + 1} of recipe {program.name} is"
+                f" {program.steps[snapshot.step].id!r}, the saved test was in {snapshot.step_id!r}"
+            )
+        self._install(program)
+        now = self.clock.now()
+        self._r, away_s = RunState.thaw(snapshot, now, self.clock.to_wall(now))
+        r = self._r
+        assert self._conditions is not None
+        self._conditions.restart()
+        self._conditions.peak_v = snapshot.peak_v
+        port = self.port
+        v, i = port.voltage, port.current
+        self._behaviours[r.step].enter(
+            v.as_float() if v.good else None, i.as_float() if i.good else None
+        )
+        self._pending_advance = False
+        self._alarm_latched = bool(snapshot.alarm)
+        self._set("alarm", snapshot.alarm)
+        self._set("interlock", "")
         self._set("recipe", program.name)
-        self._set("test_id", self._r.test_id)
-        self._set_state(State.IDLE, f"recipe {program.name} loaded")
+        self._set("test_id", r.test_id)
+        self._set("step_time", snapshot.step_time_s)
+        self._set("test_time", now - r.t_test0)
+        self.state = State.HELD
+        self._set("state", State.HELD.value)
+        self._set("state_code", OPCUA_CODE[State.HELD])
+        self._publish(now)
+        self._emit(
+            "state",
+            f"supervisor restarted after {away_s:.1f} s; test held"
+            f" (was {snapshot.state} in step {snapshot.step_id or r.step + 1})",
+        )
+        return away_s
 
     def situation(self) -> Situation:
         """What the command guards look at (see ``states.decide``)."""
@@ -443,9 +523,12 @@ class ChainRunner:
 
     def _complete(self, cause: str, now: float) -> None:
         r = self._r
-        r.end_reason = cause
         if self.program is not None:
-            self._record(now, self.program.steps[r.step], "end")
+            step = self.program.steps[r.step]
+            r.end_reason = f"complete after step {step.id} of cycle {r.cycle}: {cause}"
+            self._record(now, step, "end")
+        else:
+            r.end_reason = f"complete: {cause}"
         self._set_state(State.COMPLETE, cause)
 
     def _enter(self, index: int, cause: str, now: float, record_prev: bool = True) -> None:
@@ -535,7 +618,7 @@ class ChainRunner:
             reason,
         )
 
-    def snapshot(self, now: float | None = None) -> Record | None:
+    def sample(self, now: float | None = None) -> Record | None:
         """The active step's sample at ``now`` (default: the clock's now) for displays;
         None when no step is active."""
         if self.program is None or not self._r.step_count:
@@ -593,9 +676,32 @@ class ChainRunner:
         self._set("state_code", OPCUA_CODE[state])
         if state in (State.HOLDING, State.HELD) and self._r.held_since is None:
             self._r.held_since = self.clock.now()
-        if state in FINAL and not self._r.end_reason:
-            self._r.end_reason = cause
+        r = self._r
+        if state in (State.STOPPING, State.ABORTING) and old in ACTIVE:
+            self._end_record()
+        if state in (State.STOPPING, State.ABORTING) and (
+            not r.end_reason or (state is State.ABORTING and old is State.STOPPING)
+        ):
+            # The cause of the end, with its actor or the trip behind it (not the "done"
+            # of the acting state that follows).
+            why = cause
+            alarm = str(self._get("alarm") or "") if self._alarm_latched else ""
+            if alarm and alarm not in why:
+                why += f" ({alarm})"
+            r.end_reason = f"{'stopped' if state is State.STOPPING else 'aborted'}: {why}"
+        elif state in FINAL and not r.end_reason:
+            r.end_reason = cause
         self._emit("state", f"{old.value} → {state.value} ({cause})")
+
+    def _end_record(self) -> None:
+        """Sampling rules: a record at the end, so the result files end where the test
+        did (a stop or an abort, as a completion does)."""
+        if self.program is None or not self._r.step_count:
+            return
+        try:
+            self._record(self.clock.now(), self.program.steps[self._r.step], "end")
+        except Exception:  # the end is reached anyway
+            log.exception("%s: end record failed", self.name)
 
     def _emit(self, kind: str, text: str, quiet: bool = False) -> None:
         now = self.clock.now()

@@ -13,8 +13,13 @@ import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
+
+if TYPE_CHECKING:
+    from supervisor.app import Bench
+    from supervisor.config.models import BenchConfig
 
 log = logging.getLogger("supervisor")
 
@@ -41,15 +46,50 @@ def _setup_logging(level: str) -> None:
 
 # --- run -----------------------------------------------------------------------------
 async def _run(args: argparse.Namespace) -> int:
-    from supervisor.app import build_bench
-    from supervisor.commands import Command, Verb
-    from supervisor.core.clock import RealClock
+    from supervisor.app.lock import BenchBusy, BenchLock
     from supervisor.devices.registry import load_bench
-    from supervisor.hmi import HttpApi
 
     cfg = load_bench(args.io_map)
+    # One bench, one supervisor (DESIGN.md "Safety"): the lock comes before anything that
+    # touches a device, a simulator or a port; the kernel drops it when this process dies.
+    lock = BenchLock(cfg.state_dir, cfg.bench)
+    try:
+        lock.acquire()
+    except BenchBusy as exc:
+        _err(f"supervisor: {exc}")
+        return EXIT_USAGE
+    except OSError as exc:
+        _err(f"supervisor: cannot take the bench lock {lock.path}: {exc.strerror or exc}")
+        return EXIT_USAGE
+    try:
+        return await _run_locked(args, cfg)
+    finally:
+        lock.release()
+
+
+async def _run_locked(args: argparse.Namespace, cfg: BenchConfig) -> int:
+    from supervisor.app import build_bench
+    from supervisor.core.clock import RealClock
+
     clock = RealClock()
     bench = build_bench(cfg, clock, simulate=not args.no_sim)
+    # Before anything runs: a test that was under way comes back Held (DESIGN.md "Safety").
+    restored = bench.retain()
+    try:
+        return await _serve(args, cfg, bench, restored)
+    finally:
+        if bench.retention is not None:  # left before the bench ran (a bad --recipe)
+            bench.retention.close()
+            bench.retention = None
+
+
+async def _serve(
+    args: argparse.Namespace, cfg: BenchConfig, bench: Bench, restored: list[str]
+) -> int:
+    from supervisor.commands import Command, Verb
+    from supervisor.hmi import HttpApi
+
+    clock = bench.clock
     port = cfg.hmi.port if args.http_port is None else args.http_port
     # The e-stop button presses the simulated plant's e-stop (seed 002 bench only).
     estop = bench.sim.press_estop if bench.sim is not None and bench.sim.served else None
@@ -94,6 +134,8 @@ async def _run(args: argparse.Namespace) -> int:
         for line in bench.sim.addresses():
             _out(f"simulated {line}")
         _out(f'simulated e-stop button: PUT {api.url}/sim/estop {{"pressed": true}}')
+    for line in restored:
+        _out(f"retained state: {line}")
     _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
     unconfirmed: dict[str, str] = {}
     try:
@@ -381,6 +423,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return asyncio.run(
             benchmarks.estop_benchmark(str(DEFAULT_IO_MAP), args.presses, args.period_ms / 1000)
         )
+    if args.what == "kill-restart":
+        from supervisor.app.killrestart import kill_restart_benchmark
+
+        return kill_restart_benchmark(args.iterations, args.seed)
     if args.what == "dry-run":
         from supervisor.app.dryrun import dry_run, format_report
 
@@ -462,13 +508,18 @@ def build_parser() -> argparse.ArgumentParser:
     ca.set_defaults(func=cmd_calibrate)
 
     b = sub.add_parser("bench", help="benchmarks that print figures")
-    b.add_argument("what", choices=["scan", "manual", "seed002", "dry-run", "faults", "estop"])
+    b.add_argument(
+        "what",
+        choices=["scan", "manual", "seed002", "dry-run", "faults", "estop", "kill-restart"],
+    )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
     b.add_argument("--tags", type=int, default=1000, help="scan: number of tags")
     b.add_argument("--period-ms", type=float, default=10.0, help="scan, estop: period in ms")
     b.add_argument("--presses", type=int, default=100, help="estop: e-stop presses")
     b.add_argument("--seconds", type=float, default=10.0, help="scan: wall seconds to run")
     b.add_argument("--hours", type=float, default=10.0, help="manual: simulated hours")
+    b.add_argument("--iterations", type=int, default=20, help="kill-restart: kills")
+    b.add_argument("--seed", type=int, default=1, help="kill-restart: seed of the kill times")
     b.set_defaults(func=cmd_bench)
     return p
 

@@ -432,6 +432,25 @@ class SimulationConfig(Strict):
     )
 
 
+class RetainConfig(Strict):
+    """Retained state (``<state_dir>/state.sqlite``) and the result summaries of live tests."""
+
+    period_s: float = Field(
+        1.0,
+        ge=0.1,
+        le=60.0,
+        description="Save every channel's retained state at least this often (s); it is"
+        " also saved at every step change, state change and alarm transition.",
+    )
+    summary_period_s: float = Field(
+        10.0,
+        ge=1.0,
+        le=3600.0,
+        description="Rewrite a running test's summary.json at least this often (s); it is"
+        " also rewritten at every step change.",
+    )
+
+
 class BenchConfig(Strict):
     """A bench: its scan, devices, extra tag mappings and channels."""
 
@@ -440,6 +459,7 @@ class BenchConfig(Strict):
     scan: ScanConfig = ScanConfig()
     hmi: HmiConfig = HmiConfig()
     state_dir: str = Field("var", description="Where retained state and results go.")
+    retain: RetainConfig = RetainConfig()
     devices: dict[str, DeviceConfig] = Field(min_length=1)
     tags: list[TagMapping] = []
     channels: list[ChannelConfig] = []

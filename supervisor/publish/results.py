@@ -5,11 +5,19 @@ Layout: ``<results>/<test id>/`` with
 - ``<test id>.chadeche.csv`` — seed 000 §III.E.2 result lines, for continuity;
 - ``summary.json`` — capacity and energy per cycle, efficiencies, duration, end reason,
   and the step timeline with the cause of every step change.
-Rows are flushed as they are written: a crash loses nothing already recorded.
+
+Nothing is created before the test starts (a recipe loaded and never started leaves no
+file). Rows are flushed as they are written: a crash loses nothing already recorded. A
+live test's summary is rewritten atomically (temporary file, then rename) at every event
+of its timeline and periodically (``checkpoint``), marked ``"complete": false``, so a supervisor
+killed outright leaves the last one; the final one (``"complete": true``) is written when
+the test ends. After a restart the files of a resumed test continue in the same folder
+(``resume``): rows append, the record index and the timeline go on.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import logging
@@ -21,6 +29,16 @@ from typing import IO, Any
 from supervisor.core.records import ChainEvent, Record
 
 log = logging.getLogger(__name__)
+
+SUMMARY_NAME = "summary.json"
+SUMMARY_FORMAT = 2
+"""2: ``complete``, ``duration_s`` as the test time at the end, efficiencies only for a
+cycle with both a charge and a discharge (``efficiency_note`` says why not)."""
+
+MIN_HALF_CYCLE_FRACTION = 0.01
+"""A charge (or discharge) smaller than this fraction of the other side of its cycle is
+an offset integrated during a rest or a top-off, not a half-cycle: the cycle then has no
+efficiency (a ratio against it would read 0 or several hundred)."""
 
 BDF_COLUMNS = (
     "Test Time / s",
@@ -70,24 +88,65 @@ class CycleSummary:
     discharged_ah: float = 0.0
     charged_wh: float = 0.0
     discharged_wh: float = 0.0
+    complete: bool = False  # the next cycle started, or the test completed in this one
 
-    def as_dict(self) -> dict[str, Any]:
-        ce = self.discharged_ah / self.charged_ah if self.charged_ah > 0 else None
-        ee = self.discharged_wh / self.charged_wh if self.charged_wh > 0 else None
+    def efficiency_note(self, why_open: str = "") -> str | None:
+        """Why this cycle has no efficiency (None when it has one); ``why_open``: why an
+        unfinished cycle stopped ("" while the test is under way)."""
+        if not self.complete:
+            if not why_open:
+                return f"cycle {self.cycle} is under way"
+            return f"cycle {self.cycle} did not finish ({why_open})"
+        charged, discharged = self.charged_ah, self.discharged_ah
+        if charged <= 0 or charged < MIN_HALF_CYCLE_FRACTION * discharged:
+            return f"cycle {self.cycle} has no charge"
+        if discharged <= 0 or discharged < MIN_HALF_CYCLE_FRACTION * charged:
+            return f"cycle {self.cycle} has no discharge"
+        return None
+
+    def as_dict(self, why_open: str = "") -> dict[str, Any]:
+        note = self.efficiency_note(why_open)
+        ce = ee = None
+        if note is None:
+            ce = self.discharged_ah / self.charged_ah
+            ee = self.discharged_wh / self.charged_wh if self.charged_wh > 0 else None
+            if ee is None:
+                note = f"cycle {self.cycle} has no charge energy (no voltage reading)"
         return {
             "cycle": self.cycle,
+            "complete": self.complete,
             "charge_capacity_ah": round(self.charged_ah, 6),
             "discharge_capacity_ah": round(self.discharged_ah, 6),
             "charge_energy_wh": round(self.charged_wh, 6),
             "discharge_energy_wh": round(self.discharged_wh, 6),
             "coulombic_efficiency": None if ce is None else round(ce, 6),
             "energy_efficiency": None if ee is None else round(ee, 6),
+            "efficiency_note": note,
         }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> CycleSummary:
+        return cls(
+            int(d["cycle"]),
+            float(d.get("charge_capacity_ah", 0.0)),
+            float(d.get("discharge_capacity_ah", 0.0)),
+            float(d.get("charge_energy_wh", 0.0)),
+            float(d.get("discharge_energy_wh", 0.0)),
+            bool(d.get("complete", False)),
+        )
+
+
+# "command": an operator command of the running test, accepted or refused, by whom.
+TIMELINE_KINDS = ("step", "state", "alarm", "command")
 
 
 @dataclass
 class ResultCollector:
-    """Keeps the timeline and per-cycle figures in memory; writes files if given a folder."""
+    """Keeps the timeline and per-cycle figures in memory; writes files if given a folder.
+
+    The owner of a live test calls ``checkpoint`` at every timeline event and periodically
+    (the summary of the test under way); a dry run only calls ``close``.
+    """
 
     channel: str
     recipe: str
@@ -97,40 +156,75 @@ class ResultCollector:
     records: int = 0
     timeline: list[dict[str, Any]] = field(default_factory=list)
     cycles: dict[int, CycleSummary] = field(default_factory=dict)
-    first_t: float | None = None
+    first_t: float | None = None  # Clock.now() of the test start (test time 0)
+    last_t: float | None = None  # the latest event or record
     last_rec: Record | None = None
+    state: str = "Running"  # the chain's state at the last checkpoint
+    closed: bool = False
     _bdf: IO[str] | None = None
     _bdf_writer: Any = None
     _cha: IO[str] | None = None
+    _resumed: bool = False
 
-    def __post_init__(self) -> None:
-        if self.folder is not None:
-            self.folder.mkdir(parents=True, exist_ok=True)
-            self._bdf = (self.folder / f"{self.test_id}.bdf.csv").open(
-                "w", newline="", encoding="utf-8"
-            )
-            self._bdf_writer = csv.writer(self._bdf)
+    # --- files -----------------------------------------------------------------------
+    @property
+    def bdf_path(self) -> Path | None:
+        return None if self.folder is None else self.folder / f"{self.test_id}.bdf.csv"
+
+    @property
+    def chadeche_path(self) -> Path | None:
+        return None if self.folder is None else self.folder / f"{self.test_id}.chadeche.csv"
+
+    @property
+    def summary_path(self) -> Path | None:
+        return None if self.folder is None else self.folder / SUMMARY_NAME
+
+    def _open_files(self) -> None:
+        """Opened at the first record (so never for a test that did not start), in append
+        mode: a resumed test continues its files; the BDF header only once."""
+        if self._bdf is not None or self.folder is None or self.closed:
+            return
+        bdf, cha = self.bdf_path, self.chadeche_path
+        assert bdf is not None and cha is not None
+        self.folder.mkdir(parents=True, exist_ok=True)
+        fresh = not bdf.exists() or bdf.stat().st_size == 0
+        self._bdf = bdf.open("a", newline="", encoding="utf-8")
+        self._bdf_writer = csv.writer(self._bdf)
+        if fresh:
             self._bdf_writer.writerow(BDF_COLUMNS)
-            self._cha = (self.folder / f"{self.test_id}.chadeche.csv").open("w", encoding="utf-8")
+            self._bdf.flush()
+        self._cha = cha.open("a", encoding="utf-8")
 
+    # --- what the chain emits ----------------------------------------------------------
     def on_event(self, ev: ChainEvent) -> None:
+        if ev.kind not in TIMELINE_KINDS or self.closed:
+            return
         if self.first_t is None:
-            self.first_t = ev.t
-        # "command": an operator command of the running test, accepted or refused, by whom.
-        if ev.kind in ("step", "state", "alarm", "command"):
-            self.timeline.append(
-                {
-                    "test_time_s": round(ev.t - self.first_t, 3),
-                    "kind": ev.kind,
-                    "cycle": ev.cycle,
-                    "step": ev.step_id,
-                    "text": ev.text,
-                }
-            )
+            self.first_t = ev.t  # the start event (the first record sets it exactly)
+        self.last_t = ev.t if self.last_t is None else max(self.last_t, ev.t)
+        self.timeline.append(
+            {
+                "test_time_s": round(ev.t - self.first_t, 3),
+                "kind": ev.kind,
+                "cycle": ev.cycle,
+                "step": ev.step_id,
+                "text": ev.text,
+            }
+        )
 
     def on_record(self, rec: Record) -> None:
+        if self.closed:
+            return
+        if self.last_rec is None and not self._resumed:
+            # Test time 0 is the chain's, whatever the first event's time was.
+            self.first_t = rec.t - rec.test_time_s
+        self._open_files()
         self.records += 1
         self.last_rec = rec
+        self.last_t = rec.t if self.last_t is None else max(self.last_t, rec.t)
+        for n, c in self.cycles.items():
+            if n < rec.cycle:
+                c.complete = True  # a later cycle started: this one reached its end
         c = self.cycles.setdefault(rec.cycle, CycleSummary(rec.cycle))
         c.charged_ah = rec.cycle_charged_ah
         c.discharged_ah = rec.cycle_discharged_ah
@@ -164,28 +258,125 @@ class ResultCollector:
             self._cha.write(chadeche_line(rec, self.dba) + "\n")
             self._cha.flush()
 
-    def summary(self, end_reason: str, state: str) -> dict[str, Any]:
-        duration = self.last_rec.test_time_s if self.last_rec is not None else 0.0
+    # --- the summary -------------------------------------------------------------------
+    def test_time_s(self, now: float | None = None) -> float:
+        """Test time at ``now`` (default: the latest event or record)."""
+        t = now if now is not None else self.last_t
+        if t is None or self.first_t is None:
+            return 0.0
+        return max(0.0, t - self.first_t)
+
+    def summary(
+        self,
+        end_reason: str,
+        state: str,
+        *,
+        complete: bool = True,
+        now: float | None = None,
+    ) -> dict[str, Any]:
+        """The summary as it stands; ``complete``: the test is over (final summary)."""
+        if complete and state == "Complete" and self.cycles:
+            self.cycles[max(self.cycles)].complete = True  # the recipe's own end
+        why_open = (end_reason or "the test ended") if complete else ""
         return {
+            "format": SUMMARY_FORMAT,
             "test_id": self.test_id,
             "channel": self.channel,
             "recipe": self.recipe,
             "state": state,
+            "complete": complete,
             "end_reason": end_reason,
-            "duration_s": round(duration, 3),
+            "duration_s": round(self.test_time_s(now), 3),
             "records": self.records,
-            "cycles": [c.as_dict() for _, c in sorted(self.cycles.items())],
+            "cycles": [c.as_dict(why_open) for _, c in sorted(self.cycles.items())],
             "timeline": self.timeline,
         }
 
-    def close(self, end_reason: str, state: str) -> dict[str, Any]:
-        s = self.summary(end_reason, state)
-        if self.folder is not None:
-            (self.folder / "summary.json").write_text(
-                json.dumps(s, indent=2) + "\n", encoding="utf-8"
-            )
+    def checkpoint(self, state: str = "", now: float | None = None) -> None:
+        """Rewrite the summary of the test under way (``"complete": false``); ``state``:
+        the chain's state now (default: the last one given)."""
+        if state:
+            self.state = state
+        if self.closed or self.folder is None or self.first_t is None:
+            return
+        self._write(self.summary("", self.state, complete=False, now=now))
+
+    def close(
+        self,
+        end_reason: str,
+        state: str,
+        *,
+        complete: bool = True,
+        now: float | None = None,
+    ) -> dict[str, Any]:
+        """The test's last summary, and the files closed. ``complete=False``: the test
+        did not end (the supervisor stops with it under way; it may resume after a
+        restart), so the summary is not final."""
+        s = self.summary(end_reason, state, complete=complete, now=now)
+        if self.folder is not None and self.first_t is not None and not self.closed:
+            self._write(s)
         for f in (self._bdf, self._cha):
             if f is not None:
                 f.close()
         self._bdf = self._cha = None
+        self._bdf_writer = None
+        self.closed = True
         return s
+
+    def abandon(self) -> None:
+        """Close the files and write nothing more (this process goes away without the
+        test ending, e.g. a start-up that failed); the last summary stays as it is."""
+        for f in (self._bdf, self._cha):
+            if f is not None:
+                f.close()
+        self._bdf = self._cha = None
+        self._bdf_writer = None
+        self.closed = True
+
+    def _write(self, summary: dict[str, Any]) -> None:
+        """Atomically: a reader (or a restart after a kill) sees the old or the new file,
+        never half of one. No fsync: the failure this guards against is the process
+        dying; the retained state (SQLite) is what survives a power cut."""
+        path = self.summary_path
+        assert path is not None and self.folder is not None
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_name(path.name + ".tmp")
+            tmp.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+            tmp.replace(path)
+        except OSError:
+            log.exception("%s: cannot write %s", self.channel, path)
+
+    # --- after a restart ------------------------------------------------------------------
+    def resume(self, first_t: float) -> None:
+        """Continue the files of this test after a restart: the timeline and the cycles
+        from the last summary, the record index from the BDF rows; test time 0 at
+        ``first_t`` (the restored chain's)."""
+        self.first_t = first_t
+        self.last_t = None
+        self._resumed = True
+        path = self.summary_path
+        if path is not None and path.exists():
+            try:
+                old = json.loads(path.read_text(encoding="utf-8"))
+                self.timeline = list(old.get("timeline", []))
+                self.cycles = {
+                    int(c["cycle"]): CycleSummary.from_dict(c) for c in old.get("cycles", [])
+                }
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                log.warning(
+                    "%s: summary %s unreadable (%s); starting a new one", self.channel, path, exc
+                )
+        bdf = self.bdf_path
+        if bdf is not None and bdf.exists():
+            with contextlib.suppress(OSError), bdf.open(encoding="utf-8") as f:
+                self.records = max(0, sum(1 for _ in f) - 1)  # minus the header
+
+    @staticmethod
+    def final_summary(folder: Path) -> bool:
+        """Whether ``folder`` holds a final summary (the test there is over)."""
+        try:
+            data = json.loads((folder / SUMMARY_NAME).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return False
+        return isinstance(data, dict) and data.get("complete") is True

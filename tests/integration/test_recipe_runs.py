@@ -369,7 +369,7 @@ async def test_the_status_line_follows_the_chadeche_display_format(tmp_path: Pat
     b = bench_with(tmp_path, "recipe: r\nsteps:\n  - {id: a, charge: 50 mA, duration: 180 s}\n")
     await start(b)
     await b.engine.run_for(129.0)
-    snapshot = b.runners["ch0"].snapshot(b.clock.now())
+    snapshot = b.runners["ch0"].sample(b.clock.now())
     assert snapshot is not None
     line = display_line(snapshot, b.displays["ch0"].dba)
     assert re.match(

@@ -16,7 +16,7 @@ import pytest
 
 from supervisor.core.records import ChainEvent, Record
 from supervisor.publish.display import ChadecheDisplay, display_line
-from supervisor.publish.results import BDF_COLUMNS, ResultCollector, chadeche_line
+from supervisor.publish.results import BDF_COLUMNS, CycleSummary, ResultCollector, chadeche_line
 
 WALL = time.mktime((2017, 5, 22, 3, 21, 43, 0, 0, -1))  # seed 000's example date
 
@@ -119,3 +119,101 @@ def test_result_files_are_written_from_events_and_records(tmp_path: Path) -> Non
     assert [e["test_time_s"] for e in summary["timeline"]] == [0.0, 60.0]
     assert summary["cycles"][0]["coulombic_efficiency"] == pytest.approx(0.2 / 1.5, rel=1e-5)
     assert (summary["end_reason"], summary["state"]) == ("duration elapsed", "Complete")
+
+
+# --- truthful summaries (users' finding 8) --------------------------------------------------
+def cycle_rec(t: float, cycle: int, charged: float, discharged: float) -> Record:
+    return replace(
+        REC,
+        t=t,
+        test_time_s=t - 3.0,
+        cycle=cycle,
+        cycle_charged_ah=charged,
+        cycle_discharged_ah=discharged,
+        cycle_charged_wh=charged * 1.3,
+        cycle_discharged_wh=discharged * 1.2,
+    )
+
+
+def test_nothing_is_written_before_the_test_starts(tmp_path: Path) -> None:
+    c = ResultCollector("ch0", "r", "t1", tmp_path / "t1")
+    c.close("supervisor stopped", "Idle")
+    assert not (tmp_path / "t1").exists()
+
+
+def test_the_duration_is_the_test_time_at_the_end_not_the_last_records(tmp_path: Path) -> None:
+    c = ResultCollector("ch0", "r", "t1", tmp_path / "t1")
+    c.on_event(ChainEvent(3.0, WALL, "ch0", "state", "Idle → Running (start by operator)"))
+    c.on_record(cycle_rec(3.0, 1, 0.0, 0.0))  # the first step's record, at test time 0
+    c.on_event(ChainEvent(38.0, WALL, "ch0", "state", "Running → Aborting (abort by operator)"))
+    c.on_event(ChainEvent(38.0, WALL, "ch0", "state", "Aborting → Aborted (done)"))
+    s = c.close("aborted: abort by operator", "Aborted")
+    assert s["duration_s"] == 35.0
+    assert s["complete"] is True
+
+
+@pytest.mark.parametrize(
+    ("charged", "discharged", "complete", "note"),
+    [
+        (1.0, 0.95, True, None),
+        (1.0, 0.0, True, "cycle 1 has no discharge"),
+        (0.0, 0.5, True, "cycle 1 has no charge"),
+        (0.01, 3.96, True, "cycle 1 has no charge"),  # an offset, not a half-cycle
+        (0.01, 3.96, False, "cycle 1 did not finish (aborted: abort by operator)"),
+        (1.0, 0.95, False, "cycle 1 did not finish (aborted: abort by operator)"),
+    ],
+)
+def test_a_cycle_has_an_efficiency_only_with_both_a_charge_and_a_discharge(
+    charged: float, discharged: float, complete: bool, note: str | None
+) -> None:
+    c = CycleSummary(1, charged, discharged, charged * 1.3, discharged * 1.2, complete)
+    d = c.as_dict("aborted: abort by operator")
+    assert d["efficiency_note"] == note
+    if note is None:
+        assert d["coulombic_efficiency"] == pytest.approx(0.95)
+        assert d["energy_efficiency"] == pytest.approx(0.95 * 1.2 / 1.3)
+    else:
+        assert d["coulombic_efficiency"] is None and d["energy_efficiency"] is None
+
+
+def test_a_cycle_is_complete_once_the_next_one_starts(tmp_path: Path) -> None:
+    c = ResultCollector("ch0", "r", "t1", None)
+    c.on_record(cycle_rec(3.0, 1, 0.3, 0.0))
+    c.on_record(cycle_rec(100.0, 1, 0.3, 0.25))
+    c.on_record(cycle_rec(200.0, 2, 0.1, 0.0))
+    first, second = c.summary("aborted: abort by operator", "Aborted")["cycles"]
+    assert first["complete"] and first["coulombic_efficiency"] == pytest.approx(0.25 / 0.3)
+    assert not second["complete"] and second["coulombic_efficiency"] is None
+
+
+def test_a_checkpoint_rewrites_the_summary_atomically_marked_incomplete(tmp_path: Path) -> None:
+    c = ResultCollector("ch0", "r", "t1", tmp_path / "t1")
+    c.on_event(ChainEvent(3.0, WALL, "ch0", "state", "Idle → Running (start by operator)"))
+    c.checkpoint("Running", now=13.0)
+    s = json.loads((tmp_path / "t1" / "summary.json").read_text(encoding="utf-8"))
+    assert (s["complete"], s["state"], s["duration_s"]) == (False, "Running", 10.0)
+    assert [p.name for p in (tmp_path / "t1").iterdir()] == ["summary.json"]
+    c.close("aborted: abort by operator", "Aborted", now=20.0)
+
+
+def test_a_resumed_test_continues_its_files(tmp_path: Path) -> None:
+    first = ResultCollector("ch0", "r", "t1", tmp_path / "t1")
+    first.on_event(ChainEvent(3.0, WALL, "ch0", "state", "Idle → Running (start by operator)"))
+    first.on_record(cycle_rec(3.0, 1, 0.0, 0.0))
+    first.on_record(cycle_rec(13.0, 1, 0.1, 0.0))
+    first.checkpoint("Running", now=13.0)
+    first.abandon()  # the process dies
+
+    # The next process: its clock starts again at 0; the test had run 10 s, away 5 s.
+    again = ResultCollector("ch0", "r", "t1", tmp_path / "t1")
+    again.resume(first_t=-15.0)
+    again.on_event(ChainEvent(0.0, WALL, "ch0", "state", "supervisor restarted after 5.0 s"))
+    again.on_record(replace(cycle_rec(10.0, 1, 0.2, 0.0), test_time_s=25.0))
+    s = again.close("complete after step maintain of cycle 1: end", "Complete", now=10.0)
+    rows = list(csv.reader((tmp_path / "t1" / "t1.bdf.csv").read_text().splitlines()))
+    assert tuple(rows[0]) == BDF_COLUMNS and len(rows) == 4  # one header, three rows
+    assert [r[BDF_COLUMNS.index("Record Index / 1")] for r in rows[1:]] == ["1", "2", "3"]
+    assert [e["test_time_s"] for e in s["timeline"]] == [0.0, 15.0]
+    assert s["duration_s"] == 25.0 and s["records"] == 3
+    assert s["cycles"][0]["charge_capacity_ah"] == 0.2
+    assert len((tmp_path / "t1" / "t1.chadeche.csv").read_text().splitlines()) == 3
