@@ -55,6 +55,7 @@ class KillRestart:
     restored_state: str = ""
     restored_step: str = ""
     counter_error: float = 0.0  # largest relative deviation of a restored counter
+    contactor_open_s: float = 0.0  # kill → the simulated contactor open (its watchdogs)
     restart_to_held_s: float = 0.0  # from the restart to the channel reported Held
     final_state: str = ""
     restart_noted: bool = False  # the summary's timeline records the interruption
@@ -214,8 +215,10 @@ def kill_restart(
     ch = KILL_RESTART_CHANNEL
     state_file = workdir / "var" / STATE_NAME
     results: list[KillRestart] = []
+    control_port = _free_port()
+    control = f"http://127.0.0.1:{control_port}/api"  # the sim's plant state and e-stop
     sim = _Process(
-        [*exe, "sim", str(bench_map), "--control-port", str(_free_port())], workdir, logs
+        [*exe, "sim", str(bench_map), "--control-port", str(control_port)], workdir, logs
     )
     running: list[_Process] = []
 
@@ -245,6 +248,13 @@ def kill_restart(
             _wait("Running", partial(_in_state, url, ("Running",)))
             time.sleep(res.kill_after_s)
             p.kill()
+            t_kill = time.monotonic()
+            # Nothing drives the bench now: its watchdogs must open the contactor by themselves.
+            _wait(
+                "the contactor opened by its watchdogs",
+                lambda: _http("GET", f"{control}/sim/state")["contactor_closed"] is False,
+            )
+            res.contactor_open_s = time.monotonic() - t_kill
             running.remove(p)
             p.stop()
             saved = RetainStore(state_file).read()[f"channel:{ch}"]
@@ -307,7 +317,8 @@ def kill_restart(
                 f"  {k:2d}: killed {res.kill_after_s:4.2f} s after start, saved"
                 f" {res.saved_state} in {res.saved_step or '-'}; back {res.restored_state} in"
                 f" {res.restored_step or '-'} ({res.restart_to_held_s:.2f} s), counters"
-                f" {res.counter_error:.1e}; ended {res.final_state}; BDF drop"
+                f" {res.counter_error:.1e}; contactor open {res.contactor_open_s:.2f} s after the"
+                f" kill; ended {res.final_state}; BDF drop"
                 f" {res.bdf_backwards_ah * 1000:.3f} mAh"
                 + ("" if res.ok else f"  PROBLEMS: {'; '.join(res.problems)}")
             )
@@ -316,6 +327,15 @@ def kill_restart(
             p.stop()
         sim.stop()
     return results
+
+
+def _watchdog_s(workdir: Path) -> float:
+    """The watchdog relay's time in the bench map the benchmark ran (0: none fitted)."""
+    import yaml
+
+    data = yaml.safe_load((workdir / "seed002.yaml").read_text(encoding="utf-8"))
+    relay = (data.get("simulation") or {}).get("watchdog_relay") or {}
+    return float(relay.get("timeout_s", 0.0))
 
 
 def _bdf_continuity(path: Path) -> tuple[bool, float]:
@@ -371,6 +391,12 @@ def kill_restart_benchmark(iterations: int, seed: int) -> int:
         f" {max(r.counter_error for r in results):.1e}; largest BDF capacity drop"
         f" {max(r.bdf_backwards_ah for r in results) * 1000:.3f} mAh"
         f" ({sum(r.bdf_backwards_ah > 0 for r in results)} of {len(results)} kills)"
+    )
+    opened = [r.contactor_open_s for r in results]
+    _say(
+        f"  contactor opened by the watchdogs after each kill: p50"
+        f" {ScanStats.percentile(opened, 50):.2f} s, max {max(opened):.2f} s"
+        f" (watchdog relay {_watchdog_s(workdir):g} s)"
     )
     if len(good) == len(results):
         shutil.rmtree(workdir, ignore_errors=True)
