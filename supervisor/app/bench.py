@@ -213,17 +213,7 @@ class Bench:
             ch.go_safe()
         self.engine.scan_once()  # queue the zero setpoints
         now = self.clock.now()
-        for name, collector in self.results.items():
-            runner = self.runners[name]
-            if runner.state in ACTIVE:
-                # Not the end of the test: it is retained and comes back Held at the next
-                # start, so its summary is not final.
-                collector.close("supervisor stopped", runner.state.value, complete=False, now=now)
-            elif runner.state not in FINAL:
-                collector.close("supervisor stopped", runner.state.value, now=now)
-        if self.retention is not None:
-            self.retention.close()
-            self.retention = None
+        # Safety first: every device safe before anything is written to disk.
         unconfirmed: dict[str, str] = {}
         for name, d in self.drivers.items():
             try:
@@ -241,6 +231,18 @@ class Bench:
                 await d.close()
             except Exception:
                 log.exception("%s: close failed", d.name)
+        for name, collector in self.results.items():
+            runner = self.runners[name]
+            if runner.state in ACTIVE:
+                # Not the end of the test: it is retained and comes back Held at the next
+                # start, so its summary is not final.
+                collector.close("supervisor stopped", runner.state.value, complete=False, now=now)
+            elif runner.state not in FINAL:
+                collector.close("supervisor stopped", runner.state.value, now=now)
+        if self.retention is not None:
+            # Waits for the writer thread (the last save on disk): not on the event loop.
+            await asyncio.to_thread(self.retention.close)
+            self.retention = None
         if self.sim is not None:
             await self.sim.stop()
         self._started = False

@@ -131,6 +131,9 @@ class _Process:
             try:
                 self.proc.wait(timeout_s)
             except subprocess.TimeoutExpired:
+                # Stuck: its stacks into the log (supervisor run dumps them on SIGUSR1).
+                self.proc.send_signal(signal.SIGUSR1)
+                time.sleep(1.0)
                 self.proc.kill()
                 self.proc.wait()
         if self.proc.stdout is not None:

@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
+import faulthandler
+import io
 import logging
 import signal
 import sys
@@ -154,6 +157,11 @@ async def _serve(
 
 def cmd_run(args: argparse.Namespace) -> int:
     _setup_logging(args.log_level)
+    # A bench runs for days: `kill -USR1 <pid>` prints every thread's stack to the log
+    # (what a stuck supervisor is doing), without stopping it.
+    with contextlib.suppress(io.UnsupportedOperation, AttributeError, ValueError):
+        # (a captured stderr has no file descriptor: then no stack dumps, nothing else lost)
+        faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True)
     if not Path(args.io_map).exists():
         _err(f"{args.io_map}: no such I/O map (give a path, e.g. io_maps/sim.yaml)")
         return EXIT_USAGE
