@@ -132,7 +132,8 @@ class _Process:
                 self.proc.wait(timeout_s)
             except subprocess.TimeoutExpired:
                 # Stuck: its stacks into the log (supervisor run dumps them on SIGUSR1).
-                self.proc.send_signal(signal.SIGUSR1)
+                self.proc.send_signal(signal.SIGUSR1)  # threads
+                self.proc.send_signal(signal.SIGUSR2)  # asyncio tasks
                 time.sleep(1.0)
                 self.proc.kill()
                 self.proc.wait()

@@ -120,6 +120,8 @@ async def _serve(
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    # `kill -USR2 <pid>`: every asyncio task's stack into the log (what it waits for).
+    loop.add_signal_handler(signal.SIGUSR2, _dump_tasks)
     try:
         await api.start()
         await bench.start()
@@ -153,6 +155,12 @@ async def _serve(
         return EXIT_FAIL
     _out("stopped: all outputs safe")
     return EXIT_OK
+
+
+def _dump_tasks() -> None:
+    for task in asyncio.all_tasks():
+        log.warning("task %s:", task.get_name())
+        task.print_stack(file=sys.stderr)
 
 
 def cmd_run(args: argparse.Namespace) -> int:

@@ -149,7 +149,13 @@ class PolledDriver(ABC):
         """Poll forever at ``poll_period_s`` on absolute deadlines (cancel to stop); in
         between, send queued writes as soon as ``write()`` wakes it."""
         next_t = self.clock.now()
+        task = asyncio.current_task()
         while True:
+            if task is not None and task.cancelling():
+                # A cancellation can come back as a TimeoutError when it races a timeout
+                # (asyncio.timeout in Python 3.11), and a failed poll swallows those: never
+                # let that keep a driver task alive once it was told to stop.
+                raise asyncio.CancelledError
             if self.clock.now() >= next_t:
                 await self.poll()
                 next_t += self.poll_period_s

@@ -33,6 +33,8 @@ from supervisor.tags.spec import Scaling, TagSpec
 log = logging.getLogger(__name__)
 
 STATS_WINDOW = 10_000
+DRIVER_STOP_S = 5.0
+"""How long the end of a run waits for the drivers' own tasks to stop."""
 
 
 @dataclass(slots=True)
@@ -259,7 +261,11 @@ class ScanEngine:
         finally:
             for t in tasks:
                 t.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
+            # Bounded: a driver task that does not end must not keep the shutdown (and the
+            # safe state that follows it) waiting.
+            _, stuck = await asyncio.wait(tasks, timeout=DRIVER_STOP_S) if tasks else ((), ())
+            for t in stuck:
+                log.error("scan: %s did not stop within %g s", t.get_name(), DRIVER_STOP_S)
 
     async def _loop(
         self, stop: asyncio.Event, max_scans: int | None, until_t: float | None
