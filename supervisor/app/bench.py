@@ -103,6 +103,7 @@ class Bench:
             voltage_limits_v=c.limits.voltage_v,
             temperature_limits_c=c.limits.temperature_c,
             tags=self.tag_dims(),
+            scan_period_s=self.cfg.scan.period_s,
         )
 
     def load_recipe(

@@ -87,6 +87,8 @@ class Target:
     temperature_limits_c: Window | None = None
     """The channel's hard limits (None: unknown, nothing checked); a None bound: open."""
     tags: Mapping[str, Dim] = field(default_factory=dict)
+    scan_period_s: float | None = None
+    """The scan period of the bench it runs on (None: unknown, pulse times not checked)."""
 
 
 def compile_recipe(
@@ -379,8 +381,11 @@ class _Compiler:
             at = (*path, "pulse", "current")
             kw["current_a"] = self._current(s.pulse.current, at)
             self._check_amps(s, kw["current_a"], s.pulse.current, at)
-            kw["pulse_on_s"] = parse_quantity(s.pulse.on_time).value
-            kw["pulse_off_s"] = parse_quantity(s.pulse.off_time).value
+            on_s = parse_quantity(s.pulse.on_time).value
+            off_s = parse_quantity(s.pulse.off_time).value
+            self._check_pulse_times(s, on_s, off_s, (*path, "pulse"))
+            kw["pulse_on_s"] = on_s
+            kw["pulse_off_s"] = off_s
             kw["pulse_count"] = s.pulse.count
         elif kind == "profile" and s.profile is not None:
             points = self._profile(s.profile, (*path, "profile"))
@@ -471,19 +476,58 @@ class _Compiler:
         return volts
 
     def _check_power(self, s: Step, power_w: float, path: tuple[str | int, ...]) -> None:
-        """I = P / V (``ConstantPower``): above the channel's low voltage limit the current
-        is at most P / V_low. No simple bound when that limit reaches zero volts."""
+        """I = P / V (``ConstantPower``). First, can the power be reached at all: the most
+        the channel gives in that direction is its current limit at its high voltage limit
+        (the cell's voltage stays below it), so a 1000 W step on a 0.4 A board is refused
+        whatever its low voltage limit. Then, above the low voltage limit the current is at
+        most P / V_low; no simple bound when that limit reaches zero volts."""
         vlim, ilim = self.target.voltage_limits_v, self.target.current_limits_a
-        if vlim is None or ilim is None or vlim[0] <= MIN_POWER_VOLTAGE_V:
+        if vlim is None or ilim is None:
+            return
+        lo, hi = ilim
+        v_high = vlim[1]
+        if power_w != 0 and v_high > 0:
+            limit_a = hi if power_w > 0 else lo
+            reach_w = limit_a * v_high
+            if abs(power_w) > abs(reach_w) * (1 + LIMIT_EPS) + LIMIT_EPS:
+                self.err(
+                    path,
+                    f"step {s.id!r} asks {power_w:g} W; {self._where()} reaches at most"
+                    f" {abs(reach_w):.3g} W {'charging' if power_w > 0 else 'discharging'}"
+                    f" ({limit_a:g} A at its {v_high:g} V high limit)",
+                )
+                return
+        if vlim[0] <= MIN_POWER_VOLTAGE_V:
             return
         amps = power_w / vlim[0]
-        lo, hi = ilim
         if not lo - LIMIT_EPS <= amps <= hi + LIMIT_EPS:
             self.err(
                 path,
                 f"step {s.id!r} asks {power_w:g} W: up to {amps:.3g} A at the"
                 f" {vlim[0]:g} V low limit; {self._where()} allows [{lo:g}, {hi:g}] A",
             )
+
+    def _check_pulse_times(
+        self, s: Step, on_s: float, off_s: float, path: tuple[str | int, ...]
+    ) -> None:
+        """Refused, not warned: the scan sets the current once per period, so a pulse (or
+        the rest between two) shorter than a scan would last a whole scan or not happen,
+        and the internal resistance would be measured on another pulse than the one
+        written. An off_time of 0 (pulses back to back) asks for no rest: allowed."""
+        scan = self.target.scan_period_s
+        if scan is None:
+            return
+        where = f"channel {self.target.channel}'s" if self.target.channel else "the"
+        for name, seconds in (("on_time", on_s), ("off_time", off_s)):
+            if name == "off_time" and seconds == 0:
+                continue
+            if seconds < scan - LIMIT_EPS:
+                self.err(
+                    (*path, name),
+                    f"step {s.id!r} pulse {name} {seconds:g} s is shorter than {where} scan"
+                    f" period ({scan:g} s): the current changes once per scan; make it at"
+                    f" least {scan:g} s",
+                )
 
     def _check_profile(
         self, s: Step, points: tuple[ProfilePoint, ...], path: tuple[str | int, ...]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from supervisor.chains.program import ProfilePoint
@@ -22,6 +23,8 @@ def _limits(row: Row, layout: Layout, path: Path) -> list[float | None]:
             value = layout.number(text) if text else None
             if text and value is None:
                 raise ConfigError(f"{text!r} is not a number", path, row.line, cell.col)
+            if value is not None and not math.isfinite(value):
+                raise ConfigError(f"{text!r} is not a finite number", path, row.line, cell.col)
             values.append(value)
     return values
 
@@ -36,6 +39,9 @@ def _point(row: Row, layout: Layout, path: Path, *, header: bool) -> ProfilePoin
         if header:
             return None
         raise ConfigError(f"time {first.text!r} is not a number", path, row.line, first.col)
+    if not math.isfinite(t):
+        # A NaN time compares false with everything: it would slip past the ordering check.
+        raise ConfigError(f"time {first.text!r} is not a finite number", path, row.line, first.col)
     values = _limits(row, layout, path)
     if not values or values[0] is None:
         col = row.cells[1].col if len(row.cells) > 1 else row.end_col

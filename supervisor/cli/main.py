@@ -12,12 +12,16 @@ import contextlib
 import faulthandler
 import io
 import logging
+import math
+import os
+import re
 import signal
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final, NoReturn
 
+from supervisor.config.models import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 
 if TYPE_CHECKING:
@@ -271,6 +275,90 @@ def cmd_schema(args: argparse.Namespace) -> int:
 
 
 # --- dry-run -------------------------------------------------------------------------
+# Argument types: a bad value is one line naming the option and what was received, exit 2
+# (argparse prints "supervisor dry-run: error: argument --soc: ..."), never a traceback.
+DRY_RUN_MAX_HOURS: Final = 100_000.0
+"""The longest dry run asked for (about 11 years of virtual time)."""
+DRY_RUN_MAX_CELLS: Final = 1000
+"""Li-ion cells in series a dry run models at most (a 4.35 kV pack)."""
+DRY_RUN_MAX_CAPACITY_AH: Final = 100_000.0
+"""The largest rated capacity a dry run models (a 100 kAh bank)."""
+_TIME_OF_DAY = re.compile(r"([01]?[0-9]|2[0-3]):([0-5][0-9])", re.ASCII)
+
+
+_NUMBER = re.compile(r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?", re.ASCII)
+
+
+def _finite(text: str) -> float:
+    """A finite number in ASCII digits (``float()`` would also take ``nan``, ``1_000``, ``٣``)."""
+    t = text.strip()
+    if _NUMBER.fullmatch(t) is None:
+        what = (
+            "a finite number"
+            if t.lower().lstrip("+-") in ("nan", "inf", "infinity")
+            else "a number"
+        )
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+    value = float(t)
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _bounded(
+    low: float, high: float, unit: str = "", *, low_included: bool = True
+) -> Callable[[str], float]:
+    """An argparse type: a finite number in [low, high] (or (low, high])."""
+    u = f" {unit}" if unit else ""
+
+    def parse(text: str) -> float:
+        value = _finite(text)
+        if (value < low if low_included else value <= low) or value > high:
+            span = (
+                f"from {low:g} to {high:g}{u}"
+                if low_included
+                else f"more than {low:g} and at most {high:g}{u}"
+            )
+            raise argparse.ArgumentTypeError(f"expected a number {span}, got {text!r}")
+        return value
+
+    return parse
+
+
+def _cells(text: str) -> int:
+    if not re.fullmatch(r"[0-9]{1,6}", text.strip(), re.ASCII):
+        raise argparse.ArgumentTypeError(f"expected a whole number of cells, got {text!r}")
+    cells = int(text)
+    if not 1 <= cells <= DRY_RUN_MAX_CELLS:
+        raise argparse.ArgumentTypeError(
+            f"expected from 1 to {DRY_RUN_MAX_CELLS} cells in series, got {text!r}"
+        )
+    return cells
+
+
+def _time_of_day(text: str) -> str:
+    m = _TIME_OF_DAY.fullmatch(text.strip())
+    if m is None:
+        raise argparse.ArgumentTypeError(
+            f"expected a time of day HH:MM (00:00 to 23:59), got {text!r}"
+        )
+    return f"{int(m[1]):02d}:{m[2]}"
+
+
+def _results_dir(text: str) -> str:
+    """A folder the result files can go to: it exists as a writable folder, or can be made
+    under the nearest existing folder (checked before the dry run, not after hours)."""
+    path = Path(text)
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r}: {existing} is not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError(f"{text!r}: cannot write in {existing}")
+    return text
+
+
 def _params(items: list[str]) -> dict[str, str]:
     out: dict[str, str] = {}
     for item in items:
@@ -453,8 +541,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return asyncio.run(benchmarks.manual_charge_benchmark(args.hours))
 
 
+class _Parser(argparse.ArgumentParser):
+    """A usage error is one line (the option, what was received, where to read more), exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="supervisor", description=__doc__.splitlines()[0])
+    p = _Parser(prog="supervisor", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("run", help="run a bench until Ctrl-C/SIGTERM")
@@ -490,13 +585,34 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("recipe")
     d.add_argument("--model", choices=["nimh-aa", "liion-pack"], default=None)
     d.add_argument("--param", action="append", default=[], metavar="NAME=VALUE")
-    d.add_argument("--capacity-ah", type=float, default=None, help="rated capacity of the cell")
-    d.add_argument("--soc", type=float, default=None, help="state of charge at start, 0..1")
-    d.add_argument("--cells", type=int, default=1, help="Li-ion cells in series")
-    d.add_argument("--period-s", type=float, default=1.0, help="scan period of the dry run")
-    d.add_argument("--start", default="08:00", help="local time of day the test starts")
-    d.add_argument("--max-hours", type=float, default=1000.0)
-    d.add_argument("--results", default=None, help="write result files under this folder")
+    d.add_argument(
+        "--capacity-ah",
+        type=_bounded(0.0, DRY_RUN_MAX_CAPACITY_AH, "Ah", low_included=False),
+        default=None,
+        help="rated capacity of the cell",
+    )
+    d.add_argument(
+        "--soc", type=_bounded(0.0, 1.0), default=None, help="state of charge at start, 0..1"
+    )
+    d.add_argument("--cells", type=_cells, default=1, help="Li-ion cells in series")
+    d.add_argument(
+        "--period-s",
+        type=_bounded(MIN_SCAN_PERIOD_S, MAX_SCAN_PERIOD_S, "s"),
+        default=1.0,
+        help="scan period of the dry run",
+    )
+    d.add_argument(
+        "--start", type=_time_of_day, default="08:00", help="local time of day the test starts"
+    )
+    d.add_argument(
+        "--max-hours",
+        type=_bounded(0.0, DRY_RUN_MAX_HOURS, "h", low_included=False),
+        default=1000.0,
+        help="stop the dry run after this much virtual time",
+    )
+    d.add_argument(
+        "--results", type=_results_dir, default=None, help="write result files under this folder"
+    )
     d.set_defaults(func=cmd_dry_run)
 
     im = sub.add_parser("import", help="turn a Chadèche sequence file or a profile into YAML")
@@ -542,7 +658,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a usage error (2), already printed
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     try:
         code: int = args.func(args)
     except ConfigErrors as exc:

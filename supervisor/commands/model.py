@@ -5,11 +5,12 @@ methods later — builds the same command and gets the same answer.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
+
+from supervisor.tags.spec import clipped_repr, finite_float
 
 
 class TargetKind(StrEnum):
@@ -129,15 +130,15 @@ class Command:
         v = self.verb
         extra = ""
         if v is Verb.WRITE:
-            extra = f" {a.get('tag')} := {a.get('value')!r}"
+            extra = f" {a.get('tag')} := {clipped_repr(a.get('value'))}"
         elif v is Verb.MODE:
             extra = f" {a.get('value')}" + (" (keep setpoint)" if a.get("keep_setpoint") else "")
         elif v is Verb.MANUAL_CURRENT:
             x = a.get("value")
-            extra = f" {x:g} A" if _is_number(x) else f" {x!r}"
+            extra = f" {x:g} A" if _is_number(x) else f" {clipped_repr(x)}"
         elif v is Verb.ENABLE:
             x = a.get("value")
-            extra = (" on" if x else " off") if isinstance(x, bool) else f" {x!r}"
+            extra = (" on" if x else " off") if isinstance(x, bool) else f" {clipped_repr(x)}"
         elif v in (Verb.LOAD, Verb.START) and a.get("recipe"):
             extra = f" {a['recipe']}"
             params = a.get("parameters")
@@ -243,4 +244,4 @@ class CommandEvent:
 
 
 def _is_number(x: object) -> bool:
-    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+    return isinstance(x, int | float) and not isinstance(x, bool) and finite_float(x) is not None

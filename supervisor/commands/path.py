@@ -31,7 +31,6 @@ sees one consistent process image and its effect is taken by the next scan.
 from __future__ import annotations
 
 import logging
-import math
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import replace
@@ -58,6 +57,7 @@ from supervisor.core.clock import Clock
 from supervisor.core.errors import ConfigError, ConfigErrors, OperatorError
 from supervisor.safety import AlarmManager, ChannelGuard
 from supervisor.tags import Access, TagDB
+from supervisor.tags.spec import clipped_repr, finite_float
 
 log = logging.getLogger(__name__)
 
@@ -403,7 +403,9 @@ class CommandPath:
             verb = Verb.parse(value) if isinstance(value, str) else None
             if verb is None or verb not in (*CHAIN_VERBS, Verb.ACKNOWLEDGE):
                 ok = ", ".join([*(x.value for x in CHAIN_VERBS), "ack"])
-                raise Refusal(ResultKind.BAD_ARGUMENT, f"{name}: unknown command {value!r} ({ok})")
+                raise Refusal(
+                    ResultKind.BAD_ARGUMENT, f"{name}: unknown command {clipped_repr(value)} ({ok})"
+                )
             return Command.channel(channel, verb, c.actor)
         if field == "ack":
             if _flag(c.args, "value") is not True:
@@ -497,15 +499,24 @@ def _only(c: Command, *allowed: str) -> None:
 def _text(a: Mapping[str, Any], key: str) -> str:
     x = a.get(key)
     if not isinstance(x, str) or not x:
-        raise Refusal(ResultKind.BAD_ARGUMENT, f"{key} must be a text, not {x!r}")
+        raise Refusal(ResultKind.BAD_ARGUMENT, f"{key} must be a text, not {clipped_repr(x)}")
     return x
 
 
 def _number(a: Mapping[str, Any], key: str, unit: str) -> float:
+    """A finite number (a boolean is not one; nor NaN, ±inf, or 1 followed by 400 zeros)."""
     x = a.get(key)
-    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
-        raise Refusal(ResultKind.BAD_ARGUMENT, f"{key} must be a number ({unit}), not {x!r}")
-    return float(x)
+    if isinstance(x, bool) or not isinstance(x, int | float):
+        raise Refusal(
+            ResultKind.BAD_ARGUMENT, f"{key} must be a number ({unit}), not {clipped_repr(x)}"
+        )
+    number = finite_float(x)
+    if number is None:
+        raise Refusal(
+            ResultKind.BAD_ARGUMENT,
+            f"{key} must be a number ({unit}), a finite one, not {clipped_repr(x)}",
+        )
+    return number
 
 
 _TRUE = ("true", "on", "yes", "1")
@@ -518,16 +529,28 @@ def _flag(a: Mapping[str, Any], key: str, default: bool | None = None) -> bool:
         return x
     if isinstance(x, str) and x.strip().lower() in (*_TRUE, *_FALSE):
         return x.strip().lower() in _TRUE
-    raise Refusal(ResultKind.BAD_ARGUMENT, f"{key} must be true or false, not {x!r}")
+    raise Refusal(ResultKind.BAD_ARGUMENT, f"{key} must be true or false, not {clipped_repr(x)}")
 
 
 def _parameters(a: Mapping[str, Any]) -> dict[str, str]:
     p = a.get("parameters") or {}
     if not isinstance(p, Mapping):
-        raise Refusal(ResultKind.BAD_ARGUMENT, f"parameters must be a mapping, not {p!r}")
+        raise Refusal(
+            ResultKind.BAD_ARGUMENT, f"parameters must be a mapping, not {clipped_repr(p)}"
+        )
     out: dict[str, str] = {}
     for k, v in p.items():
-        if not isinstance(k, str) or isinstance(v, Mapping | list):
-            raise Refusal(ResultKind.BAD_ARGUMENT, f"parameter {k!r}: {v!r} is not a value")
+        # A quantity as text ("1.8 V") or a finite number; never a boolean (not 1 V).
+        number = isinstance(v, int | float) and not isinstance(v, bool)
+        if not isinstance(k, str) or not (isinstance(v, str) or number):
+            raise Refusal(
+                ResultKind.BAD_ARGUMENT,
+                f"parameter {clipped_repr(k)}: {clipped_repr(v)} is not a value"
+                " (a quantity such as '1.8 V')",
+            )
+        if number and finite_float(v) is None:
+            raise Refusal(
+                ResultKind.BAD_ARGUMENT, f"parameter {k}: {clipped_repr(v)} is not a finite number"
+            )
         out[k] = str(v)
     return out

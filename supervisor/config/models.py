@@ -2,6 +2,10 @@
 
 Unknown keys are errors everywhere (``extra="forbid"``): a misspelt key silently
 ignored is how a limit goes missing. Names carry units (``period_s``, ``current_a``).
+
+Types are strict (``strict=True``): YAML's ``true`` is not the number 1 (``port: true`` is
+not port 1, ``capacity_ah: true`` not 1 Ah), a number is not a text; a float field takes an
+int. Numbers are finite (``allow_inf_nan=False``): ``.inf`` and ``.nan`` are refused.
 """
 
 from __future__ import annotations
@@ -9,10 +13,11 @@ from __future__ import annotations
 import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Annotated, Any, ClassVar, Literal, Union
+from typing import Annotated, Any, ClassVar, Final, Literal, Union
 
 from pydantic import (
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Discriminator,
     Field,
@@ -29,11 +34,32 @@ TAG_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)*$"
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+
+def _list_as_tuple(v: Any) -> Any:
+    # YAML has lists, no tuples; strict mode takes a tuple only: the list is the pair (its
+    # items keep their strict types: ``[true, 1]`` is still refused).
+    return tuple(v) if isinstance(v, list) else v
+
+
+LIST_AS_TUPLE: Final = BeforeValidator(_list_as_tuple)
+"""Put on a strict model's tuple field (``Annotated[tuple[float, float], LIST_AS_TUPLE]``)."""
+
+Pair = Annotated[tuple[float, float], LIST_AS_TUPLE]
+"""``[low, high]`` or ``[a, b]`` as YAML writes it."""
+OpenPair = Annotated[tuple[float | None, float | None], LIST_AS_TUPLE]
+"""``[low, high]`` where ``null`` leaves that side open."""
+
+MIN_SCAN_PERIOD_S: Final = 0.001
+MAX_SCAN_PERIOD_S: Final = 10.0
+"""Scan period bounds (also those of ``supervisor dry-run --period-s``)."""
 
 
 class ScanConfig(Strict):
-    period_s: float = Field(0.1, ge=0.001, le=10.0, description="Scan period in seconds.")
+    period_s: float = Field(
+        0.1, ge=MIN_SCAN_PERIOD_S, le=MAX_SCAN_PERIOD_S, description="Scan period in seconds."
+    )
 
 
 class HmiConfig(Strict):
@@ -59,8 +85,8 @@ class LinearScaling(Strict):
 class SpanScaling(Strict):
     """Two-point scaling: ``raw: [lo, hi]`` maps to ``eu: [lo, hi]`` (e.g. ±4 V ↔ ±300 A)."""
 
-    raw: tuple[float, float]
-    eu: tuple[float, float]
+    raw: Pair
+    eu: Pair
 
     @model_validator(mode="after")
     def _spans(self) -> SpanScaling:
@@ -112,7 +138,7 @@ class TagMapping(Strict):
     unit: str = ""
     description: str = ""
     scaling: Scaling | None = None
-    range: tuple[float, float] | None = None
+    range: Pair | None = None
     stale_after_s: float | None = Field(None, gt=0)
     alarms: AlarmConfig | None = None
     history: HistoryConfig = HistoryConfig()
@@ -245,9 +271,9 @@ class ChannelSource(Strict):
 class ChannelLimits(Strict):
     """Hard limits: setpoints are clamped to them, crossings trip the channel."""
 
-    current_a: tuple[float, float] = Field(description="[max discharge (<=0), max charge (>=0)]")
-    voltage_v: tuple[float, float]
-    temperature_c: tuple[float | None, float | None] = (None, None)
+    current_a: Pair = Field(description="[max discharge (<=0), max charge (>=0)]")
+    voltage_v: Pair
+    temperature_c: OpenPair = (None, None)
     trip_delay_s: float = Field(
         0.0, ge=0, le=60, description="a crossing must last this long before it trips"
     )
@@ -294,7 +320,7 @@ class BmsLimits(Strict):
     cell_max_tag: str | None = Field(None, pattern=TAG_PATTERN)
     cell_min_tag: str | None = Field(None, pattern=TAG_PATTERN)
     temperature_tag: str | None = Field(None, pattern=TAG_PATTERN)
-    cell_voltage_v: tuple[float, float] = Field(description="[lowest, highest] cell voltage")
+    cell_voltage_v: Pair = Field(description="[lowest, highest] cell voltage")
     derate_band_v: float = Field(0.05, gt=0, description="full current until this close")
     temperature_max_c: float | None = None
     trip_delay_s: float = Field(1.0, ge=0, le=60)

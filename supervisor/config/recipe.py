@@ -3,24 +3,39 @@
 This layer checks the *shape* (keys, kinds, units of literals); the compiler in
 ``supervisor.chains`` checks meaning (goto targets, expressions, loops) and turns it
 into something executable. Current sign follows BDF: positive charges the cell.
+
+Types are strict, as in the I/O map models: a YAML boolean is not a number nor a
+quantity, numbers are finite, and a non-zero number too small for a float (``1e-400 A``,
+which Python reads as 0) is refused rather than taken as zero.
 """
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any, Final
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    field_validator,
+    model_validator,
+)
 
 from supervisor.core.errors import ConfigError, ConfigErrors
-from supervisor.core.units import Dim, UnitError, parse_quantity
+from supervisor.core.units import Dim, Quantity, UnitError, parse_quantity
 
 if TYPE_CHECKING:
     from supervisor.config.yamlpos import Positions
 
 ID_PATTERN = r"^[A-Za-z_][A-Za-z0-9_\-]*$"
-HHMM = re.compile(r"^([01]?\d|2[0-3]):([0-5]\d)$")
+# ASCII digits only: ``\d`` would take any Unicode digit (``٠٨:٠٠``) as a time of day.
+HHMM = re.compile(r"^([01]?[0-9]|2[0-3]):([0-5][0-9])$")
+MAX_CYCLES: Final = 1_000_000
+"""The most cycles a recipe may ask for."""
 
 STEP_KINDS = (
     "rest",
@@ -38,17 +53,53 @@ STEP_KINDS = (
     "end",
 )
 
-Q = str | float | int  # a quantity as written: "4.2 V", "300 mA", "0.5 C"
+_NONZERO_MANTISSA = re.compile(r"^\s*[-+]?0*\.?0*[1-9]")
+
+
+def _quantity_input(v: Any) -> Any:
+    """What a quantity may be written as: a text (``"4.2 V"``) or a finite number, never a
+    boolean (one message, not one per member of the union)."""
+    if isinstance(v, bool):
+        raise ValueError("expected a quantity (e.g. '4.2 V', '300 mA'), not a boolean")
+    if isinstance(v, float) and not math.isfinite(v):
+        raise ValueError("expected a quantity, not an infinite or NaN number")
+    return v
+
+
+Q = Annotated[str | float | int, BeforeValidator(_quantity_input)]
+"""A quantity as written: "4.2 V", "300 mA", "0.5 C"."""
+
+
+def quantity(v: str | float | int, dims: Dim | tuple[Dim, ...] | None = None) -> Quantity:
+    """``parse_quantity``, refusing a non-zero literal that underflows to 0 (``1e-400 A``)."""
+    q = parse_quantity(v, dims)
+    if q.value == 0.0 and isinstance(v, str) and _NONZERO_MANTISSA.match(v):
+        raise UnitError(f"{v!r} is too small to be told from zero: write 0 or a larger value")
+    return q
 
 
 def _q(v: Q | None, *dims: Dim) -> Q | None:
     if v is None:
         return None
     try:
-        parse_quantity(v, dims)
+        quantity(v, dims)
     except UnitError as exc:
         raise ValueError(str(exc)) from None
     return v
+
+
+def _q_nonnegative(v: Q | None, *dims: Dim, what: str = "a duration") -> Q | None:
+    q = _q(v, *dims)
+    if v is not None and parse_quantity(v).value < 0:
+        raise ValueError(f"{v!r}: {what} cannot be negative")
+    return q
+
+
+def _q_positive(v: Q | None, *dims: Dim, what: str) -> Q | None:
+    q = _q(v, *dims)
+    if v is not None and parse_quantity(v).value <= 0:
+        raise ValueError(f"{what} must be greater than zero")
+    return q
 
 
 def _text(x: Any) -> Any:
@@ -60,7 +111,15 @@ def _text(x: Any) -> Any:
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+
+def _list_as_tuple(v: Any) -> Any:
+    # YAML has lists, no tuples; strict mode takes a tuple only.
+    return tuple(v) if isinstance(v, list) else v
+
+
+Window = Annotated[tuple[Q | None, Q | None], BeforeValidator(_list_as_tuple)]
 
 
 class LogSettings(Strict):
@@ -70,20 +129,21 @@ class LogSettings(Strict):
     delta_v: Q | None = None
     delta_i: Q | None = None
 
+    # Zero or negative would record a line at every scan (or never mean anything).
     @field_validator("period")
     @classmethod
     def _p(cls, v: Q | None) -> Q | None:
-        return _q(v, Dim.TIME)
+        return _q_positive(v, Dim.TIME, what="a logging period")
 
     @field_validator("delta_v")
     @classmethod
     def _dv(cls, v: Q | None) -> Q | None:
-        return _q(v, Dim.VOLTAGE)
+        return _q_positive(v, Dim.VOLTAGE, what="a logging delta")
 
     @field_validator("delta_i")
     @classmethod
     def _di(cls, v: Q | None) -> Q | None:
-        return _q(v, Dim.CURRENT)
+        return _q_positive(v, Dim.CURRENT, what="a logging delta")
 
 
 class Supervision(Strict):
@@ -96,7 +156,7 @@ class Supervision(Strict):
     @field_validator("max_time")
     @classmethod
     def _t(cls, v: Q | None) -> Q | None:
-        return _q(v, Dim.TIME)
+        return _q_positive(v, Dim.TIME, what="a supervision time")
 
 
 class CvSpec(Strict):
@@ -143,10 +203,15 @@ class PulseSpec(Strict):
     def _i(cls, v: Q) -> Q | None:
         return _q(v, Dim.CURRENT, Dim.C_RATE)
 
-    @field_validator("on_time", "off_time")
+    @field_validator("on_time")
     @classmethod
-    def _t(cls, v: Q) -> Q | None:
-        return _q(v, Dim.TIME)
+    def _on(cls, v: Q) -> Q | None:
+        return _q_positive(v, Dim.TIME, what="a pulse's on_time")
+
+    @field_validator("off_time")
+    @classmethod
+    def _off(cls, v: Q) -> Q | None:
+        return _q_nonnegative(v, Dim.TIME, what="a pulse's off_time")
 
 
 class ProfileRow(Strict):
@@ -235,7 +300,7 @@ class Step(Strict):
             if not v:
                 raise ValueError("rest: false is not a step; remove the step")
             return v
-        return _q(v, Dim.TIME)
+        return _q_nonnegative(v, Dim.TIME)
 
     @field_validator("power")
     @classmethod
@@ -245,10 +310,7 @@ class Step(Strict):
     @field_validator("sleep", "duration")
     @classmethod
     def _time(cls, v: Q | None) -> Q | None:
-        q = _q(v, Dim.TIME)
-        if v is not None and parse_quantity(v).value < 0:
-            raise ValueError(f"{v!r}: a duration cannot be negative")
-        return q
+        return _q_nonnegative(v, Dim.TIME)
 
     @field_validator("sleep_until")
     @classmethod
@@ -295,7 +357,7 @@ class Group(Strict):
     @field_validator("duration")
     @classmethod
     def _time(cls, v: Q | None) -> Q | None:
-        return _q(v, Dim.TIME)
+        return _q_nonnegative(v, Dim.TIME)
 
     _until_text = field_validator("until", mode="before")(Step._until_text.__func__)  # type: ignore[attr-defined]
 
@@ -303,15 +365,15 @@ class Group(Strict):
 class Limits(Strict):
     """Recipe-level limits (a crossing holds the chain with an alarm)."""
 
-    voltage: tuple[Q | None, Q | None] | None = None
-    current: tuple[Q | None, Q | None] | None = None
-    temperature: tuple[Q | None, Q | None] | None = None
+    voltage: Window | None = None
+    current: Window | None = None
+    temperature: Window | None = None
     delay: Q | None = Field(None, description="a crossing must last this long to hold (trip delay)")
 
     @field_validator("delay")
     @classmethod
     def _delay(cls, v: Q | None) -> Any:
-        return _q(v, Dim.TIME)
+        return _q_nonnegative(v, Dim.TIME, what="a trip delay")
 
     @field_validator("voltage")
     @classmethod
@@ -337,7 +399,7 @@ class Recipe(Strict):
     parameters: dict[str, Q] = {}
     initial_charge: Q | None = Field(None, description="charge the Ah counter starts from")
     limits: Limits = Limits()
-    cycles: int = Field(1, ge=1, le=1_000_000)
+    cycles: int = Field(1, ge=1, le=MAX_CYCLES)
     logging: LogSettings = LogSettings(period="120 s")
     groups: list[Group] = []
     steps: list[Step] = Field(min_length=1)
@@ -354,7 +416,7 @@ class Recipe(Strict):
             if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", name):
                 raise ValueError(f"parameter name {name!r} must be an identifier")
             try:
-                parse_quantity(val)
+                quantity(val)
             except UnitError as exc:
                 raise ValueError(f"parameter {name}: {exc}") from None
         return v

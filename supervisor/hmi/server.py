@@ -8,11 +8,19 @@ give, 404 an unknown tag, channel, alarm or recipe, 409 refused in this state or
 interlock, 422 a recipe refused (``details``: file:line:col). A write of a channel's
 ``command``, ``mode``, ``manual_current``, ``enable`` or ``ack`` tag is that command. The
 scan takes the effect at its next start.
+
+Every answer is JSON (RFC 8259), which has no NaN nor Infinity: a browser's ``JSON.parse``
+refuses a whole snapshot for one of them. A request's ``NaN``/``Infinity`` is refused as
+not JSON; a non-finite value in a tag (a device can still produce one) is sent as ``null``
+with quality ``BAD`` (:func:`tag_json`), and any other non-finite number as ``null``
+(:func:`json_dumps`).
 """
 
 from __future__ import annotations
 
+import json
 import logging
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -20,20 +28,28 @@ from aiohttp import web
 
 from supervisor.commands import Command, CommandPath, Result, ResultKind, Verb
 from supervisor.core.clock import Clock
+from supervisor.core.quality import Quality
 from supervisor.safety import Alarm, AlarmEvent
 from supervisor.tags import Tag, TagDB
 
 log = logging.getLogger(__name__)
 
 
+NOT_FINITE_REASON = "not a finite number"
+"""The reason sent with a tag whose value is NaN or ±inf (sent as null, quality BAD)."""
+
+
 def tag_json(tag: Tag, clock: Clock) -> dict[str, Any]:
     s = tag.spec
+    value, quality, reason = tag.value, tag.quality.name, str(tag.reason)
+    if isinstance(value, float) and not math.isfinite(value):
+        value, quality, reason = None, Quality.BAD.name, f"{NOT_FINITE_REASON} ({value})"
     return {
         "name": tag.name,
-        "value": tag.value,
+        "value": value,
         "unit": s.unit,
-        "quality": tag.quality.name,
-        "reason": str(tag.reason),
+        "quality": quality,
+        "reason": reason,
         "forced": tag.forced,
         "access": s.access.name.lower(),
         "source_time": clock.to_wall(tag.source_t) if tag.source_t else None,
@@ -78,6 +94,38 @@ def alarm_event_json(ev: AlarmEvent) -> dict[str, Any]:
 
 
 ALARM_ACTIONS = ("acknowledge", "reset", "shelve", "unshelve")
+
+
+def _finite_only(obj: Any) -> Any:
+    """``obj`` with every non-finite float replaced by None (JSON has no NaN/Infinity)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite_only(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite_only(v) for v in obj]
+    return obj
+
+
+def json_dumps(obj: Any) -> str:
+    """JSON text that any JSON parser reads: NaN and ±inf become null (never emitted)."""
+    try:
+        return json.dumps(obj, allow_nan=False)
+    except ValueError:  # a non-finite float somewhere: the rare case pays for the walk
+        return json.dumps(_finite_only(obj), allow_nan=False)
+
+
+def _no_constant(name: str) -> Any:
+    # json.loads takes NaN, Infinity and -Infinity, which RFC 8259 does not.
+    raise ValueError(f"{name} is not JSON")
+
+
+def _json_loads(text: str) -> Any:
+    return json.loads(text, parse_constant=_no_constant)
+
+
+def _json(data: Any, status: int = 200) -> web.Response:
+    return web.json_response(data, status=status, dumps=json_dumps)
 
 
 class HttpApi:
@@ -144,13 +192,13 @@ class HttpApi:
     async def _list(self, request: web.Request) -> web.Response:
         prefix = request.query.get("prefix", "")
         tags = [tag_json(t, self.clock) for t in self.db if t.name.startswith(prefix)]
-        return web.json_response(tags)
+        return _json(tags)
 
     async def _get(self, request: web.Request) -> web.Response:
         tag = self.db.get(request.match_info["name"])
         if tag is None:
-            return web.json_response({"error": "unknown tag"}, status=404)
-        return web.json_response(tag_json(tag, self.clock))
+            return _json({"error": "unknown tag"}, status=404)
+        return _json(tag_json(tag, self.clock))
 
     # --- commands -------------------------------------------------------------------------
     @staticmethod
@@ -167,7 +215,7 @@ class HttpApi:
         body = result.as_json()
         if result.tag is not None and result.tag in self.db:
             body["tag"] = tag_json(self.db[result.tag], self.clock)
-        return web.json_response(body, status=result.http_status)
+        return _json(body, status=result.http_status)
 
     def _bad(self, reason: str, kind: ResultKind = ResultKind.BAD_ARGUMENT) -> web.Response:
         """A request that is not a command yet (no JSON, an unknown route verb)."""
@@ -178,7 +226,7 @@ class HttpApi:
         if empty_ok and not await request.read():
             return {}
         try:
-            body = await request.json()
+            body = await request.json(loads=_json_loads)
         except ValueError:
             return None
         return body if isinstance(body, dict) else None
@@ -228,7 +276,7 @@ class HttpApi:
         active = [] if alarms is None else [a for a in alarms if a.in_alarm]
         active.sort(key=lambda a: (not a.first_out, a.activated_t or 0.0))
         history = list(alarms.history)[-limit:] if alarms is not None and limit > 0 else []
-        return web.json_response(
+        return _json(
             {
                 "accepted": True,
                 "reason": "",
@@ -243,15 +291,15 @@ class HttpApi:
         except ValueError:
             body = None
         if not isinstance(body, dict) or not isinstance(body.get("pressed"), bool):
-            return web.json_response({"error": 'body must be {"pressed": true|false}'}, status=400)
+            return _json({"error": 'body must be {"pressed": true|false}'}, status=400)
         assert self._estop is not None
         self._estop(body["pressed"])
         log.warning("simulation: e-stop %s", "PRESSED" if body["pressed"] else "released")
-        return web.json_response({"pressed": body["pressed"]})
+        return _json({"pressed": body["pressed"]})
 
     async def _sim_state_get(self, request: web.Request) -> web.Response:
         assert self._sim_state is not None
-        return web.json_response(self._sim_state())
+        return _json(self._sim_state())
 
     async def _put(self, request: web.Request) -> web.Response:
         """``PUT /api/tags/{name}`` ``{"value": ...}``: a write through the command path."""

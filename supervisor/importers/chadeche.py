@@ -34,6 +34,11 @@ the I/O map, not in a recipe): see :attr:`ImportResult.calibration_snippet`. ``-
 offset in mA: the seed's current fit is setpoint mA against measured mA (§III.F.1, its
 example ``-2 0.0008`` comes from a 0–250 mA staircase), so it lands in
 ``current_offset_ma``; ``-o`` is in volts (``voltage_offset_v``).
+
+Numbers are read as the C program reads them: ASCII digits only (``\\d`` and Python's
+``int``/``float`` would take ``٣`` or ``３`` as 3, and ``1_000`` as 1000 where ``atof`` reads
+1), whole numbers within a C ``int``, and every option within a physically plausible range
+(:data:`OPTION_RANGES`): a value outside is refused with the reason, at its file:line:col.
 """
 
 from __future__ import annotations
@@ -43,18 +48,21 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 from supervisor.chains.compiler import Target, compile_recipe
-from supervisor.config.recipe import ID_PATTERN, STEP_KINDS, load_recipe_text
+from supervisor.config.recipe import ID_PATTERN, MAX_CYCLES, STEP_KINDS, load_recipe_text
 from supervisor.config.text import DecodedText, decode_text
 from supervisor.config.yamledit import yaml_comment, yaml_float, yaml_scalar
 from supervisor.core.errors import ConfigError, ConfigErrors
 from supervisor.devices.chadeche.config import MAX_CURRENT_A
+from supervisor.devices.chadeche.protocol import VREF_V
 
 __all__ = [
     "COLUMNS",
+    "C_INT_MAX",
     "DEFAULTS",
+    "OPTION_RANGES",
     "ImportResult",
     "import_chadeche",
 ]
@@ -117,9 +125,81 @@ NOT_RECIPE = {
 }
 _FLAGS = {"v", "t", "h"}  # options without a value
 
-_INT = re.compile(r"^\d+$")
-_HHMM = re.compile(r"^(\d{1,2}):(\d{2})$")
-_PLUS_HHMM = re.compile(r"^\+(\d{1,3}):(\d{2})$")
+# ASCII digits only: the C program reads ASCII; ``\d`` (and ``int()``) take any Unicode digit.
+_INT = re.compile(r"^[0-9]+$")
+_HHMM = re.compile(r"^([0-9]{1,2}):([0-9]{2})$")
+_PLUS_HHMM = re.compile(r"^\+([0-9]{1,3}):([0-9]{2})$")
+# A decimal number as ``atof`` reads it whole (no ``_``, no ``inf``/``nan``, no Unicode).
+_DECIMAL = re.compile(r"^[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?$")
+
+_ATOF_HINT = " (the Chadèche program's atof stops at the '_': write the digits alone)"
+
+C_INT_MAX: Final = 2**31 - 1
+"""The largest ADR, mA, SD or goto address: the program keeps these whole numbers in a C
+``int`` (32 bits on the Raspberry Pi's ARM Linux). ASSUMED: the seed does not show the
+program's source, only that they are whole numbers (§III.D.1)."""
+
+MAX_THRESHOLD_V: Final = VREF_V
+"""``-m``/``-M`` are compared with the cell voltage the board's ADC reads, 0 to its 4.096 V
+reference (seed §II.C): a threshold above it is never reached by TH, always true for TL."""
+MAX_CHARGE_MAH: Final = 100_000.0
+"""``-c -C -i`` (mAh) at most 100 Ah: ten times a large NiMH D cell (10 Ah), and what a
+0.4 A board moves in 250 h; a larger charge is a typing slip, not a cell."""
+MIN_LOG_PERIOD_S: Final = 0.1
+"""``-p`` at least the bench's default scan period (``ScanConfig.period_s``, 0.1 s): a result
+line cannot come more often than a scan."""
+MAX_LOG_PERIOD_S: Final = 86_400.0
+"""``-p`` at most one day: a longer period records nothing in most tests."""
+CAL_SLOPE_MIN: Final = 0.5
+CAL_SLOPE_MAX: Final = 2.0
+"""``-1``/``-s``: a calibration slope corrects a few per cent (seed §III.F: 0.9851, 1.0099,
+1.0065); beyond a factor of two the fit or the wiring is wrong."""
+MAX_CURRENT_OFFSET_MA: Final = MAX_CURRENT_A * 1000
+"""``-2`` (mA) within the board's whole current range: a larger offset is no calibration."""
+MAX_VOLTAGE_OFFSET_V: Final = VREF_V
+"""``-o`` (V) within the ADC's whole range: a larger offset is no calibration."""
+
+
+@dataclass(frozen=True)
+class _Range:
+    low: float
+    high: float
+    why: str
+    low_included: bool = True
+
+
+OPTION_RANGES: Final[dict[str, _Range]] = {
+    "m": _Range(0.0, MAX_THRESHOLD_V, "the board's ADC reads 0 to 4.096 V", low_included=False),
+    "M": _Range(0.0, MAX_THRESHOLD_V, "the board's ADC reads 0 to 4.096 V", low_included=False),
+    "c": _Range(0.0, MAX_CHARGE_MAH, "a charge of a cell, at most 100 Ah"),
+    "C": _Range(0.0, MAX_CHARGE_MAH, "a charge of a cell, at most 100 Ah"),
+    "i": _Range(0.0, MAX_CHARGE_MAH, "a charge of a cell, at most 100 Ah"),
+    "n": _Range(1.0, float(MAX_CYCLES), f"a recipe runs at most {MAX_CYCLES} cycles"),
+    "p": _Range(MIN_LOG_PERIOD_S, MAX_LOG_PERIOD_S, "from one scan to one day"),
+    "1": _Range(CAL_SLOPE_MIN, CAL_SLOPE_MAX, "a calibration slope corrects a few per cent"),
+    "s": _Range(CAL_SLOPE_MIN, CAL_SLOPE_MAX, "a calibration slope corrects a few per cent"),
+    "2": _Range(-MAX_CURRENT_OFFSET_MA, MAX_CURRENT_OFFSET_MA, "within the board's ±400 mA range"),
+    "o": _Range(-MAX_VOLTAGE_OFFSET_V, MAX_VOLTAGE_OFFSET_V, "within the ADC's 4.096 V range"),
+}
+"""Where each option's value must lie (the unit is the option's: V, mAh, s, mA)."""
+
+
+def _clip(text: str) -> str:
+    """A cell as messages show it: a long run of digits by its length, not in full."""
+    return text if len(text) <= 24 else f"{text[:12]}… ({len(text)} characters)"
+
+
+def _digits_hint(text: str) -> str:
+    """Why a number that looks like one to a person is not one here."""
+    if any(ch.isdigit() and not ch.isascii() for ch in text):
+        return " (ASCII digits 0-9 only: the Chadèche program reads no other digits)"
+    return ""
+
+
+def _too_large(digits: str) -> bool:
+    """ASCII digits beyond :data:`C_INT_MAX` (``int()`` is not asked for thousands)."""
+    digits = digits.lstrip("0")
+    return len(digits) > len(str(C_INT_MAX)) or (digits != "" and int(digits) > C_INT_MAX)
 
 
 @dataclass(frozen=True)
@@ -196,6 +276,8 @@ def _parse_action(text: str, col: int) -> _Act | str:
     if up in ("I", "S", "C"):
         return _Act(up, up, col)
     if _INT.match(t):
+        if _too_large(t):
+            return f"goto address {_clip(t)} is too large: at most {C_INT_MAX} (a C int)"
         return _Act("N", str(int(t)), col)
     m = _HHMM.match(t)
     if m and int(m[1]) < 24 and int(m[2]) < 60:
@@ -205,8 +287,10 @@ def _parse_action(text: str, col: int) -> _Act | str:
         return _Act("PLUS", f"+{int(m[1]):02d}:{m[2]}", col)
     if not t:
         return "empty action: expected I, S, C, an ADR number, HH:MM or +HH:MM"
+    if _digits_hint(t):
+        return f"unknown action {_clip(t)!r}{_digits_hint(t)}"
     return (
-        f"unknown action {t!r}: expected I (ignore), S (next sequence), C (next cycle), "
+        f"unknown action {_clip(t)!r}: expected I (ignore), S (next sequence), C (next cycle), "
         "an ADR number (goto), HH:MM (sleep until) or +HH:MM (sleep for)"
     )
 
@@ -322,7 +406,14 @@ def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
         adr_text = cells[0].strip()
         adr = -1
         if not _INT.match(adr_text):
-            err(ln, cols[0], f"ADR {adr_text!r} is not a whole number")
+            err(
+                ln,
+                cols[0],
+                f"ADR {_clip(adr_text)!r} is not a whole number{_digits_hint(adr_text)}",
+            )
+            bad = True
+        elif _too_large(adr_text):
+            err(ln, cols[0], f"ADR {_clip(adr_text)} is too large: at most {C_INT_MAX} (a C int)")
             bad = True
         else:
             adr = int(adr_text)
@@ -350,7 +441,14 @@ def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
         ma_text = cells[2].strip()
         ma = 0
         if not _INT.match(ma_text):
-            err(ln, cols[2], f"mA {ma_text!r} is not a whole number of mA")
+            err(
+                ln,
+                cols[2],
+                f"mA {_clip(ma_text)!r} is not a whole number of mA{_digits_hint(ma_text)}",
+            )
+            bad = True
+        elif _too_large(ma_text):
+            err(ln, cols[2], f"{_clip(ma_text)} mA is over the board's {_MAX_MA} mA maximum")
             bad = True
         else:
             ma = int(ma_text)
@@ -361,7 +459,14 @@ def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
         sd_text = cells[3].strip()
         sd = 0
         if not _INT.match(sd_text):
-            err(ln, cols[3], f"SD {sd_text!r} is not a whole number of seconds")
+            err(
+                ln,
+                cols[3],
+                f"SD {_clip(sd_text)!r} is not a whole number of seconds{_digits_hint(sd_text)}",
+            )
+            bad = True
+        elif _too_large(sd_text):
+            err(ln, cols[3], f"SD {_clip(sd_text)} is too large: at most {C_INT_MAX} s (a C int)")
             bad = True
         else:
             sd = int(sd_text)
@@ -420,26 +525,80 @@ def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
 class _Param:
     value: float
     source: str
+    file: str | None = None
+    """Where it was set (None: a default); an error about it is reported there."""
+    line: int | None = None
+    col: int | None = None
+
+    def error(self, message: str, fallback: str) -> ConfigError:
+        if self.file is None:
+            return ConfigError(message, fallback)
+        return ConfigError(message, self.file, self.line, self.col)
+
+
+def _unit(letter: str) -> str:
+    if letter in OPTIONS:
+        return OPTIONS[letter].unit
+    return {"2": "mA", "o": "V"}.get(letter, "")
+
+
+def _in_range(letter: str, v: float, t: str) -> str | None:
+    """None when ``v`` lies in :data:`OPTION_RANGES`, else why not."""
+    r = OPTION_RANGES[letter]
+    unit = f" {_unit(letter)}" if _unit(letter) else ""
+    low_ok = v >= r.low if r.low_included else v > r.low
+    if low_ok and v <= r.high:
+        return None
+    if r.low_included:
+        span = f"from {_num(r.low)} to {_num(r.high)}{unit}"
+    else:
+        span = f"more than {_num(r.low)} and at most {_num(r.high)}{unit}"
+    return f"-{letter} must be {span} ({r.why}), got {_clip(t)!r}"
 
 
 def _convert(letter: str, raw: str) -> float | str:
     """The value of option ``letter``, or an error message."""
     t = raw.strip()
     if letter == "n":
-        if not _INT.match(t) or int(t) < 1:
-            return f"-n needs a whole number of cycles >= 1, got {t!r}"
-        return float(int(t))
-    try:
-        v = float(t)
-    except ValueError:
-        return f"-{letter} needs a number, got {t!r}"
+        digits = t.lstrip("0")
+        if not _INT.match(t) or not digits:
+            return f"-n needs a whole number of cycles >= 1, got {_clip(t)!r}{_digits_hint(t)}"
+        # More digits than the largest count: too many, without asking int() for thousands.
+        cycles = math.inf if len(digits) > len(str(MAX_CYCLES)) else float(int(digits))
+        return _in_range("n", cycles, t) or cycles
+    if not _DECIMAL.match(t):
+        # ``atof`` would read a prefix of it (``1_000`` as 1): refuse rather than guess.
+        hint = _digits_hint(t) or (_ATOF_HINT if "_" in t else "")
+        return f"-{letter} needs a number, got {_clip(t)!r}{hint}"
+    v = float(t)
     if not math.isfinite(v):
-        return f"-{letter} needs a finite number, got {t!r}"
+        return f"-{letter} needs a finite number, got {_clip(t)!r}"
     if letter == "p" and v <= 0:
         return f"-p (logging period) must be > 0 s, got {t!r}"
     if letter in _POSITIVE_CAL and v <= 0:
         return f"-{letter} (a calibration slope) must be > 0, got {t!r}"
-    return v
+    return _in_range(letter, v, t) or v
+
+
+def _check_together(params: dict[str, _Param], fallback: str) -> None:
+    """Options that only make sense together: the low threshold below the high one."""
+    errors: list[ConfigError] = []
+    for lo, hi, what in (("m", "M", "voltage"), ("c", "C", "charge")):
+        a, b = params[lo], params[hi]
+        if a.value < b.value:
+            continue
+        unit = OPTIONS[lo].unit
+        at = a if a.file is not None or b.file is None else b
+        errors.append(
+            at.error(
+                f"-{lo} {_num(a.value)} {unit} ({a.source}) must be below -{hi}"
+                f" {_num(b.value)} {unit} ({b.source}): the low {what} threshold"
+                f" ({OPTIONS[lo].target}) is not below the high one ({OPTIONS[hi].target})",
+                fallback,
+            )
+        )
+    if errors:
+        raise ConfigErrors(errors)
 
 
 def _read_prm(
@@ -493,7 +652,7 @@ def _read_prm(
             errors.append(ConfigError(got, file, ln, vcol))
             continue
         target = params if letter in OPTIONS else calibration
-        target[letter] = _Param(got, f"{path.name}:{ln}")
+        target[letter] = _Param(got, f"{path.name}:{ln}", file, ln, vcol)
     if errors:
         raise ConfigErrors(errors)
     if ignored:
@@ -527,7 +686,9 @@ def _apply_overrides(
         if isinstance(got, str):
             errors.append(ConfigError(got, "<overrides>"))
             continue
-        (params if letter in OPTIONS else calibration)[letter] = _Param(got, "override")
+        (params if letter in OPTIONS else calibration)[letter] = _Param(
+            got, "override", "<overrides>"
+        )
     if errors:
         raise ConfigErrors(errors)
     if skipped:
@@ -609,22 +770,30 @@ def _emit(
     header: list[str],
     param_notes: dict[str, str],
     step_notes: list[list[str]],
-) -> tuple[str, list[tuple[int, int]]]:
-    """Recipe YAML text and, per step, the (first, last) line it spans."""
+) -> tuple[str, list[tuple[int, int]], dict[int, str]]:
+    """Recipe YAML text, per step the (first, last) line it spans, and the line of each
+    option's value (line → option target: ``v_min``, ``cycles``, ``logging.period``)."""
     out: list[str] = [f"# {yaml_comment(h)}".rstrip() for h in header]
+    option_lines: dict[int, str] = {}
 
-    def put(text: str, note: str | None = None) -> None:
+    def put(text: str, note: str | None = None, target: str | None = None) -> None:
         out.append(f"{text:<24}  # {yaml_comment(note)}" if note else text)
+        if target is not None:
+            option_lines[len(out)] = target
 
     put(f"recipe: {yaml_scalar(recipe['recipe'])}")
     put(f"description: {yaml_scalar(recipe['description'])}")
     put("parameters:")
     for pname, value in recipe["parameters"].items():
-        put(f"  {pname}: {yaml_scalar(value)}", param_notes.get(pname))
-    put(f"initial_charge: {recipe['initial_charge']}")
-    put(f"cycles: {recipe['cycles']}", param_notes.get("cycles"))
+        put(f"  {pname}: {yaml_scalar(value)}", param_notes.get(pname), pname)
+    put(f"initial_charge: {recipe['initial_charge']}", target="q_init")
+    put(f"cycles: {recipe['cycles']}", param_notes.get("cycles"), "cycles")
     put("logging:")
-    put(f"  period: {yaml_scalar(recipe['logging']['period'])}", param_notes.get("logging.period"))
+    put(
+        f"  period: {yaml_scalar(recipe['logging']['period'])}",
+        param_notes.get("logging.period"),
+        "logging.period",
+    )
     put("steps:")
     spans: list[tuple[int, int]] = []
     for step, notes in zip(recipe["steps"], step_notes, strict=True):
@@ -642,7 +811,7 @@ def _emit(
                 put(f"{lead}{key}: {yaml_scalar(value)}")
             lead = "    "
         spans.append((first, len(out)))
-    return "\n".join(out) + "\n", spans
+    return "\n".join(out) + "\n", spans, option_lines
 
 
 def _check_compiles(
@@ -650,8 +819,10 @@ def _check_compiles(
     spans: list[tuple[int, int]],
     rows: list[_Row],
     source: str,
+    options: Mapping[int, _Param],
 ) -> None:
-    """Load and compile the produced recipe; a refusal is reported at the source row."""
+    """Load and compile the produced recipe; a refusal is reported at the source row, or
+    where the option it is about was set (``chadeche0.prm:5``)."""
     where = "<imported recipe>"
     try:
         recipe, pos = load_recipe_text(text, where)
@@ -659,13 +830,16 @@ def _check_compiles(
     except ConfigErrors as exc:
         mapped: list[ConfigError] = []
         for e in exc.errors:
+            message = f"the imported recipe is refused: {e.message}"
+            option = options.get(e.line) if e.line is not None else None
+            if option is not None:
+                mapped.append(option.error(message, source))
+                continue
             line = None
             for (first, last), row in zip(spans, rows, strict=True):
                 if e.line is not None and first <= e.line <= last:
                     line = row.line
-            mapped.append(
-                ConfigError(f"the imported recipe is refused: {e.message}", source, line, 1)
-            )
+            mapped.append(ConfigError(message, source, line, 1))
         raise ConfigErrors(mapped) from None
 
 
@@ -692,6 +866,7 @@ def import_chadeche(
         _read_prm(Path(prm_path), params, calibration, warnings)
     if overrides:
         _apply_overrides(overrides, params, calibration, warnings)
+    _check_together(params, str(prm_path if prm_path is not None else path))
 
     for r in rows:
         first = next(((c, a) for c, a in r.conditions if a.kind != "I"), None)
@@ -745,8 +920,10 @@ def import_chadeche(
     if assumed:
         header.append(f"Assumed defaults (the seed does not state them): {', '.join(assumed)}.")
     header.append("A sequence file has no safety limits: add `limits:` (voltage, temperature).")
-    text, spans = _emit(recipe, header, notes, step_notes)
-    _check_compiles(text, spans, rows, str(path))
+    text, spans, option_lines = _emit(recipe, header, notes, step_notes)
+    by_target = {o.target: params[letter] for letter, o in OPTIONS.items()}
+    options = {line: by_target[target] for line, target in option_lines.items()}
+    _check_compiles(text, spans, rows, str(path), options)
 
     cal: dict[str, float] | None = None
     snippet: str | None = None

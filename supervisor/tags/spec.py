@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import Final
 
 from supervisor.core.driver import DType, Value
 
@@ -81,25 +82,89 @@ class TagSpec:
     initial: Value | None = None
     choices: tuple[str, ...] | None = None  # allowed values of a str tag
 
-    def coerce(self, value: Value) -> Value:
-        """Convert a value to this tag's type; raises ValueError/TypeError if it cannot."""
+    def coerce(self, value: object) -> Value:
+        """Convert a value written by a person or client to this tag's type, strictly.
+
+        A boolean is not a number, a number is not a boolean, numbers are finite, and a
+        text is only a text (a bool tag also takes ``"true"``/``"false"``, ``"on"``/``"off"``,
+        ``"1"``/``"0"``, as typed on a command line). Raises ``TypeError``/``ValueError``
+        whose message names the tag and shows what was received as JSON writes it.
+        """
         if self.dtype == "float":
-            if isinstance(value, str):
-                raise TypeError(f"{self.name}: expected a number, got {value!r}")
-            return float(value)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise TypeError(f"{self.name}: expected a number, got {shown(value)}")
+            number = finite_float(value)
+            if number is None:
+                raise ValueError(f"{self.name}: expected a finite number, got {shown(value)}")
+            return number
         if self.dtype == "int":
-            if isinstance(value, float) and not value.is_integer():
-                raise ValueError(f"{self.name}: expected an integer, got {value!r}")
-            if isinstance(value, str):
-                raise TypeError(f"{self.name}: expected an integer, got {value!r}")
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise TypeError(f"{self.name}: expected an integer, got {shown(value)}")
+            if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+                raise ValueError(f"{self.name}: expected an integer, got {shown(value)}")
             return int(value)
         if self.dtype == "bool":
+            if isinstance(value, bool):
+                return value
             if isinstance(value, str):
                 low = value.strip().lower()
                 if low in ("1", "true", "on", "yes"):
                     return True
                 if low in ("0", "false", "off", "no"):
                     return False
-                raise ValueError(f"{self.name}: expected a boolean, got {value!r}")
-            return bool(value)
+            raise ValueError(f"{self.name}: expected a boolean, got {shown(value)}")
+        if not isinstance(value, str):
+            raise TypeError(f"{self.name}: expected a text, got {shown(value)}")
+        return value
+
+
+SHOWN_MAX_CHARS: Final = 40
+"""How much of a received value a message repeats."""
+
+
+def finite_float(value: int | float) -> float | None:
+    """``float(value)`` when that is a finite number, else None (NaN, ±inf, or an integer
+    too large for a float, which ``float()`` answers with ``OverflowError``)."""
+    try:
+        number = float(value)
+    except OverflowError:
+        return None
+    return number if math.isfinite(number) else None
+
+
+def clipped_repr(value: object) -> str:
+    """``repr(value)``, but a long text or list clipped and a huge integer by its size
+    (``repr`` of 5000 digits raises ``ValueError``; of 400 it floods the message)."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return shown(value)
+    text = repr(value) if not isinstance(value, str) else repr(value[: SHOWN_MAX_CHARS + 1])
+    return text if len(text) <= SHOWN_MAX_CHARS + 2 else text[:SHOWN_MAX_CHARS] + "…"
+
+
+def shown(value: object) -> str:
+    """A received value as a message shows it: as JSON writes it (``true``, ``null``, a
+    list or object by its kind), a long text or number clipped — never Python's words
+    (``None``, ``'NoneType'``) nor thousands of digits."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        digits = value.bit_length() * 0.30103  # log10(2): the size without str() of it all
+        if digits > SHOWN_MAX_CHARS:
+            return f"an integer of about {int(digits) + 1} digits"
         return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "NaN"
+        if math.isinf(value):
+            return "Infinity" if value > 0 else "-Infinity"
+        return repr(value)
+    if isinstance(value, str):
+        text = value if len(value) <= SHOWN_MAX_CHARS else value[:SHOWN_MAX_CHARS] + "…"
+        return repr(text)
+    if isinstance(value, list | tuple):
+        return f"a list of {len(value)}" if value else "an empty list"
+    if isinstance(value, dict):
+        return "an object"
+    return f"a {type(value).__name__}"

@@ -8,6 +8,7 @@ The findings users reported each have a test here (``test_finding_…``).
 
 from __future__ import annotations
 
+import json
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,7 +20,9 @@ from commandrig import CV_ON_CHADECHE, DISCHARGE, recipe, started_bench
 
 from supervisor.app import Bench
 from supervisor.chains.states import State
+from supervisor.core.quality import Quality, Reason
 from supervisor.hmi import HttpApi
+from supervisor.tags import Access, TagSpec
 from supervisor.testing import run_scans
 
 pytestmark = pytest.mark.integration
@@ -289,3 +292,93 @@ async def test_every_http_command_is_recorded_with_its_actor(client: Client) -> 
         ("operator", "hold", False),
         ("operator", "manual_current 0.1 A", True),
     ]
+
+
+# --- strict values (issue 9) -----------------------------------------------------------------
+def strict_json(text: str) -> Any:
+    """Parse as a browser's JSON.parse does: NaN and Infinity are not JSON."""
+
+    def refuse(name: str) -> Any:
+        raise ValueError(f"{name} is not JSON")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+async def put_raw(c: Client, name: str, body: str) -> tuple[int, Any]:
+    async with c.session.put(f"{c.api.url}/tags/{name}", data=body.encode()) as resp:
+        return resp.status, strict_json(await resp.text())
+
+
+@pytest.fixture
+def lab_tags(client: Client) -> Client:
+    """Operator tags that are no channel command: a write takes the tag's own coercion."""
+    client.bench.db.add(TagSpec("lab.setpoint", access=Access.OPERATOR, initial=20.0))
+    client.bench.db.add(TagSpec("lab.heater", dtype="bool", access=Access.OPERATOR, initial=False))
+    return client
+
+
+@pytest.mark.parametrize(
+    ("tag", "body", "reason"),
+    [
+        ("lab.setpoint", '{"value": true}', "lab.setpoint: expected a number, got true"),
+        ("lab.setpoint", '{"value": null}', "lab.setpoint: expected a number, got null"),
+        ("lab.setpoint", '{"value": 1e999}', "expected a finite number, got Infinity"),
+        (
+            "lab.setpoint",
+            '{"value": 1' + "0" * 400 + "}",
+            "expected a finite number, got an integer of about 401 digits",
+        ),
+        ("lab.setpoint", '{"value": NaN}', 'body must be JSON {"value": ...}'),
+        ("lab.heater", '{"value": 2}', "lab.heater: expected a boolean, got 2"),
+        ("lab.heater", '{"value": [0]}', "lab.heater: expected a boolean, got a list of 1"),
+        ("ch0.manual_current", '{"value": 1' + "0" * 400 + "}", "value must be a number (A)"),
+        ("ch0.manual_current", '{"value": null}', "value must be a number (A), not None"),
+        ("ch0.enable", '{"value": [0]}', "value must be true or false, not [0]"),
+    ],
+    ids=[
+        "true-to-float",
+        "null-to-float",
+        "1e999",
+        "1-and-400-zeros",
+        "NaN",
+        "2-to-bool",
+        "list-to-bool",
+        "manual-400-zeros",
+        "manual-null",
+        "enable-list",
+    ],
+)
+async def test_a_value_of_the_wrong_kind_answers_400_with_a_clear_reason(
+    lab_tags: Client, tag: str, body: str, reason: str
+) -> None:
+    before = lab_tags.value(tag)
+    status, answer = await put_raw(lab_tags, tag, body)
+    assert status == 400, answer
+    assert answer["accepted"] is False
+    assert reason in answer["reason"]
+    assert "NoneType" not in answer["reason"] and "float()" not in answer["reason"]
+    assert lab_tags.value(tag) == before
+
+
+async def test_a_right_value_of_a_plain_operator_tag_is_written(lab_tags: Client) -> None:
+    assert (await put_raw(lab_tags, "lab.setpoint", '{"value": 21}'))[0] == 200
+    assert (await put_raw(lab_tags, "lab.heater", '{"value": true}'))[0] == 200
+    assert (lab_tags.value("lab.setpoint"), lab_tags.value("lab.heater")) == (21.0, True)
+
+
+async def test_a_non_finite_value_from_a_device_is_sent_as_null_with_quality_bad(
+    lab_tags: Client,
+) -> None:
+    # A device can still produce one (a broken sensor, a bad scaling): the snapshot stays
+    # JSON that a browser parses, and the value is not shown as if it were good.
+    db = lab_tags.bench.db
+    db.update(db["lab.setpoint"], float("nan"), Quality.GOOD, Reason.NONE)
+    db.update(db["ch0.voltage"], float("inf"), Quality.GOOD, Reason.NONE)
+    async with lab_tags.session.get(lab_tags.api.url + "/tags") as resp:
+        assert resp.status == 200
+        tags = {t["name"]: t for t in strict_json(await resp.text())}
+    assert (tags["lab.setpoint"]["value"], tags["lab.setpoint"]["quality"]) == (None, "BAD")
+    assert tags["lab.setpoint"]["reason"] == "not a finite number (nan)"
+    assert (tags["ch0.voltage"]["value"], tags["ch0.voltage"]["quality"]) == (None, "BAD")
+    async with lab_tags.session.get(lab_tags.api.url + "/tags/lab.setpoint") as resp:
+        assert strict_json(await resp.text())["value"] is None

@@ -19,6 +19,7 @@ from supervisor.core.errors import ConfigError, ConfigErrors
 from supervisor.devices.chadeche.config import ChadecheDevice
 from supervisor.devices.registry import load_bench
 from supervisor.importers import ImportResult, import_chadeche, import_profile
+from supervisor.importers.chadeche import COLUMNS
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data" / "chadeche"
@@ -354,6 +355,9 @@ CASES = [
     ("bad-goto.txt", 6, 17, "TRUE: goto to a missing ADR 42"),
     ("bad-comment.txt", 8, 25, "comment 'Maintien' must start with '#'"),
     ("bad-several.txt", 3, 3, "unknown C/D letter 'Z'"),
+    # Issue 9: a 5000-digit number was a ValueError traceback; '٣' was read as 3.
+    ("bad-huge-number.txt", 3, 9, "SD 999999999999… (5000 characters) is too large"),
+    ("bad-unicode-digit.txt", 3, 9, "SD '٣600' is not a whole number of seconds (ASCII digits"),
 ]
 
 
@@ -370,6 +374,143 @@ def test_a_broken_sequence_file_is_refused_at_the_exact_line_and_column(
 
 def test_every_broken_fixture_has_a_case() -> None:
     assert {p.name for p in DATA.glob("bad-*.txt")} == {c[0] for c in CASES}
+
+
+# Broken parameter files: (file, line, col, words of the first error).
+PRM_CASES = [
+    ("bad-option.prm", 2, 1, "unknown option -x"),
+    ("bad-cycles.prm", 5, 4, "-n must be from 1 to 1000000"),
+    ("bad-cycles-digits.prm", 2, 4, "-n must be from 1 to 1000000"),
+    ("bad-unicode.prm", 2, 4, "-m needs a number, got '١.١' (ASCII digits 0-9 only"),
+    ("bad-atof.prm", 2, 4, "-1 needs a number, got '1_000' (the Chadèche program's atof"),
+    ("bad-inverted.prm", 2, 4, "-m 1.8 V (bad-inverted.prm:2) must be below -M 1.7 V"),
+    ("bad-range.prm", 1, 4, "-M must be more than 0 and at most 4.096 V"),
+]
+
+
+@pytest.mark.parametrize(("name", "line", "col", "words"), PRM_CASES, ids=[c[0] for c in PRM_CASES])
+def test_a_broken_parameter_file_is_refused_at_the_exact_line_and_column(
+    name: str, line: int, col: int, words: str
+) -> None:
+    with pytest.raises(ConfigErrors) as info:
+        import_chadeche(FIGURE_10, DATA / name)
+    first = info.value.errors[0]
+    assert (first.file, first.line, first.col) == (str(DATA / name), line, col)
+    assert words in first.message
+
+
+def test_every_broken_parameter_file_has_a_case() -> None:
+    assert {p.name for p in DATA.glob("bad-*.prm")} == {c[0] for c in PRM_CASES}
+
+
+def test_nonsense_option_values_are_each_refused_with_the_reason() -> None:
+    with pytest.raises(ConfigErrors) as info:
+        import_chadeche(FIGURE_10, DATA / "bad-range.prm")
+    assert [e.location_message() for e in info.value.errors] == [
+        f"{DATA / 'bad-range.prm'}:1:4: -M must be more than 0 and at most 4.096 V"
+        " (the board's ADC reads 0 to 4.096 V), got '0'",
+        f"{DATA / 'bad-range.prm'}:2:4: -C must be from 0 to 100000 mAh"
+        " (a charge of a cell, at most 100 Ah), got '-5'",
+        f"{DATA / 'bad-range.prm'}:3:4: -i must be from 0 to 100000 mAh"
+        " (a charge of a cell, at most 100 Ah), got '1e308'",
+        f"{DATA / 'bad-range.prm'}:4:4: -p must be from 0.1 to 86400 s"
+        " (from one scan to one day), got '1e-320'",
+        f"{DATA / 'bad-range.prm'}:5:4: -2 must be from -400 to 400 mA"
+        " (within the board's ±400 mA range), got '1e308'",
+        f"{DATA / 'bad-range.prm'}:6:4: -s must be from 0.5 to 2"
+        " (a calibration slope corrects a few per cent), got '1e308'",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "words"),
+    [
+        ("-M", "-5", "-M must be more than 0 and at most 4.096 V"),
+        ("-m", "5", "-m must be more than 0 and at most 4.096 V"),
+        ("-i", "-1e308", "-i must be from 0 to 100000 mAh"),
+        ("-p", "1e308", "-p must be from 0.1 to 86400 s"),
+        ("-p", "0", "-p (logging period) must be > 0 s"),
+        ("-2", "1e308", "-2 must be from -400 to 400 mA"),
+        ("-o", "5", "-o must be from -4.096 to 4.096 V"),
+        ("-1", "1_000", "-1 needs a number, got '1_000'"),
+        ("-C", "３", "-C needs a number, got '３' (ASCII digits 0-9 only"),
+        ("-n", "1" + "0" * 400, "-n must be from 1 to 1000000"),
+        ("-n", "٣", "-n needs a whole number of cycles >= 1, got '٣' (ASCII digits"),
+    ],
+)
+def test_an_override_out_of_range_is_refused_with_the_reason(
+    option: str, value: str, words: str
+) -> None:
+    with pytest.raises(ConfigErrors) as info:
+        import_chadeche(FIGURE_10, overrides={option: value})
+    (error,) = info.value.errors
+    assert error.file == "<overrides>"
+    assert words in error.message
+
+
+def test_inverted_thresholds_from_an_override_name_both_sources() -> None:
+    with pytest.raises(ConfigErrors) as info:
+        import_chadeche(FIGURE_10, PRM, overrides={"-m": "1.8"})  # the .prm has -M 1.70
+    (error,) = info.value.errors
+    assert error.file == "<overrides>"
+    assert error.message.startswith("-m 1.8 V (override) must be below -M 1.7 V (chadeche0.prm:2)")
+    with pytest.raises(ConfigErrors, match=r"-c 1300 mAh \(override\) must be below -C 1200"):
+        import_chadeche(FIGURE_10, PRM, overrides={"-c": "1300"})
+
+
+def test_a_refusal_of_the_imported_recipe_about_an_option_is_reported_where_it_was_set(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # A backstop: if an option's range ever lets through what the recipe refuses, the
+    # refusal still points at the .prm line that set it (it pointed at the sequence file,
+    # without a line).
+    from supervisor.importers import chadeche
+
+    wide = chadeche._Range(1.0, 1e9, "test: no bound")
+    monkeypatch.setitem(chadeche.OPTION_RANGES, "n", wide)
+    with pytest.raises(ConfigErrors) as info:
+        import_chadeche(FIGURE_10, DATA / "bad-cycles.prm")
+    (error,) = info.value.errors
+    assert (error.file, error.line, error.col) == (str(DATA / "bad-cycles.prm"), 5, 4)
+    assert "the imported recipe is refused: cycles:" in error.message
+
+
+@pytest.mark.parametrize("column", ["ADR", "mA", "SD", "TRUE"])
+def test_a_number_of_thousands_of_digits_is_refused_not_a_traceback(
+    tmp_path: Path, column: str
+) -> None:
+    cells = ["1", "C", "0", "10", "I", "I", "I", "I", "I", "S", "#a"]
+    k = COLUMNS.index(column)
+    cells[k] = "9" * 5000
+    path = write(tmp_path, HEADER + "\t".join(cells) + "\n")
+    with pytest.raises(ConfigErrors) as info:
+        import_chadeche(path)
+    (error,) = info.value.errors
+    assert (error.line, error.col) == (2, 1 + sum(len(c) + 1 for c in cells[:k]))
+    assert "999999999999… (5000 characters)" in error.message
+    assert "too large" in error.message or "over the board's 400 mA maximum" in error.message
+
+
+@pytest.mark.parametrize(
+    ("cells", "col", "words"),
+    [
+        (["1", "C", "0", "٣", "I", "I", "I", "I", "I", "S", "#a"], 7, "SD '٣'"),
+        (["1", "C", "３", "10", "I", "I", "I", "I", "I", "S", "#a"], 5, "mA '３'"),
+        (["٣", "C", "0", "10", "I", "I", "I", "I", "I", "S", "#a"], 1, "ADR '٣'"),
+        (["1", "C", "0", "10", "I", "I", "I", "I", "٢٠:٠٠", "S", "#a"], 18, "TRUE: unknown"),
+        (["1", "C", "0", "10", "I", "I", "I", "I", "I", "١", "#a"], 20, "CTRLZ: unknown"),
+    ],
+    ids=["sd", "ma", "adr", "hhmm", "goto"],
+)
+def test_unicode_digits_are_not_read_as_numbers(
+    tmp_path: Path, cells: list[str], col: int, words: str
+) -> None:
+    path = write(tmp_path, HEADER + "\t".join(cells) + "\n")
+    with pytest.raises(ConfigErrors) as info:
+        import_chadeche(path)
+    (error,) = info.value.errors
+    assert (error.line, error.col) == (2, col)
+    assert words in error.message and "ASCII digits 0-9 only" in error.message
 
 
 def test_all_errors_of_a_file_are_reported_together_in_line_order() -> None:

@@ -75,6 +75,12 @@ CASES = [
         "channel 'ch4' limits current_a [-20, 20] A exceed the simulated unit's"
         " sim_nominal_v/sim_nominal_a rating (10 A)",
     ),
+    # Strict types (issue 9): a YAML boolean is not a number, numbers are finite.
+    ("boolean_as_number.yaml", 6, 11, "devices.ea.port: Input should be a valid integer"),
+    ("boolean_as_board.yaml", 9, 39, "source.board: Input should be a valid integer"),
+    ("boolean_as_capacity.yaml", 10, 18, "capacity_ah: Input should be a valid number"),
+    ("boolean_in_a_pair.yaml", 11, 50, "voltage_v[0]: Input should be a valid number"),
+    ("infinite_number.yaml", 10, 18, "capacity_ah: Input should be a finite number"),
 ]
 
 

@@ -38,6 +38,15 @@ CASES = [
     ("unknown_action.yaml", 7, 27, "unknown action 'jump!'"),
     ("c_rate_without_capacity.yaml", 3, 21, "a C-rate needs the rated capacity"),
     ("two_kinds_in_one_step.yaml", 3, 5, "(has: charge, discharge)"),
+    # Accepted although invalid (issue 9): strict types, signs, finite numbers, ASCII.
+    ("boolean_as_number.yaml", 2, 9, "cycles: Input should be a valid integer (received true)"),
+    ("boolean_as_quantity.yaml", 2, 11, "capacity: expected a quantity"),
+    ("negative_rest.yaml", 4, 11, "a duration cannot be negative"),
+    ("zero_logging_period.yaml", 3, 11, "a logging period must be greater than zero"),
+    ("infinite_profile_current.yaml", 7, 28, "current: Input should be a finite number"),
+    ("nan_profile_time.yaml", 4, 21, "nan_profile_time.csv:3:1: time 'nan' is not a finite"),
+    ("underflow_current.yaml", 3, 24, "'1e-400 A' is too small to be told from zero"),
+    ("unicode_digit_time.yaml", 4, 26, "sleep_until needs a time of day HH:MM"),
 ]
 
 
