@@ -26,6 +26,8 @@ from supervisor.publish.results import ResultCollector
 
 TERMINAL = (State.COMPLETE, State.STOPPED, State.ABORTED, State.HELD)
 DEFAULT_START = "08:00"
+DRY_RUN_CELL_TEMPERATURE_TAG = "cell0.temperature"
+"""The NiMH dry-run bench's tag for the simulated cell's temperature."""
 
 
 @dataclass
@@ -54,9 +56,13 @@ def dry_run_config(
 ) -> BenchConfig:
     """The dry-run bench: one channel ``ch0`` on a simulated source.
 
-    ``nimh-aa``: a Chadèche board with its cell. Otherwise an EA-PSB supply (``sim: true``)
-    on a Li-ion pack of ``cells`` in series; build it with ``in_process=True`` (the driver
-    talks to the simulator in this process, nothing listens on its port).
+    ``nimh-aa``: a Chadèche board with its cell; the cell's temperature comes through the
+    simulated board's simulation-only ``b0.temperature`` point (a real board has no
+    sensor) as the channel's ``temperature_tag``, so recipe temperature limits and
+    terminations and the channel's temperature limit act in the dry run. Otherwise an
+    EA-PSB supply (``sim: true``) on a Li-ion pack of ``cells`` in series; build it with
+    ``in_process=True`` (the driver talks to the simulator in this process, nothing
+    listens on its port).
     """
     if model == "nimh-aa":
         return bench_from_data(
@@ -76,12 +82,22 @@ def dry_run_config(
                         ],
                     }
                 },
+                "tags": [
+                    {
+                        "name": DRY_RUN_CELL_TEMPERATURE_TAG,
+                        "device": "chadeche",
+                        "point": "b0.temperature",
+                        "unit": "degC",
+                        "description": "simulated cell temperature (simulation only)",
+                    }
+                ],
                 "channels": [
                     {
                         "name": "ch0",
                         "source": {"device": "chadeche", "board": 0},
                         "capacity_ah": capacity_ah,
                         "limits": {"current_a": [-0.4, 0.4], "voltage_v": [0.2, 2.0]},
+                        "temperature_tag": DRY_RUN_CELL_TEMPERATURE_TAG,
                     }
                 ],
             }

@@ -20,7 +20,9 @@ Conventions shared by every model:
   NiMH except near full, where charge acceptance falls off and the excess drives the
   oxygen cycle instead (see :class:`NiMHCell`). Charge drawn from a cell already at
   ``soc == 0``, or pushed into one at the upper clamp, goes to side reactions and is
-  not stored, so ``charge_ah`` and ``soc`` can legitimately diverge there.
+  not stored, so ``charge_ah`` and ``soc`` can legitimately diverge there. A NiMH cell
+  driven on past empty goes into reversal (its voltage through 0 V and below), which it
+  reports as a :attr:`~BatteryModel.fault`.
 * **SOC range.** ``soc`` is clamped to ``[0, 1.05]``: 1.0 is the rated capacity, and a
   NiMH cell being overcharged creeps slightly above it (real cells typically deliver a
   few percent more than rated); a Li-ion pack can be pushed past 1.0 only by a charger
@@ -103,6 +105,12 @@ class BatteryModel(Protocol):
 
     def step(self, current_a: float, dt_s: float) -> None:
         """Apply ``current_a`` (+ charges) for ``dt_s`` seconds."""
+        ...
+
+    @property
+    def fault(self) -> str | None:
+        """Latched: what was done to the cell that a real one would not survive unharmed
+        (NiMH: driven into reversal past empty); None if nothing."""
         ...
 
 
@@ -208,6 +216,10 @@ class _LumpedCell(ABC):
         return self.voltage_at(self._current)
 
     @property
+    def fault(self) -> str | None:
+        return None
+
+    @property
     @abstractmethod
     def ocv_v(self) -> float: ...
 
@@ -286,17 +298,49 @@ _NIMH_OCV = _Table(
 )
 
 # Negative temperature coefficient of the cell voltage (≈ −1 to −2 mV/°C per cell for
-# NiMH). It is what turns the heat of overcharge into the end-of-charge voltage drop:
-# the DS2710 single-cell NiMH charger ends fast charge when the cell voltage falls
-# 2 mV (typ) below its peak, so the model must produce clearly more than that.
+# NiMH). With the oxygen overpotential's own fall with temperature (below) and the
+# resistances falling with it, it turns the heat of overcharge into the end-of-charge
+# voltage drop: the DS2710 single-cell NiMH charger ends fast charge when the cell
+# voltage falls 2 mV (typ) below its peak (devices.md "NiMH charge termination"), so the
+# model must produce clearly more than that at fast-charge rates.
 _NIMH_TEMPCO_V_PER_K = -1.5e-3
 
-# Charge acceptance: 1 up to the knee, then falling linearly to 0 at the SOC clamp.
-# Above the knee oxygen evolution at the positive electrode competes with charging;
-# the oxygen recombines at the negative electrode, so the unaccepted charge turns into
-# heat. With the knee at 0.9 a cell at fast-charge rates needs ~107 % of rated charge
-# to reach soc = 1.0, about where real cells show their -ΔV peak.
-_NIMH_ACCEPT_KNEE = 0.90
+# Charge acceptance η(soc): 1 up to the knee, then ``sqrt((1.05 − soc)/(1.05 − knee))``,
+# 0 at the SOC clamp. Above the knee oxygen evolution at the positive electrode competes
+# with charging; the oxygen recombines at the negative electrode, so the unaccepted charge
+# turns into heat and gas, not stored charge. The square root makes the stored charge
+# reach the clamp in a finite time (dsoc/dt ∝ sqrt(1.05 − soc)) instead of creeping
+# toward it for hours: a cell past full really stops storing, the voltage stops rising
+# with soc, and the heat of overcharge can turn it over into the -ΔV. With the knee at
+# 0.93 a fast charge from empty reaches the clamp after ~117 % of rated input, and the
+# voltage peaks a little before that, about where real cells do (~105–115 %).
+_NIMH_ACCEPT_KNEE = 0.93
+
+# The oxygen-evolution overpotential falls as the cell warms (its exchange current has a
+# large activation energy): ``g·exp(−(T − 25 °C)/θ)``, about −1 mV/K at 25 °C with the
+# default g = 50 mV. Together with the OCV coefficient and the resistances this makes the
+# overcharge voltage fall ~3–4 mV/K, what makes -ΔV reliable from ~0.3 C up.
+_NIMH_O2_THETA_K = 50.0
+
+# Defaults of a cell of another capacity than the reference AA: same chemistry and build,
+# scaled in size. Resistance ∝ 1/capacity (electrode area), heat capacity ∝ capacity
+# (mass: an AA of ~27–30 g at ~1 J/(g·K) is ~30 J/K for 2 Ah), thermal time constant ∝
+# size ∝ capacity^(1/3) (mass over surface; ~15 min for an AA in still air). So the
+# behaviour at a given C-rate barely depends on the capacity: a 0.8 Ah cell at 0.5 C
+# heats and shows its -ΔV like a 2 Ah one, instead of a 30 J/K mass heated by 0.4 A.
+_NIMH_REF_CAPACITY_AH = 2.0
+_NIMH_R_OHM_AH = 0.06  # 30 mΩ at 2 Ah
+_NIMH_HEAT_CAPACITY_J_PER_K_AH = 15.0  # 30 J/K at 2 Ah
+_NIMH_THERMAL_TAU_REF_S = 900.0  # at 2 Ah
+
+# Reversal: a cell driven on past empty (soc == 0, current still drawn) has its positive
+# electrode exhausted; it then evolves hydrogen, and the cell's polarity reverses: the
+# loaded voltage goes through 0 V to about −0.3 V at 0.2 C. ``V_rev = v·(1 − e^(−d/d0))``
+# with ``d`` the charge drawn past empty as a fraction of capacity. It needs current (a
+# cell at rest shows its ~1.0 V empty OCV again), and it is a fault the model reports
+# (``fault``): a real cell is damaged by it, and a bench must never let it happen.
+_NIMH_REVERSAL_V = 0.7
+_NIMH_REVERSAL_DEPTH = 0.005  # 10 mAh on a 2 Ah cell
 
 
 class NiMHCell(_LumpedCell):
@@ -307,32 +351,40 @@ class NiMHCell(_LumpedCell):
         V = OCV(soc) + k_T·(T − 25 °C)           # table + temperature coefficient
             + I·R(T)                             # ohmic drop, sign follows the current
             + b·asinh(I / (2·I0(T)))             # charge-transfer overpotential
-            + V_O2(soc, I)                       # oxygen evolution, charge only
+            + V_O2(soc, T, I)                    # oxygen evolution, charge only
             − V_dep(soc, I)                      # depletion, discharge only
+            − V_rev(d, I)                        # reversal past empty, discharge only
 
-    ``V_O2 = g·(1 − η(soc))·r/(r + 0.1)`` (``r`` = charge C-rate) is the extra
-    overpotential of oxygen evolution, which carries the unaccepted fraction of the
-    current near full: it gives the steep rise of the charge curve just before the peak.
+    ``V_O2 = g·e^(−(T − 25)/θ)·(1 − η(soc))·r/(r + 0.1)`` (``r`` = charge C-rate) is the
+    extra overpotential of oxygen evolution, which carries the unaccepted fraction of the
+    current near full: it gives the steep rise of the charge curve just before the peak,
+    and falls as the cell warms.
 
     ``V_dep = a·r/(r + soc/0.01 + 0.01)`` (``r`` = discharge C-rate) is a
     mass-transport limit whose limiting current is proportional to the active material
     left: negligible on the plateau, it collapses the loaded voltage toward 0.8 V and
     below as the cell empties, while at rest the voltage recovers to the ~1.0 V OCV, as
-    with real cells. ``soc`` is clamped at 0; charge drawn beyond that is not stored.
+    with real cells. ``soc`` is clamped at 0; charge drawn beyond that is not stored but
+    drives the cell into reversal: ``V_rev = v·(1 − e^(−d/d0))·r/(r + 0.01)``, ``d`` the
+    charge drawn past empty (fraction of capacity), takes the loaded voltage through 0 V
+    to about −0.3 V (hydrogen evolution on the exhausted positive). Charging ends the
+    reversal; the fault it was stays reported (:attr:`fault`, :attr:`reversal_ah`).
 
     Charging near full, only the fraction ``η(soc)`` of the current is stored; the rest
     feeds the oxygen cycle. Heat is the electrical energy in minus the chemical energy
     stored: ``P = I·(V − OCV) + (1 − η)·I·OCV``, i.e. I²R and overpotential losses plus
     the unaccepted fraction of the charge power. As ``η → 0`` the cell heats at roughly
-    I·V, the negative temperature coefficient (and the resistances falling with
-    temperature) overtake the flattening voltage rise and the charge voltage goes
-    through a peak then drops: the ``-ΔV`` NiMH chargers terminate on. With the
-    defaults, charging from 20 % at 0.5 C peaks at ~1.46 V after ~106 % input and drops
-    ~8 mV within 15 min; at 1 C the drop is tens of mV; at 0.1 C there is none, which is
-    why chargers cannot rely on -ΔV at low rates.
+    I·V, the negative temperature coefficients (OCV, oxygen overpotential, resistances)
+    overtake the flattening voltage rise and the charge voltage goes through a peak then
+    drops: the ``-ΔV`` NiMH chargers terminate on, with the steep temperature rise dT/dt
+    chargers terminate on. With the defaults, a 0.5 C charge from empty peaks at
+    ~1.47 V after ~106 % input and has fallen 3 mV after ~111 % (cell at ~41 °C), by
+    tens of mV if it goes on; at 1 C the same after ~107 %; at 0.1 C there is no
+    measurable drop, which is why chargers cannot rely on -ΔV at low rates.
 
-    Thermal defaults: an AA cell weighs ~27–30 g at ~1 J/(g·K), so ~30 J/K, with a
-    time constant to still air of ~15 min.
+    Size defaults (``r_internal_ohm``, ``heat_capacity_j_per_k``,
+    ``thermal_time_constant_s`` left None) scale from the 2 Ah AA: 30 mΩ, 30 J/K, 15 min
+    to still air (see ``_NIMH_R_OHM_AH`` and its neighbours).
     """
 
     def __init__(
@@ -342,13 +394,14 @@ class NiMHCell(_LumpedCell):
         soc: float = 0.5,
         temperature_c: float = 25.0,
         ambient_c: float = 25.0,
-        r_internal_ohm: float = 0.03,
-        heat_capacity_j_per_k: float = 30.0,
-        thermal_time_constant_s: float = 900.0,
+        r_internal_ohm: float | None = None,
+        heat_capacity_j_per_k: float | None = None,
+        thermal_time_constant_s: float | None = None,
         tafel_slope_v: float = 0.025,
         exchange_current_c: float = 0.1,
         depletion_v: float = 0.6,
         oxygen_overpotential_v: float = 0.05,
+        reversal_v: float = _NIMH_REVERSAL_V,
         arrhenius_b_k: float = 2000.0,
     ) -> None:
         """Build a cell.
@@ -358,16 +411,27 @@ class NiMHCell(_LumpedCell):
             soc: initial state of charge, 0..1.05.
             temperature_c: initial cell temperature.
             ambient_c: temperature the cell cools toward.
-            r_internal_ohm: ohmic resistance at 25 °C (~30 mΩ for a 2 Ah AA cell).
-            heat_capacity_j_per_k: lumped thermal mass.
-            thermal_time_constant_s: Newton cooling time constant to ambient.
+            r_internal_ohm: ohmic resistance at 25 °C (None: 60 mΩ·Ah / capacity, ~30 mΩ
+                for a 2 Ah AA cell).
+            heat_capacity_j_per_k: lumped thermal mass (None: 15 J/(K·Ah) × capacity).
+            thermal_time_constant_s: Newton cooling time constant to ambient (None:
+                900 s × (capacity / 2 Ah)^(1/3)).
             tafel_slope_v: ``b`` of the charge-transfer overpotential ``b·asinh(I/2I0)``.
             exchange_current_c: ``I0`` at 25 °C as a C-rate.
             depletion_v: loaded-voltage collapse ``a`` when fully empty.
-            oxygen_overpotential_v: ``g``, oxygen-evolution overpotential at full.
+            oxygen_overpotential_v: ``g``, oxygen-evolution overpotential at full, 25 °C.
+            reversal_v: ``v``, how far below the empty loaded voltage reversal goes.
             arrhenius_b_k: ``Ea/R`` of the resistance and exchange current (2000 K makes
                 R about 1.85× higher at 0 °C than at 25 °C).
         """
+        capacity_ah = _check_positive("capacity_ah", capacity_ah)
+        size = capacity_ah / _NIMH_REF_CAPACITY_AH
+        if r_internal_ohm is None:
+            r_internal_ohm = _NIMH_R_OHM_AH / capacity_ah
+        if heat_capacity_j_per_k is None:
+            heat_capacity_j_per_k = _NIMH_HEAT_CAPACITY_J_PER_K_AH * capacity_ah
+        if thermal_time_constant_s is None:
+            thermal_time_constant_s = _NIMH_THERMAL_TAU_REF_S * size ** (1.0 / 3.0)
         super().__init__(
             capacity_ah=capacity_ah,
             soc=soc,
@@ -383,30 +447,59 @@ class NiMHCell(_LumpedCell):
         self._inv_2i0 = 1.0 / (2.0 * i0)
         self._depletion_v = _check_range("depletion_v", depletion_v, 0.0, 1.0)
         self._oxygen_v = _check_range("oxygen_overpotential_v", oxygen_overpotential_v, 0.0, 0.5)
+        self._reversal_v = _check_range("reversal_v", reversal_v, 0.0, 2.0)
+        self._reversed = 0.0  # charge drawn past empty now, as a fraction of capacity
+        self._reversed_max = 0.0  # the deepest reversal so far (the latched fault)
+
+    # -- reversal -------------------------------------------------------------------------
+
+    @property
+    def reversal_ah(self) -> float:
+        """Charge drawn past empty in the present reversal (0 when not reversed)."""
+        return self._reversed * self.capacity_ah
+
+    @property
+    def fault(self) -> str | None:
+        """Latched: the cell was driven past empty into reversal (None if never)."""
+        if self._reversed_max == 0.0:
+            return None
+        depth_mah = self._reversed_max * self.capacity_ah * 1000.0
+        return f"cell driven past empty into reversal (deepest {depth_mah:.3g} mAh past empty)"
+
+    # -- electrical -----------------------------------------------------------------------
 
     def _ocv(self, soc: float, temp_c: float) -> float:
         return _NIMH_OCV(soc) + _NIMH_TEMPCO_V_PER_K * (temp_c - 25.0)
 
-    def _overpotential(self, current_a: float, soc: float, factor: float) -> float:
+    def _overpotential(self, current_a: float, soc: float, temp_c: float, factor: float) -> float:
         """``V − OCV``; has the sign of the current, so I·(V − OCV) >= 0 always."""
         eta = current_a * self._r25 * factor + self._tafel_b * math.asinh(
             current_a * factor * self._inv_2i0
         )
         rate = current_a / self.capacity_ah
         if current_a > 0.0:
-            # O2 evolution carries the unaccepted current; saturates above ~0.1 C.
-            eta += self._oxygen_v * (1.0 - self._acceptance(soc)) * rate / (rate + 0.1)
+            unaccepted = 1.0 - self._acceptance(soc)
+            if unaccepted > 0.0:
+                # O2 evolution carries the unaccepted current; saturates above ~0.1 C
+                # and falls as the cell warms.
+                g = self._oxygen_v * math.exp((25.0 - temp_c) / _NIMH_O2_THETA_K)
+                eta += g * unaccepted * rate / (rate + 0.1)
         elif current_a < 0.0:
             # Limiting current ∝ active material left (soc/0.01); the 0.01 floor keeps
             # the term continuous at soc == 0 and I -> 0. ``rate`` < 0 here.
             eta += self._depletion_v * rate / (-rate + soc * 100.0 + 0.01)
+            if self._reversed > 0.0:
+                depth = 1.0 - math.exp(-self._reversed / _NIMH_REVERSAL_DEPTH)
+                eta += self._reversal_v * depth * rate / (-rate + 0.01)
         return eta
 
     @staticmethod
     def _acceptance(soc: float) -> float:
         if soc <= _NIMH_ACCEPT_KNEE:
             return 1.0
-        return max(0.0, (_SOC_MAX - soc) / (_SOC_MAX - _NIMH_ACCEPT_KNEE))
+        if soc >= _SOC_MAX:
+            return 0.0
+        return math.sqrt((_SOC_MAX - soc) / (_SOC_MAX - _NIMH_ACCEPT_KNEE))
 
     @property
     def ocv_v(self) -> float:
@@ -415,23 +508,31 @@ class NiMHCell(_LumpedCell):
     def voltage_at(self, current_a: float) -> float:
         temp = self._temp_c
         return self._ocv(self._soc, temp) + self._overpotential(
-            current_a, self._soc, self._arrhenius(temp)
+            current_a, self._soc, temp, self._arrhenius(temp)
         )
 
     def _advance(self, current_a: float, h: float) -> None:
         soc = self._soc
         temp = self._temp_c
         factor = self._arrhenius(temp)
-        loss_w = current_a * self._overpotential(current_a, soc, factor)
+        loss_w = current_a * self._overpotential(current_a, soc, temp, factor)
         if current_a > 0.0:
             accepted = self._acceptance(soc)
             # Unaccepted charge drives O2 evolution + recombination: all of it is heat.
             loss_w += (1.0 - accepted) * current_a * self._ocv(soc, temp)
             soc += accepted * current_a * h * self._inv_capacity_as
             self._soc = soc if soc < _SOC_MAX else _SOC_MAX
+            self._reversed = 0.0  # charging the exhausted positive ends the reversal
         else:
             soc += current_a * h * self._inv_capacity_as
-            self._soc = soc if soc > _SOC_MIN else _SOC_MIN
+            if soc > _SOC_MIN:
+                self._soc = soc
+            else:
+                # Past empty: nothing more to give; what is drawn drives the reversal.
+                self._soc = _SOC_MIN
+                self._reversed -= soc
+                if self._reversed > self._reversed_max:
+                    self._reversed_max = self._reversed
         self._relax_temperature(loss_w)
 
 

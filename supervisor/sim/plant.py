@@ -209,12 +209,15 @@ class BenchPlant:
         return (lo + hi) / 2
 
 
-def make_cell(cell: SimCell) -> BatteryModel:
-    """The battery model an I/O map's ``sim:`` entry describes."""
+def make_cell(cell: SimCell, ambient_c: float = 25.0) -> BatteryModel:
+    """The battery model an I/O map's ``sim:`` entry describes, cooling toward the
+    bench's ambient (``simulation: ambient_c``): the temperature it starts at is the
+    entry's own, the temperature it relaxes to is the room's."""
     params: dict[str, float] = {
         "capacity_ah": cell.capacity_ah,
         "soc": cell.soc,
         "temperature_c": cell.temperature_c,
+        "ambient_c": ambient_c,
     }
     if cell.cells_series is not None:
         params["cells_series"] = cell.cells_series
@@ -227,7 +230,7 @@ def make_plant(sim: SimulationConfig | None, clock: Clock) -> BenchPlant:
     wd = sc.watchdog_relay
     return BenchPlant(
         clock,
-        make_cell(sc.pack),
+        make_cell(sc.pack, sc.ambient_c),
         ambient_c=sc.ambient_c,
         watchdog_timeout_s=None if wd is None else wd.timeout_s,
     )

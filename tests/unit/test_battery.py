@@ -227,6 +227,164 @@ def test_nimh_heats_more_the_harder_it_is_discharged() -> None:
     assert hard.temperature_c > gentle.temperature_c > 25.0
 
 
+# --- NiMH: running out (issue 9, "wrong physics in dry runs") ---------------------------
+
+
+def discharge_until(cell: NiMHCell, current_a: float, v_stop: float, dt_s: float) -> float:
+    """Discharge until the loaded voltage is at or below ``v_stop``; returns the Ah drawn."""
+    q0 = cell.charge_ah
+    for _ in range(round(30 * 3600 / dt_s)):
+        cell.step(current_a, dt_s)
+        if cell.terminal_voltage_v <= v_stop:
+            break
+    return q0 - cell.charge_ah
+
+
+def test_nimh_gives_its_charge_then_its_voltage_collapses_through_zero() -> None:
+    # The issue's case: 400 mA from a 2 Ah cell at 90 %. The old model gave 12 Ah over
+    # 30 h at a steady 0.388 V; a real cell runs out after the charge it holds.
+    cell = NiMHCell(capacity_ah=2.0, soc=0.9)
+    drawn_ah = discharge_until(cell, -0.4, 0.2, 1.0)  # the dry-run channel's low limit
+    assert drawn_ah == pytest.approx(1.8, rel=0.01)
+    drawn_ah += discharge_until(cell, -0.4, 0.0, 1.0)
+    assert drawn_ah == pytest.approx(1.8, rel=0.01)
+    assert cell.terminal_voltage_v <= 0.0
+
+
+def test_nimh_driven_on_past_empty_reverses_and_reports_the_fault() -> None:
+    cell = NiMHCell(capacity_ah=2.0, soc=0.9)
+    run(cell, -0.4, 4.4 * 3600, 10.0)  # 1.76 Ah of the 1.8 Ah it holds
+    assert cell.fault is None
+    assert cell.reversal_ah == 0.0
+    run(cell, -0.4, 25.6 * 3600, 10.0)  # 30 h in all, as in the issue
+    assert cell.charge_ah == pytest.approx(-12.0, rel=1e-9)  # the counter stays exact
+    assert cell.soc == 0.0
+    assert cell.reversal_ah == pytest.approx(12.0 - 1.8, rel=0.01)
+    # Reversed polarity (hydrogen on the exhausted positive): below 0 V, but bounded.
+    assert -0.6 < cell.terminal_voltage_v < -0.1
+    assert cell.fault is not None and "reversal" in cell.fault
+    # Driven on, the reversed cell dissipates I·|V| on top of its losses.
+    assert cell.temperature_c > 30.0
+
+
+def test_nimh_reversal_needs_current_and_ends_on_charge_but_stays_reported() -> None:
+    cell = NiMHCell(capacity_ah=2.0, soc=0.01)
+    run(cell, -0.4, 600.0, 1.0)  # 20 mAh in, then 47 mAh past empty
+    assert cell.terminal_voltage_v < 0.0
+    run(cell, 0.0, 60.0, 1.0)
+    assert cell.terminal_voltage_v == pytest.approx(1.0, abs=0.05)  # the empty OCV again
+    run(cell, 0.2, 600.0, 1.0)
+    assert cell.reversal_ah == 0.0
+    assert cell.soc > 0.0
+    # Discharged again, it is an ordinary cell with 33 mAh in it ...
+    assert cell.voltage_at(-0.4) > 0.9
+    # ... but what was done to it is not forgotten.
+    assert cell.fault is not None and "mAh" in cell.fault
+
+
+@both_kinds
+def test_a_model_that_was_never_abused_reports_no_fault(kind: str) -> None:
+    model = FACTORIES[kind](soc=0.5)
+    run(model, -0.2 * model.capacity_ah, 3600.0, 10.0)
+    assert model.fault is None
+
+
+# --- NiMH: past full (issue 9: -ΔV and temperature) ----------------------------------------
+
+
+def charge_until_minus_delta_v(
+    cell: NiMHCell, current_a: float, drop_v: float, blanking_s: float, max_h: float
+) -> tuple[float, float] | None:
+    """Charge, sampling every second like a 1 s scan, until the voltage has fallen ``drop_v``
+    below its running peak after ``blanking_s``; returns (time s, temperature) or None."""
+    peak = -math.inf
+    for k in range(1, round(max_h * 3600) + 1):
+        cell.step(current_a, 1.0)
+        v = cell.terminal_voltage_v
+        peak = max(peak, v)
+        if k > blanking_s and peak - v >= drop_v:
+            return float(k), cell.temperature_c
+    return None
+
+
+def test_small_cell_at_half_c_shows_the_5_mv_minus_delta_v_the_issue_missed() -> None:
+    # The issue's case: 0.8 Ah at 400 mA (0.5 C) from 20 %: the voltage sat at 1.476 V with
+    # about 1 mV of drop, so a delta_peak >= 5 mV termination never fired.
+    cell = NiMHCell(capacity_ah=0.8, soc=0.2)
+    found = charge_until_minus_delta_v(cell, 0.4, 0.005, 240.0, 8.0)
+    assert found is not None, "no 5 mV -ΔV within 8 h"
+    _, temp_c = found
+    input_from_empty = 0.2 + cell.charge_ah / cell.capacity_ah
+    assert 1.0 <= input_from_empty <= 1.2
+    assert temp_c > 35.0  # the steep temperature rise of overcharge (ambient 25 °C)
+
+
+@pytest.mark.parametrize("capacity_ah", [2.0, 0.8])
+@pytest.mark.parametrize("c_rate", [0.5, 1.0])
+def test_fast_charge_from_empty_peaks_then_falls_3_mv_after_100_to_120_percent(
+    capacity_ah: float, c_rate: float
+) -> None:
+    cell = NiMHCell(capacity_ah=capacity_ah, soc=0.0)
+    found = charge_until_minus_delta_v(cell, c_rate * capacity_ah, 0.003, 240.0, 2.5 / c_rate)
+    assert found is not None
+    assert 1.0 <= cell.charge_ah / capacity_ah <= 1.2
+
+
+def test_fast_charge_temperature_stays_flat_then_rises_steeply_past_full() -> None:
+    cell = NiMHCell(capacity_ah=2.0, soc=0.0, ambient_c=25.0)
+    run(cell, 1.0, 0.8 * 7200, 1.0)  # 80 % in at 0.5 C
+    assert cell.temperature_c - 25.0 < 3.0  # I²R only
+    found = charge_until_minus_delta_v(cell, 1.0, 0.003, 0.0, 1.0)
+    assert found is not None
+    t0, temp0 = cell.temperature_c, found[1]
+    run(cell, 1.0, 300.0, 1.0)
+    # dT/dt: what the temperature-slope chargers terminate on (~1 K/min and more).
+    assert (cell.temperature_c - t0) / 5.0 > 0.5
+    assert temp0 - 25.0 > 10.0
+
+
+def test_overcharge_at_half_c_keeps_the_voltage_below_its_peak() -> None:
+    # Past the peak the excess goes to heat and gas: the voltage falls while the cell
+    # heats, and stays below the peak as long as the overcharge goes on.
+    cell = NiMHCell(capacity_ah=2.0, soc=0.0)
+    found = charge_until_minus_delta_v(cell, 1.0, 0.003, 240.0, 4.0)
+    assert found is not None
+    peak_region = cell.terminal_voltage_v + 0.003
+    for _ in range(6):
+        run(cell, 1.0, 600.0, 1.0)
+        assert cell.terminal_voltage_v < peak_region - 0.003
+    assert cell.soc <= 1.05
+
+
+def test_a_0_05_c_charge_shows_no_3_mv_minus_delta_v_even_far_past_full() -> None:
+    # Below ~0.1 C -ΔV is unreliable (devices.md): the heat of overcharge is too small to
+    # turn the voltage over, so a 3 mV termination must not fire, early or late.
+    cell = NiMHCell(capacity_ah=2.0, soc=0.0)
+    peak = -math.inf
+    for _ in range(25 * 360):  # 25 h (125 % in) at 10 s
+        cell.step(0.1, 10.0)
+        v = cell.terminal_voltage_v
+        peak = max(peak, v)
+        assert peak - v < 0.003
+    assert cell.soc == pytest.approx(1.05)
+
+
+def test_size_defaults_scale_with_capacity_so_c_rates_behave_alike() -> None:
+    small = NiMHCell(capacity_ah=0.8, soc=0.5)
+    big = NiMHCell(capacity_ah=2.0, soc=0.5)
+    # Same IR drop at the same C-rate: resistance goes as 1/capacity.
+    assert small.voltage_at(0.8) - small.ocv_v == pytest.approx(big.voltage_at(2.0) - big.ocv_v)
+    # Similar heating in overcharge at the same C-rate: the thermal mass scales with it.
+    small, big = NiMHCell(capacity_ah=0.8, soc=1.0), NiMHCell(capacity_ah=2.0, soc=1.0)
+    run(small, 0.4, 1800.0, 1.0)
+    run(big, 1.0, 1800.0, 1.0)
+    assert 0.6 < (small.temperature_c - 25.0) / (big.temperature_c - 25.0) < 1.0
+    # Explicit values still win: 30 mΩ instead of the 75 mΩ default of a 0.8 Ah cell.
+    explicit = NiMHCell(capacity_ah=0.8, soc=0.5, r_internal_ohm=0.03)
+    default = NiMHCell(capacity_ah=0.8, soc=0.5)
+    assert default.voltage_at(0.8) - explicit.voltage_at(0.8) == pytest.approx(0.8 * 0.045)
+
+
 # --- Li-ion ----------------------------------------------------------------------------
 
 

@@ -31,8 +31,11 @@ def _driver(name: str, dev: ChadecheDevice, wiring: DriverWiring) -> Driver:
         for b in dev.boards
     }
     bus: ChadecheBus
+    probe = None
     if isinstance(wiring.simulator, SimulatedBoards):
         bus, owned = wiring.simulator.bus, False
+        # The simulation-only temperature points (config.sim_board_points).
+        probe = wiring.simulator.bus.cell_temperature_c
     else:  # opened for this driver: its close() closes it
         bus = SpidevBus(
             spi_bus=dev.spi.bus,
@@ -49,13 +52,14 @@ def _driver(name: str, dev: ChadecheDevice, wiring: DriverWiring) -> Driver:
         poll_period_s=dev.poll_period_s,
         lock_dir=dev.lock_dir,
         owns_bus=owned,
+        temperature_probe=probe,
     )
 
 
 def _simulator(name: str, dev: ChadecheDevice, wiring: SimWiring) -> DeviceSimulator:
     boards = {}
     for b in dev.boards:
-        cell = make_cell(b.sim)
+        cell = make_cell(b.sim, wiring.plant.ambient_c)
         wiring.cells[f"{name}.b{b.address}"] = cell
         boards[b.address] = SimBoard(cell)
     return SimulatedBoards(SimChadecheBus(wiring.clock, boards))

@@ -36,6 +36,30 @@ def board_points(address: int) -> list[PointInfo]:
     ]
 
 
+SIM_ONLY_MARK: Final = "SIMULATION ONLY"
+"""In the description of a point that only a simulated device has."""
+
+
+def sim_board_points(address: int) -> list[PointInfo]:
+    """The simulation-only points of board ``address``: ``b{n}.temperature`` (in, degC).
+
+    A Chadèche board has no temperature sensor (seed §II.B: it measures the cell voltage
+    only). A simulated board offers its cell model's temperature (supervisor/sim/battery.py)
+    so that dry runs and the simulated bench can exercise temperature and dT terminations
+    and the over-temperature limits; map it as a channel's ``temperature_tag``. Only a
+    ``backend: sim`` device lists it, so ``supervisor check`` refuses an I/O map that maps
+    it on real boards (there, glue a sensor read by another device to the cell)."""
+    return [
+        PointInfo(
+            f"b{address}.temperature",
+            "in",
+            "float",
+            "degC",
+            f"board {address} simulated cell temperature ({SIM_ONLY_MARK}: no board sensor)",
+        )
+    ]
+
+
 def source_points(board: int | None) -> SourcePoints:
     p = f"b{board}."
     return SourcePoints(voltage=p + "voltage", current=p + "current", current_set=p + "current_set")
@@ -81,7 +105,10 @@ class ChadecheDevice(DeviceConfig):
         return self.backend == "sim"
 
     def points(self) -> Mapping[str, PointInfo]:
-        return {p.name: p for b in self.boards for p in board_points(b.address)}
+        points = {p.name: p for b in self.boards for p in board_points(b.address)}
+        if self.simulated:
+            points.update((p.name, p) for b in self.boards for p in sim_board_points(b.address))
+        return points
 
     def channel_source(self) -> SourceSpec:
         return SourceSpec(

@@ -9,6 +9,8 @@ One driver per SPI bus, up to four boards (addresses 0..3). Points per board ``n
   the ``-1``/``-2`` calibration, not a measurement.
 - ``b{n}.charging`` (in, bool): relay latch position last written.
 - ``b{n}.current_set`` (out, A, + charge / − discharge), ``b{n}.led_duty`` (out, 0..1).
+- ``b{n}.temperature`` (in, degC), only with a ``temperature_probe``: a SIMULATED board's
+  cell temperature (the boards have no sensor; see ``sim_board_points``).
 
 The DAC and the latch are write-only chips: a write is "verified" when its transfers
 completed without error; nothing can be read back.
@@ -19,7 +21,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,7 +31,12 @@ from supervisor.core.errors import DeviceIOError, ProtocolError, SupervisorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.devices.base import PolledDriver
 from supervisor.devices.chadeche.bus import BoardClaim, ChadecheBus, claim_board
-from supervisor.devices.chadeche.config import BOARD_ADDRESSES, MAX_CURRENT_A, board_points
+from supervisor.devices.chadeche.config import (
+    BOARD_ADDRESSES,
+    MAX_CURRENT_A,
+    board_points,
+    sim_board_points,
+)
 from supervisor.devices.chadeche.protocol import (
     ADC_MAX_CODE,
     ADC_READ,
@@ -83,6 +90,9 @@ class ChadecheDriver(PolledDriver):
     :func:`claim_board` there; boards are always claimed (default directory) when ``bus`` is
     a blocking (real) bus. ``close()`` releases the claims, and closes the bus when
     ``owns_bus`` (it was opened for this driver), but leaves outputs as they are.
+    ``temperature_probe``: the simulator's thermometer on each board's cell (address →
+    degC, None if unknown); given only for a simulated bus, it adds the simulation-only
+    ``b{n}.temperature`` points.
     """
 
     def __init__(
@@ -96,6 +106,7 @@ class ChadecheDriver(PolledDriver):
         relay_settle_s: float = RELAY_SETTLE_S,
         lock_dir: str | Path | None = None,
         owns_bus: bool = False,
+        temperature_probe: Callable[[int], float | None] | None = None,
     ) -> None:
         if not boards:
             raise ValueError(f"{name}: at least one board is needed")
@@ -111,10 +122,12 @@ class ChadecheDriver(PolledDriver):
         self._blocking_bus = bus.blocking
         self._relay_settle_s = relay_settle_s
         self._boards = {a: _Board(a, boards[a]) for a in sorted(boards)}
+        self._temperature_probe = temperature_probe
         self._points: dict[str, PointInfo] = {}
         self._outputs: dict[str, tuple[int, str]] = {}
         for a in self._boards:
-            for info in board_points(a):
+            sim_only = sim_board_points(a) if temperature_probe is not None else []
+            for info in board_points(a) + sim_only:
                 self._points[info.name] = info
                 if info.direction == "out":
                     self._outputs[info.name] = (a, info.name.split(".", 1)[1])
@@ -169,6 +182,13 @@ class ChadecheDriver(PolledDriver):
                 reason = Reason.CLAMPED if board.clamped else Reason.NONE
                 samples[p + "current"] = Sample(board.current_a, Quality.GOOD, reason, t)
                 samples[p + "charging"] = Sample(board.charging, Quality.GOOD, Reason.NONE, t)
+                if self._temperature_probe is not None:
+                    temp = self._temperature_probe(board.address)
+                    samples[p + "temperature"] = (
+                        Sample(None, Quality.BAD, Reason.SENSOR_FAILURE, t)
+                        if temp is None
+                        else Sample(temp, Quality.GOOD, Reason.NONE, t)
+                    )
         return samples
 
     async def _write(self, point: str, value: Value) -> None:

@@ -9,11 +9,12 @@ deterministic on a virtual clock.
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 from supervisor.core.clock import Clock
 from supervisor.core.errors import DeviceIOError, ProtocolError
@@ -28,6 +29,8 @@ from supervisor.devices.chadeche.protocol import (
     encode_adc_reply,
     voltage_to_adc_code,
 )
+
+log = logging.getLogger(__name__)
 
 NO_BOARD_BYTE = 0xFF
 """What MISO reads when no board answers (assumed pulled up / floating high)."""
@@ -44,6 +47,18 @@ class Cell(Protocol):
 
     @property
     def terminal_voltage_v(self) -> float: ...
+
+
+@runtime_checkable
+class ThermalCell(Cell, Protocol):
+    """A cell model with a thermal state and fault reporting (supervisor/sim/battery.py):
+    what the simulation-only temperature point reads."""
+
+    @property
+    def temperature_c(self) -> float: ...
+
+    @property
+    def fault(self) -> str | None: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,6 +100,11 @@ class SimBoard:
         self.hot_switches = 0
         """Relay flips made while current was flowing (the driver must keep this at 0)."""
         self._last_t: float | None = None
+        # Checked once: isinstance() on a runtime protocol is too slow for every transfer.
+        self._thermal: ThermalCell | None = cell if isinstance(cell, ThermalCell) else None
+        self._fault_logged = False
+        self.label = "Chadèche board"
+        """How the log names it (the bus sets the address)."""
 
     @property
     def current_a(self) -> float:
@@ -103,10 +123,23 @@ class SimBoard:
         word = self.dac_b
         return word.code / 4095 if word.active else 0.0
 
+    @property
+    def temperature_c(self) -> float | None:
+        """The cell model's temperature (None: a model without a thermal state). No board
+        measures it: this is what the simulation-only ``b{n}.temperature`` point reads
+        (devices/chadeche/config.py)."""
+        return None if self._thermal is None else self._thermal.temperature_c
+
     def advance(self, now: float) -> None:
         """Step the cell from the last update to ``now`` at the current that was flowing."""
         if self._last_t is not None and now > self._last_t:
             self.cell.step(self.current_a, now - self._last_t)
+            if not self._fault_logged and self._thermal is not None:
+                fault = self._thermal.fault
+                if fault is not None:
+                    # Once: a dry run would otherwise log it every poll for hours.
+                    log.warning("simulated %s at t=%.0f s: %s", self.label, now, fault)
+                    self._fault_logged = True
         if self._last_t is None or now > self._last_t:
             self._last_t = now
 
@@ -148,6 +181,8 @@ class SimChadecheBus:
                 raise ValueError(f"Chadèche board address must be 0..3, got {address!r}")
         self.clock = clock
         self.boards: dict[int, SimBoard] = dict(boards)
+        for address, sim in self.boards.items():
+            sim.label = f"Chadèche board {address}"
         self.history: deque[SimTransfer] = deque(maxlen=history_len)
         """The last transfers in order (bounded: dry runs last hours)."""
         self.closed = False
@@ -171,6 +206,18 @@ class SimChadecheBus:
             self.history.append(SimTransfer(now, board, chip, bytes(data), reply))
             return reply
 
+    def cell_temperature_c(self, board: int) -> float | None:
+        """The temperature of board ``board``'s simulated cell now (None: no such board, or
+        a cell model without a thermal state). Not an SPI transfer: a Chadèche board has
+        no temperature sensor; this is the simulator's thermometer on the cell, read by
+        the driver for the simulation-only ``b{n}.temperature`` points."""
+        with self._lock:
+            sim = self.boards.get(board)
+            if sim is None:
+                return None
+            sim.advance(self.clock.now())
+            return sim.temperature_c
+
     def advance(self) -> None:
         """Bring every cell up to ``clock.now()`` without a transfer."""
         with self._lock:
@@ -182,7 +229,7 @@ class SimChadecheBus:
         self.closed = True
 
 
-__all__ = ["Cell", "SimBoard", "SimChadecheBus", "SimTransfer", "SimulatedBoards"]
+__all__ = ["Cell", "SimBoard", "SimChadecheBus", "SimTransfer", "SimulatedBoards", "ThermalCell"]
 
 
 class SimulatedBoards:
