@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 from supervisor.chains.program import ProfilePoint
+from supervisor.config.limits import MAX_PROFILE_CSV_BYTES, MAX_PROFILE_ROWS, read_limited
 from supervisor.config.text import Layout, Row, decode_text, read_table
 from supervisor.core.errors import ConfigError
 
@@ -58,13 +59,14 @@ def read_profile_csv(path: Path) -> tuple[ProfilePoint, ...]:
     ``min/max`` pairs written in one cell as ``3.0/4.2``. Errors name file, line and column.
     """
     try:
-        raw = path.read_bytes()
+        raw = read_limited(path, MAX_PROFILE_CSV_BYTES, "a load profile")
     except OSError as exc:
         raise ConfigError(f"cannot read profile: {exc.strerror or exc}", path) from None
     decoded = decode_text(raw, path)
     if not decoded.text:
         raise ConfigError("profile is empty", path, 1, 1)
-    layout, rows = read_table(decoded, path)
+    # One more row than the limit: the header line.
+    layout, rows = read_table(decoded, path, max_rows=MAX_PROFILE_ROWS + 1, what="a load profile")
     out: list[ProfilePoint] = []
     last_t = -1.0
     for k, row in enumerate(rows):

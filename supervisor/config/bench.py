@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from supervisor.config.limits import MAX_IO_MAP_TAGS, TooLarge
 from supervisor.config.models import BenchConfig, ChannelConfig, SimPoint, SourceSpec
 from supervisor.config.yamlpos import Positions, load_yaml, load_yaml_text, validate
 from supervisor.core.driver import PointInfo
@@ -42,6 +43,21 @@ def check_data(data: object, file: str, model: type[BenchConfig]) -> BenchConfig
 
 
 def _checked(data: object, pos: Positions, file: str, model: type[BenchConfig]) -> BenchConfig:
+    tags = data.get("tags") if isinstance(data, dict) else None
+    if isinstance(tags, list) and len(tags) > MAX_IO_MAP_TAGS:
+        # Before the model validates them all (README: Input limits).
+        mark = pos.value(("tags", MAX_IO_MAP_TAGS)) or pos.nearest(("tags",))
+        raise ConfigErrors(
+            [
+                TooLarge(
+                    f"too many tags: {len(tags):,}; an I/O map may have at most"
+                    f" {MAX_IO_MAP_TAGS:,} (README: Input limits)",
+                    file,
+                    mark.line,
+                    mark.col,
+                )
+            ]
+        )
     cfg = validate(model, data, pos, file)
     errors = check_bench(cfg, pos, file)
     if errors:

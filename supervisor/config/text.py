@@ -26,6 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from supervisor.config.limits import TooLarge
 from supervisor.core.errors import ConfigError
 
 __all__ = [
@@ -252,20 +253,36 @@ def _cells(raw: Sequence[str], delimiter: str) -> tuple[Cell, ...]:
 
 
 def read_table(
-    decoded: DecodedText, file: str | Path, *, blanks: bool = False, comments: bool = False
+    decoded: DecodedText,
+    file: str | Path,
+    *,
+    blanks: bool = False,
+    comments: bool = False,
+    max_rows: int | None = None,
+    what: str = "a table",
 ) -> tuple[Layout, list[Row]]:
     """The rows of a delimited text file, in the file's :class:`Layout`.
 
     Blank lines are skipped, and lines starting with ``#`` when ``comments``. Blanks
     separate cells only with ``blanks`` and when no line after the first has a tab, ``;`` or
     ``,``. Quotes are ordinary characters (``csv.QUOTE_NONE``): tables of numbers have none,
-    and so every cell keeps its exact column.
+    and so every cell keeps its exact column. More than ``max_rows`` rows (the header
+    line included) is refused at the first row over, before any cell is split
+    (``supervisor.config.limits``; ``what`` names the file in the message).
     """
     numbered = [
         (ln, line.rstrip())
         for ln, line in enumerate(decoded.lines(), start=1)
         if line.strip() and not (comments and line.lstrip().startswith("#"))
     ]
+    if max_rows is not None and len(numbered) > max_rows:
+        raise TooLarge(
+            f"too many rows: {len(numbered):,}; {what} may have at most {max_rows:,}"
+            " (README: Input limits)",
+            file,
+            numbered[max_rows][0],
+            1,
+        )
     layout = _layout([line for _, line in numbered], blanks)
     reader = csv.reader(
         (line for _, line in numbered), delimiter=layout.delimiter, quoting=csv.QUOTE_NONE

@@ -32,6 +32,8 @@ from yaml.error import MarkedYAMLError
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 from yaml.reader import ReaderError
 
+from supervisor.config.limits import MAX_YAML_BYTES, MAX_YAML_VALUES, TooLarge, read_limited
+from supervisor.config.limits import size_text as _size_text
 from supervisor.config.text import decode_yaml, line_col
 from supervisor.core.errors import ConfigError, ConfigErrors
 
@@ -79,6 +81,11 @@ class Mark:
 def _mark(node: Node) -> Mark:
     # PyYAML marks are 0-based.
     return Mark(node.start_mark.line + 1, node.start_mark.column + 1)
+
+
+def _line_col_of(node: Node) -> tuple[int, int]:
+    m = _mark(node)
+    return m.line, m.col
 
 
 _Entry = tuple[Node, Node]  # (key node, value node)
@@ -161,10 +168,11 @@ class Positions:
 
 def load_yaml(path: str | Path) -> tuple[Any, Positions]:
     """Read ``path`` (UTF-8, BOM allowed: :func:`supervisor.config.text.decode_yaml`) and
-    parse it; see :func:`load_yaml_text`."""
+    parse it; see :func:`load_yaml_text`. A file over ``MAX_YAML_BYTES`` is refused before
+    it is read in full (``supervisor.config.limits``)."""
     file = str(path)
     try:
-        data = Path(path).read_bytes()
+        data = read_limited(path, MAX_YAML_BYTES, "a recipe or an I/O map")
     except FileNotFoundError as exc:
         raise ConfigError("file not found", file) from exc
     except IsADirectoryError as exc:
@@ -179,11 +187,20 @@ def load_yaml(path: str | Path) -> tuple[Any, Positions]:
 def load_yaml_text(text: str, file: str = "<string>") -> tuple[Any, Positions]:
     """Parse one YAML document into plain data plus the position of every node.
 
-    Raises ConfigError for syntax errors, duplicate keys, unsupported tags, recursive aliases
-    and empty documents.
+    Raises ConfigError for syntax errors, duplicate keys, unsupported tags, recursive aliases,
+    empty documents, a text longer than ``MAX_YAML_BYTES`` characters and a document of more
+    than ``MAX_YAML_VALUES`` values once its aliases are expanded.
     """
     if text.startswith("\ufeff"):
         text = text[1:]
+    if len(text) > MAX_YAML_BYTES:
+        # Characters, not bytes: a text within the byte limit always passes (UTF-8 takes
+        # at least one byte a character).
+        raise TooLarge(
+            f"text is too large: {len(text):,} characters; a recipe or an I/O map may have"
+            f" at most {_size_text(MAX_YAML_BYTES)} (README: Input limits)",
+            file,
+        )
     try:
         root = _compose(text)
     except ConfigError:
@@ -258,6 +275,8 @@ class _Builder:
         self.file = file
         self.mappings: dict[int, dict[Hashable, _Entry]] = {}
         self._done: dict[int, Any] = {}
+        # Values under each node once aliases are expanded (what a model validates).
+        self._sizes: dict[int, int] = {}
         self._active: set[int] = set()
         self._scalars = SafeConstructor()
         self._scalar_kinds: dict[str, tuple[str, Callable[[SafeConstructor, ScalarNode], Any]]] = {
@@ -293,7 +312,29 @@ class _Builder:
         finally:
             self._active.discard(nid)
         self._done[nid] = value
+        self._count(node)
         return value
+
+    def _count(self, node: Node) -> None:
+        """The expanded size of ``node`` (its children are built): refused over
+        ``MAX_YAML_VALUES`` at the smallest node that exceeds it (an alias repeats its
+        whole anchored node each time: a few lines can stand for 10⁹ values)."""
+        sizes = self._sizes
+        size = 1
+        if isinstance(node, SequenceNode):
+            size += sum(sizes.get(id(item), 1) for item in node.value)
+        elif isinstance(node, MappingNode):
+            for key_node, value_node in self.mappings.get(id(node), {}).values():
+                size += sizes.get(id(key_node), 1) + sizes.get(id(value_node), 1)
+        sizes[id(node)] = size
+        if size > MAX_YAML_VALUES:
+            raise TooLarge(
+                f"document is too large: this node holds {size:,} values once its aliases are"
+                f" expanded; a recipe or an I/O map may have at most {MAX_YAML_VALUES:,}"
+                " (README: Input limits)",
+                self.file,
+                *_line_col_of(node),
+            )
 
     def _bad_tag(self, node: Node, kind: str) -> ConfigError:
         tag = _short_tag(node.tag)

@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import Any, Final
 
 from supervisor.chains.compiler import Target, compile_recipe
+from supervisor.config.limits import MAX_SEQUENCE_ROWS, MAX_TEXT_BYTES, TooLarge, read_limited
 from supervisor.config.recipe import ID_PATTERN, MAX_CYCLES, STEP_KINDS, load_recipe_text
 from supervisor.config.text import DecodedText, decode_text
 from supervisor.config.yamledit import yaml_comment, yaml_float, yaml_scalar
@@ -299,7 +300,7 @@ def _read_text(path: Path, not_found: str) -> DecodedText:
     """The file's text: UTF-8 (BOM allowed), else CP1252, what Excel writes on Windows."""
     file = str(path)
     try:
-        return decode_text(path.read_bytes(), file)
+        return decode_text(read_limited(path, MAX_TEXT_BYTES, "a Chadèche file"), file)
     except FileNotFoundError:
         raise ConfigErrors([ConfigError(not_found, file)]) from None
     except OSError as exc:
@@ -324,6 +325,18 @@ def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
 
     if not lines:
         raise ConfigErrors([ConfigError("file is empty: expected a header line", file, 1, 1)])
+    if len(lines) > MAX_SEQUENCE_ROWS + 1:  # + the header line
+        raise ConfigErrors(
+            [
+                TooLarge(
+                    f"too many rows: {len(lines) - 1:,}; a sequence file may have at most"
+                    f" {MAX_SEQUENCE_ROWS:,} (README: Input limits)",
+                    file,
+                    MAX_SEQUENCE_ROWS + 2,
+                    1,
+                )
+            ]
+        )
 
     # --- header ------------------------------------------------------------------------------
     header = lines[0].rstrip(" \t")
