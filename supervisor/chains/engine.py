@@ -300,7 +300,7 @@ class ChainRunner:
         command path, which has logged it): into this chain's events, and into the test's
         timeline while a test is under way."""
         under_way = self.state not in LOADABLE
-        self._emit("command" if under_way else "message", text, quiet=True)
+        self._emit("command" if under_way else "message", text, quiet=True, echo=True)
 
     def _start(self, actor: str) -> None:
         assert self.program is not None
@@ -703,14 +703,14 @@ class ChainRunner:
         except Exception:  # the end is reached anyway
             log.exception("%s: end record failed", self.name)
 
-    def _emit(self, kind: str, text: str, quiet: bool = False) -> None:
+    def _emit(self, kind: str, text: str, quiet: bool = False, echo: bool = False) -> None:
         now = self.clock.now()
         r = self._r
         step_id = ""
         if self.program is not None and r.step_count:
             step_id = self.program.steps[r.step].id
         ev = ChainEvent(
-            now, self.clock.to_wall(now), self.name, kind, text, r.step, step_id, r.cycle
+            now, self.clock.to_wall(now), self.name, kind, text, r.step, step_id, r.cycle, echo
         )
         self.events.append(ev)
         self._set("last_event", text)

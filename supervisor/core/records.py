@@ -22,6 +22,9 @@ class ChainEvent:
     step_index: int = -1
     step_id: str = ""
     cycle: int = 0
+    # An operator command the command path reported first (with its actor): publishers
+    # of bench events take it from there and skip this echo.
+    echo: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,3 +78,32 @@ class Sampler(Protocol):
     def due(self, now: float) -> bool: ...
 
     def on_sample(self, rec: Record) -> None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class BenchEvent:
+    """One thing that happened on the bench, for the historian, InfluxDB annotations and
+    OPC UA events: a step or state change of a chain, an alarm transition, an operator
+    command (accepted or refused, with its actor).
+
+    One flat type for every source so that each publisher stores and forwards events the
+    same way; ``supervisor.app.events`` converts the sources' own events into it.
+    """
+
+    t: float  # Clock.now() of the source
+    wall: float  # Unix time (s), what is stored and plotted
+    kind: str  # "step" | "state" | "message" | "alarm" | "command"
+    channel: str  # "" when it concerns the bench, not one channel
+    source: str  # the step id, the alarm id or the command's target
+    text: str  # one line, human readable
+    actor: str = ""  # who: an operator, "recipe", "safety", "" when nobody
+    severity: int = 0  # ISA-18.2 priority of an alarm (0 for anything else)
+    test_id: str = ""
+    recipe: str = ""
+
+
+class EventSink(Protocol):
+    """Takes bench events; must return quickly (queue, never wait): it is called from the
+    scan or the command path."""
+
+    def on_event(self, event: BenchEvent) -> None: ...
