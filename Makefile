@@ -1,10 +1,19 @@
-# Every target does its own set-up: a fresh clone needs only Python 3.11+ and make.
+# Every target does its own set-up: a fresh clone needs only Python 3.11+, make and (for
+# the tests' InfluxDB server) Go.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test lint typecheck unit bench schema check clean
+# The InfluxDB server the tests run against, built once from source and shared by every
+# clone (tests/influxrig.py). Needs Go; ~2 minutes the first time.
+INFLUXD_VERSION := 1.8.10
+INFLUXD_CACHE   ?= $(HOME)/.cache/bench-supervisor/influxd-$(INFLUXD_VERSION)
+INFLUXD         := $(INFLUXD_CACHE)/influxd
+
+.PHONY: run test lint typecheck unit bench schema check clean influxd
+
+influxd: $(INFLUXD)
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "Python 3.11+ is required")'
@@ -28,8 +37,13 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-unit: $(STAMP)
-	$(BIN)/pytest -q
+unit: $(STAMP) $(INFLUXD)
+	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/pytest -q
+
+$(INFLUXD):
+	@command -v go >/dev/null || { echo "Go is required to build the test InfluxDB server (influxd $(INFLUXD_VERSION))"; exit 2; }
+	mkdir -p $(INFLUXD_CACHE)
+	GOBIN=$(INFLUXD_CACHE) GOFLAGS=-buildvcs=false go install github.com/influxdata/influxdb/cmd/influxd@v$(INFLUXD_VERSION)
 
 ## Benchmarks: figures are printed, never asserted.
 bench: $(STAMP)

@@ -9,7 +9,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 # Virtual clock, no leftover tasks: the project's own test helpers.
-pytest_plugins = ["supervisor.testing.plugin"]
+pytest_plugins = ["supervisor.testing.plugin", "influxrig"]
 
 
 @pytest.fixture
