@@ -1,0 +1,74 @@
+"""What the historian and the InfluxDB writer store: every change worth storing, by each
+tag's history settings, in order, with its acquisition time."""
+
+from __future__ import annotations
+
+from supervisor.core.clock import VirtualClock
+from supervisor.core.quality import Quality, Reason
+from supervisor.publish.changes import ChangeFeed
+from supervisor.tags import TagDB, TagSpec
+from supervisor.tags.spec import HistorySettings
+
+
+def setup(history: HistorySettings) -> tuple[TagDB, VirtualClock, ChangeFeed]:
+    db, clock = TagDB(), VirtualClock()
+    db.add(TagSpec("ch0.voltage", unit="V", history=history))
+    db.add(TagSpec("ch0.state", dtype="str", initial=""))
+    feed = ChangeFeed(db, clock)
+    feed.take()  # the declarations
+    return db, clock, feed
+
+
+def put(db: TagDB, clock: VirtualClock, t: float, value: float | None, **kw: object) -> None:
+    at(clock, t)
+    db.set_scan_time(t)
+    db.update(db["ch0.voltage"], value, source_t=t, **kw)  # type: ignore[arg-type]
+
+
+def at(clock: VirtualClock, t: float) -> None:
+    clock.advance(t - clock.now())
+
+
+def values(feed: ChangeFeed) -> list[object]:
+    return [s.value for s in feed.take()]
+
+
+def test_a_change_within_the_deadband_is_not_stored_a_larger_one_is() -> None:
+    db, clock, feed = setup(HistorySettings(deadband=0.01))
+    put(db, clock, 1.0, 1.200)
+    assert values(feed) == [1.200]
+    put(db, clock, 2.0, 1.205)
+    assert values(feed) == []
+    put(db, clock, 3.0, 1.215)
+    assert values(feed) == [1.215]
+
+
+def test_a_change_of_quality_is_always_stored_and_a_bad_value_is_a_gap() -> None:
+    db, clock, feed = setup(HistorySettings(deadband=1.0))
+    put(db, clock, 1.0, 1.2)
+    feed.take()
+    put(db, clock, 2.0, 1.2, quality=Quality.BAD, reason=Reason.NOT_CONNECTED)
+    [sample] = feed.take()
+    assert sample.value is None and sample.quality is Quality.BAD
+
+
+def test_a_change_held_back_by_the_minimum_interval_is_stored_once_it_has_passed() -> None:
+    db, clock, feed = setup(HistorySettings(min_interval_s=10.0))
+    put(db, clock, 0.0, 1.0)
+    assert values(feed) == [1.0]
+    put(db, clock, 1.0, 2.0)  # a step, then nothing changes
+    assert values(feed) == []
+    at(clock, 5.0)
+    assert values(feed) == []
+    at(clock, 10.0)
+    [sample] = feed.take()
+    assert sample.value == 2.0 and sample.t == 1.0, "its own acquisition time"
+    at(clock, 30.0)
+    assert values(feed) == [], "stored once"
+
+
+def test_text_tags_and_disabled_history() -> None:
+    db, clock, feed = setup(HistorySettings(enabled=False))
+    put(db, clock, 1.0, 1.0)
+    db.update(db["ch0.state"], "running")
+    assert [(s.name, s.value) for s in feed.take()] == [("ch0.state", "running")]
