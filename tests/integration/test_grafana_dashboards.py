@@ -68,11 +68,13 @@ WINDOW_S = 1
 # device, source, kind, test_id, recipe; analog values as floats; BAD → no field).
 DIAGNOSTIC_PREFIXES = ("scan", "influx", "historian")
 WRITER_TAGS = {  # the writer's and historian's status tags the diagnostics dashboard reads
-    "influx.spool_points": 0.0,
+    "influx.spool_depth": 0.0,
     "influx.spool_bytes": 0.0,
-    "influx.drain_points_per_s": 0.0,
+    "influx.drain_rate": 0.0,
     "influx.dead_letters": 0.0,
-    "influx.dropped_points": 0.0,
+    "influx.dropped": 0.0,
+    "influx.failed_writes": 0.0,
+    "influx.timeouts": 0.0,
     "influx.last_error": "",
     "historian.queue": 0.0,
     "historian.last_error": "",
@@ -183,10 +185,10 @@ class StandInWriter:
         """The writer's status tags as a spool flushed every second would show them."""
         self._pending += lines
         flushed = round(self.clock.now() * 10) % 10 == 0
-        db.update(db["influx.spool_points"], float(self._pending))
+        db.update(db["influx.spool_depth"], float(self._pending))
         db.update(db["influx.spool_bytes"], float(self._pending * 120))
         if flushed:
-            db.update(db["influx.drain_points_per_s"], float(self._pending))
+            db.update(db["influx.drain_rate"], float(self._pending))
             self._pending = 0
 
 
