@@ -32,6 +32,7 @@ from supervisor.chains.program import (
     Program,
     Transition,
 )
+from supervisor.config.limits import MAX_INITIAL_CHARGE_AH
 from supervisor.config.recipe import HHMM, LogSettings, ProfileSpec, Recipe, Step
 from supervisor.config.yamlpos import Positions
 from supervisor.core.errors import ConfigError, ConfigErrors
@@ -166,6 +167,12 @@ class _Compiler:
                 self.err(("initial_charge",), f"parameter {r.initial_charge!r} is not a charge")
         else:
             init = self.q(r.initial_charge, ("initial_charge",), Dim.CHARGE)
+        if init is not None and abs(init.value) > MAX_INITIAL_CHARGE_AH:  # README: Input limits
+            self.err(
+                ("initial_charge",),
+                f"initial_charge {init.value:g} Ah is too large; a recipe may start from at"
+                f" most {MAX_INITIAL_CHARGE_AH:,g} Ah either way (README: Input limits)",
+            )
         limits = Limits(
             self._pair(r.limits.voltage, ("limits", "voltage"), Dim.VOLTAGE),
             self._pair(r.limits.current, ("limits", "current"), Dim.CURRENT, Dim.C_RATE),

@@ -66,7 +66,7 @@ MAX_RECIPE_GROUPS: Final = 1_000
 MAX_PROFILE_ROWS: Final = 100_000
 """Rows of one profile (inline ``rows:`` or its CSV): 27 h at one row a second."""
 MAX_CYCLES: Final = 1_000_000
-"""``cycles:`` (the recipe model's own bound, kept here so it is documented with the rest)."""
+"""``cycles:`` of a recipe (and a Chadèche ``.prm``'s ``-n``)."""
 MAX_INITIAL_CHARGE_AH: Final = 100_000.0
 """``initial_charge`` magnitude: no cell on a bench holds 100 kAh; ``1e300 Ah`` is a slip."""
 MAX_SEQUENCE_ROWS: Final = 2_000
