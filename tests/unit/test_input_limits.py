@@ -24,11 +24,18 @@ from supervisor.chains.compiler import compile_recipe
 from supervisor.cli.main import main
 from supervisor.config.limits import (
     MAX_CYCLES,
+    MAX_INITIAL_CHARGE_AH,
     MAX_IO_MAP_TAGS,
+    MAX_PROFILE_CSV_BYTES,
     MAX_PROFILE_ROWS,
     MAX_RECIPE_GROUPS,
     MAX_RECIPE_STEPS,
     MAX_SEQUENCE_ROWS,
+    MAX_TEXT_BYTES,
+    MAX_YAML_BYTES,
+    MAX_YAML_VALUES,
+    RECIPE_COMPILE_TIMEOUT_S,
+    size_text,
 )
 from supervisor.config.recipe import check_sizes, load_recipe, load_recipe_text
 from supervisor.config.yamlpos import Positions
@@ -293,3 +300,23 @@ def test_every_duplicate_step_id_but_the_last_is_reported() -> None:
         compile_recipe(recipe, pos, "r.yaml")
     dupes = [(e.line, e.message) for e in info.value.errors if "duplicate" in e.message]
     assert dupes == [(3, "duplicate step id 'a'"), (5, "duplicate step id 'a'")]
+
+
+def test_the_readme_documents_every_limit_enforced_here() -> None:
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = readme.split("## Input limits", 1)[1].split("\n## ", 1)[0]
+    for shown in (
+        size_text(MAX_YAML_BYTES),
+        f"{MAX_YAML_VALUES:,}",
+        f"{MAX_RECIPE_STEPS:,}",
+        f"{MAX_RECIPE_GROUPS:,}",
+        f"{MAX_CYCLES:,}",
+        f"{MAX_INITIAL_CHARGE_AH:,g} Ah",
+        f"{MAX_PROFILE_ROWS:,}",
+        size_text(MAX_PROFILE_CSV_BYTES),
+        f"{MAX_IO_MAP_TAGS:,}",
+        size_text(MAX_TEXT_BYTES),
+        f"{MAX_SEQUENCE_ROWS:,}",
+        f"{RECIPE_COMPILE_TIMEOUT_S:g} s",
+    ):
+        assert shown in section, shown
