@@ -9,7 +9,12 @@ next job nor the end of the process waits for it. Its late result is dropped.
 While a job runs, CPython's full (oldest-generation) garbage collections are deferred:
 they stop every thread, and a parse that makes a million objects triggers several, each
 walking the whole heap — half a second on a small machine, during which no scan runs.
-Young collections go on as usual; full ones resume when the last job ends.
+Young collections go on as usual. When the last job ends, what is alive is frozen
+(``gc.freeze``) before full collections resume: they never walk it again. A megabyte
+recipe's compiled program is some 80 000 objects, 0.3 s of every full collection on a
+small two-core machine — a stall of the scan each time. Nothing is lost to the collector:
+parsing, compiling, loading and replacing a program make no reference cycles, all of it
+is freed by reference counting (tests/unit/test_recipe_load_off_the_loop.py).
 """
 
 from __future__ import annotations
@@ -61,6 +66,7 @@ class _FullCollections:
         with self._lock:
             self._jobs -= 1
             if self._jobs == 0 and self._saved:
+                gc.freeze()  # before full collections resume: they leave it alone
                 gc.set_threshold(*self._saved)
 
 

@@ -11,6 +11,7 @@ clock.
 from __future__ import annotations
 
 import asyncio
+import gc
 import logging
 import threading
 from collections.abc import AsyncIterator, Callable, Iterator
@@ -22,9 +23,17 @@ from commandrig import CV_ON_CHADECHE, DISCHARGE, recipe, started_bench
 
 import supervisor.commands.path as command_path
 from supervisor.app import Bench
-from supervisor.commands import Command, PreparedRecipe, Result, ResultKind, Verb
+from supervisor.commands import (
+    Command,
+    PreparedRecipe,
+    Result,
+    ResultKind,
+    Verb,
+    compile_recipe_file,
+)
 from supervisor.testing import run_scans
 
+ROOT = Path(__file__).resolve().parents[2]
 LIMIT_MESSAGE = (
     "file is too large: more than 1 MiB; a recipe may have at most 1 MiB (README: Input limits)"
 )
@@ -195,3 +204,27 @@ async def test_start_with_a_recipe_compiles_it_in_the_worker_too(
     assert held.threads[0] is not threading.main_thread()
     await run_scans(bench.engine, 5)
     assert bench.db["ch0.current_cmd"].value == pytest.approx(-0.2)
+
+
+def test_compiling_loading_and_replacing_programs_makes_no_reference_cycles(
+    bench: Bench, tmp_path: Path
+) -> None:
+    """What lets the worker freeze the heap after a load (``commands/worker.py``): a
+    program, the document it came from and the one it replaces are all freed by reference
+    counting, none left for the garbage collector."""
+    files = [
+        str(ROOT / "recipes" / "nimh-ds2710.yaml"),  # conditions, parameters, gotos
+        recipe(tmp_path, DISCHARGE),
+        str(ROOT / "recipes" / "nimh-ds2710.yaml"),
+    ]
+    gc.collect()
+    gc.disable()
+    try:
+        for file in files:
+            prepared = compile_recipe_file("ch0", file, bench.target("ch0"))
+            bench.install_recipe(prepared)
+            del prepared
+        unreachable = gc.collect()
+    finally:
+        gc.enable()
+    assert unreachable == 0
