@@ -6,10 +6,10 @@ Each job gets a daemon thread: one that never returns (a named pipe nobody write
 network share that hangs) is abandoned at its time limit, never joined, and neither the
 next job nor the end of the process waits for it. Its late result is dropped.
 
-While a job runs, CPython's full (oldest-generation) garbage collections are deferred:
-they stop every thread, and a parse that makes a million objects triggers several, each
-walking the whole heap — half a second on a small machine, during which no scan runs.
-Young collections go on as usual. When the last job ends, what is alive is frozen
+While a job is awaited, CPython's full (oldest-generation) garbage collections are
+deferred: they stop every thread, and a parse that makes a million objects triggers
+several, each walking the whole heap — half a second on a small machine, during which no
+scan runs. Young collections go on as usual. When the last job ends, what is alive is frozen
 (``gc.freeze``) before full collections resume: they never walk it again. A megabyte
 recipe's compiled program is some 80 000 objects, 0.3 s of every full collection on a
 small two-core machine — a stall of the scan each time. Nothing is lost to the collector:
@@ -93,19 +93,21 @@ async def run_in_worker(fn: Callable[[], T], timeout_s: float, what: str) -> T:
     def work() -> None:
         result: list[T] = []
         error: Exception | None = None
-        with _FULL_COLLECTIONS:
-            try:
-                result.append(fn())
-            except Exception as exc:  # handed to the awaiting coroutine
-                error = exc
+        try:
+            result.append(fn())
+        except Exception as exc:  # handed to the awaiting coroutine
+            error = exc
         try:
             loop.call_soon_threadsafe(deliver, result, error)
         except RuntimeError:  # the loop is closed: nobody is waiting any more
             log.info("%s: finished after its event loop closed; result dropped", what)
 
-    threading.Thread(target=work, name=what, daemon=True).start()
-    try:
-        return await asyncio.wait_for(done, timeout_s)
-    except TimeoutError:
-        log.error("%s: no result within %g s; abandoned", what, timeout_s)
-        raise WorkerTimeout(what, timeout_s) from None
+    # Deferred while someone waits for the job, not while its thread lives: an abandoned
+    # job that never returns must not keep full collections off for ever.
+    with _FULL_COLLECTIONS:
+        threading.Thread(target=work, name=what, daemon=True).start()
+        try:
+            return await asyncio.wait_for(done, timeout_s)
+        except TimeoutError:
+            log.error("%s: no result within %g s; abandoned", what, timeout_s)
+            raise WorkerTimeout(what, timeout_s) from None
