@@ -10,18 +10,21 @@ from pathlib import Path
 
 from supervisor.app.retained import RecipeSource, Retention
 from supervisor.app.simulation import SimulatedBench, build_simulation
-from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target, compile_recipe
+from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target
 from supervisor.chains.engine import ChainRunner
 from supervisor.chains.port import ChannelPort
 from supervisor.chains.states import ACTIVE, FINAL
 from supervisor.channels import Channel, ChannelLimits, Mode
-from supervisor.commands import Command, CommandPath
+from supervisor.commands import (
+    Command,
+    CommandPath,
+    PreparedRecipe,
+    compile_recipe_file,
+)
 from supervisor.config.models import BenchConfig, LinearScaling, TagMapping
-from supervisor.config.recipe import load_recipe_text
-from supervisor.config.text import decode_yaml
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver, DType
-from supervisor.core.errors import ConfigError, ConfigErrors, OperatorError
+from supervisor.core.errors import OperatorError
 from supervisor.core.records import ChainEvent, Record
 from supervisor.core.units import UNITS, Dim
 from supervisor.devices.kind import DriverWiring
@@ -74,7 +77,7 @@ class Bench:
             self.runners,
             self.safety.guards,
             self.alarms,
-            loader=lambda ch, file, params: self.load_recipe(ch, file, dict(params)).test_id,
+            loader=self,
         )
         for name, runner in self.runners.items():
             runner.command_handler = self._command_tag(name)
@@ -121,11 +124,18 @@ class Bench:
         under way or while the operator drives the channel in Manual (enable on)."""
         if channel not in self.runners:
             raise OperatorError(f"unknown channel {channel!r} ({', '.join(self.runners)})")
-        # Compiled from the text read here, which is what the retained state keeps: a
-        # restart recompiles the same recipe even if the file changed or moved since.
-        text = read_recipe_text(path)
-        recipe, pos = load_recipe_text(text, str(path))
-        program = compile_recipe(recipe, pos, str(path), self.target(channel), overrides or {})
+        prepared = compile_recipe_file(channel, path, self.target(channel), overrides)
+        return self.install_recipe(prepared, results_dir, test_id)
+
+    def install_recipe(
+        self,
+        prepared: PreparedRecipe,
+        results_dir: Path | None = None,
+        test_id: str | None = None,
+    ) -> ChainRunner:
+        """Load a compiled recipe on its channel (quick: on the event loop; the compiling
+        may have run in a worker thread, ``CommandPath.execute_async``)."""
+        channel, program = prepared.channel, prepared.program
         runner = self.runners[channel]
         runner.load(program, test_id)
         folder = (results_dir or Path(self.cfg.state_dir) / "results") / runner.test_id
@@ -135,8 +145,10 @@ class Bench:
             channel, program.name, runner.test_id, folder, dba=c.source.board or 0
         )
         self.attach_results(channel, collector)
+        # Compiled from the text read then, which is what the retained state keeps: a
+        # restart recompiles the same recipe even if the file changed or moved since.
         self.recipes[channel] = RecipeSource(
-            str(path), text, dict(overrides or {}), str(folder.resolve())
+            prepared.file, prepared.text, dict(prepared.parameters), str(folder.resolve())
         )
         return runner
 
@@ -256,22 +268,6 @@ class Bench:
         else:
             log.info("bench %s: all outputs safe", self.cfg.bench)
         return unconfirmed
-
-
-def read_recipe_text(path: str | Path) -> str:
-    """A recipe file's text (ConfigErrors naming the file when it cannot be read)."""
-    file = str(path)
-    try:
-        data = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise ConfigErrors([ConfigError("file not found", file)]) from None
-    except OSError as exc:
-        why = f"cannot read file: {exc.strerror or exc}"
-        raise ConfigErrors([ConfigError(why, file)]) from None
-    try:
-        return decode_yaml(data, file).text
-    except ConfigError as exc:
-        raise ConfigErrors([exc]) from None
 
 
 def _tag_spec(m: TagMapping, dtype: DType) -> TagSpec:

@@ -106,9 +106,10 @@ async def _serve(
         channel, _, file = spec.partition("=")
         if not file:
             raise ConfigError(f"--recipe {spec!r}: expected CHANNEL=FILE, e.g. ch0=recipes/x.yaml")
-        # The same command path as the HTTP API: load (and start) checked and recorded.
+        # The same command path as the HTTP API: load (and start) checked and recorded,
+        # the recipe compiled in a worker thread with its time limit.
         verb = Verb.START if args.start else Verb.LOAD
-        result = bench.commands.execute(
+        result = await bench.commands.execute_async(
             Command.channel(
                 channel, verb, "command line", recipe=file, parameters=_params(args.param)
             )

@@ -15,7 +15,13 @@ from supervisor.commands.model import (
     TargetKind,
     Verb,
 )
-from supervisor.commands.path import CommandPath, RecipeLoader
+from supervisor.commands.path import CommandPath
+from supervisor.commands.recipes import (
+    PreparedRecipe,
+    RecipeLoader,
+    compile_recipe_file,
+    read_recipe_text,
+)
 from supervisor.commands.roles import EveryoneOperates, Roles
 
 __all__ = [
@@ -24,6 +30,7 @@ __all__ = [
     "CommandEvent",
     "CommandPath",
     "EveryoneOperates",
+    "PreparedRecipe",
     "RecipeLoader",
     "Result",
     "ResultKind",
@@ -31,4 +38,6 @@ __all__ = [
     "Target",
     "TargetKind",
     "Verb",
+    "compile_recipe_file",
+    "read_recipe_text",
 ]

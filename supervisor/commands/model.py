@@ -158,6 +158,7 @@ class ResultKind(StrEnum):
     NOT_FOUND = "not found"  # unknown tag, channel, alarm, recipe file or verb
     REFUSED = "refused"  # not in this state, or an interlock (trip, alarm) forbids it
     INVALID_RECIPE = "invalid recipe"  # the recipe was read and refused (file:line:col)
+    TIMEOUT = "timeout"  # reading and compiling a recipe took longer than its time limit
     INTERNAL = "internal error"  # a bug: logged with its traceback
 
 
@@ -168,6 +169,7 @@ HTTP_STATUS: Mapping[ResultKind, int] = {
     ResultKind.NOT_FOUND: 404,
     ResultKind.REFUSED: 409,
     ResultKind.INVALID_RECIPE: 422,
+    ResultKind.TIMEOUT: 503,  # the server could not do it in time; the request was valid
     ResultKind.INTERNAL: 500,
 }
 

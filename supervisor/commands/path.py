@@ -25,7 +25,11 @@ handed to the listeners, and into the chain's events of the channel it concerns 
 result files' timeline holds the commands of a running test).
 
 Commands run on the event loop between two scans (the scan is synchronous), so a command
-sees one consistent process image and its effect is taken by the next scan.
+sees one consistent process image and its effect is taken by the next scan. The one part
+that can take seconds — reading, parsing and compiling a recipe to load — runs in a worker
+thread for clients on the running loop (``execute_async``: the HTTP API, ``supervisor
+run``), bounded by ``RECIPE_COMPILE_TIMEOUT_S``; only applying the compiled program comes
+back to the loop. ``execute`` does the same in one go where no scan runs (tests, tools).
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ from __future__ import annotations
 import logging
 from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +56,10 @@ from supervisor.commands.model import (
     TargetKind,
     Verb,
 )
+from supervisor.commands.recipes import PreparedRecipe, RecipeLoader, compile_recipe_file
 from supervisor.commands.roles import EveryoneOperates, Roles
+from supervisor.commands.worker import WorkerTimeout, run_in_worker
+from supervisor.config.limits import RECIPE_COMPILE_TIMEOUT_S
 from supervisor.core.clock import Clock
 from supervisor.core.errors import ConfigError, ConfigErrors, OperatorError
 from supervisor.safety import AlarmManager, ChannelGuard
@@ -63,10 +70,6 @@ log = logging.getLogger(__name__)
 
 LOG_LENGTH = 1000
 """Commands kept in memory (the chain events and the result files keep theirs)."""
-
-RecipeLoader = Callable[[str, str, Mapping[str, str]], str]
-"""Load a recipe file on a channel with parameter overrides; returns the test id. Raises
-``ConfigErrors``/``ConfigError`` for a recipe refused, ``OperatorError`` for a state."""
 
 # A channel's operator tags that are commands: their writes take the command's checks.
 CHANNEL_COMMAND_TAGS = ("command", "mode", "manual_current", "enable", "ack")
@@ -96,6 +99,7 @@ class CommandPath:
         alarms: AlarmManager | None = None,
         loader: RecipeLoader | None = None,
         roles: Roles | None = None,
+        compile_timeout_s: float = RECIPE_COMPILE_TIMEOUT_S,
     ) -> None:
         self.db = db
         self.clock = clock
@@ -104,8 +108,13 @@ class CommandPath:
         self.alarms = alarms
         self.loader = loader
         self.roles: Roles = roles or EveryoneOperates()
+        self.compile_timeout_s = compile_timeout_s
         self.log: deque[CommandEvent] = deque(maxlen=LOG_LENGTH)
         self.listeners: list[Callable[[CommandEvent], None]] = []
+        # Channel -> the recipe file its worker is compiling (one load at a time each).
+        self._loading: dict[str, str] = {}
+        # What the worker made of the command being executed (execute_async only).
+        self._ready: tuple[_RecipeJob, PreparedRecipe | Exception] | None = None
 
     # --- the entry ------------------------------------------------------------------------
     def execute(self, command: Command) -> Result:
@@ -127,6 +136,67 @@ class CommandPath:
             result = replace(result, tag=tag)
         self._record(done, result)
         return result
+
+    async def execute_async(self, command: Command) -> Result:
+        """:meth:`execute` for clients on the running event loop: a recipe to load (``load``,
+        ``start`` with a recipe) is read, parsed and compiled in a worker thread while the
+        scan goes on, refused past ``compile_timeout_s``; then the command is executed as
+        :meth:`execute` does, its checks and the quick install on the loop."""
+        job = self._recipe_job(command)
+        if job is None:
+            return self.execute(command)
+        ready: PreparedRecipe | Exception
+        busy = self._loading.get(job.channel)
+        if busy is not None:
+            ready = Refusal(
+                ResultKind.REFUSED,
+                f"{job.channel}: recipe {busy} is being loaded: wait for its answer",
+            )
+        else:
+            assert self.loader is not None  # _recipe_job saw one
+            target = self.loader.target(job.channel)  # a snapshot, taken on the loop
+            self._loading[job.channel] = job.recipe
+            try:
+                ready = await run_in_worker(
+                    lambda: compile_recipe_file(job.channel, job.recipe, target, job.parameters),
+                    self.compile_timeout_s,
+                    f"loading {job.recipe} on {job.channel}",
+                )
+            except WorkerTimeout as exc:
+                ready = Refusal(
+                    ResultKind.TIMEOUT,
+                    f"{job.channel}: recipe refused: reading and compiling {job.recipe} took"
+                    f" more than {exc.timeout_s:g} s; the load is abandoned"
+                    " (README: Input limits)",
+                )
+            except Exception as exc:  # refused (ConfigErrors) or a bug: _load tells which
+                ready = exc
+            finally:
+                del self._loading[job.channel]
+        self._ready = (job, ready)
+        try:
+            return self.execute(command)
+        finally:
+            self._ready = None
+
+    def _recipe_job(self, command: Command) -> _RecipeJob | None:
+        """The recipe ``command`` would load, if it passes the checks that need no recipe
+        (else None: ``execute`` refuses it with the reason, nothing compiled)."""
+        t, a = command.target, command.args
+        if t.kind is not TargetKind.CHANNEL or command.verb not in (Verb.LOAD, Verb.START):
+            return None
+        if self.loader is None or t.name not in self.runners or a.get("recipe") is None:
+            return None
+        try:
+            if self.roles.refuses(command):
+                return None
+            _only(command, "recipe", "parameters")
+            recipe, parameters = _text(a, "recipe"), _parameters(a)
+        except Refusal:
+            return None
+        if not Path(recipe).exists():
+            return None
+        return _RecipeJob(t.name, recipe, parameters)
 
     def _dispatch(self, command: Command) -> Result:
         """Execute ``command`` or raise ``Refusal``."""
@@ -183,12 +253,21 @@ class CommandPath:
         return self._write(c, a)  # one of this channel's other tags
 
     def _load(self, name: str, recipe: str, parameters: dict[str, str]) -> Result:
-        if self.loader is None:
+        loader = self.loader
+        if loader is None:
             raise Refusal(ResultKind.NOT_FOUND, "this bench does not load recipes")
-        if not Path(recipe).is_file():
+        # Not "is a file": a device (/dev/zero) or a pipe is read to its size limit, and
+        # refused there with the limit named (README: Input limits).
+        if not Path(recipe).exists():
             raise Refusal(ResultKind.NOT_FOUND, f"{recipe}: no such recipe")
+        job = _RecipeJob(name, recipe, parameters)
         try:
-            test_id = self.loader(name, recipe, parameters)
+            ready = self._ready[1] if self._ready is not None and self._ready[0] == job else None
+            if isinstance(ready, Exception):
+                raise ready
+            if ready is None:  # no worker: compiled here (no scan is running)
+                ready = compile_recipe_file(name, recipe, loader.target(name), parameters)
+            test_id = loader.install_recipe(ready).test_id
         except ConfigErrors as exc:
             details = tuple(e.location_message() for e in exc.errors)
             raise Refusal(
@@ -482,6 +561,15 @@ class CommandPath:
         tag = c.args.get("tag")
         channel = tag.partition(".")[0] if isinstance(tag, str) else ""
         return channel if channel in self.runners else ""
+
+
+@dataclass(frozen=True)
+class _RecipeJob:
+    """A recipe to load on a channel, as a command asks for it."""
+
+    channel: str
+    recipe: str
+    parameters: Mapping[str, str]
 
 
 # --- arguments ------------------------------------------------------------------------------

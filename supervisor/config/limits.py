@@ -46,8 +46,9 @@ MIB: Final = 1024 * KIB
 
 # --- files ------------------------------------------------------------------------------
 MAX_YAML_BYTES: Final = 1 * MIB
-"""A recipe or an I/O map (the shipped ones are 1–10 kB; PyYAML parses about 3 MB/s in
-pure Python, so this bounds a parse to well under a second)."""
+"""A recipe or an I/O map (the shipped ones are 1–10 kB). Parsing keeps every node's
+position, in pure Python: a megabyte takes 5 to 9 s on a small two-core machine, which is
+why a recipe is compiled in a worker thread, never on the scan's loop."""
 
 MAX_YAML_VALUES: Final = 500_000
 """Values in one YAML document once aliases are expanded (``*a`` counts the whole anchored
@@ -62,11 +63,14 @@ MAX_PROFILE_CSV_BYTES: Final = 8 * MIB
 
 # --- contents ---------------------------------------------------------------------------
 MAX_RECIPE_STEPS: Final = 10_000
+"""Steps of a recipe, counted once YAML aliases are expanded (a Chadèche sequence file at
+its limit makes at most 4 000)."""
 MAX_RECIPE_GROUPS: Final = 1_000
 MAX_PROFILE_ROWS: Final = 100_000
-"""Rows of one profile (inline ``rows:`` or its CSV): 27 h at one row a second."""
+"""Rows of one profile (inline ``rows:`` or its CSV, plus a header line): 27 h at one row
+a second. Inline rows reach the 1 MiB file limit first (a row takes 20 bytes)."""
 MAX_CYCLES: Final = 1_000_000
-"""``cycles:`` (the recipe model's own bound, kept here so it is documented with the rest)."""
+"""``cycles:`` of a recipe (and a Chadèche ``.prm``'s ``-n``)."""
 MAX_INITIAL_CHARGE_AH: Final = 100_000.0
 """``initial_charge`` magnitude: no cell on a bench holds 100 kAh; ``1e300 Ah`` is a slip."""
 MAX_SEQUENCE_ROWS: Final = 2_000
@@ -77,7 +81,9 @@ MAX_IO_MAP_TAGS: Final = 10_000
 # --- running ------------------------------------------------------------------------------
 RECIPE_COMPILE_TIMEOUT_S: Final = 30.0
 """Reading, parsing and compiling a recipe for a load (HTTP, ``--recipe``), in a worker
-thread: past this the load is refused (a file within the limits takes well under 5 s)."""
+thread: past this the load is refused (HTTP 503) and the worker abandoned. A file at the
+limits (1 MiB, 6 000 steps with their conditions) takes 5 to 10 s on a small two-core
+machine; what takes longer is stuck (a named pipe nobody writes to, a hung network share)."""
 
 MAX_TRANSITIONS_PER_SCAN: Final = 100
 """Steps a chain may enter in one scan (goto chains, ends of cycles): more is a loop that

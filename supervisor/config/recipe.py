@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Final
+from typing import TYPE_CHECKING, Annotated, Any
 
 from pydantic import (
     BaseModel,
@@ -25,6 +25,13 @@ from pydantic import (
     model_validator,
 )
 
+from supervisor.config.limits import (
+    MAX_CYCLES,
+    MAX_PROFILE_ROWS,
+    MAX_RECIPE_GROUPS,
+    MAX_RECIPE_STEPS,
+    TooLarge,
+)
 from supervisor.core.errors import ConfigError, ConfigErrors
 from supervisor.core.units import Dim, Quantity, UnitError, parse_quantity
 
@@ -34,9 +41,6 @@ if TYPE_CHECKING:
 ID_PATTERN = r"^[A-Za-z_][A-Za-z0-9_\-]*$"
 # ASCII digits only: ``\d`` would take any Unicode digit (``٠٨:٠٠``) as a time of day.
 HHMM = re.compile(r"^([01]?[0-9]|2[0-3]):([0-5][0-9])$")
-MAX_CYCLES: Final = 1_000_000
-"""The most cycles a recipe may ask for."""
-
 STEP_KINDS = (
     "rest",
     "charge",
@@ -399,10 +403,22 @@ class Recipe(Strict):
     parameters: dict[str, Q] = {}
     initial_charge: Q | None = Field(None, description="charge the Ah counter starts from")
     limits: Limits = Limits()
-    cycles: int = Field(1, ge=1, le=MAX_CYCLES)
+    # The bound is checked before the model (check_sizes: a message naming the limit) and
+    # again by _cycles for data validated directly; the schema keeps it for editors.
+    cycles: int = Field(1, ge=1, json_schema_extra={"maximum": MAX_CYCLES})
     logging: LogSettings = LogSettings(period="120 s")
     groups: list[Group] = []
     steps: list[Step] = Field(min_length=1)
+
+    @field_validator("cycles")
+    @classmethod
+    def _cycles(cls, v: int) -> int:
+        if v > MAX_CYCLES:
+            raise ValueError(
+                f"{v:,} is too many cycles; a recipe may run at most {MAX_CYCLES:,}"
+                " (README: Input limits)"
+            )
+        return v
 
     @field_validator("capacity")
     @classmethod
@@ -430,6 +446,7 @@ def load_recipe(path: str | Path) -> tuple[Recipe, Positions]:
         data, pos = load_yaml(path)
     except ConfigError as exc:
         raise ConfigErrors([exc]) from None
+    check_sizes(data, pos, str(path))
     return validate(Recipe, data, pos, str(path)), pos
 
 
@@ -440,4 +457,41 @@ def load_recipe_text(text: str, file: str = "<recipe>") -> tuple[Recipe, Positio
         data, pos = load_yaml_text(text, file)
     except ConfigError as exc:
         raise ConfigErrors([exc]) from None
+    check_sizes(data, pos, file)
     return validate(Recipe, data, pos, file), pos
+
+
+def check_sizes(data: object, pos: Positions, file: str) -> None:
+    """Cycles, steps, groups and each profile's inline rows within their limits (README:
+    Input limits), counted once YAML aliases are expanded and before the model validates
+    them all: refused at the first one over the limit."""
+    if not isinstance(data, dict):
+        return  # the model says what it expected
+    cycles = data.get("cycles")
+    if isinstance(cycles, int) and not isinstance(cycles, bool) and cycles > MAX_CYCLES:
+        mark = pos.value(("cycles",)) or pos.nearest(("cycles",))
+        message = (
+            f"cycles: {cycles:,} is too many; a recipe may run at most {MAX_CYCLES:,} cycles"
+            " (README: Input limits)"
+        )
+        raise ConfigErrors([TooLarge(message, file, mark.line, mark.col)])
+    for key, limit in (("steps", MAX_RECIPE_STEPS), ("groups", MAX_RECIPE_GROUPS)):
+        items = data.get(key)
+        if isinstance(items, list) and len(items) > limit:
+            raise _too_many(pos, file, (key, limit), f"{key}: {len(items):,}", "a recipe", limit)
+    steps = data.get("steps")
+    for i, step in enumerate(steps if isinstance(steps, list) else ()):
+        profile = step.get("profile") if isinstance(step, dict) else None
+        rows = profile.get("rows") if isinstance(profile, dict) else None
+        if isinstance(rows, list) and len(rows) > MAX_PROFILE_ROWS:
+            where = ("steps", i, "profile", "rows", MAX_PROFILE_ROWS)
+            what = f"profile rows: {len(rows):,}"
+            raise _too_many(pos, file, where, what, "a profile", MAX_PROFILE_ROWS)
+
+
+def _too_many(
+    pos: Positions, file: str, where: tuple[str | int, ...], what: str, of: str, limit: int
+) -> ConfigErrors:
+    mark = pos.value(where) or pos.nearest(where)
+    message = f"too many {what}; {of} may have at most {limit:,} (README: Input limits)"
+    return ConfigErrors([TooLarge(message, file, mark.line, mark.col)])

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import difflib
 import re
+import time
 import types
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
@@ -160,6 +161,44 @@ class Positions:
 
     def __repr__(self) -> str:
         return f"Positions(root={'None' if self._root is None else type(self._root).__name__})"
+
+    def release_gradually(self) -> None:
+        """Forget the node graph, freeing it a batch of nodes at a time and letting other
+        threads run in between (lookups find nothing afterwards).
+
+        Freed at once, a megabyte document's graph (hundreds of thousands of nodes and
+        marks) holds the interpreter lock for a tenth of a second or more, every thread
+        stopped: a worker thread that compiled a recipe would stall the scan as it ends.
+        """
+        mappings, self._mappings = self._mappings, {}
+        stack: list[Any] = [self._root]
+        self._root = None
+        freed = 0
+        if isinstance(mappings, dict):
+            while mappings:
+                mappings.popitem()
+                freed += 1
+                if freed % _RELEASE_BATCH == 0:
+                    time.sleep(0)  # releases the interpreter lock: the event loop's turn
+        del mappings
+        while stack:
+            node = stack.pop()
+            value = getattr(node, "value", None)
+            if isinstance(value, list):
+                for item in value:
+                    if isinstance(item, tuple):
+                        stack.extend(item)  # a mapping's (key node, value node) pairs
+                    else:
+                        stack.append(item)
+                value.clear()  # an alias's node comes again, empty
+            del node
+            freed += 1
+            if freed % _RELEASE_BATCH == 0:
+                time.sleep(0)
+
+
+_RELEASE_BATCH = 2_000
+"""Nodes freed between two turns of the other threads (well under a millisecond's work)."""
 
 
 # --------------------------------------------------------------------------------------------

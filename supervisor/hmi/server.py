@@ -5,7 +5,9 @@ it is checked (role, state, interlocks), recorded with its actor, and answered
 ``{"accepted": bool, "reason": str, ...}`` with the status of its result — 200 accepted,
 400 a wrong argument type or value, 403 a read-only tag or a command the actor may not
 give, 404 an unknown tag, channel, alarm or recipe, 409 refused in this state or by an
-interlock, 422 a recipe refused (``details``: file:line:col). A write of a channel's
+interlock, 422 a recipe refused (``details``: file:line:col), 503 a recipe that took longer
+than ``RECIPE_COMPILE_TIMEOUT_S`` to read and compile (README "Input limits"; it is
+compiled in a worker thread, never on the scan's event loop). A write of a channel's
 ``command``, ``mode``, ``manual_current``, ``enable`` or ``ack`` tag is that command. The
 scan takes the effect at its next start.
 
@@ -207,8 +209,9 @@ class HttpApi:
         everyone on the (loopback) API is the operator."""
         return "operator"
 
-    def _answer(self, command: Command) -> web.Response:
-        result = self.commands.execute(command)
+    async def _answer(self, command: Command) -> web.Response:
+        # A recipe to load is compiled in a worker thread, never on the scan's loop.
+        result = await self.commands.execute_async(command)
         return self._respond(result)
 
     def _respond(self, result: Result) -> web.Response:
@@ -238,7 +241,7 @@ class HttpApi:
         if body is None or not isinstance(body.get("file"), str):
             return self._bad('body must be JSON {"file": "...", "parameters": {...}}')
         args = {"recipe": body.pop("file"), **body}
-        return self._answer(Command.channel(channel, Verb.LOAD, self.actor(request), **args))
+        return await self._answer(Command.channel(channel, Verb.LOAD, self.actor(request), **args))
 
     async def _channel_command(self, request: web.Request) -> web.Response:
         """``POST /api/channels/{ch}/commands/{verb}`` with the verb's arguments as JSON."""
@@ -249,7 +252,7 @@ class HttpApi:
         args = await self._body(request, empty_ok=True)
         if args is None:
             return self._bad(f"{name}: the arguments must be a JSON object")
-        return self._answer(Command.channel(channel, verb, self.actor(request), **args))
+        return await self._answer(Command.channel(channel, verb, self.actor(request), **args))
 
     async def _alarm_command(self, request: web.Request) -> web.Response:
         """``POST /api/alarms/{id}/acknowledge|reset|shelve|unshelve`` (shelve:
@@ -263,7 +266,7 @@ class HttpApi:
         args = await self._body(request, empty_ok=True)
         if args is None:
             return self._bad(f"{action}: the arguments must be a JSON object")
-        return self._answer(Command.alarm(alarm, Verb(action), self.actor(request), **args))
+        return await self._answer(Command.alarm(alarm, Verb(action), self.actor(request), **args))
 
     async def _alarms(self, request: web.Request) -> web.Response:
         """Alarms not in their normal state (first-out first), and the latest transitions
@@ -307,4 +310,4 @@ class HttpApi:
         body = await self._body(request, empty_ok=False)
         if body is None or "value" not in body:
             return self._bad('body must be JSON {"value": ...}')
-        return self._answer(Command.write(name, body["value"], self.actor(request)))
+        return await self._answer(Command.write(name, body["value"], self.actor(request)))

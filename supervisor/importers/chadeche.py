@@ -51,8 +51,14 @@ from pathlib import Path
 from typing import Any, Final
 
 from supervisor.chains.compiler import Target, compile_recipe
-from supervisor.config.limits import MAX_SEQUENCE_ROWS, MAX_TEXT_BYTES, TooLarge, read_limited
-from supervisor.config.recipe import ID_PATTERN, MAX_CYCLES, STEP_KINDS, load_recipe_text
+from supervisor.config.limits import (
+    MAX_CYCLES,
+    MAX_SEQUENCE_ROWS,
+    MAX_TEXT_BYTES,
+    TooLarge,
+    read_limited,
+)
+from supervisor.config.recipe import ID_PATTERN, STEP_KINDS, load_recipe_text
 from supervisor.config.text import DecodedText, decode_text
 from supervisor.config.yamledit import yaml_comment, yaml_float, yaml_scalar
 from supervisor.core.errors import ConfigError, ConfigErrors

@@ -1,7 +1,8 @@
 """Safety: the scan phase that runs after derived values and before the step chains.
 
 Every trip and alarm of the bench is evaluated here, every scan, in order: the e-stop, the
-I/O map's interlocks, tag alarm limits, each channel's guard, the watchdog heartbeat.
+I/O map's interlocks, tag alarm limits, each channel's guard, the scan's own stalls
+(``scan.stall``), the watchdog heartbeat.
 Running before the chains and publishing what the outputs may do, no recipe can override
 it. One alarm model (``alarms.AlarmManager``, ISA-18.2) holds every alarm's state.
 """

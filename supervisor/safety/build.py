@@ -7,13 +7,15 @@ from supervisor.safety.alarms import AlarmManager
 from supervisor.safety.guard import ChannelGuard
 from supervisor.safety.interlocks import Estop, Heartbeat, Interlock, TagAlarms
 from supervisor.safety.phase import SafetyCheck, SafetyPhase
+from supervisor.safety.stall import ScanStall
 from supervisor.tags import TagDB
 
 
 def build_safety(cfg: BenchConfig, db: TagDB, alarms: AlarmManager) -> SafetyPhase:
     """Checks in the order they must run: bench-wide trips first (so a channel's first-out
     is the e-stop when the e-stop came first), then tag alarms, then each channel's guard,
-    then the heartbeat (it stops when anything before it crashes the scan)."""
+    the scan's own stalls, then the heartbeat (it stops when anything before it crashes the
+    scan)."""
     checks: list[SafetyCheck] = []
     s = cfg.safety
     if s.estop is not None:
@@ -22,6 +24,7 @@ def build_safety(cfg: BenchConfig, db: TagDB, alarms: AlarmManager) -> SafetyPha
     checks.append(TagAlarms(db, alarms))
     guards = [ChannelGuard(c, db, alarms) for c in cfg.channels]
     checks += guards
+    checks.append(ScanStall(db, alarms))
     if s.heartbeat is not None:
         checks.append(Heartbeat(s.heartbeat, db))
     phase = SafetyPhase(checks)

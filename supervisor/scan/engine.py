@@ -12,13 +12,24 @@
 
 Deadlines are absolute (start + k·period). After an overrun the engine does not burst
 to catch up: missed deadlines are skipped and counted.
+
+A scan that starts late by more than :func:`stall_after_s` (two periods, at least
+``STALL_MIN_S``) is a **stall**: something held the event loop between two scans (a parse
+on the loop did, issue 9). ``scan.overruns`` cannot see it — no scan ran long, none ran at
+all. Stalls are counted (``scan.stalls``, ``scan.stall_max_s``), logged, and raise the
+``scan.stall`` supervision alarm (``safety``, from ``scan.stall_s``). While the loop is
+held nothing on it can say so; on a real clock a watch thread (:class:`StallWatch`) logs
+it at once, with where the loop's thread is.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import sys
+import threading
 import time
+import traceback
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -35,6 +46,22 @@ log = logging.getLogger(__name__)
 STATS_WINDOW = 10_000
 DRIVER_STOP_S = 5.0
 """How long the end of a run waits for the drivers' own tasks to stop."""
+
+STALL_PERIODS = 2.0
+"""A scan later than this many periods is a stall. One period late is an overrun's tail or
+the operating system's scheduler; more than two means at least one whole deadline went by
+with the loop busy with something other than the scan."""
+STALL_MIN_S = 0.25
+"""...and later than this, whatever the period: a 10 ms scan must not alarm on the pauses
+every healthy CPython process has (a full garbage collection, a loaded machine: tens of
+milliseconds; ISA-18.2: no nuisance alarms). It is a quarter of the shipped I/O maps'
+shortest stale limit (1 s) and an eighth of their device watchdogs (2 s): short stalls are
+counted and alarmed long before one is long enough to lose an input or a device."""
+
+
+def stall_after_s(period_s: float) -> float:
+    """How late a scan may start before it counts as a stall."""
+    return max(STALL_PERIODS * period_s, STALL_MIN_S)
 
 
 @dataclass(slots=True)
@@ -76,6 +103,8 @@ class ScanStats:
     overruns: int = 0
     skipped: int = 0
     logic_errors: int = 0
+    stalls: int = 0
+    stall_max_s: float = 0.0
     durations_s: deque[float] = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
     jitters_s: deque[float] = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
 
@@ -111,6 +140,9 @@ class ScanEngine:
         self.phases = list(phases)
         self.publishers = list(publishers)
         self.stats = ScanStats()
+        self.stall_after_s = stall_after_s(period_s)
+        self.last_scan_mono: float | None = None
+        """``time.monotonic()`` at the start of the last scan (read by :class:`StallWatch`)."""
         self._last_t: float | None = None
         self._next_t: float | None = None
         self._next_poll: dict[int, float] = {}
@@ -127,11 +159,25 @@ class ScanEngine:
             TagSpec("scan.overruns", dtype="int", description="Scans longer than the period"),
             TagSpec("scan.count", dtype="int", description="Scans since start"),
             TagSpec("scan.logic_errors", dtype="int", description="Exceptions caught in logic"),
+            TagSpec(
+                "scan.stalls",
+                dtype="int",
+                description="Scans that started more than max(2 periods, 0.25 s) late:"
+                " the event loop was held between two scans",
+            ),
+            TagSpec("scan.stall_max_s", unit="s", description="Lateness of the worst stall"),
+            TagSpec(
+                "scan.stall_s",
+                unit="s",
+                description="How late this scan started if it was a stall, else 0",
+            ),
         ]
         out = {}
         for s in specs:
             out[s.name] = self.db.get(s.name) or self.db.add(s)
         self.db.update(out["scan.period_s"], self.period_s)
+        for name in ("scan.stalls", "scan.stall_max_s", "scan.stall_s"):
+            self.db.update(out[name], 0 if name == "scan.stalls" else 0.0)
         return out
 
     def _declare_driver_tags(self) -> list[tuple[Driver, Tag, Tag]]:
@@ -164,6 +210,28 @@ class ScanEngine:
             flush = getattr(d, "flush", None)  # a Driver that only polls has none
             if flush is not None:
                 await flush()
+
+    def note_start(self, late_s: float) -> None:
+        """This scan starts ``late_s`` after its deadline: count a stall (before the scan,
+        so its safety phase sees ``scan.stall_s``)."""
+        self.last_scan_mono = time.monotonic()
+        tags, st = self._stats_tags, self.stats
+        if late_s <= self.stall_after_s:
+            if tags["scan.stall_s"].value != 0.0:
+                self.db.update(tags["scan.stall_s"], 0.0)
+            return
+        st.stalls += 1
+        st.stall_max_s = max(st.stall_max_s, late_s)
+        log.warning(
+            "scan: started %.3f s late (a stall: more than %g s): the event loop was held"
+            " between two scans (stall %d)",
+            late_s,
+            self.stall_after_s,
+            st.stalls,
+        )
+        self.db.update(tags["scan.stalls"], st.stalls)
+        self.db.update(tags["scan.stall_max_s"], st.stall_max_s)
+        self.db.update(tags["scan.stall_s"], late_s)
 
     def scan_once(self) -> None:
         """Inputs, logic, outputs, publish — synchronous: the scan never awaits I/O."""
@@ -248,6 +316,7 @@ class ScanEngine:
         are polled in lockstep before each scan so runs are deterministic.
         """
         tasks: list[asyncio.Task[None]] = []
+        watch = None if self.clock.virtual else StallWatch(self)
         if not self.clock.virtual and self.stats.count == 0:
             # First images in before the first scan, so logic never starts on "not connected".
             await asyncio.gather(*(d.poll() for d in self.drivers), return_exceptions=True)
@@ -257,8 +326,12 @@ class ScanEngine:
                 if run is not None:
                     tasks.append(asyncio.create_task(run(), name=f"driver:{d.name}"))
         try:
+            if watch is not None:
+                watch.start()
             await self._loop(stop, max_scans, until_t)
         finally:
+            if watch is not None:
+                watch.stop()
             for t in tasks:
                 t.cancel()
             # Bounded: a driver task that does not end must not keep the shutdown (and the
@@ -285,10 +358,13 @@ class ScanEngine:
                 return
             if clock.virtual:
                 await self.poll_due_drivers()
-            else:
-                jitter = max(0.0, clock.now() - scheduled)
-                self.stats.jitters_s.append(jitter)
-                self.db.update(jtag, jitter)
+            late = max(0.0, clock.now() - scheduled)
+            if not clock.virtual:
+                self.stats.jitters_s.append(late)
+                self.db.update(jtag, late)
+            # On a virtual clock a scan is late only when something moved the clock
+            # between two scans: what a held loop looks like in virtual time.
+            self.note_start(late)
             self.scan_once()
             if clock.virtual:
                 await self.flush_drivers()
@@ -296,8 +372,8 @@ class ScanEngine:
             k += 1
             nxt = start + k * self.period_s
             now = clock.now()
-            if nxt <= now and not clock.virtual:
-                # Overrun: skip the deadlines already missed instead of bursting.
+            if nxt <= now:
+                # Overrun or stall: skip the deadlines already missed instead of bursting.
                 missed = int((now - nxt) / self.period_s) + 1
                 self.stats.skipped += missed
                 k += missed
@@ -316,3 +392,51 @@ class ScanEngine:
         start = self._next_t if (self.clock.virtual and self._next_t is not None) else None
         t0 = self.clock.now() if start is None else start
         await self.run(asyncio.Event(), until_t=t0 + duration_s)
+
+
+class StallWatch:
+    """A thread that notices "no scan for a while" while the event loop is held, when
+    nothing on the loop can (real clock only): it logs once per stall, at once, with the
+    innermost frames of the loop's thread — what holds it. The scan counts and alarms the
+    stall itself when it runs again (:meth:`ScanEngine.note_start`)."""
+
+    FRAMES = 8
+    """Innermost frames of the loop's thread logged."""
+
+    def __init__(self, engine: ScanEngine) -> None:
+        self.engine = engine
+        # A scan is due every period; one missing for longer than this is a stall.
+        self.after_s = engine.stall_after_s + engine.period_s
+        self._loop_thread = threading.get_ident()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._watch, name="scan stall watch", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=1.0)
+
+    def _watch(self) -> None:
+        reported: float | None = None
+        while not self._stop.wait(self.engine.stall_after_s / 2):
+            last = self.engine.last_scan_mono
+            if last is None:
+                continue
+            held_s = time.monotonic() - last
+            if held_s > self.after_s and reported != last:
+                reported = last
+                log.warning(
+                    "scan: no scan for %.2f s: the event loop is held; its thread is in:\n%s",
+                    held_s,
+                    self._where(),
+                )
+
+    def _where(self) -> str:
+        frame = sys._current_frames().get(self._loop_thread)
+        if frame is None:
+            return "  (unknown)"
+        stack = traceback.extract_stack(frame)[-self.FRAMES :]
+        return "".join(traceback.format_list(stack)).rstrip()

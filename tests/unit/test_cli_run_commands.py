@@ -41,3 +41,14 @@ def test_an_unknown_channel_or_file_is_refused_with_exit_2(
     spec, message = spec.format(**names), message.format(**names)
     assert run(tmp_path, "--recipe", spec) == 2
     assert capsys.readouterr().err.strip() == f"supervisor: --recipe {spec}: {message}"
+
+
+def test_a_device_given_as_the_recipe_is_refused_by_its_size_not_read_forever(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert run(tmp_path, "--recipe", "ch0=/dev/zero") == 2
+    assert capsys.readouterr().err.strip() == (
+        "supervisor: --recipe ch0=/dev/zero: load refused: ch0: recipe refused: /dev/zero:"
+        " file is too large: more than 1 MiB; a recipe may have at most 1 MiB"
+        " (README: Input limits)"
+    )

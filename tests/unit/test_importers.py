@@ -358,6 +358,7 @@ CASES = [
     # Issue 9: a 5000-digit number was a ValueError traceback; '٣' was read as 3.
     ("bad-huge-number.txt", 3, 9, "SD 999999999999… (5000 characters) is too large"),
     ("bad-unicode-digit.txt", 3, 9, "SD '٣600' is not a whole number of seconds (ASCII digits"),
+    ("bad-too-many-rows.txt", 2002, 1, "too many rows: 2,001; a sequence file may have at most"),
 ]
 
 

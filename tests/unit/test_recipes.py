@@ -47,6 +47,10 @@ CASES = [
     ("nan_profile_time.yaml", 4, 21, "nan_profile_time.csv:3:1: time 'nan' is not a finite"),
     ("underflow_current.yaml", 3, 24, "'1e-400 A' is too small to be told from zero"),
     ("unicode_digit_time.yaml", 4, 26, "sleep_until needs a time of day HH:MM"),
+    # Input limits (issue 9, README: Input limits).
+    ("too_many_cycles.yaml", 2, 9, "cycles: 2,000,000 is too many; a recipe may run at most"),
+    ("too_many_groups.yaml", 1006, 5, "too many groups: 1,001; a recipe may have at most 1,000"),
+    ("initial_charge_too_large.yaml", 2, 17, "initial_charge 1e+300 Ah is too large"),
 ]
 
 

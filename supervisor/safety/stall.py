@@ -1,0 +1,46 @@
+"""The ``scan.stall`` supervision alarm: the scan started late because its event loop was
+held (issue 9: a recipe parsed on the loop stopped every scan for 6.8 s, and nothing said
+so). The scan engine counts stalls and publishes ``scan.stall_s`` (how late this scan
+started, 0 when on time); this check turns it into an alarm of the one alarm model
+(ISA-18.2, ADR 0009). A plain alarm of the whole bench, not a trip: by the time the scan
+can see a stall it is over, and the channels' own guards have already acted on whatever it
+made stale. It clears with the next scan on time and stays annunciated (returned,
+unacknowledged) until someone acknowledges it.
+"""
+
+from __future__ import annotations
+
+from supervisor.safety.alarms import AlarmManager, Severity
+from supervisor.tags import Tag, TagDB
+
+STALL_TAG = "scan.stall_s"
+"""Published by the scan engine (``scan/engine.py``) at the start of every scan."""
+STALLS_TAG = "scan.stalls"
+
+
+class ScanStall:
+    name = "scan stall"
+
+    def __init__(self, db: TagDB, alarms: AlarmManager) -> None:
+        self.db = db
+        self.alarms = alarms
+        self.alarm = alarms.declare("scan.stall", severity=Severity.HIGH)
+        # The engine declares its tags after the safety phase is built: found at first use.
+        self._late: Tag | None = None
+
+    def evaluate(self, now: float, dt: float) -> None:
+        late = self._late or self.db.get(STALL_TAG)
+        if late is None:
+            return  # no scan engine on this database (a test of the checks alone)
+        self._late = late
+        late_s = late.as_float() if late.value is not None else 0.0
+        stalls = self.db.get(STALLS_TAG)
+        count = stalls.value if stalls is not None else "?"
+        why = (
+            f"scan started {late_s:.2f} s late: its event loop was held between two scans"
+            f" (stall {count} since start; see the log)"
+        )
+        self.alarms.set(self.alarm, late_s > 0.0, why)
+
+    def fail_safe(self, why: str) -> None:
+        self.alarms.set(self.alarm, True, why)
