@@ -82,6 +82,7 @@ async def _run_locked(args: argparse.Namespace, cfg: BenchConfig) -> int:
     bench = build_bench(cfg, clock, simulate=not args.no_sim)
     # Before anything runs: a test that was under way comes back Held (DESIGN.md "Safety").
     restored = bench.retain()
+    bench.record_history()
     try:
         return await _serve(args, cfg, bench, restored)
     finally:
@@ -101,7 +102,10 @@ async def _serve(
     # The e-stop button presses the simulated plant's e-stop (seed 002 bench only).
     estop = bench.sim.press_estop if bench.sim is not None and bench.sim.served else None
 
-    api = HttpApi(bench.db, clock, cfg.hmi.host, port, estop=estop, commands=bench.commands)
+    history = bench.historian.query if bench.historian is not None else None
+    api = HttpApi(
+        bench.db, clock, cfg.hmi.host, port, estop=estop, commands=bench.commands, history=history
+    )
     for spec in args.recipe:
         channel, _, file = spec.partition("=")
         if not file:
@@ -145,6 +149,8 @@ async def _serve(
         _out(f'simulated e-stop button: PUT {api.url}/sim/estop {{"pressed": true}}')
     for line in restored:
         _out(f"retained state: {line}")
+    if bench.historian is not None:
+        _out(f"history: {bench.historian.path} ({api.url}/history, {api.url}/events)")
     _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
     unconfirmed: dict[str, str] = {}
     try:
