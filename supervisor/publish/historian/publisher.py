@@ -148,16 +148,25 @@ class Historian:
 
     def close(self, timeout_s: float = 10.0) -> None:
         """This scan's last changes, then everything queued to disk, then stop."""
+        if not self.writer.running:
+            return
         self._take()
         self.writer.close(timeout_s)
-        self.query.close()
-        self._report()
+        self._closed()
 
     async def stop(self, timeout_s: float = 10.0) -> None:
         """``close`` with the wait for the disk off the event loop."""
+        if not self.writer.running:
+            return
         self._take()
         await asyncio.to_thread(self.writer.close, timeout_s)
+        self._closed()
+
+    def _closed(self) -> None:
         self.query.close()
+        # What could not be written at the stop was logged by the writer (not an overflow).
+        self._dropped_seen = self.writer.rows_dropped
+        self._events_dropped_seen = self.writer.events_dropped
         self._report()
 
     # --- the scan's side --------------------------------------------------------------

@@ -102,8 +102,11 @@ def problem_of(path: Path) -> str:
     try:
         rows = conn.execute("PRAGMA quick_check").fetchall()
         if [r[0] for r in rows] != ["ok"]:
-            first = rows[0][0] if rows else "no answer"
-            return f"integrity check failed: {first}"
+            # One line for the log and the alarm: the first findings, not hundreds.
+            lines = [ln for r in rows for ln in str(r[0]).splitlines() if "***" not in ln]
+            first = "; ".join(lines[:2])[:200] if lines else "no answer"
+            more = f" (and {len(lines) - 2} more)" if len(lines) > 2 else ""
+            return f"integrity check failed: {first}{more}"
         app_id = conn.execute("PRAGMA application_id").fetchone()[0]
         if app_id != APPLICATION_ID:
             return f"not a history file of this supervisor (application id {app_id:#x})"
