@@ -520,6 +520,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return asyncio.run(
             benchmarks.scan_benchmark(args.tags, args.period_ms / 1000, args.seconds)
         )
+    if args.what == "historian":
+        return asyncio.run(
+            benchmarks.historian_benchmark(args.tags, args.period_ms / 1000, args.seconds)
+        )
     if args.what == "seed002":
         return asyncio.run(benchmarks.seed002_benchmark(str(DEFAULT_IO_MAP)))
     if args.what == "faults":
@@ -648,13 +652,26 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks that print figures")
     b.add_argument(
         "what",
-        choices=["scan", "manual", "seed002", "dry-run", "faults", "estop", "kill-restart"],
+        choices=[
+            "scan",
+            "manual",
+            "seed002",
+            "dry-run",
+            "faults",
+            "estop",
+            "kill-restart",
+            "historian",
+        ],
     )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
-    b.add_argument("--tags", type=int, default=1000, help="scan: number of tags")
-    b.add_argument("--period-ms", type=float, default=10.0, help="scan, estop: period in ms")
+    b.add_argument("--tags", type=int, default=1000, help="scan, historian: number of tags")
+    b.add_argument(
+        "--period-ms", type=float, default=10.0, help="scan, estop, historian: period in ms"
+    )
     b.add_argument("--presses", type=int, default=100, help="estop: e-stop presses")
-    b.add_argument("--seconds", type=float, default=10.0, help="scan: wall seconds to run")
+    b.add_argument(
+        "--seconds", type=float, default=10.0, help="scan, historian: wall seconds to run"
+    )
     b.add_argument("--hours", type=float, default=10.0, help="manual: simulated hours")
     b.add_argument("--iterations", type=int, default=20, help="kill-restart: kills")
     b.add_argument("--seed", type=int, default=1, help="kill-restart: seed of the kill times")

@@ -21,10 +21,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from supervisor.app.history import history_enabled, history_path
 from supervisor.core.clock import VirtualClock
 from supervisor.core.driver import Value
+from supervisor.core.errors import ConfigErrors
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
+from supervisor.devices.registry import bench_from_data, load_bench
 from supervisor.publish.changes import Sample
 from supervisor.publish.historian import (
     CORRUPT_ALARM,
@@ -633,3 +636,51 @@ def test_the_diagnostic_tags_are_named_with_their_units(make: Make) -> None:
     assert r.db["historian.oldest_sample_age_s"].value == pytest.approx(2.0)
     # The historian records its own diagnostics too (a trend of its health).
     assert r.query.tag("historian.rows_written") is not None
+
+
+# --- configuration --------------------------------------------------------------------
+
+IO_MAP = """bench: h
+history:
+  max_age: 86400
+devices:
+  chadeche:
+    driver: chadeche
+    boards:
+      - address: 0
+"""
+
+
+def test_a_misspelt_history_key_is_refused_with_file_line_and_column(tmp_path: Path) -> None:
+    path = tmp_path / "bench.yaml"
+    path.write_text(IO_MAP, encoding="utf-8")
+    with pytest.raises(ConfigErrors) as info:
+        load_bench(path)
+    first = info.value.errors[0]
+    assert (first.file, first.line, first.col) == (str(path), 3, 3)
+    assert "unknown key 'max_age' in history" in first.message
+    assert "max_age_s" in first.message  # did you mean
+
+
+def test_history_defaults_and_bounds() -> None:
+    cfg = bench_from_data(
+        {"bench": "h", "devices": {"chadeche": {"driver": "chadeche", "boards": [{"address": 0}]}}}
+    )
+    h = cfg.history
+    assert (h.enabled, h.path, h.max_age_s, h.max_bytes) == (
+        None,
+        "history.sqlite",
+        90 * 86400.0,
+        1024**3,
+    )
+    assert history_enabled(cfg)  # no influxdb: section, so on
+    assert history_path(cfg) == Path("var") / "history.sqlite"
+    for bad in ({"enabled": 1}, {"max_bytes": 1000}, {"commit_interval_s": 0.0}):
+        with pytest.raises(ConfigErrors):
+            bench_from_data(
+                {
+                    "bench": "h",
+                    "history": bad,
+                    "devices": {"chadeche": {"driver": "chadeche", "boards": [{"address": 0}]}},
+                }
+            )

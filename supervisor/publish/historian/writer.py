@@ -277,7 +277,8 @@ class HistoryWriter:
                     if start_retention:
                         self._force_retention = False
                         self._last_retention_wall = self._now_wall
-                        retention_wall = self._now_wall if self._now_wall is not None else 0.0
+                        known = self._now_wall
+                        retention_wall = known if known is not None else self._wall()
                 if take:
                     ok = self._write_batch(samples, events, upto)
                     if ok:
