@@ -371,17 +371,37 @@ async def _run_load(engine: ScanEngine, seconds: float) -> float:
     return time.perf_counter() - t0
 
 
-class _Deepest:
-    """A publisher after the historian: the deepest its queue went."""
+class _Timed:
+    """The historian as a publisher, timed: its whole ``on_scan`` and the ``ChangeFeed``
+    part of it; and the deepest its queue went."""
 
-    name = "queue-depth"
+    name = "historian"
 
     def __init__(self, historian: Any) -> None:
         self.historian = historian
-        self.rows = 0
+        self.on_scan_s: list[float] = []
+        self.take_s: list[float] = []
+        self.deepest_rows = 0
 
     def on_scan(self, db: TagDB, t: float) -> None:
-        self.rows = max(self.rows, self.historian.writer.queued_rows)
+        h = self.historian
+        feed = h.feed
+        take = feed.take
+        t0 = time.perf_counter()
+
+        def timed() -> Any:
+            t1 = time.perf_counter()
+            out = take()
+            self.take_s.append(time.perf_counter() - t1)
+            return out
+
+        feed.take = timed
+        try:
+            h.on_scan(db, t)
+        finally:
+            del feed.take
+        self.on_scan_s.append(time.perf_counter() - t0)
+        self.deepest_rows = max(self.deepest_rows, h.writer.queued_rows)
 
 
 async def historian_benchmark(n_tags: int, period_s: float, seconds: float) -> int:
@@ -401,8 +421,8 @@ async def historian_benchmark(n_tags: int, period_s: float, seconds: float) -> i
         path = Path(tmp) / "history.sqlite"
         engine = _load_rig(n_tags, period_s, [])
         historian = Historian(engine.db, engine.clock, path, WriterSettings())
-        deepest = _Deepest(historian)
-        engine.publishers += [historian, deepest]
+        timed = _Timed(historian)
+        engine.publishers.append(timed)
         historian.open()
         wall = await _run_load(engine, seconds)
         written_in_run = historian.writer.rows_written
@@ -424,11 +444,16 @@ async def historian_benchmark(n_tags: int, period_s: float, seconds: float) -> i
             f"  scan duration on   p50 {_ms(p(d_on, 50))}  p99 {_ms(p(d_on, 99))}"
             f"  ({engine.stats.count} scans, overruns {engine.stats.overruns})"
         )
+        _say(
+            f"  of which historian.on_scan p50 {_ms(p(timed.on_scan_s, 50))}"
+            f"  p99 {_ms(p(timed.on_scan_s, 99))}; ChangeFeed.take p50"
+            f" {_ms(p(timed.take_s, 50))}  p99 {_ms(p(timed.take_s, 99))}"
+        )
         offered = w.rows_written + w.rows_dropped
         _say(
             f"  rows offered {offered / wall:,.0f}/s; written during the run"
             f" {written_in_run / wall:,.0f}/s, dropped {w.rows_dropped} (queue full),"
-            f" deepest queue {deepest.rows} rows"
+            f" deepest queue {timed.deepest_rows} rows"
         )
         _say(
             f"  stop wrote the last {w.rows_written - written_in_run} queued rows in"

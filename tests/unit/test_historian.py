@@ -154,7 +154,7 @@ def test_a_bad_value_is_stored_as_no_value_with_its_quality(make: Make) -> None:
     r.scan({"ch0.voltage": Quality.BAD})
     r.scan({"ch0.voltage": 1.3})
     # A non-finite value handed to the writer (the tag database already makes it BAD):
-    # stored as the HTTP API sends it, no value and BAD (SQLite would keep NULL and GOOD).
+    # read back as the HTTP API sends it, no value and BAD.
     t = r.clock.wall() + 1
     r.historian.writer.put_samples([Sample("ch0.voltage", math.inf, Quality.GOOD, 0.0, t)], t)
     r.flush()

@@ -136,8 +136,9 @@ def check_interval(start_wall: float, end_wall: float, interval_s: float) -> int
 
 
 def _typed(value: object, dtype: str) -> Value | None:
-    """A stored value as the tag's type (booleans are stored as 0/1)."""
-    if value is None:
+    """A stored value as the tag's type (booleans are stored as 0/1; a non-finite number,
+    which the tag database never passes as a value, is no value)."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return None
     if dtype == "bool":
         return bool(value)
@@ -153,6 +154,13 @@ def _quality(q: object) -> Quality:
         return Quality(int(q))  # type: ignore[call-overload]
     except (TypeError, ValueError):
         return Quality.BAD
+
+
+def _stored(t: float, value: object, quality: object, dtype: str) -> StoredSample:
+    """A row as a sample: no value is BAD, whatever was stored with it (SQLite keeps a NaN
+    as NULL)."""
+    v = _typed(value, dtype)
+    return StoredSample(t, v, Quality.BAD if v is None else _quality(quality))
 
 
 class HistoryQuery:
@@ -252,12 +260,8 @@ class HistoryQuery:
                 (tag_id, start_wall),
             ).fetchone()
         dtype = info.dtype
-        out = [StoredSample(t, _typed(v, dtype), _quality(q)) for t, v, q in rows[:limit]]
-        before = (
-            None
-            if prev is None
-            else StoredSample(prev[0], _typed(prev[1], dtype), _quality(prev[2]))
-        )
+        out = [_stored(t, v, q, dtype) for t, v, q in rows[:limit]]
+        before = None if prev is None else _stored(prev[0], prev[1], prev[2], dtype)
         return Series(info, start_wall, end_wall, out, len(rows) > limit, before)
 
     def count(self, tag: str, start_wall: float, end_wall: float) -> int:
@@ -353,11 +357,10 @@ class HistoryQuery:
 _AGGREGATE = """
 WITH b AS (
     SELECT min(CAST((t - :s) / :i AS INTEGER), :last) AS k,
-           min(value) AS mn, max(value) AS mx,
-           avg(CASE WHEN typeof(value) IN ('integer', 'real') THEN value END) AS av,
+           min(value) AS mn, max(value) AS mx, avg(value) AS av,
            count(value) AS n, count(*) AS total, max(quality) AS q,
-           min(CASE WHEN value IS NOT NULL THEN t END) AS t0,
-           max(CASE WHEN value IS NOT NULL THEN t END) AS t1
+           min(t) FILTER (WHERE value IS NOT NULL) AS t0,
+           max(t) FILTER (WHERE value IS NOT NULL) AS t1
     FROM samples WHERE tag_id = :id AND t >= :s AND t <= :e
     GROUP BY k
 )

@@ -64,7 +64,6 @@ would otherwise run a delete at every pass."""
 SIZE_ROUNDS = 20
 """Estimates of the cut-off time per retention pass (each one deletes the slice of time
 the file's average rate says is too much; the next one corrects it)."""
-BAD = int(Quality.BAD)
 
 
 @dataclass(frozen=True)
@@ -467,25 +466,20 @@ class HistoryWriter:
         conn: sqlite3.Connection,
         samples: deque[Sequence[Sample]],
         new: dict[str, int],
-    ) -> list[tuple[int, float, object, int]]:
+    ) -> list[tuple[int, float, object, Quality]]:
+        """The rows of a batch. One comprehension (this is the writer's share of the GIL,
+        which the scan needs too); a tag first seen on this connection is upserted into
+        the dictionary first. Values are stored as they are: the tag database has made a
+        non-finite value BAD, so it arrives here as None (``ChangeFeed``)."""
         ids = self._ids
-        rows: list[tuple[int, float, object, int]] = []
-        append = rows.append
-        isfinite = math.isfinite
-        for batch in samples:
-            for s in batch:
-                tag_id = ids.get(s.name) or new.get(s.name)
-                if tag_id is None:
-                    tag_id = self._upsert_tag(conn, s.name)
-                    new[s.name] = tag_id
-                value = s.value
-                if type(value) is float and not isfinite(value):
-                    # As the HTTP API sends it: no value, BAD (SQLite would store NaN as
-                    # NULL with the quality still GOOD).
-                    append((tag_id, s.wall, None, BAD))
-                else:
-                    append((tag_id, s.wall, value, int(s.quality)))
-        return rows
+        try:
+            return [(ids[s.name], s.wall, s.value, s.quality) for b in samples for s in b]
+        except KeyError:
+            pass
+        for name in {s.name for b in samples for s in b if s.name not in ids}:
+            new[name] = self._upsert_tag(conn, name)
+        known = {**ids, **new}
+        return [(known[s.name], s.wall, s.value, s.quality) for b in samples for s in b]
 
     def _upsert_tag(self, conn: sqlite3.Connection, name: str) -> int:
         """The tag's id, its unit, dtype and description as this run declares them."""
