@@ -549,6 +549,19 @@ def test_a_full_queue_drops_the_newest_counts_them_raises_an_alarm_and_resends_v
         assert r.stored(s.name)[-1][1] == 149.0  # the gap ends with the true value
 
 
+def test_a_full_event_queue_drops_counts_and_alarms(make: Make) -> None:
+    r = make(settings=WriterSettings(events_max=10), open_now=False)
+    for k in range(15):
+        r.historian.on_event(BenchEvent(0.0, EPOCH + k, "message", "ch0", "", f"m{k}"))
+    r.scan()
+    assert r.historian.writer.events_dropped == 5
+    assert r.db["historian.events_dropped"].value == 5
+    assert r.active(OVERFLOW_ALARM) is True and "5 events dropped" in r.alarms[-1][2]
+    r.historian.open()
+    r.flush()
+    assert [e.text for e in r.query.events(0, 4e9)] == [f"m{k}" for k in range(10)]
+
+
 class Disk:
     """A full disk or a read-only file system, as SQLite refuses them, on the writer's own
     connection (sqlite3 connections are serialized: a statement from this thread waits for
@@ -609,6 +622,24 @@ def test_a_failing_disk_is_reported_once_counted_alarmed_and_retried_losing_noth
     assert r.db["historian.last_error"].value == ""
     assert [v for _, v, _ in r.stored("ch0.voltage")] == [float(k) for k in range(400)]
     assert w.rows_dropped == 0
+
+
+def test_a_folder_that_cannot_be_created_is_alarmed_and_retried_until_it_can(
+    make: Make, tmp_path: Path
+) -> None:
+    blocker = tmp_path / "state"
+    blocker.write_text("a file where the state folder should be")
+    r = make(path=blocker / "history.sqlite")
+    report = r.historian.opened
+    assert report is not None and report.error is not None and "Errno" in report.error
+    for k in range(5):
+        r.scan({"ch0.voltage": float(k)})  # the bench runs meanwhile
+    assert r.active(WRITE_ALARM) is True
+    blocker.unlink()  # someone fixes it
+    r.flush()
+    r.scan()
+    assert r.active(WRITE_ALARM) is False
+    assert [v for _, v, _ in r.stored("ch0.voltage")] == [0.0, 1.0, 2.0, 3.0, 4.0]
 
 
 def test_the_diagnostic_tags_are_named_with_their_units(make: Make) -> None:

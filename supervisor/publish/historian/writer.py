@@ -144,23 +144,24 @@ class HistoryWriter:
         """Set an unusable file aside, open (or create) the file, start the thread.
         Blocks for the integrity check (seconds for a file of gigabytes): call it before
         the scan starts, off the event loop."""
-        aside = check(self.path, self._wall())
-        if aside is not None:
-            with self._cond:
-                self.set_asides.append(aside)
+        with self._cond:
+            known = len(self.set_asides)
         error = None
         try:
-            self._conn = self._connect(check_first=False)
+            self._conn = self._connect(check_first=True)
             self._measure(self._conn)
-        except (sqlite3.Error, OSError) as exc:
+        except (sqlite3.Error, OSError) as exc:  # e.g. a folder it may not write in
             error = f"{type(exc).__name__}: {exc}"
             self._failed(exc)
+            self._check_on_connect = True  # the thread checks the file when it gets in
         self._stopping = False
         self._stop_deadline = math.inf
         self._thread = threading.Thread(
             target=self._run, name=f"historian:{self.path}", daemon=True
         )
         self._thread.start()
+        with self._cond:
+            aside = self.set_asides[-1] if len(self.set_asides) > known else None
         return OpenReport(aside, error)
 
     def close(self, timeout_s: float = 10.0) -> None:
