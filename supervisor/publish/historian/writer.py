@@ -21,8 +21,8 @@ Nothing is lost silently (docs/adr/0013-historian.md):
   new connection; the scan never notices. A file found corrupt while running is set aside
   at the next connection, as at open (``store.check``).
 - **A clean stop** (``close``) writes everything queued before the thread ends; a killed
-  process loses what was not committed yet: at most one ``commit_interval_s`` of samples
-  (plus the rows of a commit under way).
+  process loses what was not committed yet: one ``commit_interval_s`` of samples (plus the
+  rows of a commit under way), or the whole queue if the disk had fallen behind.
 """
 
 from __future__ import annotations
