@@ -504,7 +504,8 @@ class HistorianConfig(Strict):
         0.5,
         ge=0.01,
         le=10.0,
-        description="One transaction per interval (s): what a killed process can lose at most.",
+        description="One transaction per interval (s): what a killed process loses, unless"
+        " the disk had fallen behind (then what was queued).",
     )
     queue_max_rows: int = Field(
         200_000,
