@@ -54,6 +54,7 @@ bench: $(STAMP)
 	$(BIN)/supervisor bench faults
 	$(BIN)/supervisor bench estop --presses 100 --period-ms 10
 	$(BIN)/supervisor bench kill-restart --iterations 20
+	$(BIN)/supervisor bench historian --tags 1000 --period-ms 10 --seconds 10
 
 schema: $(STAMP)
 	$(BIN)/supervisor schema --out .

@@ -8,6 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from supervisor.app.history import attach_historian
 from supervisor.app.retained import RecipeSource, Retention
 from supervisor.app.simulation import SimulatedBench, build_simulation
 from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target
@@ -30,6 +31,7 @@ from supervisor.core.units import UNITS, Dim
 from supervisor.devices.kind import DriverWiring
 from supervisor.devices.registry import REGISTRY, Registry
 from supervisor.publish.display import ChadecheDisplay
+from supervisor.publish.historian import Historian
 from supervisor.publish.results import TIMELINE_KINDS, ResultCollector
 from supervisor.safety import AlarmManager, SafetyPhase, build_safety
 from supervisor.scan import (
@@ -66,6 +68,7 @@ class Bench:
     displays: dict[str, ChadecheDisplay] = field(default_factory=dict)
     recipes: dict[str, RecipeSource] = field(default_factory=dict)
     retention: Retention | None = None
+    historian: Historian | None = None
     _started: bool = False
     commands: CommandPath = field(init=False)
     """The one path of operator commands (HTTP, command line, the ``chN.command`` tags)."""
@@ -192,6 +195,14 @@ class Bench:
             self.retention = Retention.attach(self)
         return self.retention.report
 
+    def record_history(self) -> Historian | None:
+        """Record this bench's history (``<state_dir>/history.sqlite`` unless configured
+        otherwise; none when ``history.enabled`` is false or InfluxDB is configured): from
+        ``start`` on, until ``shutdown`` writes what is queued."""
+        if self.historian is None:
+            self.historian = attach_historian(self)
+        return self.historian
+
     def tag_dims(self) -> dict[str, Dim]:
         out: dict[str, Dim] = {}
         for t in self.db:
@@ -210,6 +221,8 @@ class Bench:
         """Start the in-process simulators (if the I/O map has any) before scanning."""
         if self.sim is not None and not self._started:
             await self.sim.start()
+        if self.historian is not None and not self.historian.writer.running:
+            await self.historian.start()  # its file checked and opened before the first scan
         self._started = True
 
     async def run(self, stop: asyncio.Event) -> None:
@@ -252,6 +265,8 @@ class Bench:
                 collector.close("supervisor stopped", runner.state.value, complete=False, now=now)
             elif runner.state not in FINAL:
                 collector.close("supervisor stopped", runner.state.value, now=now)
+        if self.historian is not None:
+            await self.historian.stop()  # everything queued written: a clean stop loses none
         if self.retention is not None:
             # Waits for the writer thread (the last save on disk): not on the event loop.
             await asyncio.to_thread(self.retention.close)

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import asyncio
+import math
 import sys
 import time
+from typing import Any
 
 from supervisor.app.loadgen import SignalGenerator
 from supervisor.channels import Channel, ChannelLimits
@@ -329,3 +331,191 @@ async def estop_benchmark(io_map: str, presses: int = 100, period_s: float = 0.0
     _say("  (supply off: plant output off and output_cmd false; contactor open: plant)")
     _say(f"  scans {st.count}, overruns {st.overruns}, deadlines skipped {st.skipped}")
     return 0
+
+
+# --- historian ---------------------------------------------------------------------------
+def _load_rig(n_tags: int, period_s: float, publishers: list[Any]) -> ScanEngine:
+    """``bench scan``'s load (16 channels with their logic, signal-generator inputs for
+    the rest, every tag changing every scan) with ``publishers`` at scan end."""
+    clock = RealClock()
+    db = TagDB()
+    channels, phases = [], []
+    for k in range(16):
+        ch = Channel(f"ch{k}", db, ChannelLimits((-5.0, 5.0), (0.0, 100.0)), capacity_ah=2.0)
+        db.update(ch.mode, "manual")
+        db.update(ch.enable, True)
+        db.update(ch.manual_current, 1.0)
+        channels.append(ch)
+        phases.append(LogicPhase(f"channel:{ch.name}", ch.run))
+    n_ai = max(0, n_tags - (len(db) + 7 + 2 * 2))
+    gen = SignalGenerator("gen", clock, n_ai, n_out=16, poll_period_s=period_s)
+    src = SignalGenerator("src", clock, 32, poll_period_s=period_s)
+    inputs = [
+        InputBinding(db.add(TagSpec(f"gen.ai{k}", unit="V")), gen, f"ai{k}", None, 1.0)
+        for k in range(n_ai)
+    ]
+    for k, ch in enumerate(channels):
+        inputs.append(InputBinding(ch.voltage, src, f"ai{2 * k}", None, 1.0))
+        inputs.append(InputBinding(ch.current, src, f"ai{2 * k + 1}", None, 1.0))
+    outputs = [OutputBinding(ch.current_cmd, gen, f"ao{k}") for k, ch in enumerate(channels)]
+    return ScanEngine(clock, db, period_s, [gen, src], inputs, outputs, phases, publishers)
+
+
+async def _run_load(engine: ScanEngine, seconds: float) -> float:
+    for drv in engine.drivers:  # first images in place, so no channel trips
+        await drv.poll()
+    stop = asyncio.Event()
+    asyncio.get_running_loop().call_later(seconds, stop.set)
+    t0 = time.perf_counter()
+    await engine.run(stop)
+    return time.perf_counter() - t0
+
+
+class _Timed:
+    """The historian as a publisher, timed: its whole ``on_scan`` and the ``ChangeFeed``
+    part of it; and the deepest its queue went."""
+
+    name = "historian"
+
+    def __init__(self, historian: Any) -> None:
+        self.historian = historian
+        self.on_scan_s: list[float] = []
+        self.take_s: list[float] = []
+        self.deepest_rows = 0
+
+    def on_scan(self, db: TagDB, t: float) -> None:
+        h = self.historian
+        feed = h.feed
+        take = feed.take
+        t0 = time.perf_counter()
+
+        def timed() -> Any:
+            t1 = time.perf_counter()
+            out = take()
+            self.take_s.append(time.perf_counter() - t1)
+            return out
+
+        feed.take = timed
+        try:
+            h.on_scan(db, t)
+        finally:
+            del feed.take
+        self.on_scan_s.append(time.perf_counter() - t0)
+        self.deepest_rows = max(self.deepest_rows, h.writer.queued_rows)
+
+
+async def historian_benchmark(n_tags: int, period_s: float, seconds: float) -> int:
+    """The historian's insert rate under ``bench scan``'s load (every tag changing every
+    scan), the scan's p50/p99 with it off and on, then what a week of 1 s data costs to
+    draw and what retention gives back. Figures, never assertions."""
+    import tempfile
+    from pathlib import Path
+
+    from supervisor.publish.historian import Historian, WriterSettings
+
+    p = ScanStats.percentile
+    off = _load_rig(n_tags, period_s, [])
+    await _run_load(off, seconds)
+    d_off = list(off.stats.durations_s)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "history.sqlite"
+        engine = _load_rig(n_tags, period_s, [])
+        historian = Historian(engine.db, engine.clock, path, WriterSettings())
+        timed = _Timed(historian)
+        engine.publishers.append(timed)
+        historian.open()
+        wall = await _run_load(engine, seconds)
+        written_in_run = historian.writer.rows_written
+        t0 = time.perf_counter()
+        historian.close()  # the rows still queued: a clean stop writes them
+        drain_s = time.perf_counter() - t0
+        w = historian.writer
+        d_on = list(engine.stats.durations_s)
+        size = path.stat().st_size
+        _say(
+            f"historian benchmark: {len(engine.db)} tags, period {_ms(period_s)},"
+            f" {seconds:g} s per run, every tag changing every scan"
+        )
+        _say(
+            f"  scan duration off  p50 {_ms(p(d_off, 50))}  p99 {_ms(p(d_off, 99))}"
+            f"  ({off.stats.count} scans, overruns {off.stats.overruns})"
+        )
+        _say(
+            f"  scan duration on   p50 {_ms(p(d_on, 50))}  p99 {_ms(p(d_on, 99))}"
+            f"  ({engine.stats.count} scans, overruns {engine.stats.overruns})"
+        )
+        _say(
+            f"  of which historian.on_scan p50 {_ms(p(timed.on_scan_s, 50))}"
+            f"  p99 {_ms(p(timed.on_scan_s, 99))}; ChangeFeed.take p50"
+            f" {_ms(p(timed.take_s, 50))}  p99 {_ms(p(timed.take_s, 99))}"
+        )
+        offered = w.rows_written + w.rows_dropped
+        _say(
+            f"  rows offered {offered / wall:,.0f}/s; written during the run"
+            f" {written_in_run / wall:,.0f}/s, dropped {w.rows_dropped} (queue full),"
+            f" deepest queue {timed.deepest_rows} rows"
+        )
+        _say(
+            f"  stop wrote the last {w.rows_written - written_in_run} queued rows in"
+            f" {drain_s:.2f} s; file {size / 1e6:.1f} MB, {size / max(w.rows_written, 1):.1f}"
+            " bytes/row"
+        )
+        _say(_retention_figures(path, size))
+    _say(_week_query_figures())
+    return 0
+
+
+def _retention_figures(path: Any, size: int) -> str:
+    """Retention by size down to half the file: how long, and whether the file shrank."""
+    from supervisor.publish.historian import HistoryWriter, TagInfo, WriterSettings
+
+    settings = WriterSettings(max_bytes=size // 2, chunk_rows=20_000)
+    writer = HistoryWriter(path, settings, TagInfo)
+    writer.open()
+    t0 = time.perf_counter()
+    writer.flush(timeout_s=600.0, retention=True)
+    took_s = time.perf_counter() - t0
+    deleted = writer.rows_deleted
+    writer.close()
+    after = path.stat().st_size
+    return (
+        f"  retention to max_bytes {size // 2 / 1e6:.1f} MB: {deleted} rows deleted in"
+        f" {took_s:.2f} s ({settings.chunk_rows} rows per transaction); file"
+        f" {size / 1e6:.1f} MB -> {after / 1e6:.1f} MB"
+    )
+
+
+def _week_query_figures() -> str:
+    """A week of one tag sampled every second: raw and aggregated reads, timed."""
+    import tempfile
+    from pathlib import Path
+
+    from supervisor.publish.historian import HistoryQuery
+    from supervisor.publish.historian.store import connect
+
+    week_s = 7 * 86400
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "week.sqlite"
+        conn = connect(path)
+        conn.execute("INSERT INTO tags VALUES (1, 'ch0.voltage', 'V', 'float', '')")
+        t0 = 1_767_225_600.0
+        conn.execute("BEGIN")
+        conn.executemany(
+            "INSERT INTO samples VALUES (1, ?, ?, 0)",
+            ((t0 + k, 3.6 + 0.5 * math.sin(k / 3600.0)) for k in range(week_s)),
+        )
+        conn.execute("COMMIT")
+        conn.close()
+        query = HistoryQuery(path)
+        t1 = time.perf_counter()
+        agg = query.aggregate("ch0.voltage", t0, t0 + week_s, week_s / 1000)
+        agg_s = time.perf_counter() - t1
+        t1 = time.perf_counter()
+        raw = query.samples("ch0.voltage", t0, t0 + week_s, limit=10_000)
+        raw_s = time.perf_counter() - t1
+        query.close()
+    return (
+        f"  a week of 1 s samples ({week_s} rows): {len(agg.buckets)} buckets in"
+        f" {agg_s * 1000:.0f} ms; the first {len(raw.samples)} raw samples in"
+        f" {raw_s * 1000:.0f} ms"
+    )

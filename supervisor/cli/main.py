@@ -82,6 +82,7 @@ async def _run_locked(args: argparse.Namespace, cfg: BenchConfig) -> int:
     bench = build_bench(cfg, clock, simulate=not args.no_sim)
     # Before anything runs: a test that was under way comes back Held (DESIGN.md "Safety").
     restored = bench.retain()
+    bench.record_history()
     try:
         return await _serve(args, cfg, bench, restored)
     finally:
@@ -101,7 +102,10 @@ async def _serve(
     # The e-stop button presses the simulated plant's e-stop (seed 002 bench only).
     estop = bench.sim.press_estop if bench.sim is not None and bench.sim.served else None
 
-    api = HttpApi(bench.db, clock, cfg.hmi.host, port, estop=estop, commands=bench.commands)
+    history = bench.historian.query if bench.historian is not None else None
+    api = HttpApi(
+        bench.db, clock, cfg.hmi.host, port, estop=estop, commands=bench.commands, history=history
+    )
     for spec in args.recipe:
         channel, _, file = spec.partition("=")
         if not file:
@@ -146,6 +150,8 @@ async def _serve(
         _out(f'simulated e-stop button: PUT {api.url}/sim/estop {{"pressed": true}}')
     for line in restored:
         _out(f"retained state: {line}")
+    if bench.historian is not None:
+        _out(f"history: {bench.historian.path} ({api.url}/history, {api.url}/events)")
     _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
     unconfirmed: dict[str, str] = {}
     try:
@@ -515,6 +521,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return asyncio.run(
             benchmarks.scan_benchmark(args.tags, args.period_ms / 1000, args.seconds)
         )
+    if args.what == "historian":
+        return asyncio.run(
+            benchmarks.historian_benchmark(args.tags, args.period_ms / 1000, args.seconds)
+        )
     if args.what == "seed002":
         return asyncio.run(benchmarks.seed002_benchmark(str(DEFAULT_IO_MAP)))
     if args.what == "faults":
@@ -643,13 +653,26 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks that print figures")
     b.add_argument(
         "what",
-        choices=["scan", "manual", "seed002", "dry-run", "faults", "estop", "kill-restart"],
+        choices=[
+            "scan",
+            "manual",
+            "seed002",
+            "dry-run",
+            "faults",
+            "estop",
+            "kill-restart",
+            "historian",
+        ],
     )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
-    b.add_argument("--tags", type=int, default=1000, help="scan: number of tags")
-    b.add_argument("--period-ms", type=float, default=10.0, help="scan, estop: period in ms")
+    b.add_argument("--tags", type=int, default=1000, help="scan, historian: number of tags")
+    b.add_argument(
+        "--period-ms", type=float, default=10.0, help="scan, estop, historian: period in ms"
+    )
     b.add_argument("--presses", type=int, default=100, help="estop: e-stop presses")
-    b.add_argument("--seconds", type=float, default=10.0, help="scan: wall seconds to run")
+    b.add_argument(
+        "--seconds", type=float, default=10.0, help="scan, historian: wall seconds to run"
+    )
     b.add_argument("--hours", type=float, default=10.0, help="manual: simulated hours")
     b.add_argument("--iterations", type=int, default=20, help="kill-restart: kills")
     b.add_argument("--seed", type=int, default=1, help="kill-restart: seed of the kill times")

@@ -477,6 +477,48 @@ class RetainConfig(Strict):
     )
 
 
+class HistorianConfig(Strict):
+    """The embedded historian (``supervisor.publish.historian``, docs/adr/0013-historian.md):
+    every tag's changes (deadband and minimum interval from each tag's ``history:``) and the
+    bench's events, in ``<state_dir>/<path>``; the source of the screens' trends."""
+
+    enabled: bool | None = Field(
+        None,
+        description="Record history. Default (null): on unless an influxdb: section is configured.",
+    )
+    path: str = Field(
+        "history.sqlite", min_length=1, description="The SQLite file, relative to state_dir."
+    )
+    max_age_s: float = Field(
+        90 * 86400.0,
+        gt=0,
+        description="Samples and events older than this are deleted (s; default 90 days).",
+    )
+    max_bytes: int = Field(
+        1024**3,
+        ge=1024**2,
+        description="Bound of the file's size (bytes; default 1 GiB): above it the oldest"
+        " samples and events are deleted first.",
+    )
+    commit_interval_s: float = Field(
+        0.5,
+        ge=0.01,
+        le=10.0,
+        description="One transaction per interval (s): what a killed process loses, unless"
+        " the disk had fallen behind (then what was queued).",
+    )
+    queue_max_rows: int = Field(
+        200_000,
+        ge=1000,
+        le=10_000_000,
+        description="Samples waiting for the disk, at most (about 150 bytes each); past"
+        " this the newest are dropped, counted and alarmed (the scan never waits).",
+    )
+    retention_period_s: float = Field(
+        60.0, ge=1.0, le=86400.0, description="How often retention runs (s)."
+    )
+
+
 class BenchConfig(Strict):
     """A bench: its scan, devices, extra tag mappings and channels."""
 
@@ -486,6 +528,7 @@ class BenchConfig(Strict):
     hmi: HmiConfig = HmiConfig()
     state_dir: str = Field("var", description="Where retained state and results go.")
     retain: RetainConfig = RetainConfig()
+    history: HistorianConfig = HistorianConfig()
     devices: dict[str, DeviceConfig] = Field(min_length=1)
     tags: list[TagMapping] = []
     channels: list[ChannelConfig] = []

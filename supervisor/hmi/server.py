@@ -31,6 +31,7 @@ from aiohttp import web
 from supervisor.commands import Command, CommandPath, Result, ResultKind, Verb
 from supervisor.core.clock import Clock
 from supervisor.core.quality import Quality
+from supervisor.hmi.history_api import HistoryQuery, add_history_routes
 from supervisor.safety import Alarm, AlarmEvent
 from supervisor.tags import Tag, TagDB
 
@@ -140,6 +141,7 @@ class HttpApi:
         estop: Callable[[bool], None] | None = None,
         commands: CommandPath | None = None,
         sim_state: Callable[[], dict[str, Any]] | None = None,
+        history: HistoryQuery | None = None,
     ):
         self.db = db
         self._estop = estop
@@ -162,6 +164,8 @@ class HttpApi:
                 web.post("/api/alarms/{alarm}/{action}", self._alarm_command),
             ]
         )
+        if history is not None:  # GET /api/history, /api/events (hmi/history_api.py)
+            add_history_routes(app, history, db, clock, self.commands.runners)
         if estop is not None:
             # Simulation only: the e-stop button of the simulated bench.
             app.add_routes([web.put("/api/sim/estop", self._sim_estop)])
