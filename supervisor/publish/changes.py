@@ -14,7 +14,7 @@ points.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Value
@@ -24,9 +24,8 @@ from supervisor.tags import Tag, TagDB
 __all__ = ["ChangeFeed", "Sample"]
 
 
-@dataclass(frozen=True, slots=True)
-class Sample:
-    """One stored value of one tag."""
+class Sample(NamedTuple):
+    """One stored value of one tag (a named tuple: a thousand are made every scan)."""
 
     name: str
     value: Value | None  # None when the quality is BAD
@@ -46,12 +45,16 @@ class ChangeFeed:
         self._last: dict[int, tuple[Value | None, Quality, float]] = {}
         # Tags whose latest change was held back by their minimum interval.
         self._pending: dict[int, Tag] = {}
+        self._wall_offset = 0.0
 
     def take(self) -> list[Sample]:
         """The samples to store since the last call, oldest first."""
         db = self.db
         changed = db.changed_since(self._version)
         out: list[Sample] = []
+        # Both clocks map their axis to Unix time by an offset: one call per scan, not one
+        # per sample (RealClock.to_wall reads two clocks).
+        self._wall_offset = self.clock.to_wall(0.0)
         if self._pending:
             now = self.clock.now()
             for index, tag in list(self._pending.items()):
@@ -78,23 +81,28 @@ class ChangeFeed:
             return None
         t = tag.source_t or tag.server_t
         gate_t = t if released_t is None else released_t
-        value = tag.value if tag.quality is not Quality.BAD else None
-        last = self._last.get(tag.index)
-        if last is not None:
-            last_value, last_quality, last_t = last
-            if tag.quality is last_quality:
-                if value == last_value:
+        quality = tag.quality
+        value = tag.value if quality is not Quality.BAD else None
+        index = tag.index
+        last = self._last.get(index)
+        if last is not None and quality is last[1]:
+            last_value = last[0]
+            if value == last_value:
+                return None
+            # A thousand changes a scan come through here: the filters only when set, and
+            # type() rather than isinstance (a bool is not a number here).
+            if (history.deadband or history.min_interval_s) and (
+                type(value) in _NUMBERS and type(last_value) in _NUMBERS
+            ):
+                if abs(value - last_value) <= history.deadband:  # type: ignore[operator]
                     return None
-                if _is_number(value) and _is_number(last_value):
-                    if abs(float(value) - float(last_value)) <= history.deadband:  # type: ignore[arg-type]
-                        return None
-                    if gate_t - last_t < history.min_interval_s:
-                        self._pending[tag.index] = tag
-                        return None
-        self._pending.pop(tag.index, None)
-        self._last[tag.index] = (value, tag.quality, gate_t)
-        return Sample(tag.name, value, tag.quality, t, self.clock.to_wall(t))
+                if gate_t - last[2] < history.min_interval_s:
+                    self._pending[index] = tag
+                    return None
+        if self._pending:
+            self._pending.pop(index, None)
+        self._last[index] = (value, quality, gate_t)
+        return Sample(tag.name, value, quality, t, t + self._wall_offset)
 
 
-def _is_number(v: object) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool)
+_NUMBERS = (int, float)

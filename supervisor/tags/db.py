@@ -195,14 +195,15 @@ class TagDB:
         if not self._log or self._log[0][0] > version + 1:
             # The log no longer reaches back that far: resend everything.
             return list(self._list)
-        seen: set[int] = set()
+        # A tag's last change is the log entry whose version is the tag's own: keeping
+        # only those gives each tag once, in the order of their last change, with no set.
         out: list[Tag] = []
+        append = out.append
         for v, tag in reversed(self._log):
             if v <= version:
                 break
-            if tag.index not in seen:
-                seen.add(tag.index)
-                out.append(tag)
+            if tag.version == v:
+                append(tag)
         out.reverse()
         return out
 
