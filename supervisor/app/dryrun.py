@@ -4,6 +4,13 @@ The same compiler, step-chain engine, channel logic and drivers as on a bench; o
 source is simulated (a Chadèche board with a NiMH cell, or an EA-PSB supply with a Li-ion
 pack when the recipe needs constant voltage: the real EA driver talking SCPI to the EA
 simulator in process) and time is virtual.
+
+Every dry run ends with a clear message in bounded memory: the chain reaches an end
+(Complete, Stopped, Aborted, or Held by an alarm: ``finished``), or the run stops at the
+``max_hours`` cap and says where it was (step, cycle, test time) instead of predicting a
+duration. The timeline, the step sequence and the per-cycle figures keep their first and
+last halves (``DRY_RUN_EVENTS_KEPT``, ``DRY_RUN_CYCLES_KEPT``) and count the rest; result
+files (``results_dir``) are written row by row as the run goes.
 """
 
 from __future__ import annotations
@@ -17,17 +24,22 @@ from supervisor.app.bench import Bench, build_bench
 from supervisor.chains.compiler import compile_recipe
 from supervisor.chains.engine import State
 from supervisor.chains.program import Program
+from supervisor.chains.run import ChainSnapshot
+from supervisor.config.limits import DRY_RUN_CYCLES_KEPT, DRY_RUN_EVENTS_KEPT
 from supervisor.config.models import BenchConfig
 from supervisor.config.recipe import load_recipe
 from supervisor.core.clock import VirtualClock
 from supervisor.core.units import parse_quantity
 from supervisor.devices.registry import bench_from_data
-from supervisor.publish.results import ResultCollector
+from supervisor.publish.results import FirstAndLast, ResultCollector
 
 TERMINAL = (State.COMPLETE, State.STOPPED, State.ABORTED, State.HELD)
 DEFAULT_START = "08:00"
 DRY_RUN_CELL_TEMPERATURE_TAG = "cell0.temperature"
 """The NiMH dry-run bench's tag for the simulated cell's temperature."""
+CHUNK_S = 600.0
+"""Virtual time run between two looks at the chain's state (the last chunk stops at the
+cap exactly)."""
 
 
 @dataclass
@@ -39,6 +51,12 @@ class DryRunResult:
     wall_s: float
     summary: dict[str, Any]
     step_sequence: list[tuple[str, str]] = field(default_factory=list)  # (step id, cause)
+    finished: bool = True
+    """The chain came to an end (Complete, Stopped, Aborted, Held); False: the run stopped
+    at ``max_hours`` with the chain still going (``supervisor dry-run`` exits 1)."""
+    max_hours: float = 0.0
+    steps_omitted: int = 0
+    """Step starts between the first and the last halves of ``step_sequence``."""
 
     @property
     def ratio(self) -> float:
@@ -192,11 +210,16 @@ async def dry_run(
     program = compile_recipe(recipe, pos, str(recipe_path), bench.target("ch0"), params or {})
     runner.load(program, test_id=f"dryrun-{program.name}")
     collector = ResultCollector(
-        "ch0", program.name, runner.test_id, results_dir / runner.test_id if results_dir else None
+        "ch0",
+        program.name,
+        runner.test_id,
+        results_dir / runner.test_id if results_dir else None,
+        events_kept=DRY_RUN_EVENTS_KEPT,
+        cycles_kept=DRY_RUN_CYCLES_KEPT,
     )
     runner.listeners.append(collector.on_event)
     runner.recorders.append(collector.on_record)
-    sequence: list[tuple[str, str]] = []
+    sequence: FirstAndLast[tuple[str, str]] = FirstAndLast(DRY_RUN_EVENTS_KEPT)
 
     def steps(ev: Any) -> None:
         text = ev.text
@@ -211,32 +234,78 @@ async def dry_run(
     sim0 = clock.now()
     limit = sim0 + max_hours * 3600
     while runner.state not in TERMINAL and clock.now() < limit:
-        await bench.engine.run_for(600.0)
+        await bench.engine.run_for(min(CHUNK_S, limit - clock.now()))
     wall = time.perf_counter() - t0
-    end = runner.end_reason or (
-        f"dry run stopped after {max_hours:g} h" if runner.state not in TERMINAL else ""
-    )
+    finished = runner.state in TERMINAL
+    runner.listeners.remove(steps)  # the shutdown's last scans are not part of the run
+    end = runner.end_reason
     if runner.state is State.HELD:
         end = str(bench.db["ch0.chain.alarm"].value or bench.db["ch0.fault"].value or end)
+    snap = runner.snapshot()
+    if not finished and snap is not None:
+        end = cap_message(max_hours, snap, program)
     summary = collector.close(end, runner.state.value)
     await bench.shutdown()
-    # The test ends at its last event, not at the end of the last simulated chunk.
-    timeline = summary["timeline"]
-    simulated = float(timeline[-1]["test_time_s"]) if timeline else clock.now() - sim0
-    return DryRunResult(program, runner.state, end, simulated, wall, summary, sequence)
+    if finished:
+        # The test ends at its last event, not at the end of the last simulated chunk.
+        timeline = summary["timeline"]
+        simulated = float(timeline[-1]["test_time_s"]) if timeline else clock.now() - sim0
+    else:
+        simulated = snap.test_time_s if snap is not None else clock.now() - sim0
+    return DryRunResult(
+        program,
+        runner.state,
+        end,
+        simulated,
+        wall,
+        summary,
+        list(sequence),
+        finished=finished,
+        max_hours=max_hours,
+        steps_omitted=sequence.omitted,
+    )
+
+
+def cap_message(max_hours: float, snap: ChainSnapshot, program: Program) -> str:
+    """Where a dry run stood when it reached its ``max_hours`` cap, and the likely why."""
+    step = program.steps[snap.step]
+    n = snap.step_count
+    text = (
+        f"did not finish within {max_hours:g} h (--max-hours): at test time"
+        f" {hms(snap.test_time_s)} in step {snap.step_id!r} ({snap.step + 1} of"
+        f" {len(program.steps)}) of cycle {snap.cycle} of {program.cycles},"
+        f" after {n} step start{'s' if n != 1 else ''}"
+    )
+    ends_itself = step.kind in ("pulse", "profile", "sleep", "sleep_until") or step.instant
+    if step.duration_s is None and step.transitions and not ends_itself:
+        text += (
+            f"; step {step.id!r} has no duration and none of its until conditions came true"
+            f" in {hms(snap.step_time_s)}"
+        )
+    return text
+
+
+def hms(s: float) -> str:
+    """``H:MM:SS`` (hours unbounded: ``1000:00:00``)."""
+    s = round(s)
+    return f"{s // 3600:d}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
 
 def format_report(res: DryRunResult) -> list[str]:
-    def hms(s: float) -> str:
-        s = round(s)
-        return f"{s // 3600:d}:{s % 3600 // 60:02d}:{s % 60:02d}"
-
+    summary = res.summary
     lines = [f"dry run of recipe {res.program.name!r} ({res.program.file})", "timeline:"]
-    for e in res.summary["timeline"]:
+    omitted, omitted_at = summary.get("timeline_omitted", 0), summary.get("timeline_omitted_at")
+    for k, e in enumerate(summary["timeline"]):
+        if omitted and k == omitted_at:
+            lines.append(f"  … {omitted} events omitted …")
         if e["kind"] in ("step", "alarm"):
             lines.append(f"  {hms(e['test_time_s']):>10}  cycle {e['cycle']}  {e['text']}")
     lines.append("per cycle:")
-    for c in res.summary["cycles"]:
+    previous: int | None = None
+    for c in summary["cycles"]:
+        if previous is not None and c["cycle"] > previous + 1 and summary.get("cycles_omitted"):
+            lines.append(f"  … {summary['cycles_omitted']} cycles omitted …")
+        previous = c["cycle"]
         ce = c["coulombic_efficiency"]
         lines.append(
             f"  cycle {c['cycle']}: charged {c['charge_capacity_ah'] * 1000:.1f} mAh"
@@ -244,7 +313,10 @@ def format_report(res: DryRunResult) -> list[str]:
             f" mAh ({c['discharge_energy_wh']:.3f} Wh)"
             + (f", coulombic efficiency {ce:.3f}" if ce is not None else "")
         )
-    lines.append(f"predicted duration: {hms(res.simulated_s)} ({res.simulated_s / 3600:.2f} h)")
+    if res.finished:
+        lines.append(f"predicted duration: {hms(res.simulated_s)} ({res.simulated_s / 3600:.2f} h)")
+    else:
+        lines.append(f"predicted duration: did not finish within {res.max_hours:g} h")
     lines.append(f"end: {res.state.value}: {res.end_reason}")
     lines.append(f"computed in {res.wall_s:.2f} s: simulated/wall ratio {res.ratio:,.0f}x")
     return lines

@@ -32,6 +32,7 @@ from supervisor.chains.program import (
     Program,
     Transition,
 )
+from supervisor.chains.zerotime import describe, zero_time_loops
 from supervisor.config.limits import MAX_INITIAL_CHARGE_AH
 from supervisor.config.recipe import HHMM, LogSettings, ProfileSpec, Recipe, Step
 from supervisor.config.yamlpos import Positions
@@ -605,7 +606,6 @@ class _Compiler:
     def _check_termination(
         self, steps: tuple[CompiledStep, ...], groups: tuple[CompiledGroup, ...]
     ) -> None:
-        n = len(steps)
         for s in steps:
             bounded_group = any(
                 groups[g].duration_s is not None or groups[g].transitions
@@ -625,20 +625,34 @@ class _Compiler:
                     f"step {s.id!r} never ends: give it a duration or an until condition",
                     at_key=True,
                 )
-        # A cycle made only of instant steps (goto chains) spins without time passing.
-        for start in range(n):
-            seen: list[int] = []
-            k: int | None = start
-            while k is not None and k < n and steps[k].kind == "goto" and k not in seen:
-                seen.append(k)
-                k = steps[k].goto
-            if k is not None and k in seen and k == start:
-                path_ids = " → ".join(steps[j].id for j in [*seen, start])
-                self.err(
-                    ("steps", start, "goto"),
-                    f"loop with no exit and no duration: {path_ids}",
-                )
-                return
+        self._check_zero_time_loops(steps, groups)
+
+    def _check_zero_time_loops(
+        self, steps: tuple[CompiledStep, ...], groups: tuple[CompiledGroup, ...]
+    ) -> None:
+        """A cycle of steps that can all end in the scan they start lets no time pass
+        (``rest: 0 s`` and a goto back, ``until: [true: <itself>]``, a group of 0 s, a
+        body of such steps repeated by ``cycles``): refused, naming its steps, at the
+        first one (ADR 0011; ``chains/zerotime.py`` says what ends a step at once)."""
+        keys = [
+            "rest" if s.kind == "rest" and s.duration is None and s.rest is not True else "duration"
+            for s in self.r.steps
+        ]
+        parameters = {k: v for k, (v, _) in self.params.items()}
+        for loop in zero_time_loops(steps, groups, self.r.cycles, parameters, keys):
+            path, details = describe(loop, steps)
+            first = loop.reasons[0]
+            if all(k < len(steps) and steps[k].kind == "goto" for k in loop.nodes):
+                # Only gotos: the message this refusal always had.
+                self.err(first.path, f"loop with no exit and no duration: {path}")
+                continue
+            self.err(
+                first.path,
+                f"loop that lets no time pass: {path}; each of its steps can end in the"
+                f" scan it starts ({details}); give one of them a duration above 0 s or a"
+                " condition that takes time",
+                at_key=first.at_key,
+            )
 
 
 def _is_c_rate(text: str) -> bool:

@@ -46,6 +46,7 @@ from supervisor.chains.states import (
     check_load,
     decide,
 )
+from supervisor.config.limits import MAX_TRANSITIONS_PER_SCAN
 from supervisor.core.clock import Clock
 from supervisor.core.delay import OnDelay
 from supervisor.core.errors import OperatorError
@@ -66,7 +67,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-MAX_INSTANT_STEPS = 1000  # guard: a chain of goto steps in one scan
 EPS_S = 1e-9
 CHAIN_FIELDS = (
     "state",
@@ -108,6 +108,9 @@ class ChainRunner:
         self._r = RunState()
         self._alarm_latched = False
         self._pending_advance = False
+        # The steps started in the scan at ``_scan_t`` (bounded: MAX_TRANSITIONS_PER_SCAN).
+        self._scan_t: float | None = None
+        self._started: list[int] = []
         # Set at load: one behaviour per step, the condition values, the logging rules.
         self._behaviours: tuple[StepBehaviour, ...] = ()
         self._conditions: ConditionValues | None = None
@@ -368,6 +371,9 @@ class ChainRunner:
             conditions.observe(now, port.voltage.as_float())
         step = program.steps[r.step]
         behaviour = self._behaviours[r.step]
+        if step.instant:
+            self._carry_on(step, now)  # held in a goto chain, resumed (ADR 0011)
+            return
         if r.sleep_until_t is not None:
             if now < r.sleep_until_t:
                 self._record(now, step)
@@ -509,17 +515,23 @@ class ChainRunner:
         self._enter(index, cause, now)
 
     def _next_cycle(self, cause: str, now: float) -> None:
+        if self._close_cycle(cause, now):
+            self._enter(0, f"cycle {self._r.cycle} starts", now, record_prev=False)
+
+    def _close_cycle(self, cause: str, now: float) -> bool:
+        """End the cycle: True when another one starts (its first step is for the caller to
+        enter), False when the test is complete."""
         r = self._r
         assert self.program is not None
         self._record(now, self.program.steps[r.step], "step change")
         self._emit("step", f"end of cycle {r.cycle} ({cause})")
         if r.cycle >= self.program.cycles:
             self._complete(f"{cause}; cycle {r.cycle} of {self.program.cycles} done", now)
-            return
+            return False
         r.cycle += 1
         r.t_cycle0 = now
         r.cycle0 = self.port.counters()
-        self._enter(0, f"cycle {r.cycle} starts", now, record_prev=False)
+        return True
 
     def _complete(self, cause: str, now: float) -> None:
         r = self._r
@@ -532,16 +544,25 @@ class ChainRunner:
         self._set_state(State.COMPLETE, cause)
 
     def _enter(self, index: int, cause: str, now: float, record_prev: bool = True) -> None:
-        """Activate a step; instant steps (goto, end of cycle, end, sleep_until) act at once."""
+        """Activate a step; instant steps (goto, end of cycle, end, sleep_until) act at once,
+        so one scan may start several steps: at most ``MAX_TRANSITIONS_PER_SCAN``, past
+        which the chain is held with a supervision alarm (a loop that lets no time pass,
+        ADR 0011) rather than spinning in the scan."""
         program, conditions = self.program, self._conditions
         assert program is not None and conditions is not None
         r, port = self._r, self.port
-        for _ in range(MAX_INSTANT_STEPS):
+        if now != self._scan_t:
+            self._scan_t, self._started = now, []
+        while True:
+            step = program.steps[index]
+            if len(self._started) >= MAX_TRANSITIONS_PER_SCAN:
+                self._too_many_transitions(step, now)
+                return
+            self._started.append(index)
             prev = program.steps[r.step] if r.step_count else None
             if prev is not None and record_prev:
                 self._record(now, prev, "step change")
             record_prev = True
-            step = program.steps[index]
             behaviour = self._behaviours[index]
             for g in step.groups:
                 if prev is None or g not in prev.groups:
@@ -562,8 +583,12 @@ class ChainRunner:
                     index, cause = entry.target, f"goto {program.steps[entry.target].id}"
                     continue
                 if entry.kind is ActionKind.NEXT_CYCLE:
-                    self._next_cycle("end of cycle step", now)
-                    return
+                    # On to the next cycle in this loop (not by recursion): the steps it
+                    # starts count against the same per-scan bound.
+                    if not self._close_cycle("end of cycle step", now):
+                        return
+                    index, cause, record_prev = 0, f"cycle {r.cycle} starts", False
+                    continue
                 if entry.kind is ActionKind.END:
                     self._complete("end step", now)
                     return
@@ -572,8 +597,38 @@ class ChainRunner:
                     r.sleep_then = index + 1
             self._record(now, step, "step change")
             return
-        self._alarm("goto loop without a step that takes time")
-        self._set_state(State.ABORTING, "goto loop")
+
+    def _too_many_transitions(self, step: CompiledStep, now: float) -> None:
+        """``MAX_TRANSITIONS_PER_SCAN`` steps started in this scan and ``step`` would be
+        the next: hold the chain (in the instant step it is in; ``resume`` carries on from
+        there, with a new scan's allowance) with a latched supervision alarm naming the
+        loop, like a step-time supervision (ADR 0004)."""
+        assert self.program is not None
+        steps = self.program.steps
+        started = self._started
+        # The loop: from the last time the next step was started to now.
+        last = max((k for k, j in enumerate(started) if j == step.index), default=None)
+        loop = [steps[j].id for j in started[last:]] + [step.id] if last is not None else []
+        where = f" (loop {' → '.join(loop)})" if loop else ""
+        why = (
+            f"supervision: {len(started)} steps started in one scan without time passing"
+            f"{where}; held before step {step.id!r} (at most {MAX_TRANSITIONS_PER_SCAN}"
+            " per scan)"
+        )
+        self._alarm(why)
+        self._set_state(State.HOLDING, why)
+
+    def _carry_on(self, step: CompiledStep, now: float) -> None:
+        """The chain was held in an instant step (too many steps in one scan) and resumed:
+        that step acts now, as it would have in the scan it started."""
+        entry = self._behaviours[step.index].entry
+        assert self.program is not None and entry is not None
+        if entry.kind is ActionKind.GOTO and entry.target is not None:
+            self._enter(entry.target, f"goto {self.program.steps[entry.target].id}", now)
+        elif entry.kind is ActionKind.NEXT_CYCLE:
+            self._next_cycle("end of cycle step", now)
+        elif entry.kind is ActionKind.END:
+            self._complete("end step", now)
 
     # --- outputs, records, tags -----------------------------------------------------------------
     def _outputs(self) -> None:

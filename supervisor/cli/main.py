@@ -399,7 +399,8 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
     )
     for line in format_report(res):
         _out(line)
-    return EXIT_OK
+    # 1: the run stopped at --max-hours with the chain still going (no duration predicted).
+    return EXIT_OK if res.finished else EXIT_FAIL
 
 
 # --- import ----------------------------------------------------------------------------
@@ -592,7 +593,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default=".", help="project root: writes io_maps/ and recipes/ schemas")
     s.set_defaults(func=cmd_schema)
 
-    d = sub.add_parser("dry-run", help="run a recipe against the battery model, virtual time")
+    d = sub.add_parser(
+        "dry-run",
+        help="run a recipe against the battery model, virtual time",
+        description="Run a recipe against the battery model on the virtual clock: step"
+        " timeline, predicted duration, capacity per cycle.",
+        epilog="exit codes: 0 the recipe came to an end (Complete, Stopped, Aborted, or Held"
+        " by an alarm: the report says which); 1 it did not finish within --max-hours (the"
+        " report says where it was: step, cycle, test time); 2 a usage or recipe error."
+        " A long run's timeline and cycles are shown by their first and last halves.",
+    )
     d.add_argument("recipe")
     d.add_argument("--model", choices=["nimh-aa", "liion-pack"], default=None)
     d.add_argument("--param", action="append", default=[], metavar="NAME=VALUE")
@@ -619,7 +629,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-hours",
         type=_bounded(0.0, DRY_RUN_MAX_HOURS, "h", low_included=False),
         default=1000.0,
-        help="stop the dry run after this much virtual time",
+        help="stop the dry run after this much virtual time (default 1000 h; exit 1)",
     )
     d.add_argument(
         "--results", type=_results_dir, default=None, help="write result files under this folder"

@@ -22,9 +22,11 @@ import csv
 import json
 import logging
 import time
+from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Generic, TypeVar
 
 from supervisor.core.records import ChainEvent, Record
 
@@ -139,13 +141,52 @@ class CycleSummary:
 # "command": an operator command of the running test, accepted or refused, by whom.
 TIMELINE_KINDS = ("step", "state", "alarm", "command")
 
+T = TypeVar("T")
+
+
+class FirstAndLast(Generic[T]):
+    """At most ``limit`` of the items appended: the first half and the latest half, and
+    the count of those dropped between them (a dry run's timeline and cycles: the start
+    and the end of a long run are what a reader looks at, memory stays bounded)."""
+
+    def __init__(self, limit: int) -> None:
+        if limit < 1:
+            raise ValueError("keep at least one item")
+        self.limit = limit
+        self.first: list[T] = []
+        self.last: deque[T] = deque(maxlen=limit - limit // 2)
+        self.omitted = 0
+
+    def append(self, item: T) -> T | None:
+        """Keep ``item``; returns the item it pushed out, if any."""
+        if len(self.first) < self.limit // 2:
+            self.first.append(item)
+            return None
+        dropped = None
+        if len(self.last) == self.last.maxlen:
+            dropped = self.last[0]
+            self.omitted += 1
+        self.last.append(item)
+        return dropped
+
+    def __iter__(self) -> Iterator[T]:
+        yield from self.first
+        yield from self.last
+
+    def __len__(self) -> int:
+        return len(self.first) + len(self.last)
+
 
 @dataclass
 class ResultCollector:
     """Keeps the timeline and per-cycle figures in memory; writes files if given a folder.
 
     The owner of a live test calls ``checkpoint`` at every timeline event and periodically
-    (the summary of the test under way); a dry run only calls ``close``.
+    (the summary of the test under way); a dry run only calls ``close``. ``events_kept``
+    and ``cycles_kept`` (a dry run's ``DRY_RUN_EVENTS_KEPT``, ``DRY_RUN_CYCLES_KEPT``) bound
+    what is kept in memory to the first and the last halves; the summary then counts the
+    rest (``timeline_omitted`` after the first ``timeline_omitted_at`` events,
+    ``cycles_omitted``). None: everything is kept (a live test's record).
     """
 
     channel: str
@@ -165,6 +206,17 @@ class ResultCollector:
     _bdf_writer: Any = None
     _cha: IO[str] | None = None
     _resumed: bool = False
+    events_kept: int | None = None
+    cycles_kept: int | None = None
+    _events: FirstAndLast[dict[str, Any]] | None = None
+    _kept_cycles: FirstAndLast[int] | None = None
+    _open_cycles: set[int] = field(default_factory=set)  # not known complete yet
+
+    def __post_init__(self) -> None:
+        if self.events_kept is not None:
+            self._events = FirstAndLast(self.events_kept)
+        if self.cycles_kept is not None:
+            self._kept_cycles = FirstAndLast(self.cycles_kept)
 
     # --- files -----------------------------------------------------------------------
     @property
@@ -202,15 +254,14 @@ class ResultCollector:
         if self.first_t is None:
             self.first_t = ev.t  # the start event (the first record sets it exactly)
         self.last_t = ev.t if self.last_t is None else max(self.last_t, ev.t)
-        self.timeline.append(
-            {
-                "test_time_s": round(ev.t - self.first_t, 3),
-                "kind": ev.kind,
-                "cycle": ev.cycle,
-                "step": ev.step_id,
-                "text": ev.text,
-            }
-        )
+        entry = {
+            "test_time_s": round(ev.t - self.first_t, 3),
+            "kind": ev.kind,
+            "cycle": ev.cycle,
+            "step": ev.step_id,
+            "text": ev.text,
+        }
+        (self._events if self._events is not None else self.timeline).append(entry)
 
     def on_record(self, rec: Record) -> None:
         if self.closed:
@@ -222,10 +273,20 @@ class ResultCollector:
         self.records += 1
         self.last_rec = rec
         self.last_t = rec.t if self.last_t is None else max(self.last_t, rec.t)
-        for n, c in self.cycles.items():
-            if n < rec.cycle:
-                c.complete = True  # a later cycle started: this one reached its end
-        c = self.cycles.setdefault(rec.cycle, CycleSummary(rec.cycle))
+        # A later cycle started: the earlier ones reached their end (only those not yet
+        # known complete are looked at: a million cycles stay linear).
+        for n in [n for n in self._open_cycles if n < rec.cycle]:
+            self._open_cycles.discard(n)
+            if n in self.cycles:
+                self.cycles[n].complete = True
+        c = self.cycles.get(rec.cycle)
+        if c is None:
+            c = self.cycles[rec.cycle] = CycleSummary(rec.cycle)
+            self._open_cycles.add(rec.cycle)
+            if self._kept_cycles is not None:
+                dropped = self._kept_cycles.append(rec.cycle)
+                if dropped is not None:
+                    self.cycles.pop(dropped, None)
         c.charged_ah = rec.cycle_charged_ah
         c.discharged_ah = rec.cycle_discharged_ah
         c.charged_wh = rec.cycle_charged_wh
@@ -278,7 +339,7 @@ class ResultCollector:
         if complete and state == "Complete" and self.cycles:
             self.cycles[max(self.cycles)].complete = True  # the recipe's own end
         why_open = (end_reason or "the test ended") if complete else ""
-        return {
+        out = {
             "format": SUMMARY_FORMAT,
             "test_id": self.test_id,
             "channel": self.channel,
@@ -289,8 +350,14 @@ class ResultCollector:
             "duration_s": round(self.test_time_s(now), 3),
             "records": self.records,
             "cycles": [c.as_dict(why_open) for _, c in sorted(self.cycles.items())],
-            "timeline": self.timeline,
+            "timeline": self.timeline if self._events is None else list(self._events),
         }
+        if self._events is not None:
+            out["timeline_omitted"] = self._events.omitted
+            out["timeline_omitted_at"] = len(self._events.first)
+        if self._kept_cycles is not None:
+            out["cycles_omitted"] = self._kept_cycles.omitted
+        return out
 
     def checkpoint(self, state: str = "", now: float | None = None) -> None:
         """Rewrite the summary of the test under way (``"complete": false``); ``state``:
@@ -363,6 +430,7 @@ class ResultCollector:
                 self.cycles = {
                     int(c["cycle"]): CycleSummary.from_dict(c) for c in old.get("cycles", [])
                 }
+                self._open_cycles = {n for n, c in self.cycles.items() if not c.complete}
             except (OSError, ValueError, KeyError, TypeError) as exc:
                 log.warning(
                     "%s: summary %s unreadable (%s); starting a new one", self.channel, path, exc

@@ -32,6 +32,13 @@ CASES = [
     ("goto_missing_step.yaml", 4, 22, "goto to a missing step 'rset'"),
     ("unit_mismatch.yaml", 7, 17, "cannot compare a voltage with a current"),
     ("loop_without_exit.yaml", 4, 19, "loop with no exit and no duration: b → c → b"),
+    # Zero-time loops (issue 9, ADR 0011): steps that can all end in the scan they start.
+    ("zero_rest_loop.yaml", 4, 24, "loop that lets no time pass: settle → again → settle"),
+    ("zero_sleep_loop.yaml", 3, 22, "loop that lets no time pass: nap → again → nap; "),
+    ("until_true_at_once.yaml", 6, 9, "spin → spin; each of its steps can end in the scan"),
+    ("zero_group_loop.yaml", 3, 42, "work → again → work; each of its steps can end in"),
+    ("goto_chain_into_zero_step.yaml", 4, 22, "hop1 → hop2 → idle → back → hop1; "),
+    ("zero_cycle_body.yaml", 4, 24, "settle → (next cycle) → settle; each of its steps"),
     ("negative_duration.yaml", 5, 15, "a duration cannot be negative"),
     ("unknown_parameter.yaml", 8, 20, "unknown name 'v_mx'; did you mean 'v_max'?"),
     ("step_never_ends.yaml", 3, 13, "never ends"),
