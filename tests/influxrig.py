@@ -30,8 +30,10 @@ import urllib.request
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pytest
+import yaml
 
 from supervisor.testing import free_tcp_port
 
@@ -42,7 +44,11 @@ __all__ = [
     "InfluxServer",
     "Reply",
     "ScriptedInflux",
+    "expected_points",
     "influxd_binary",
+    "parse_line",
+    "server_points",
+    "sim_map",
 ]
 
 DATABASE = "bench"
@@ -174,6 +180,30 @@ bind-address = "127.0.0.1:{self.rpc_port}"
             answer: dict[str, object] = json.loads(r.read())
         return answer
 
+    def points(self, measurement: str) -> dict[tuple[frozenset[tuple[str, str]], int], dict]:  # type: ignore[type-arg]
+        """Every point of ``measurement``: (its tags, its ns timestamp) → its fields."""
+        import base64
+        import json
+
+        q = {"q": f'SELECT * FROM "{measurement}" GROUP BY *', "db": DATABASE, "epoch": "ns"}
+        req = urllib.request.Request(
+            f"{self.url}/query", data=urllib.parse.urlencode(q).encode(), method="POST"
+        )
+        if self.auth:
+            req.add_header(
+                "Authorization", f"Basic {base64.b64encode(ADMIN_TOKEN.encode()).decode()}"
+            )
+        with urllib.request.urlopen(req, timeout=120) as resp:
+            answer = json.loads(resp.read())
+        out: dict[tuple[frozenset[tuple[str, str]], int], dict] = {}  # type: ignore[type-arg]
+        for series in answer["results"][0].get("series", []):
+            tags = frozenset((k, v) for k, v in series.get("tags", {}).items() if v != "")
+            columns = series["columns"]
+            for row in series["values"]:
+                fields = {c: v for c, v in zip(columns[1:], row[1:], strict=True) if v is not None}
+                out[(tags, int(row[0]))] = fields
+        return out
+
     def count(self, measurement: str, field: str) -> int:
         """How many points of ``measurement`` have ``field`` (InfluxQL COUNT)."""
         answer = self.query(f'SELECT COUNT("{field}") FROM "{measurement}"')
@@ -193,6 +223,55 @@ def influx(tmp_path: Path) -> Iterator[InfluxServer]:
         yield server
     finally:
         server.stop()
+
+
+# --- the simulated bench publishing into a test server ----------------------------------------
+Key = tuple[str, frozenset[tuple[str, str]], int]  # measurement, tags, ns
+
+
+def sim_map(tmp: Path, influx: InfluxServer, **overrides: Any) -> Path:
+    """io_maps/sim.yaml on free loopback ports, its state under ``tmp``, publishing into
+    ``influx``."""
+    data = yaml.safe_load(
+        (Path(__file__).resolve().parents[1] / "io_maps" / "sim.yaml").read_text(encoding="utf-8")
+    )
+    for dev in data["devices"].values():
+        if "port" in dev:
+            dev["port"] = free_tcp_port()
+    data["hmi"]["port"] = 0
+    data["state_dir"] = str(tmp / "var")
+    token = tmp / "influx.token"
+    token.write_text(influx.token + "\n", encoding="utf-8")
+    data["influxdb"] = {
+        "url": influx.url,
+        "org": influx.org,
+        "bucket": influx.bucket,
+        "token_file": str(token),
+        "flush_interval_s": 0.5,
+        "retry_max_s": 1.0,
+        **overrides,
+    }
+    path = tmp / "sim-influx.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    return path
+
+
+def expected_points(lines: list[str]) -> dict[Key, dict[str, object]]:
+    """What the server must hold: points by (measurement, tags, time), fields merged (a
+    later write of the same field at the same instant overwrites, as on the server)."""
+    out: dict[Key, dict[str, object]] = {}
+    for line in lines:
+        m, tags, fields, ts = parse_line(line)
+        out.setdefault((m, frozenset(tags.items()), ts), {}).update(fields)
+    return out
+
+
+def server_points(influx: InfluxServer) -> dict[Key, dict[str, object]]:
+    out: dict[Key, dict[str, object]] = {}
+    for m in ("channel", "device", "diagnostics", "event"):
+        for (tags, ts), fields in influx.points(m).items():
+            out[(m, tags, ts)] = fields
+    return out
 
 
 # --- a scripted stand-in for the write API ----------------------------------------------------
@@ -267,3 +346,95 @@ def influx_auth(tmp_path: Path) -> Iterator[InfluxServer]:
         yield server
     finally:
         server.stop()
+
+
+# --- a small parser of the line protocol (the spec, not the encoder under test) -------------
+def _split_unescaped(text: str, sep: str) -> list[str]:
+    """Split at ``sep`` where it is not preceded by a backslash escape."""
+    out, cur, k = [], [], 0
+    while k < len(text):
+        c = text[k]
+        if c == "\\" and k + 1 < len(text):
+            cur.append(text[k : k + 2])
+            k += 2
+            continue
+        if c == sep:
+            out.append("".join(cur))
+            cur = []
+        else:
+            cur.append(c)
+        k += 1
+    out.append("".join(cur))
+    return out
+
+
+def _unescape_key(text: str) -> str:
+    for c in (",", "=", " "):
+        text = text.replace("\\" + c, c)
+    return text
+
+
+def _fields(text: str) -> list[tuple[str, str]]:
+    """(raw key, raw value) pairs. A key ends at its first unescaped ``=``; quotes matter
+    only in values (as InfluxDB's scanner has it); a field ends at a comma outside them."""
+    out: list[tuple[str, str]] = []
+    k, n = 0, len(text)
+    while k < n:
+        key = []
+        while text[k] != "=":
+            step = 2 if text[k] == "\\" and k + 1 < n else 1
+            key.append(text[k : k + step])
+            k += step
+        k += 1  # the '='
+        start = k
+        if k < n and text[k] == '"':
+            k += 1
+            while text[k] != '"':
+                k += 2 if text[k] == "\\" else 1
+            k += 1
+        else:
+            while k < n and text[k] != ",":
+                k += 1
+        out.append(("".join(key), text[start:k]))
+        assert k == n or text[k] == ",", f"junk after a field value at {k}: {text!r}"
+        k += 1
+    return out
+
+
+def _unescape_string(text: str) -> str:
+    out, k = [], 0
+    while k < len(text):
+        if text[k] == "\\" and k + 1 < len(text) and text[k + 1] in '"\\':
+            out.append(text[k + 1])
+            k += 2
+        else:
+            out.append(text[k])
+            k += 1
+    return "".join(out)
+
+
+def parse_line(line: str) -> tuple[str, dict[str, str], dict[str, object], int]:
+    """(measurement, tags, fields, timestamp) of one line."""
+    assert "\n" not in line
+    head_fields, _, ts = line.rpartition(" ")
+    # The head ends at the first unescaped space; field strings may hold spaces.
+    parts = _split_unescaped(head_fields, " ")
+    head, fields_text = parts[0], " ".join(parts[1:])
+    series = _split_unescaped(head, ",")
+    measurement = _unescape_key(series[0])
+    tags = {}
+    for item in series[1:]:
+        k, v = _split_unescaped(item, "=")
+        tags[_unescape_key(k)] = _unescape_key(v)
+    fields: dict[str, object] = {}
+    for k, v in _fields(fields_text):
+        key = _unescape_key(k)
+        if v.startswith('"'):
+            assert v.endswith('"') and len(v) >= 2
+            fields[key] = _unescape_string(v[1:-1])
+        elif v in ("true", "false"):
+            fields[key] = v == "true"
+        else:
+            assert not v.endswith("i"), f"an integer field: {k}={v}"
+            fields[key] = float(v)
+    return measurement, tags, fields, int(ts)

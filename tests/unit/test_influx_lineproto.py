@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from influxrig import parse_line
 
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
@@ -21,98 +22,6 @@ from supervisor.publish.influx.lineproto import (
 )
 
 WALL = 1_760_000_000.123456
-
-
-# --- a small parser of the line protocol (the spec, not our encoder) -----------------------
-def _split_unescaped(text: str, sep: str) -> list[str]:
-    """Split at ``sep`` where it is not preceded by a backslash escape."""
-    out, cur, k = [], [], 0
-    while k < len(text):
-        c = text[k]
-        if c == "\\" and k + 1 < len(text):
-            cur.append(text[k : k + 2])
-            k += 2
-            continue
-        if c == sep:
-            out.append("".join(cur))
-            cur = []
-        else:
-            cur.append(c)
-        k += 1
-    out.append("".join(cur))
-    return out
-
-
-def _unescape_key(text: str) -> str:
-    for c in (",", "=", " "):
-        text = text.replace("\\" + c, c)
-    return text
-
-
-def _fields(text: str) -> list[tuple[str, str]]:
-    """(raw key, raw value) pairs. A key ends at its first unescaped ``=``; quotes matter
-    only in values (as InfluxDB's scanner has it); a field ends at a comma outside them."""
-    out: list[tuple[str, str]] = []
-    k, n = 0, len(text)
-    while k < n:
-        key = []
-        while text[k] != "=":
-            step = 2 if text[k] == "\\" and k + 1 < n else 1
-            key.append(text[k : k + step])
-            k += step
-        k += 1  # the '='
-        start = k
-        if k < n and text[k] == '"':
-            k += 1
-            while text[k] != '"':
-                k += 2 if text[k] == "\\" else 1
-            k += 1
-        else:
-            while k < n and text[k] != ",":
-                k += 1
-        out.append(("".join(key), text[start:k]))
-        assert k == n or text[k] == ",", f"junk after a field value at {k}: {text!r}"
-        k += 1
-    return out
-
-
-def _unescape_string(text: str) -> str:
-    out, k = [], 0
-    while k < len(text):
-        if text[k] == "\\" and k + 1 < len(text) and text[k + 1] in '"\\':
-            out.append(text[k + 1])
-            k += 2
-        else:
-            out.append(text[k])
-            k += 1
-    return "".join(out)
-
-
-def parse_line(line: str) -> tuple[str, dict[str, str], dict[str, object], int]:
-    """(measurement, tags, fields, timestamp) of one line."""
-    assert "\n" not in line
-    head_fields, _, ts = line.rpartition(" ")
-    # The head ends at the first unescaped space; field strings may hold spaces.
-    parts = _split_unescaped(head_fields, " ")
-    head, fields_text = parts[0], " ".join(parts[1:])
-    series = _split_unescaped(head, ",")
-    measurement = _unescape_key(series[0])
-    tags = {}
-    for item in series[1:]:
-        k, v = _split_unescaped(item, "=")
-        tags[_unescape_key(k)] = _unescape_key(v)
-    fields: dict[str, object] = {}
-    for k, v in _fields(fields_text):
-        key = _unescape_key(k)
-        if v.startswith('"'):
-            assert v.endswith('"') and len(v) >= 2
-            fields[key] = _unescape_string(v[1:-1])
-        elif v in ("true", "false"):
-            fields[key] = v == "true"
-        else:
-            assert not v.endswith("i"), f"an integer field: {k}={v}"
-            fields[key] = float(v)
-    return measurement, tags, fields, int(ts)
 
 
 def encoder(channels: tuple[str, ...] = ("ch0", "ch1"), types: dict[str, str] | None = None):  # type: ignore[no-untyped-def]
@@ -201,6 +110,17 @@ def test_samples_of_one_series_at_one_instant_share_a_line_and_go_out_oldest_fir
     parsed = [parse_line(x) for x in out["device"]]
     assert [p[3] for p in parsed] == [timestamp_ns(WALL), timestamp_ns(WALL + 0.1)]
     assert parsed[1][2] == {"voltage": 14.8, "current": 2.0}
+
+
+def test_a_series_never_gets_the_same_instant_twice_so_no_point_replaces_another() -> None:
+    enc = encoder()
+    first = enc.encode([sample("ch0.voltage", 1.0), sample("ch0.current", 0.1)])["channel"]
+    # Written between two scans: it carries the last scan's time, the same instant.
+    again = enc.encode([sample("ch0.enable", False), sample("ch0.voltage", 1.1)])["channel"]
+    (a,), (b,) = first, again
+    assert parse_line(a)[3] == timestamp_ns(WALL)
+    assert parse_line(b)[3] == timestamp_ns(WALL) + 1  # the next free nanosecond
+    assert parse_line(b)[2] == {"enable": False, "voltage": 1.1}
 
 
 def test_the_timestamp_is_the_acquisition_time_in_nanoseconds_and_replays_identically() -> None:

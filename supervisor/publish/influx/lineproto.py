@@ -21,6 +21,9 @@ makes every later float a "field type conflict"), booleans as booleans, text as 
 BAD sample, a NaN or an infinity writes no field (a gap in the trend). The timestamp is the
 acquisition time in nanoseconds (``Sample.wall``): a replayed point overwrites itself
 instead of duplicating, which turns the spool's at-least-once delivery into exactly-once.
+Every line is its own point: a series given a timestamp it already had lately (a value
+written between two scans carries the last scan's time) gets the next free nanosecond,
+so no value of ours replaces another on the server.
 
 Escaping (line protocol reference, "Special characters"; checked against InfluxDB 1.8.10):
 commas, spaces and equals signs in tag keys, tag values and field keys take a backslash;
@@ -35,6 +38,7 @@ so no spelling of it survives the round trip).
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
@@ -67,6 +71,11 @@ MEASUREMENTS = (CHANNEL, DEVICE, DIAGNOSTICS, EVENT)
 
 DIAGNOSTIC_SOURCES = frozenset({"scan", "influx", "historian"})
 """Tag-name prefixes that describe the supervisor itself: ``diagnostics``, not ``device``."""
+
+RECENT_PER_SERIES = 256
+"""Timestamps remembered per series to keep every line its own point."""
+MAX_SERIES = 10_000
+"""Series remembered at most (the memory is cleared past it)."""
 
 RESERVED_FIELD_KEYS = {"time": "time_"}
 """InfluxDB refuses a field named ``time`` (every point would be dead-lettered)."""
@@ -200,9 +209,10 @@ class LineEncoder:
         self._bench_tag = f"bench={escape_tag(bench)}" if bench else ""
         self._routes: dict[str, _Route] = {}
         self._channel_prefixes: dict[tuple[str, str, str], str] = {}
-        # Last timestamp given to each event series: two events of one series in the same
-        # nanosecond (alarms raised in one scan) would overwrite each other.
-        self._event_ts: dict[str, int] = {}
+        # The timestamps each series was given lately: a line of a series at an instant it
+        # already has (a value written between two scans carries the last scan's time,
+        # several alarms are raised in one scan) would overwrite that point on the server.
+        self._recent: dict[str, tuple[deque[int], set[int]]] = {}
 
     # --- samples ----------------------------------------------------------------------
     def encode(
@@ -240,8 +250,27 @@ class LineEncoder:
         out: dict[str, list[str]] = {}
         # Oldest first within one call, so that each series' points go out in time order.
         for (prefix, ts), (measurement, fields) in sorted(groups.items(), key=_by_time):
+            ts = self._unique(prefix, ts)
             out.setdefault(measurement, []).append(f"{prefix} {','.join(fields)} {ts}")
         return out
+
+    def _unique(self, prefix: str, ts: int) -> int:
+        """``ts``, or the next free nanosecond when this series had a point there lately:
+        every line is its own point, none replaces another (a replay of a spooled line is
+        the same text, so it still overwrites only itself)."""
+        recent = self._recent.get(prefix)
+        if recent is None:
+            if len(self._recent) >= MAX_SERIES:  # bounded: test ids come and go
+                self._recent.clear()
+            recent = self._recent[prefix] = (deque(), set())
+        order, seen = recent
+        while ts in seen:
+            ts += 1
+        order.append(ts)
+        seen.add(ts)
+        if len(order) > RECENT_PER_SERIES:
+            seen.discard(order.popleft())
+        return ts
 
     def channel_prefix(self, channel: str, test_id: str = "", recipe: str = "") -> str:
         key = (channel, test_id, recipe)
@@ -250,7 +279,7 @@ class LineEncoder:
             prefix = self._prefix(
                 CHANNEL, {"channel": channel, "test_id": test_id, "recipe": recipe}
             )
-            if len(self._channel_prefixes) > 10_000:  # bounded: test ids come and go
+            if len(self._channel_prefixes) > MAX_SERIES:  # bounded: test ids come and go
                 self._channel_prefixes.clear()
             self._channel_prefixes[key] = prefix
         return prefix
@@ -286,11 +315,7 @@ class LineEncoder:
             EVENT,
             {"kind": ev.kind, "channel": ev.channel, "test_id": ev.test_id, "recipe": ev.recipe},
         )
-        ts = timestamp_ns(ev.wall)
-        last = self._event_ts.get(prefix)
-        if last is not None and ts <= last:
-            ts = last + 1  # one nanosecond later: both events kept, in their order
-        self._event_ts[prefix] = ts
+        ts = self._unique(prefix, timestamp_ns(ev.wall))
         severity = format_float(float(ev.severity)) or "0.0"
         fields = (
             f"actor={escape_string(ev.actor)},severity={severity},"

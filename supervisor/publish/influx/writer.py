@@ -28,8 +28,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from supervisor.core.clock import Clock
+from supervisor.core.driver import Value
 from supervisor.core.records import BenchEvent
-from supervisor.publish.changes import ChangeFeed
+from supervisor.publish.changes import ChangeFeed, Sample
 from supervisor.publish.influx.client import CONFIGURATION, TRANSIENT, WriteClient
 from supervisor.publish.influx.forward import Forwarder, ForwarderStatus
 from supervisor.publish.influx.lineproto import EVENT, LineEncoder
@@ -188,6 +189,26 @@ class SpoolWriter:
                     self.error or "disk too slow",
                 )
 
+    def open_spool(self) -> bool:
+        """Open the spool if it is not; a failure is reported once (``error``) and left
+        for the next attempt."""
+        if self.spool.is_open:
+            return True
+        try:
+            self.spool.open()
+        except (sqlite3.Error, OSError, ValueError) as exc:
+            self._failed(exc)
+            return False
+        return True
+
+    def _failed(self, exc: BaseException) -> None:
+        why = f"{type(exc).__name__}: {exc}"
+        with self._cond:
+            first = self.error != why
+            self.error = why
+        if first:
+            log.error("InfluxDB spool %s: cannot write (%s); retrying", self.spool.path, why)
+
     def start(self) -> None:
         if self._thread is not None:
             return
@@ -226,10 +247,8 @@ class SpoolWriter:
                     self.spool.open()
                 self.spool.append(items, self.chunk_points, extra)
             except (sqlite3.Error, OSError, ValueError) as exc:
-                why = f"{type(exc).__name__}: {exc}"
+                self._failed(exc)
                 with self._cond:
-                    first = self.error != why
-                    self.error = why
                     if stopping:
                         self._unspooled_drops += n
                         lost = self._unspooled_drops
@@ -237,16 +256,12 @@ class SpoolWriter:
                         self._items.extendleft(reversed(items))
                         self._queued += n
                         self._shed()
-                if first:
-                    log.error(
-                        "InfluxDB spool %s: write failed (%s); retrying", self.spool.path, why
-                    )
                 if stopping:
                     log.error(
                         "InfluxDB spool %s: %d points could not be spooled at stop (%s)",
                         self.spool.path,
                         lost,
-                        why,
+                        self.error,
                     )
                     return
                 self._sleep(SPOOL_RETRY_S)
@@ -314,6 +329,7 @@ class InfluxWriter:
     ) -> None:
         self.settings = settings
         self.db = db
+        self.clock = clock
         self.alarm = alarm
         self.feed = ChangeFeed(db, clock)
         self.encoder = LineEncoder(bench, channels, dtype_of=self._dtype_of)
@@ -336,14 +352,18 @@ class InfluxWriter:
             on_commit=self.forwarder.notify,
         )
         self._tags: dict[str, Tag] = {}
+        initial: dict[str, Value] = {"int": 0, "float": 0.0, "bool": False, "str": ""}
         for spec in _status_tags():
-            self._tags[spec.name] = db.get(spec.name) or db.add(spec)
+            tag = self._tags[spec.name] = db.get(spec.name) or db.add(spec)
+            db.update(tag, initial[spec.dtype])  # never None, before the first scan too
         self._tests = {
             ch: (db.get(f"{ch}.chain.test_id"), db.get(f"{ch}.chain.recipe")) for ch in channels
         }
         self._alarms: dict[str, tuple[bool, str]] = {}
         self._spool_problem = ""
         self._started = False
+        self._floor_t = clock.now()
+        self._floor_wall = clock.to_wall(self._floor_t)
 
     def _dtype_of(self, name: str) -> str | None:
         tag = self.db.get(name)
@@ -355,10 +375,7 @@ class InfluxWriter:
         threads. A spool that cannot be opened is reported and retried, never raised."""
         if self._started:
             return
-        try:
-            self.spool.open()
-        except (sqlite3.Error, OSError, ValueError) as exc:
-            log.error("InfluxDB spool %s cannot be opened: %s; retrying", self.spool.path, exc)
+        self.writer.open_spool()
         self._spool_problem = self.spool.problem
         counts = self.spool.counts()
         if counts.waiting:
@@ -398,6 +415,15 @@ class InfluxWriter:
     def on_scan(self, db: TagDB, t: float) -> None:
         """At scan end: this scan's changes to the queue; the status tags and alarms."""
         samples = self.feed.take()
+        floor = self._floor_t
+        if any(x.t < floor for x in samples):
+            # Set before this writer existed, at time 0 of the clock (on a real clock the
+            # boot: every run would write its initial values at the same instant, over the
+            # last run's): stored as known since the recording began, before any scan.
+            samples = [
+                x if x.t >= floor else Sample(x.name, x.value, x.quality, floor, self._floor_wall)
+                for x in samples
+            ]
         if samples:
             tests = {
                 ch: (
