@@ -145,6 +145,13 @@ async def _serve(
         _out(f'simulated e-stop button: PUT {api.url}/sim/estop {{"pressed": true}}')
     for line in restored:
         _out(f"retained state: {line}")
+    if bench.influx is not None:
+        influx = bench.influx.settings
+        waiting = bench.influx.spool.counts().waiting
+        _out(
+            f"InfluxDB: {influx.url} bucket {influx.bucket!r}, spool {influx.spool_path}"
+            f" ({waiting} points waiting)"
+        )
     _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
     unconfirmed: dict[str, str] = {}
     try:
@@ -531,6 +538,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from supervisor.app.killrestart import kill_restart_benchmark
 
         return kill_restart_benchmark(args.iterations, args.seed)
+    if args.what == "influx":
+        from supervisor.app.influxbench import influx_benchmark
+
+        return influx_benchmark(args.points, args.rounds)
     if args.what == "dry-run":
         from supervisor.app.dryrun import dry_run, format_report
 
@@ -642,7 +653,16 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks that print figures")
     b.add_argument(
         "what",
-        choices=["scan", "manual", "seed002", "dry-run", "faults", "estop", "kill-restart"],
+        choices=[
+            "scan",
+            "manual",
+            "seed002",
+            "dry-run",
+            "faults",
+            "estop",
+            "kill-restart",
+            "influx",
+        ],
     )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
     b.add_argument("--tags", type=int, default=1000, help="scan: number of tags")
@@ -652,6 +672,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--hours", type=float, default=10.0, help="manual: simulated hours")
     b.add_argument("--iterations", type=int, default=20, help="kill-restart: kills")
     b.add_argument("--seed", type=int, default=1, help="kill-restart: seed of the kill times")
+    b.add_argument("--points", type=int, default=200_000, help="influx: points per round")
+    b.add_argument("--rounds", type=int, default=3, help="influx: rounds of each writer")
     b.set_defaults(func=cmd_bench)
     return p
 
