@@ -163,9 +163,9 @@ bind-address = "127.0.0.1:{self.rpc_port}"
         except (urllib.error.URLError, OSError):
             return False
 
-    def query(self, influxql: str) -> dict[str, object]:
+    def query(self, influxql: str, database: str = DATABASE) -> dict[str, object]:
         """An InfluxQL statement (POST /query), the JSON answer."""
-        return self._post_query({"q": influxql, "db": DATABASE})
+        return self._post_query({"q": influxql, "db": database})
 
     def _post_query(self, params: dict[str, str], authenticated: bool = True) -> dict[str, object]:
         import base64
@@ -180,12 +180,14 @@ bind-address = "127.0.0.1:{self.rpc_port}"
             answer: dict[str, object] = json.loads(r.read())
         return answer
 
-    def points(self, measurement: str) -> dict[tuple[frozenset[tuple[str, str]], int], dict]:  # type: ignore[type-arg]
+    def points(
+        self, measurement: str, database: str = DATABASE
+    ) -> dict[tuple[frozenset[tuple[str, str]], int], dict]:  # type: ignore[type-arg]
         """Every point of ``measurement``: (its tags, its ns timestamp) → its fields."""
         import base64
         import json
 
-        q = {"q": f'SELECT * FROM "{measurement}" GROUP BY *', "db": DATABASE, "epoch": "ns"}
+        q = {"q": f'SELECT * FROM "{measurement}" GROUP BY *', "db": database, "epoch": "ns"}
         req = urllib.request.Request(
             f"{self.url}/query", data=urllib.parse.urlencode(q).encode(), method="POST"
         )
