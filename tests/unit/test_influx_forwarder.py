@@ -146,6 +146,8 @@ def test_a_400_isolates_the_bad_lines_as_dead_letters_and_delivers_the_rest(
     good = [x.encode() for k, x in enumerate(body) if k not in (3, 7)]
     assert sorted(set(server.accepted)) == sorted(good)
     assert rig.forwarder.status().dead_alarm
+    (delivery,) = rig.deliveries
+    assert delivery.body.split(b"\n") == good and delivery.points == 8
 
 
 @pytest.mark.parametrize(

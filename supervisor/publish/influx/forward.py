@@ -60,7 +60,8 @@ RATE_WINDOW_S = 10.0
 
 @dataclass(frozen=True, slots=True)
 class Delivery:
-    """One request InfluxDB acknowledged: which chunks it belonged to and what it held."""
+    """A batch InfluxDB took: its chunks and the lines it accepted (after a bisection,
+    without the dead letters), in the order they were sent."""
 
     ids: tuple[int, ...]
     points: int
@@ -268,6 +269,7 @@ class Forwarder:
         spool (what was sent of it is sent again later: it overwrites itself)."""
         lines = batch.lines()
         dead: list[DeadLetter] = []
+        accepted: list[bytes] = []
         parts: list[tuple[list[bytes], Reply | None]] = [(lines, first)]
         while parts:
             part, reply = parts.pop()
@@ -278,6 +280,7 @@ class Forwarder:
                 reply = answer
             outcome, failure = classify(reply.status)
             if outcome is Outcome.DELIVERED:
+                accepted.extend(part)
                 continue
             if outcome is not Outcome.SPLIT:
                 assert failure is not None
@@ -292,11 +295,11 @@ class Forwarder:
             if self._stop_due():
                 self.spool.release()
                 return None
-        self._delivered_batch(batch, dead, None)
+        self._delivered_batch(batch, dead, b"\n".join(accepted))
         return 0.0
 
     # --- bookkeeping --------------------------------------------------------------------
-    def _delivered_batch(self, batch: Batch, dead: list[DeadLetter], body: bytes | None) -> None:
+    def _delivered_batch(self, batch: Batch, dead: list[DeadLetter], body: bytes) -> None:
         self.spool.ack(batch, dead)
         now = self._mono()
         with self._cond:
@@ -334,7 +337,7 @@ class Forwarder:
                 self.spool.path,
             )
             self._last_dead_reason = reason
-        delivery = Delivery(batch.ids, batch.points - len(dead), body or b"")
+        delivery = Delivery(batch.ids, batch.points - len(dead), body)
         for fn in self.listeners:
             try:
                 fn(delivery)

@@ -187,6 +187,7 @@ class _Route:
     prefix: str  # measurement and tag set, for every measurement but ``channel``
     field: str  # the escaped field key, "=" included
     format: Formatter
+    analog: bool  # a float or int tag: a float value is written as repr(value)
 
 
 class LineEncoder:
@@ -220,33 +221,42 @@ class LineEncoder:
     ) -> dict[str, list[str]]:
         """Lines by measurement. ``tests``: each channel's current (test id, recipe), the
         ``test_id`` and ``recipe`` tags of its points."""
+        # The scan's thread runs this for every change: plain locals, one dict lookup per
+        # sample, the float case (almost every sample) without a call.
         groups: dict[tuple[str, int], tuple[str, list[str]]] = {}
         routes = self._routes
         prefixes: dict[str, str] = {}
+        finite = math.isfinite
         for s in samples:
-            if s.value is None:
+            value = s.value
+            if value is None:
                 continue  # BAD: no field, a gap
             route = routes.get(s.name)
             if route is None:
                 route = routes[s.name] = self._route(s.name)
-            text = route.format(s.value)
-            if text is None:
-                continue
-            if route.channel:
-                prefix = prefixes.get(route.channel)
+            if route.analog and type(value) is float:
+                if not finite(value):
+                    continue
+                text = route.field + repr(value)
+            else:
+                formatted = route.format(value)
+                if formatted is None:
+                    continue
+                text = route.field + formatted
+            channel = route.channel
+            if channel:
+                prefix = prefixes.get(channel)
                 if prefix is None:
-                    test_id, recipe = (tests or {}).get(route.channel, ("", ""))
-                    prefix = prefixes[route.channel] = self.channel_prefix(
-                        route.channel, test_id, recipe
-                    )
+                    test_id, recipe = (tests or {}).get(channel, ("", ""))
+                    prefix = prefixes[channel] = self.channel_prefix(channel, test_id, recipe)
             else:
                 prefix = route.prefix
-            key = (prefix, timestamp_ns(s.wall))
+            key = (prefix, round(s.wall * 1e9))  # timestamp_ns, inline
             group = groups.get(key)
             if group is None:
-                groups[key] = (route.measurement, [route.field + text])
+                groups[key] = (route.measurement, [text])
             else:
-                group[1].append(route.field + text)
+                group[1].append(text)
         out: dict[str, list[str]] = {}
         # Oldest first within one call, so that each series' points go out in time order.
         for (prefix, ts), (measurement, fields) in sorted(groups.items(), key=_by_time):
@@ -291,11 +301,13 @@ class LineEncoder:
         dtype = self.dtype_of(name)
         fmt = _FORMATTERS.get(dtype, _by_value) if dtype is not None else _by_value
         key = escape_field_key(field) + "="
+        analog = fmt is _as_float or fmt is _by_value
         if head in self.channels and dot:
-            return _Route(CHANNEL, head, "", key, fmt)
+            return _Route(CHANNEL, head, "", key, fmt, analog)
         if head in DIAGNOSTIC_SOURCES and dot:
-            return _Route(DIAGNOSTICS, "", self._prefix(DIAGNOSTICS, {"source": head}), key, fmt)
-        return _Route(DEVICE, "", self._prefix(DEVICE, {"device": head}), key, fmt)
+            prefix = self._prefix(DIAGNOSTICS, {"source": head})
+            return _Route(DIAGNOSTICS, "", prefix, key, fmt, analog)
+        return _Route(DEVICE, "", self._prefix(DEVICE, {"device": head}), key, fmt, analog)
 
     def _prefix(self, measurement: str, tags: Mapping[str, str]) -> str:
         parts = [escape_measurement(measurement)]
