@@ -332,3 +332,16 @@ def test_a_token_from_the_environment(tmp_path: Path, monkeypatch: pytest.Monkey
     monkeypatch.delenv("BENCH_INFLUX_TOKEN")
     with pytest.raises(Exception, match="BENCH_INFLUX_TOKEN is not set"):
         load_bench(path)
+
+
+def test_influx_is_a_namespace_the_supervisor_generates(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    data = sim_data(tmp_path, None)
+    data["tags"] = [{"name": "influx.sent", "device": "chadeche", "point": "b0.voltage"}]
+    path = tmp_path / "bench.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    assert main(["check", str(path)]) == 2
+    assert "tag name 'influx.sent' is in a namespace the supervisor generates" in (
+        capsys.readouterr().err
+    )

@@ -161,7 +161,10 @@ class Spool:
         self.max_bytes = max_bytes
         self.cache_bytes = cache_bytes
         self._wall = wall
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the connection and its transactions
+        # The in-memory totals, for readers that must not wait for a transaction (the
+        # scan's status tags): held only while the totals are copied or changed.
+        self._stats = threading.Lock()
         self._conn: sqlite3.Connection | None = None
         self._acked_id = 0
         self._purged_id = 0  # rows up to here are deleted
@@ -272,9 +275,12 @@ class Spool:
             " FROM chunk WHERE id > ?",
             (self._acked_id,),
         ).fetchone()
-        self._chunks, self._waiting, self._waiting_bytes = int(n), int(points), int(size)
-        self._dead_rows = int(conn.execute("SELECT COUNT(*) FROM dead_letter").fetchone()[0])
-        self._counters = {k: int(v) for k, v in conn.execute("SELECT name, value FROM counter")}
+        dead_rows = int(conn.execute("SELECT COUNT(*) FROM dead_letter").fetchone()[0])
+        counters = {k: int(v) for k, v in conn.execute("SELECT name, value FROM counter")}
+        with self._stats:
+            self._chunks, self._waiting, self._waiting_bytes = int(n), int(points), int(size)
+            self._dead_rows = dead_rows
+            self._counters = counters
 
     # --- the writer's side --------------------------------------------------------------
     def append(
@@ -488,7 +494,8 @@ class Spool:
 
     # --- views ------------------------------------------------------------------------
     def counts(self) -> SpoolCounts:
-        with self._lock:
+        """Never waits for a transaction (the scan's thread calls it)."""
+        with self._stats:
             counters = dict(self._counters)
             waiting, size, chunks = self._waiting, self._waiting_bytes, self._chunks
             dead_rows = self._dead_rows
@@ -559,14 +566,15 @@ class Spool:
             with contextlib.suppress(sqlite3.Error):
                 conn.execute("ROLLBACK")
             raise
-        self._chunks += txn.chunks
-        self._waiting += txn.points
-        self._waiting_bytes += txn.nbytes
-        self._dead_rows += txn.dead_rows
+        with self._stats:
+            self._chunks += txn.chunks
+            self._waiting += txn.points
+            self._waiting_bytes += txn.nbytes
+            self._dead_rows += txn.dead_rows
+            for k, v in txn.counters.items():
+                self._counters[k] = self._counters.get(k, 0) + v
         if txn.acked_id is not None:
             self._acked_id = txn.acked_id
-        for k, v in txn.counters.items():
-            self._counters[k] = self._counters.get(k, 0) + v
         if txn.overflowing is not None:
             self.overflowing = txn.overflowing
         cache = self._cache
