@@ -285,6 +285,7 @@ class Reply:
     body: str = ""
     headers: dict[str, str] = field(default_factory=dict)
     silent: bool = False  # read the request, never answer (until the server stops)
+    hang_up: bool = False  # answer, then close the kept-alive connection without saying so
 
 
 class ScriptedInflux:
@@ -319,6 +320,8 @@ class ScriptedInflux:
                 self.send_header("Content-Length", str(len(data)))
                 self.end_headers()
                 self.wfile.write(data)
+                if reply.hang_up:
+                    self.close_connection = True
 
             def log_message(self, format: str, *args: object) -> None:
                 pass

@@ -97,6 +97,18 @@ def test_points_go_out_oldest_first_and_leave_the_spool_once_acknowledged(
     assert rig.forwarder.status().connected
 
 
+def test_a_kept_alive_connection_closed_by_the_server_is_reopened_without_a_failure(
+    rig: Rig, server: ScriptedInflux
+) -> None:
+    server.answer = lambda body: Reply(hang_up=True)  # as an idle timeout of a proxy does
+    rig.forwarder.start()
+    for k in range(3):
+        rig.put(lines(10 * k, 10))
+        wait_for(lambda k=k: rig.spool.counts().sent == 10 * (k + 1), f"batch {k}")
+    assert rig.forwarder.status().failed_writes == 0
+    assert len(server.requests) == 3
+
+
 def test_a_500_is_retried_with_backoff_reported_once_and_the_batch_delivered_after(
     rig: Rig, server: ScriptedInflux, caplog: pytest.LogCaptureFixture
 ) -> None:

@@ -23,6 +23,8 @@ from enum import StrEnum
 __all__ = ["Failure", "Outcome", "Reply", "WriteClient", "classify", "parse_retry_after"]
 
 USER_AGENT = "bench-supervisor-influx/1"
+STALE_CONNECTION = (http.client.RemoteDisconnected, BrokenPipeError, ConnectionResetError)
+"""How a kept-alive connection closed by the other side fails at its next request."""
 REASON_CHARS = 300
 """How much of a server's error message is kept (logs, tags, dead letters)."""
 
@@ -132,8 +134,21 @@ class WriteClient:
     def write(self, body: bytes, timeout_s: float | None = None) -> Reply:
         """One request. Raises ``TimeoutError`` when no answer comes within the timeout,
         ``OSError`` or ``http.client.HTTPException`` when the server cannot be reached or
-        drops the connection."""
+        drops the connection.
+
+        A kept-alive connection the server (or a proxy) closed while idle fails before
+        any answer: that one is tried again at once on a new connection (a write is
+        idempotent: the same points at the same timestamps)."""
         timeout = self.timeout_s if timeout_s is None else timeout_s
+        reused = self._conn is not None
+        try:
+            return self._request(body, timeout)
+        except STALE_CONNECTION:
+            if not reused:
+                raise
+        return self._request(body, timeout)
+
+    def _request(self, body: bytes, timeout: float) -> Reply:
         conn = self._conn
         if conn is None:
             conn = self._connect(timeout)
