@@ -4,7 +4,7 @@ escaping that a line-protocol parser reads back for any text (hypothesis)."""
 
 from __future__ import annotations
 
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from influxrig import parse_line
 
@@ -197,6 +197,7 @@ def _key_as_written(text: str) -> str:
 def test_any_tag_value_field_key_and_string_is_parsed_back(
     tag_value: str, field_key: str, text: str, number: float
 ) -> None:
+    assume(_key_as_written(field_key) != "n")  # the other field of the line
     prefix = f"{escape_measurement('m')},{escape_tag('t')}={escape_tag(tag_value)}"
     key = escape_field_key(field_key)
     line = f"{prefix} {key}={escape_string(text)},n={number!r} 1"
