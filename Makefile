@@ -46,7 +46,7 @@ $(INFLUXD):
 	GOBIN=$(INFLUXD_CACHE) GOFLAGS=-buildvcs=false go install github.com/influxdata/influxdb/cmd/influxd@v$(INFLUXD_VERSION)
 
 ## Benchmarks: figures are printed, never asserted.
-bench: $(STAMP)
+bench: $(STAMP) $(INFLUXD)
 	$(BIN)/supervisor bench scan --tags 1000 --period-ms 10 --seconds 10
 	$(BIN)/supervisor bench manual --hours 10
 	$(BIN)/supervisor bench dry-run --recipe recipes/nimh-25h-slow-cycle.yaml
@@ -55,6 +55,7 @@ bench: $(STAMP)
 	$(BIN)/supervisor bench estop --presses 100 --period-ms 10
 	$(BIN)/supervisor bench kill-restart --iterations 20
 	$(BIN)/supervisor bench historian --tags 1000 --period-ms 10 --seconds 10
+	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/supervisor bench influx --points 200000 --rounds 3
 
 schema: $(STAMP)
 	$(BIN)/supervisor schema --out .

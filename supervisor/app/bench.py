@@ -8,7 +8,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from supervisor.app.events import EventFeed
 from supervisor.app.history import attach_historian
+from supervisor.app.influx import build_influx
 from supervisor.app.retained import RecipeSource, Retention
 from supervisor.app.simulation import SimulatedBench, build_simulation
 from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target
@@ -32,6 +34,7 @@ from supervisor.devices.kind import DriverWiring
 from supervisor.devices.registry import REGISTRY, Registry
 from supervisor.publish.display import ChadecheDisplay
 from supervisor.publish.historian import Historian
+from supervisor.publish.influx import InfluxWriter
 from supervisor.publish.results import TIMELINE_KINDS, ResultCollector
 from supervisor.safety import AlarmManager, SafetyPhase, build_safety
 from supervisor.scan import (
@@ -69,6 +72,10 @@ class Bench:
     recipes: dict[str, RecipeSource] = field(default_factory=dict)
     retention: Retention | None = None
     historian: Historian | None = None
+    influx: InfluxWriter | None = None
+    """The InfluxDB writer, when the I/O map has an ``influxdb:`` section."""
+    events: EventFeed = field(default_factory=EventFeed)
+    """Chain steps, alarms and operator commands for the publishers that record events."""
     _started: bool = False
     commands: CommandPath = field(init=False)
     """The one path of operator commands (HTTP, command line, the ``chN.command`` tags)."""
@@ -218,11 +225,15 @@ class Bench:
         return self.sim.cells if self.sim is not None else {}
 
     async def start(self) -> None:
-        """Start the in-process simulators (if the I/O map has any) before scanning."""
+        """Start the in-process simulators (if the I/O map has any) and the InfluxDB
+        writer's threads before scanning."""
         if self.sim is not None and not self._started:
             await self.sim.start()
         if self.historian is not None and not self.historian.writer.running:
             await self.historian.start()  # its file checked and opened before the first scan
+        if self.influx is not None and not self._started:
+            # Opening the spool checks the file (off the loop: it may be large).
+            await asyncio.to_thread(self.influx.start)
         self._started = True
 
     async def run(self, stop: asyncio.Event) -> None:
@@ -271,6 +282,9 @@ class Bench:
             # Waits for the writer thread (the last save on disk): not on the event loop.
             await asyncio.to_thread(self.retention.close)
             self.retention = None
+        if self.influx is not None:
+            # Spools what is queued, sends for at most influxdb.stop_flush_s, keeps the rest.
+            await asyncio.to_thread(self.influx.close)
         if self.sim is not None:
             await self.sim.stop()
         self._started = False
@@ -413,6 +427,7 @@ def build_bench(
         runners[c.name].samplers.append(displays[c.name])
     alarms = AlarmManager(clock)
     safety = build_safety(cfg, db, alarms)
+    influx = build_influx(cfg, db, clock, alarms)
     phases = ScanPhases(
         derived=[LogicPhase(f"derive:{n}", ch.derive) for n, ch in channels.items()],
         safety=[LogicPhase("safety", safety.run)],
@@ -428,9 +443,9 @@ def build_bench(
         inputs=inputs,
         outputs=outputs,
         phases=phases.ordered(),
-        publishers=publishers or [],
+        publishers=[*(publishers or []), *([influx] if influx is not None else [])],
     )
-    return Bench(
+    bench = Bench(
         cfg,
         clock,
         db,
@@ -442,4 +457,9 @@ def build_bench(
         safety=safety,
         alarms=alarms,
         displays=displays,
+        influx=influx,
     )
+    if influx is not None:
+        bench.events.sinks.append(influx)
+        bench.events.attach(bench)
+    return bench

@@ -31,9 +31,7 @@ def history_enabled(cfg: BenchConfig) -> bool:
     """``history.enabled`` when given; otherwise on unless InfluxDB is configured."""
     if cfg.history.enabled is not None:
         return cfg.history.enabled
-    # ``influxdb:`` is another section of the I/O map (the InfluxDB writer); read loosely
-    # so that this module does not depend on its model.
-    return getattr(cfg, "influxdb", None) is None
+    return cfg.influxdb is None
 
 
 def history_path(cfg: BenchConfig) -> Path:

@@ -152,6 +152,13 @@ async def _serve(
         _out(f"retained state: {line}")
     if bench.historian is not None:
         _out(f"history: {bench.historian.path} ({api.url}/history, {api.url}/events)")
+    if bench.influx is not None:
+        influx = bench.influx.settings
+        waiting = bench.influx.spool.counts().waiting
+        _out(
+            f"InfluxDB: {influx.url} bucket {influx.bucket!r}, spool {influx.spool_path}"
+            f" ({waiting} points waiting)"
+        )
     _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
     unconfirmed: dict[str, str] = {}
     try:
@@ -543,6 +550,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from supervisor.app.killrestart import kill_restart_benchmark
 
         return kill_restart_benchmark(args.iterations, args.seed)
+    if args.what == "influx":
+        from supervisor.app.influxbench import influx_benchmark
+
+        return influx_benchmark(args.points, args.rounds)
     if args.what == "dry-run":
         from supervisor.app.dryrun import dry_run, format_report
 
@@ -672,6 +683,7 @@ def build_parser() -> argparse.ArgumentParser:
             "estop",
             "kill-restart",
             "historian",
+            "influx",
         ],
     )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
@@ -686,6 +698,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--hours", type=float, default=10.0, help="manual: simulated hours")
     b.add_argument("--iterations", type=int, default=20, help="kill-restart: kills")
     b.add_argument("--seed", type=int, default=1, help="kill-restart: seed of the kill times")
+    b.add_argument("--points", type=int, default=200_000, help="influx: points per round")
+    b.add_argument("--rounds", type=int, default=3, help="influx: rounds of each writer")
     b.set_defaults(func=cmd_bench)
     return p
 

@@ -15,7 +15,7 @@ from supervisor.core.driver import PointInfo
 from supervisor.core.errors import ConfigError, ConfigErrors
 
 DEVICE_STATUS_SUFFIXES = ("connected", "comm_failures")
-RESERVED_PREFIXES = ("scan.", "bench.")
+RESERVED_PREFIXES = ("scan.", "bench.", "influx.")
 
 
 def load_bench(path: str | Path, model: type[BenchConfig]) -> BenchConfig:

@@ -10,7 +10,9 @@ int. Numbers are finite (``allow_inf_nan=False``): ``.inf`` and ``.nan`` are ref
 
 from __future__ import annotations
 
+import os
 import re
+import urllib.parse
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, ClassVar, Final, Literal, Union
@@ -519,6 +521,143 @@ class HistorianConfig(Strict):
     )
 
 
+INFLUX_TOKEN_CHARS: Final = 4096
+"""A token file longer than this is not a token (a wrong file named)."""
+
+
+class InfluxConfig(Strict):
+    """Publish into InfluxDB through an on-disk spool (``<state_dir>/influx-spool.sqlite``;
+    docs/adr/0012-influx-spool.md). The token is never in this file: ``token_file`` names a
+    file holding it, or ``token_env`` an environment variable. InfluxDB 1.8 takes
+    ``bucket: db/rp`` and ``token: user:password`` (any text while its auth is off)."""
+
+    url: str = Field(description="InfluxDB base URL, e.g. http://127.0.0.1:8086")
+    org: str = Field("-", min_length=1, description="Organisation (InfluxDB 1.8: '-').")
+    bucket: str = Field(min_length=1, description="Bucket (InfluxDB 1.8: database/retention).")
+    token_file: str | None = Field(
+        None,
+        description="File holding the token (relative to the working directory, like"
+        " state_dir); its surrounding white space is ignored.",
+    )
+    token_env: str | None = Field(
+        None,
+        pattern=r"^[A-Za-z_][A-Za-z0-9_]*$",
+        description="Environment variable holding the token.",
+    )
+    batch_size: int = Field(5000, ge=1, le=100_000, description="Points per write request.")
+    flush_interval_s: float = Field(
+        1.0,
+        gt=0,
+        le=3600,
+        description="Send a batch not yet full once its oldest point waited this long.",
+    )
+    timeout_s: float = Field(
+        10.0,
+        gt=0,
+        le=300,
+        description="A write request without an answer by then fails (and is retried).",
+    )
+    retry_max_s: float = Field(
+        30.0,
+        ge=0.1,
+        le=3600,
+        description="Longest wait between two attempts (backoff cap); a refused token or"
+        " bucket is retried at this interval.",
+    )
+    alarm_after_s: float = Field(
+        60.0,
+        ge=0,
+        le=86400,
+        description="Raise influx.unreachable after this long without a write.",
+    )
+    stop_flush_s: float = Field(
+        5.0,
+        ge=0,
+        le=600,
+        description="A clean stop sends for at most this long; the rest stays spooled.",
+    )
+    spool_max_bytes: int = Field(
+        256 * 1024 * 1024,
+        ge=1024 * 1024,
+        le=1024**4,
+        description="Bound on the spooled line protocol; past it the oldest points are"
+        " dropped (counted, alarmed).",
+    )
+    spool_commit_interval_s: float = Field(
+        0.2,
+        ge=0.01,
+        le=10,
+        description="How often queued points are committed to the spool: a crash loses at"
+        " most this much.",
+    )
+
+    @field_validator("url")
+    @classmethod
+    def _http_url(cls, v: str) -> str:
+        parts = urllib.parse.urlsplit(v)
+        try:
+            parts.port  # noqa: B018 - raises ValueError for a port that is not a number
+        except ValueError:
+            raise ValueError("the port must be a number from 1 to 65535") from None
+        if parts.scheme not in ("http", "https") or not parts.hostname:
+            raise ValueError("expected http://host:port or https://host[:port][/path]")
+        if parts.query or parts.fragment:
+            raise ValueError("no query or fragment: org and bucket are keys of their own")
+        return v
+
+    @model_validator(mode="after")
+    def _one_token_source(self) -> InfluxConfig:
+        if (self.token_file is None) == (self.token_env is None):
+            raise ValueError("give exactly one of token_file or token_env (never the token itself)")
+        return self
+
+    @field_validator("token_file")
+    @classmethod
+    def _token_file_readable(cls, v: str | None) -> str | None:
+        if v is not None:
+            _read_token_file(v)
+        return v
+
+    @field_validator("token_env")
+    @classmethod
+    def _token_env_set(cls, v: str | None) -> str | None:
+        if v is not None and not os.environ.get(v, "").strip():
+            raise ValueError(f"environment variable {v} is not set (it must hold the token)")
+        return v
+
+    def token(self) -> str:
+        """The token, read now (the file or the variable may have changed since the
+        check); ValueError naming the source when it is gone."""
+        if self.token_file is not None:
+            return _read_token_file(self.token_file)
+        assert self.token_env is not None
+        text = os.environ.get(self.token_env, "").strip()
+        if not text:
+            raise ValueError(f"environment variable {self.token_env} is not set")
+        return text
+
+
+def _read_token_file(path: str) -> str:
+    try:
+        with open(path, "rb") as f:  # noqa: PTH123 - bounded read below
+            data = f.read(INFLUX_TOKEN_CHARS + 1)
+    except FileNotFoundError:
+        raise ValueError(f"token file {path!r} not found") from None
+    except OSError as exc:
+        raise ValueError(f"token file {path!r} cannot be read: {exc.strerror or exc}") from None
+    if len(data) > INFLUX_TOKEN_CHARS:
+        raise ValueError(f"token file {path!r} is longer than {INFLUX_TOKEN_CHARS} bytes")
+    try:
+        text = data.decode("utf-8").strip()
+    except UnicodeDecodeError:
+        raise ValueError(f"token file {path!r} is not UTF-8 text") from None
+    if not text:
+        raise ValueError(f"token file {path!r} is empty")
+    if any(c in text for c in "\r\n"):
+        raise ValueError(f"token file {path!r} holds more than one line")
+    return text
+
+
 class BenchConfig(Strict):
     """A bench: its scan, devices, extra tag mappings and channels."""
 
@@ -534,6 +673,9 @@ class BenchConfig(Strict):
     channels: list[ChannelConfig] = []
     safety: SafetyConfig = SafetyConfig()
     simulation: SimulationConfig | None = None
+    influxdb: InfluxConfig | None = Field(
+        None, description="Publish into InfluxDB (store and forward); null: the embedded historian."
+    )
 
     device_kinds: ClassVar[tuple[type[DeviceConfig], ...]] = ()
     """The device models this bench model accepts (set by ``bench_model``)."""

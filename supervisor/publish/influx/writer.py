@@ -1,0 +1,519 @@
+"""The InfluxDB writer as the bench sees it: a scan publisher and an event sink.
+
+Three parts, so that the scan never waits (DESIGN.md "Publishing"):
+
+1. the scan's side (``InfluxWriter.on_scan``, ``on_event``): the change feed's samples and
+   the bench events become line protocol (``lineproto``) and go to a bounded in-memory
+   queue; the influx.* status tags and alarms are updated from the other two parts;
+2. the spool writer thread (``SpoolWriter``): every ``commit_interval_s`` it appends what
+   the queue holds to the spool on disk (``spool``) in one transaction, BEFORE anything is
+   sent. A SIGKILL loses at most the points of the last commit interval (still in memory);
+3. the forwarder thread (``forward``): sends the spool's oldest chunks, deletes them after
+   a 2xx.
+
+A full in-memory queue (the disk stalls) drops its oldest points, counted in
+``influx.dropped`` like the spool's own drops past ``max_bytes``; a failing disk raises
+``influx.spool`` and is retried every second.
+"""
+
+from __future__ import annotations
+
+import logging
+import sqlite3
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from supervisor.core.clock import Clock
+from supervisor.core.driver import Value
+from supervisor.core.records import BenchEvent
+from supervisor.publish.changes import ChangeFeed, Sample
+from supervisor.publish.influx.client import CONFIGURATION, TRANSIENT, WriteClient
+from supervisor.publish.influx.forward import Forwarder, ForwarderStatus
+from supervisor.publish.influx.lineproto import EVENT, LineEncoder
+from supervisor.publish.influx.spool import Spool, SpoolCounts
+from supervisor.tags import Tag, TagDB, TagSpec
+
+__all__ = [
+    "ALARMS",
+    "ALARM_CONFIG",
+    "ALARM_DEAD_LETTERS",
+    "ALARM_SPOOL",
+    "ALARM_SPOOL_FULL",
+    "ALARM_UNREACHABLE",
+    "AlarmHook",
+    "AlarmSpec",
+    "InfluxSettings",
+    "InfluxStatus",
+    "InfluxWriter",
+    "SpoolWriter",
+]
+
+log = logging.getLogger(__name__)
+
+AlarmHook = Callable[[str, bool, str], None]
+"""``(alarm id, active, message)``: the composition root puts it on the alarm model."""
+
+SPOOL_RETRY_S = 1.0
+"""Time between two attempts at a failed spool write (disk full, read-only)."""
+
+
+@dataclass(frozen=True, slots=True)
+class AlarmSpec:
+    id: str
+    severity: str  # "low" | "medium" | "high" | "critical" (the alarm model's names)
+    description: str
+
+
+ALARM_CONFIG = "influx.config"
+ALARM_UNREACHABLE = "influx.unreachable"
+ALARM_DEAD_LETTERS = "influx.dead_letters"
+ALARM_SPOOL_FULL = "influx.spool_full"
+ALARM_SPOOL = "influx.spool"
+ALARMS = (
+    AlarmSpec(
+        ALARM_CONFIG,
+        "medium",
+        "InfluxDB refuses every write (token, bucket or URL): points are kept, not sent",
+    ),
+    AlarmSpec(
+        ALARM_UNREACHABLE,
+        "low",
+        "InfluxDB has not accepted a write for alarm_after_s: points wait in the spool",
+    ),
+    AlarmSpec(
+        ALARM_DEAD_LETTERS,
+        "low",
+        "InfluxDB refused points for good: they are in the spool's dead-letter table",
+    ),
+    AlarmSpec(ALARM_SPOOL_FULL, "high", "The spool is full: its oldest points are dropped"),
+    AlarmSpec(ALARM_SPOOL, "high", "The spool cannot be written: points are not stored"),
+)
+"""Raised where an operator must act; each clears by itself when the cause is gone."""
+
+
+@dataclass(frozen=True, slots=True)
+class InfluxSettings:
+    """What the writer needs (``supervisor.app.influx`` builds it from the I/O map)."""
+
+    url: str
+    org: str
+    bucket: str
+    token: str
+    spool_path: Path
+    batch_size: int = 5000
+    flush_interval_s: float = 1.0
+    timeout_s: float = 10.0
+    retry_max_s: float = 30.0
+    alarm_after_s: float = 60.0
+    stop_flush_s: float = 5.0
+    spool_max_bytes: int = 256 * 1024 * 1024
+    commit_interval_s: float = 0.2
+    queue_max_points: int = 200_000
+
+
+@dataclass(frozen=True, slots=True)
+class InfluxStatus:
+    """Everything the influx.* tags show, in one snapshot."""
+
+    spool: SpoolCounts
+    forwarder: ForwarderStatus
+    queued: int  # points in memory, not yet in the spool
+    dropped: int  # points dropped, spool bound and full queue (since the spool began)
+    spool_error: str  # why the spool cannot be written ("" when it can)
+
+
+class SpoolWriter:
+    """The thread that moves queued lines into the spool, one transaction per interval."""
+
+    def __init__(
+        self,
+        spool: Spool,
+        *,
+        commit_interval_s: float,
+        chunk_points: int,
+        max_queue_points: int,
+        on_commit: Callable[[], None] = lambda: None,
+    ) -> None:
+        self.spool = spool
+        self.commit_interval_s = commit_interval_s
+        self.chunk_points = chunk_points
+        self.max_queue_points = max_queue_points
+        self.on_commit = on_commit
+        self._cond = threading.Condition()
+        self._items: deque[tuple[str, list[str]]] = deque()
+        self._queued = 0
+        self._unspooled_drops = 0  # dropped from the queue, not yet counted in the spool
+        self._stopping = False
+        self._thread: threading.Thread | None = None
+        self.error: str | None = None
+        self.commits = 0
+
+    @property
+    def queued(self) -> int:
+        return self._queued
+
+    @property
+    def unspooled_drops(self) -> int:
+        return self._unspooled_drops
+
+    def put(self, measurement: str, lines: list[str]) -> None:
+        """Queue lines; returns at once. A full queue drops its oldest lines (counted)."""
+        if not lines:
+            return
+        with self._cond:
+            self._items.append((measurement, lines))
+            self._queued += len(lines)
+            if self._queued > self.max_queue_points:
+                self._shed()
+            self._cond.notify_all()
+
+    def _shed(self) -> None:
+        dropped = 0
+        while self._queued > self.max_queue_points and len(self._items) > 1:
+            _, lines = self._items.popleft()
+            self._queued -= len(lines)
+            dropped += len(lines)
+        if dropped:
+            first = self._unspooled_drops == 0
+            self._unspooled_drops += dropped
+            if first:
+                log.error(
+                    "InfluxDB spool %s: the in-memory queue is full (%d points; the spool"
+                    " is not keeping up: %s); its oldest points are dropped",
+                    self.spool.path,
+                    self.max_queue_points,
+                    self.error or "disk too slow",
+                )
+
+    def open_spool(self) -> bool:
+        """Open the spool if it is not; a failure is reported once (``error``) and left
+        for the next attempt."""
+        if self.spool.is_open:
+            return True
+        try:
+            self.spool.open()
+        except (sqlite3.Error, OSError, ValueError) as exc:
+            self._failed(exc)
+            return False
+        return True
+
+    def _failed(self, exc: BaseException) -> None:
+        why = f"{type(exc).__name__}: {exc}"
+        with self._cond:
+            first = self.error != why
+            self.error = why
+        if first:
+            log.error("InfluxDB spool %s: cannot write (%s); retrying", self.spool.path, why)
+
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._stopping = False
+        self._thread = threading.Thread(target=self._run, name="influx-spool", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        """Commit what is queued (one last attempt), then stop."""
+        thread = self._thread
+        if thread is None:
+            return
+        with self._cond:
+            self._stopping = True
+            self._cond.notify_all()
+        thread.join(timeout_s)
+        if thread.is_alive():
+            log.error("InfluxDB spool writer did not stop within %g s", timeout_s)
+        self._thread = None
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._items and not self._unspooled_drops and not self._stopping:
+                    self._cond.wait()
+                if not self._items and not self._unspooled_drops and self._stopping:
+                    return
+                items = list(self._items)
+                self._items.clear()
+                n = self._queued
+                self._queued = 0
+                extra = self._unspooled_drops
+                stopping = self._stopping
+            try:
+                if not self.spool.is_open:
+                    self.spool.open()
+                self.spool.append(items, self.chunk_points, extra)
+            except (sqlite3.Error, OSError, ValueError) as exc:
+                self._failed(exc)
+                with self._cond:
+                    if stopping:
+                        self._unspooled_drops += n
+                        lost = self._unspooled_drops
+                    else:
+                        self._items.extendleft(reversed(items))
+                        self._queued += n
+                        self._shed()
+                if stopping:
+                    log.error(
+                        "InfluxDB spool %s: %d points could not be spooled at stop (%s)",
+                        self.spool.path,
+                        lost,
+                        self.error,
+                    )
+                    return
+                self._sleep(SPOOL_RETRY_S)
+                continue
+            with self._cond:
+                self._unspooled_drops -= extra
+                self.commits += 1
+                if self.error is not None:
+                    log.warning("InfluxDB spool %s: writing again", self.spool.path)
+                self.error = None
+            self.on_commit()
+            if not stopping:
+                self._sleep(self.commit_interval_s)
+
+    def _sleep(self, delay_s: float) -> None:
+        end = time.monotonic() + delay_s
+        with self._cond:
+            while not self._stopping:
+                left = end - time.monotonic()
+                if left <= 0:
+                    return
+                self._cond.wait(left)
+
+
+def _status_tags() -> list[TagSpec]:
+    return [
+        TagSpec("influx.spool_depth", "int", description="Points waiting in the spool"),
+        TagSpec("influx.spool_bytes", "int", description="Bytes of line protocol in the spool"),
+        TagSpec(
+            "influx.drain_rate",
+            "float",
+            unit="1/s",
+            description="Points delivered to InfluxDB per second (last 10 s)",
+        ),
+        TagSpec("influx.sent", "int", description="Points InfluxDB acknowledged (spool total)"),
+        TagSpec("influx.dead_letters", "int", description="Points refused for good (dead letters)"),
+        TagSpec("influx.dropped", "int", description="Points dropped: spool or queue full"),
+        TagSpec(
+            "influx.last_error",
+            "str",
+            initial="",
+            description="The last failure's cause ('' before any)",
+        ),
+        TagSpec("influx.connected", "bool", description="The last write was accepted"),
+        TagSpec("influx.failed_writes", "int", description="Failed write requests"),
+        TagSpec("influx.timeouts", "int", description="Write requests that timed out"),
+    ]
+
+
+class InfluxWriter:
+    """Publishes a bench's tag changes and events into InfluxDB, through the spool."""
+
+    name = "influx"
+
+    def __init__(
+        self,
+        db: TagDB,
+        clock: Clock,
+        settings: InfluxSettings,
+        *,
+        bench: str,
+        channels: Sequence[str],
+        alarm: AlarmHook | None = None,
+        client: WriteClient | None = None,
+    ) -> None:
+        self.settings = settings
+        self.db = db
+        self.clock = clock
+        self.alarm = alarm
+        self.feed = ChangeFeed(db, clock)
+        self.encoder = LineEncoder(bench, channels, dtype_of=self._dtype_of)
+        self.spool = Spool(settings.spool_path, settings.spool_max_bytes)
+        self.client = client or WriteClient(
+            settings.url, settings.org, settings.bucket, settings.token, settings.timeout_s
+        )
+        self.forwarder = Forwarder(
+            self.spool,
+            self.client,
+            batch_size=settings.batch_size,
+            flush_interval_s=settings.flush_interval_s,
+            retry_max_s=settings.retry_max_s,
+        )
+        self.writer = SpoolWriter(
+            self.spool,
+            commit_interval_s=settings.commit_interval_s,
+            chunk_points=settings.batch_size,
+            max_queue_points=settings.queue_max_points,
+            on_commit=self.forwarder.notify,
+        )
+        self._tags: dict[str, Tag] = {}
+        initial: dict[str, Value] = {"int": 0, "float": 0.0, "bool": False, "str": ""}
+        for spec in _status_tags():
+            tag = self._tags[spec.name] = db.get(spec.name) or db.add(spec)
+            db.update(tag, initial[spec.dtype])  # never None, before the first scan too
+        self._tests = {
+            ch: (db.get(f"{ch}.chain.test_id"), db.get(f"{ch}.chain.recipe")) for ch in channels
+        }
+        self._alarms: dict[str, tuple[bool, str]] = {}
+        self._spool_problem = ""
+        self._started = False
+        self._floor_t = clock.now()
+        self._floor_wall = clock.to_wall(self._floor_t)
+
+    def _dtype_of(self, name: str) -> str | None:
+        tag = self.db.get(name)
+        return None if tag is None else tag.spec.dtype
+
+    # --- lifecycle --------------------------------------------------------------------
+    def start(self) -> None:
+        """Open the spool (a restart resumes draining what it holds) and start both
+        threads. A spool that cannot be opened is reported and retried, never raised."""
+        if self._started:
+            return
+        self.writer.open_spool()
+        self._spool_problem = self.spool.problem
+        counts = self.spool.counts()
+        if counts.waiting:
+            log.info(
+                "InfluxDB spool %s: %d points waiting from the last run; sending them first",
+                self.spool.path,
+                counts.waiting,
+            )
+        self.writer.start()
+        self.forwarder.start()
+        self._started = True
+
+    def close(self, flush_s: float | None = None) -> None:
+        """Spool what is queued, send what can be sent within ``flush_s`` (default
+        ``stop_flush_s``), leave the rest in the spool. Blocks: call it off the loop."""
+        if not self._started:
+            return
+        self.writer.stop()
+        budget = self.settings.stop_flush_s if flush_s is None else flush_s
+        self.forwarder.stop(budget)
+        counts = self.spool.counts()
+        if self.spool.is_open:
+            try:
+                self.spool.purge()
+            except sqlite3.Error as exc:  # the next start deletes them
+                log.warning("InfluxDB spool %s: acknowledged chunks kept: %s", self.spool.path, exc)
+        self.spool.close()
+        self._started = False
+        if counts.waiting:
+            log.info(
+                "InfluxDB spool %s: %d points left for the next run",
+                self.spool.path,
+                counts.waiting,
+            )
+
+    # --- the scan's side --------------------------------------------------------------
+    def on_scan(self, db: TagDB, t: float) -> None:
+        """At scan end: this scan's changes to the queue; the status tags and alarms."""
+        samples = self.feed.take()
+        floor = self._floor_t
+        if any(x.t < floor for x in samples):
+            # Set before this writer existed, at time 0 of the clock (on a real clock the
+            # boot: every run would write its initial values at the same instant, over the
+            # last run's): stored as known since the recording began, before any scan.
+            samples = [
+                x if x.t >= floor else Sample(x.name, x.value, x.quality, floor, self._floor_wall)
+                for x in samples
+            ]
+        if samples:
+            tests = {
+                ch: (
+                    str(tid.value) if tid is not None and tid.value else "",
+                    str(rec.value) if rec is not None and rec.value else "",
+                )
+                for ch, (tid, rec) in self._tests.items()
+            }
+            put = self.writer.put
+            for measurement, lines in self.encoder.encode(samples, tests).items():
+                put(measurement, lines)
+        self._publish_status(db)
+
+    def on_event(self, event: BenchEvent) -> None:
+        """A bench event → one ``event`` line (Grafana annotations); returns at once."""
+        self.writer.put(EVENT, [self.encoder.event(event)])
+
+    # --- status -----------------------------------------------------------------------
+    def status(self) -> InfluxStatus:
+        counts = self.spool.counts()
+        return InfluxStatus(
+            spool=counts,
+            forwarder=self.forwarder.status(),
+            queued=self.writer.queued,
+            dropped=counts.dropped + self.writer.unspooled_drops,
+            spool_error=self.writer.error or "",
+        )
+
+    def _publish_status(self, db: TagDB) -> None:
+        st = self.status()
+        fs = st.forwarder
+        tags = self._tags
+        db.update(tags["influx.spool_depth"], st.spool.waiting)
+        db.update(tags["influx.spool_bytes"], st.spool.waiting_bytes)
+        db.update(tags["influx.drain_rate"], fs.drain_rate)
+        db.update(tags["influx.sent"], st.spool.sent)
+        db.update(tags["influx.dead_letters"], st.spool.dead)
+        db.update(tags["influx.dropped"], st.dropped)
+        db.update(tags["influx.last_error"], st.spool_error or fs.last_error)
+        db.update(tags["influx.connected"], fs.connected)
+        db.update(tags["influx.failed_writes"], fs.failed_writes)
+        db.update(tags["influx.timeouts"], fs.timeouts)
+        if self.alarm is not None:
+            self._publish_alarms(st)
+
+    def _publish_alarms(self, st: InfluxStatus) -> None:
+        fs = st.forwarder
+        s = self.settings
+        failure = fs.failure
+        if self._spool_problem and self.writer.commits:
+            self._spool_problem = ""  # the new spool works: the alarm returns to normal
+        wanted = {
+            ALARM_CONFIG: (
+                failure in CONFIGURATION,
+                f"InfluxDB {s.url} bucket {s.bucket!r} refuses every write ({fs.last_error});"
+                " points are kept in the spool",
+            ),
+            ALARM_UNREACHABLE: (
+                failure in TRANSIENT and fs.failing_s >= s.alarm_after_s,
+                f"InfluxDB {s.url} has not accepted a write for {s.alarm_after_s:g} s"
+                f" ({fs.last_error}); points wait in the spool",
+            ),
+            ALARM_DEAD_LETTERS: (
+                bool(fs.dead_alarm),
+                f"InfluxDB refused points for good ({fs.dead_alarm}); they are in the"
+                f" dead-letter table of {s.spool_path}",
+            ),
+            ALARM_SPOOL_FULL: (
+                self.spool.overflowing or self.writer.unspooled_drops > 0,
+                f"spool {s.spool_path} full ({s.spool_max_bytes} bytes) or not keeping up:"
+                " the oldest points are dropped",
+            ),
+            ALARM_SPOOL: (
+                bool(st.spool_error or self._spool_problem),
+                f"spool {s.spool_path}: "
+                + (
+                    st.spool_error
+                    or f"unreadable ({self._spool_problem}), moved to {self.spool.moved_to};"
+                    " a new spool started"
+                ),
+            ),
+        }
+        assert self.alarm is not None
+        for alarm_id, (active, message) in wanted.items():
+            previous = self._alarms.get(alarm_id)
+            if previous is None and not active:
+                continue
+            if previous is None or previous[0] != active:
+                self._alarms[alarm_id] = (active, message)
+                try:
+                    self.alarm(alarm_id, active, message)
+                except Exception:  # the alarm model's fault must not stop the publisher
+                    log.exception("InfluxDB writer: alarm %s could not be set", alarm_id)
