@@ -47,6 +47,11 @@ CASES = [
     ("nan_profile_time.yaml", 4, 21, "nan_profile_time.csv:3:1: time 'nan' is not a finite"),
     ("underflow_current.yaml", 3, 24, "'1e-400 A' is too small to be told from zero"),
     ("unicode_digit_time.yaml", 4, 26, "sleep_until needs a time of day HH:MM"),
+    # Found by the mutation corpus (tests/mutation.py): float() and \d take any Unicode
+    # digit, so '٣ s' was 3 s, '+٠١:0٠' a one-hour sleep and '６0' in a profile 60 s.
+    ("unicode_digit_quantity.yaml", 3, 19, "'٣ s' is not a number with a unit"),
+    ("unicode_digit_sleep_action.yaml", 6, 26, "unknown action '+٠١:0٠'"),
+    ("unicode_digit_profile_time.yaml", 4, 21, "unicode_digit_profile_time.csv:3:1: time '６0'"),
 ]
 
 
