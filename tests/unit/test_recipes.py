@@ -52,6 +52,14 @@ CASES = [
     ("unicode_digit_quantity.yaml", 3, 19, "'٣ s' is not a number with a unit"),
     ("unicode_digit_sleep_action.yaml", 6, 26, "unknown action '+٠١:0٠'"),
     ("unicode_digit_profile_time.yaml", 4, 21, "unicode_digit_profile_time.csv:3:1: time '６0'"),
+    # ... and a profile row's window written high first (v_min above v_max) was taken.
+    ("inverted_profile_window.yaml", 7, 11, "v_min 4.2 V is not below v_max 2.8 V"),
+    (
+        "inverted_profile_window_csv.yaml",
+        4,
+        21,
+        "inverted_profile_window.csv:3:9: v_min 4.2 V is not below v_max 2.8 V",
+    ),
 ]
 
 
