@@ -382,6 +382,8 @@ class Group(Strict):
         return _q_nonnegative(v, Dim.TIME)
 
     _until_text = field_validator("until", mode="before")(Step._until_text.__func__)  # type: ignore[attr-defined]
+    # One pair per entry, as for a step (`until: [{}]` was a traceback in the compiler).
+    _until = field_validator("until")(Step._until.__func__)  # type: ignore[attr-defined]
 
 
 class Limits(Strict):
@@ -429,7 +431,8 @@ class Recipe(Strict):
     @field_validator("capacity")
     @classmethod
     def _cap(cls, v: Q | None) -> Q | None:
-        return _q(v, Dim.CHARGE)
+        # C-rates resolve against it: a negative capacity made a 0.5 C charge a discharge.
+        return _q_positive(v, Dim.CHARGE, what="a rated capacity")
 
     @field_validator("parameters")
     @classmethod

@@ -60,6 +60,10 @@ CASES = [
         21,
         "inverted_profile_window.csv:3:9: v_min 4.2 V is not below v_max 2.8 V",
     ),
+    # ... a group's `until: [{}]` was a traceback, and a negative capacity turned a 0.5 C
+    # charge into a discharge.
+    ("group_until_not_a_pair.yaml", 6, 7, "each 'until' entry is one 'condition: action' pair"),
+    ("negative_capacity.yaml", 2, 11, "a rated capacity must be greater than zero"),
 ]
 
 
