@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test lint typecheck unit bench schema check clean
+.PHONY: run test lint typecheck unit bench mutation schema check clean
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "Python 3.11+ is required")'
@@ -40,6 +40,14 @@ bench: $(STAMP)
 	$(BIN)/supervisor bench faults
 	$(BIN)/supervisor bench estop --presses 100 --period-ms 10
 	$(BIN)/supervisor bench kill-restart --iterations 20
+
+## The mutation corpus (tests/mutation.py) through the real commands, one process each,
+## one at a time per CPU: counts per class printed, every failure in var/mutation/report.md;
+## exit 1 while a variant breaks the promise (a traceback, a timeout, a refusal without
+## file:line:col, a certainly invalid file accepted). `make test` runs a sample in process.
+MUTATION_N ?= 600
+mutation: $(STAMP)
+	$(BIN)/python -m tests.mutation_run $(MUTATION_N)
 
 schema: $(STAMP)
 	$(BIN)/supervisor schema --out .
