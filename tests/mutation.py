@@ -1324,6 +1324,15 @@ _ZERO_TIME_LOOPS: tuple[tuple[str, str, Expect], ...] = (
 )
 
 
+def _raw_name(what: str) -> str:
+    return f"{_RAW}_{what}"
+
+
+def _raw(doc: _Doc, what: str) -> ScalarNode:
+    """A placeholder scalar that ``doc.emit()`` replaces by ``doc.raw[_raw_name(what)]``."""
+    return ScalarNode(_STR, _raw_name(what))
+
+
 def _recipe(src: Source) -> tuple[_Doc, dict[str, int]] | None:
     """The recipe's document and the index of each top-level key (None for an I/O map)."""
     doc = _doc(src)
@@ -1344,16 +1353,11 @@ def _loops_zero_time(rng: random.Random, src: Source, small: bool) -> Made | Non
     steps = doc.root.value[top["steps"]][1]
     if not isinstance(steps, SequenceNode):
         return None
+    group = None
     if rng.random() < 0.2:  # a group of duration 0 s around a step, and a goto back to it
         loop = "[{id: zt_a, rest: 1 h}, {id: zt_b, goto: zt_a}]"
         group = "[{id: zt_g, steps: [zt_a], duration: 0 s}]"
         what, expect = "a group with duration: 0 s and a goto back", REFUSE
-        pair = (_scalar("groups"), ScalarNode(_STR, "MUTATION_GROUPS"))
-        if "groups" in top:
-            doc.root.value[top["groups"]] = pair
-        else:
-            doc.root.value.insert(top["steps"], pair)
-        doc.raw["MUTATION_GROUPS"] = group
     else:
         loop, what, expect = rng.choice(_ZERO_TIME_LOOPS)
     # The loop's text, then the recipe's own steps (flow style so that one fragment fits).
@@ -1362,11 +1366,15 @@ def _loops_zero_time(rng: random.Random, src: Source, small: bool) -> Made | Non
             node.flow_style = True
     own = yaml.serialize(steps, Dumper=yaml.SafeDumper, allow_unicode=True, width=1 << 20)
     own = own.strip().removesuffix("...").strip()
-    doc.root.value[top["steps"]] = (
-        doc.root.value[top["steps"]][0],
-        ScalarNode(_STR, "MUTATION_STEPS"),
-    )
-    doc.raw["MUTATION_STEPS"] = loop[:-1] + ", " + own[1:]
+    doc.root.value[top["steps"]] = (doc.root.value[top["steps"]][0], _raw(doc, "STEPS"))
+    doc.raw[_raw_name("STEPS")] = loop[:-1] + ", " + own[1:]
+    if group is not None:  # after the steps: an insertion moves the steps' index
+        pair = (_scalar("groups"), _raw(doc, "GROUPS"))
+        if "groups" in top:
+            doc.root.value[top["groups"]] = pair
+        else:
+            doc.root.value.insert(top["steps"], pair)
+        doc.raw[_raw_name("GROUPS")] = group
     pending = PENDING_ZERO_TIME if expect == REFUSE else ""
     return _made(doc, f"steps: first {what}", expect, pending)
 
@@ -1769,12 +1777,12 @@ def _size_many_items(rng: random.Random, src: Source, small: bool) -> Made | Non
             return None
         step_id = first.value[e][1].value
         fragment = _flow_items(None, count, "{{id: g{k}, steps: [" + str(step_id) + "]}}")
-        pair = (_scalar("groups"), ScalarNode(_STR, "MUTATION_GROUPS"))
+        pair = (_scalar("groups"), _raw(doc, "GROUPS"))
         if "groups" in top:
             doc.root.value[top["groups"]] = pair
         else:
             doc.root.value.insert(top["steps"], pair)
-        doc.raw["MUTATION_GROUPS"] = fragment
+        doc.raw[_raw_name("GROUPS")] = fragment
         return _made(doc, f"groups: {count} groups (limit {limit:,})", expect, pending)
     site = next(s for s in doc.values() if s.path == (kind,))
     if not isinstance(site.node, SequenceNode) or not site.node.value:

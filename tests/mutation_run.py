@@ -91,6 +91,7 @@ class Record:
     outcome: str
     why: str
     stderr: str
+    cpu_s: float  # CPU time of the command(s), a figure for the report (never asserted)
 
     @property
     def category(self) -> str:
@@ -118,6 +119,11 @@ def _command() -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, "-m", "supervisor.cli.main"]
 
 
+def _children_cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def _supervisor(argv: list[str], timeout_s: float, memory_mb: int) -> tuple[int | None, str, str]:
     try:
         # preexec_fn is safe here: each pool worker is a single-threaded process.
@@ -143,6 +149,7 @@ def _supervisor(argv: list[str], timeout_s: float, memory_mb: int) -> tuple[int 
 def run_variant(v: Variant, workdir: Path, timeout_s: float, memory_mb: int) -> Record:
     """Write ``v``, run it through the command, classify; keep its files only if it failed."""
     feed = v.write(workdir)
+    cpu_before = _children_cpu_s()  # this worker runs one command at a time
     code, out, err = _supervisor(feed.argv, timeout_s, memory_mb)
     verdict = classify(code, err, feed.files, via=feed.via, whole_file=v.whole_file)
     written = [workdir / v.file_name]
@@ -172,6 +179,7 @@ def run_variant(v: Variant, workdir: Path, timeout_s: float, memory_mb: int) -> 
         outcome=verdict.outcome,
         why=verdict.why,
         stderr=_excerpt(err),
+        cpu_s=_children_cpu_s() - cpu_before,
     )
     if record.category not in FAILED:
         for path in written:
@@ -249,7 +257,13 @@ def _section(title: str, chosen: list[Record]) -> list[str]:
 
 
 def write_report(
-    records: list[Record], out: Path, seed: int, argv: list[str], wall_s: float, jobs: int
+    records: list[Record],
+    out: Path,
+    seed: int,
+    argv: list[str],
+    wall_s: float,
+    jobs: int,
+    cpu_s: float,
 ) -> Path:
     failed = [r for r in records if r.failed]
     pending = [r for r in records if r.excused]
@@ -257,7 +271,7 @@ def write_report(
         "# Mutation corpus run",
         "",
         f"`python -m tests.mutation_run {' '.join(argv)}`: seed {seed}, {len(records)} variants,"
-        f" {jobs} at a time, wall time {wall_s:.0f} s.",
+        f" {jobs} at a time, wall time {wall_s:.0f} s (CPU time of the commands {cpu_s:.0f} s).",
         "",
         f"Failures: {len(failed)}. Pending on other branches (excused until they land):"
         f" {len(pending)}.",
@@ -333,18 +347,19 @@ def main(argv: list[str] | None = None) -> int:
             if k % 100 == 0:
                 print(f"  {k} done", flush=True)
     wall_s = time.monotonic() - started
+    cpu_s = sum(r.cpu_s for r in records)
     with (args.out / "results.jsonl").open("w", encoding="utf-8") as f:
         for r in records:
             f.write(json.dumps({**asdict(r), "category": r.category}, ensure_ascii=False) + "\n")
     shown = sys.argv[1:] if argv is None else argv
-    report = write_report(records, args.out, args.seed, shown, wall_s, args.jobs)
+    report = write_report(records, args.out, args.seed, shown, wall_s, args.jobs, cpu_s)
     counts = collections.Counter(r.category for r in records)
     for name in CATEGORIES:
         print(f"{_SHORT[name]:<12} {counts[name]:>6}")
     print(f"{'total':<12} {len(records):>6}")
     failed = sum(r.failed for r in records)
     print(f"failures: {failed}; pending on other branches: {sum(r.excused for r in records)}")
-    print(f"wall time: {wall_s:.0f} s")
+    print(f"wall time: {wall_s:.0f} s; CPU time of the commands: {cpu_s:.0f} s")
     print(f"report: {report}")
     return 1 if failed else 0
 
