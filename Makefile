@@ -11,7 +11,7 @@ INFLUXD_VERSION := 1.8.10
 INFLUXD_CACHE   ?= $(HOME)/.cache/bench-supervisor/influxd-$(INFLUXD_VERSION)
 INFLUXD         := $(INFLUXD_CACHE)/influxd
 
-.PHONY: run test lint typecheck unit bench schema check clean influxd
+.PHONY: run test lint typecheck unit bench mutation schema check clean influxd
 
 influxd: $(INFLUXD)
 
@@ -56,6 +56,14 @@ bench: $(STAMP) $(INFLUXD)
 	$(BIN)/supervisor bench kill-restart --iterations 20
 	$(BIN)/supervisor bench historian --tags 1000 --period-ms 10 --seconds 10
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/supervisor bench influx --points 200000 --rounds 3
+
+## The mutation corpus (tests/mutation.py) through the real commands, one process each,
+## one at a time per CPU: counts per class printed, every failure in var/mutation/report.md;
+## exit 1 while a variant breaks the promise (a traceback, a timeout, a refusal without
+## file:line:col, a certainly invalid file accepted). `make test` runs a sample in process.
+MUTATION_N ?= 600
+mutation: $(STAMP)
+	$(BIN)/python -m tests.mutation_run $(MUTATION_N)
 
 schema: $(STAMP)
 	$(BIN)/supervisor schema --out .

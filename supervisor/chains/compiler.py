@@ -295,7 +295,7 @@ class _Compiler:
         if HHMM.match(t) or (head == "sleep_until" and HHMM.match(rest)):
             hh, mm = (t if HHMM.match(t) else rest).split(":")
             return Action(ActionKind.SLEEP_UNTIL, hhmm=(int(hh), int(mm)))
-        m = re.match(r"^\+(\d{1,3}):([0-5]\d)$", t)
+        m = re.match(r"^\+([0-9]{1,3}):([0-5][0-9])$", t)  # ASCII: \d takes any Unicode digit
         if m:
             return Action(ActionKind.SLEEP, seconds=int(m[1]) * 3600 + int(m[2]) * 60)
         if head == "sleep":

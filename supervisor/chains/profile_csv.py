@@ -7,6 +7,7 @@ from pathlib import Path
 
 from supervisor.chains.program import ProfilePoint
 from supervisor.config.limits import MAX_PROFILE_CSV_BYTES, MAX_PROFILE_ROWS, read_limited
+from supervisor.config.recipe import profile_window_problem
 from supervisor.config.text import Layout, Row, decode_text, read_table
 from supervisor.core.errors import ConfigError
 
@@ -18,6 +19,7 @@ _LIMITS = 6  # V min/max, I min/max, T min/max after the current
 def _limits(row: Row, layout: Layout, path: Path) -> list[float | None]:
     """Current and the optional limits: a pair in two cells or one ``min/max`` cell."""
     values: list[float | None] = []
+    cols: list[int] = []
     for cell in row.cells[1:]:
         for part in cell.text.split("/"):
             text = part.strip()
@@ -27,6 +29,13 @@ def _limits(row: Row, layout: Layout, path: Path) -> list[float | None]:
             if value is not None and not math.isfinite(value):
                 raise ConfigError(f"{text!r} is not a finite number", path, row.line, cell.col)
             values.append(value)
+            cols.append(cell.col)
+    # Each V/I/T window low then high, as in a recipe's own rows (at the window's cell).
+    for k in range(_LIMITS // 2):
+        pair = values[1 + 2 * k : 3 + 2 * k]
+        problem = profile_window_problem(k, *pair) if len(pair) == 2 else None
+        if problem:
+            raise ConfigError(problem, path, row.line, cols[1 + 2 * k])
     return values
 
 

@@ -114,6 +114,19 @@ def _text(x: Any) -> Any:
     return x
 
 
+PROFILE_WINDOWS = (("v_min", "v_max", "V"), ("i_min", "i_max", "A"), ("t_min", "t_max", "degC"))
+"""A profile row's windows after its current (seed 002 §2.3), in their CSV column order."""
+
+
+def profile_window_problem(k: int, low: float | None, high: float | None) -> str | None:
+    """What is wrong with window ``k`` of ``PROFILE_WINDOWS`` given as ``low``, ``high``: a
+    window written high first holds nothing (found by the mutation corpus)."""
+    if low is None or high is None or low < high:
+        return None
+    lo_name, hi_name, unit = PROFILE_WINDOWS[k]
+    return f"{lo_name} {low:g} {unit} is not below {hi_name} {high:g} {unit}"
+
+
 class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
@@ -229,6 +242,15 @@ class ProfileRow(Strict):
     i_max: float | None = None
     t_min: float | None = None
     t_max: float | None = None
+
+    @model_validator(mode="after")
+    def _windows(self) -> ProfileRow:
+        pairs = ((self.v_min, self.v_max), (self.i_min, self.i_max), (self.t_min, self.t_max))
+        for k, (low, high) in enumerate(pairs):
+            problem = profile_window_problem(k, low, high)
+            if problem:
+                raise ValueError(problem)
+        return self
 
 
 class ProfileSpec(Strict):
@@ -364,6 +386,8 @@ class Group(Strict):
         return _q_nonnegative(v, Dim.TIME)
 
     _until_text = field_validator("until", mode="before")(Step._until_text.__func__)  # type: ignore[attr-defined]
+    # One pair per entry, as for a step (`until: [{}]` was a traceback in the compiler).
+    _until = field_validator("until")(Step._until.__func__)  # type: ignore[attr-defined]
 
 
 class Limits(Strict):
@@ -423,7 +447,8 @@ class Recipe(Strict):
     @field_validator("capacity")
     @classmethod
     def _cap(cls, v: Q | None) -> Q | None:
-        return _q(v, Dim.CHARGE)
+        # C-rates resolve against it: a negative capacity made a 0.5 C charge a discharge.
+        return _q_positive(v, Dim.CHARGE, what="a rated capacity")
 
     @field_validator("parameters")
     @classmethod

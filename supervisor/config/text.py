@@ -44,6 +44,12 @@ _BREAK = re.compile(r"\r\n|\r|\n")
 # YAML 1.1 §5.4 line breaks, as PyYAML's reader counts them (it also breaks on NEL, LS, PS).
 _YAML_BREAK = re.compile(r"\r\n|[\r\n\x85\u2028\u2029]")
 _UTF16_BOMS = (codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)  # also the start of a UTF-32 BOM
+# A number in a table cell as the C library's strtod reads it, in ASCII digits; inf and nan
+# included (refused by name where they make no sense).
+_CELL_NUMBER = re.compile(
+    r"^[-+]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?|inf|infinity|nan)$",
+    re.IGNORECASE,
+)
 
 
 @dataclass(frozen=True)
@@ -194,14 +200,15 @@ class Layout:
         return self.delimiter in ("\t", ";")
 
     def number(self, text: str) -> float | None:
-        """The number a cell holds, or None; ``inf``/``nan`` are numbers here."""
+        """The number a cell holds, or None; ``inf``/``nan`` are numbers here (the caller
+        refuses them by name). ASCII digits only, no ``_``: ``float()`` alone would read
+        ``６0`` as 60 and ``1_000`` as 1000 (issue 9)."""
         t = text.strip()
         if self.decimal_comma:
             t = t.replace(",", ".")
-        try:
-            return float(t)
-        except ValueError:
+        if not _CELL_NUMBER.match(t):
             return None
+        return float(t)
 
 
 @dataclass(frozen=True)

@@ -78,9 +78,13 @@ BASE_UNIT: dict[Dim, str] = {
     Dim.BOOL: "",
 }
 
+# ASCII digits only: ``\d`` (and ``float()``) take any Unicode digit, so ``٣ s`` or ``３ V``
+# would be read as 3 (issue 9; the mutation corpus, tests/mutation.py, found it).
 _QUANTITY = re.compile(
-    r"^\s*(?P<num>[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(?P<unit>[A-Za-zΩ°µ/]+)?\s*$"
+    r"^\s*(?P<num>[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?)\s*(?P<unit>[A-Za-zΩ°µ/]+)?\s*$"
 )
+# A number with a non-zero digit before its exponent: ``1e-400`` is not zero, it underflows.
+_NONZERO_MANTISSA = re.compile(r"^[-+]?0*\.?0*[1-9]")
 
 
 class UnitError(ValueError):
@@ -124,6 +128,11 @@ def parse_quantity(
             raise UnitError(f"{text!r} is not a number with a unit (e.g. '4.2 V', '300 mA')")
         unit = m.group("unit")
         num = float(m.group("num"))
+        if num == 0.0 and _NONZERO_MANTISSA.match(m.group("num")):
+            # A command-line parameter (--param x=1e-400V) as much as a recipe's value.
+            raise UnitError(
+                f"{text!r} is too small to be told from zero: write 0 or a larger value"
+            )
         if unit is None:
             q = Quantity(num, Dim.NONE)
         else:

@@ -58,6 +58,23 @@ CASES = [
     ("too_many_cycles.yaml", 2, 9, "cycles: 2,000,000 is too many; a recipe may run at most"),
     ("too_many_groups.yaml", 1006, 5, "too many groups: 1,001; a recipe may have at most 1,000"),
     ("initial_charge_too_large.yaml", 2, 17, "initial_charge 1e+300 Ah is too large"),
+    # Found by the mutation corpus (tests/mutation.py): float() and \d take any Unicode
+    # digit, so '٣ s' was 3 s, '+٠١:0٠' a one-hour sleep and '６0' in a profile 60 s.
+    ("unicode_digit_quantity.yaml", 3, 19, "'٣ s' is not a number with a unit"),
+    ("unicode_digit_sleep_action.yaml", 6, 26, "unknown action '+٠١:0٠'"),
+    ("unicode_digit_profile_time.yaml", 4, 21, "unicode_digit_profile_time.csv:3:1: time '６0'"),
+    # ... and a profile row's window written high first (v_min above v_max) was taken.
+    ("inverted_profile_window.yaml", 7, 11, "v_min 4.2 V is not below v_max 2.8 V"),
+    (
+        "inverted_profile_window_csv.yaml",
+        4,
+        21,
+        "inverted_profile_window.csv:3:9: v_min 4.2 V is not below v_max 2.8 V",
+    ),
+    # ... a group's `until: [{}]` was a traceback, and a negative capacity turned a 0.5 C
+    # charge into a discharge.
+    ("group_until_not_a_pair.yaml", 6, 7, "each 'until' entry is one 'condition: action' pair"),
+    ("negative_capacity.yaml", 2, 11, "a rated capacity must be greater than zero"),
 ]
 
 

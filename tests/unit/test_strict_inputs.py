@@ -14,6 +14,7 @@ from supervisor.cli.main import build_parser, main
 from supervisor.config.recipe import load_recipe_text
 from supervisor.core.clock import VirtualClock
 from supervisor.core.errors import ConfigErrors
+from supervisor.core.units import UnitError, parse_quantity
 from supervisor.devices.registry import load_bench
 from supervisor.tags import TagSpec
 from supervisor.tags.spec import clipped_repr, shown
@@ -222,6 +223,31 @@ def test_zero_written_as_zero_is_not_an_underflow() -> None:
     text = "recipe: r\nsteps:\n  - {id: a, discharge: 0.000e-400 A, duration: 1 h}\n"
     recipe, pos = load_recipe_text(text, "r.yaml")
     assert compile_recipe(recipe, pos, "r.yaml").steps[0].current_a == 0.0
+
+
+@pytest.mark.parametrize("value", ["1e-400V", "1e-400 V", "0.5e-330 V"])
+def test_a_start_parameter_that_underflows_to_zero_is_refused(
+    value: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The command line's parameters, like the recipe's own (issue 9 leftover: 1e-400 V was 0).
+    assert main(["dry-run", RECIPE, "--param", f"v_min={value}"]) == 2
+    err = capsys.readouterr().err
+    assert f"parameter v_min: {value!r} is too small to be told from zero" in err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("text", ["٣ s", "３ V", "1.٩ V", "𝟏 s", "२० mA"])
+def test_a_quantity_in_other_digits_than_ascii_is_not_a_quantity(text: str) -> None:
+    # float() reads every Unicode digit: '٣ s' was 3 s (found by the mutation corpus).
+    with pytest.raises(UnitError, match="is not a number with a unit"):
+        parse_quantity(text)
+
+
+def test_a_start_parameter_of_zero_is_zero() -> None:
+    recipe, pos = load_recipe_text(
+        "recipe: r\nparameters: {v: 1 V}\nsteps:\n  - {id: a, rest: 1 h}\n", "r.yaml"
+    )
+    assert compile_recipe(recipe, pos, "r.yaml", overrides={"v": "0e-400 V"}).parameters["v"] == 0
 
 
 def test_a_pair_of_limits_from_yaml_is_still_read() -> None:

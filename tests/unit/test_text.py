@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import codecs
 import csv
+import math
 from collections.abc import Callable
 
 import pytest
@@ -165,6 +166,27 @@ def test_with_semicolons_or_tabs_a_comma_is_a_decimal_comma(delimiter: str) -> N
     assert layout.decimal_comma
     assert rows[1] == [("10", 1), ("1,5", 4)]
     assert layout.number("1,5") == 1.5
+
+
+@pytest.mark.parametrize(
+    ("text", "value"),
+    [
+        (" 60 ", 60.0),
+        ("+1.5", 1.5),
+        (".5", 0.5),
+        ("1e3", 1000.0),
+        ("-2E-1", -0.2),
+        ("inf", math.inf),
+    ],
+)
+def test_a_cell_number_is_what_strtod_reads(text: str, value: float) -> None:
+    assert Layout(",").number(text) == value
+
+
+@pytest.mark.parametrize("text", ["６0", "٣", "1_000", "0x10", "1.5.2", "", "1e", "nan s"])
+def test_a_cell_in_other_digits_or_python_syntax_is_not_a_number(text: str) -> None:
+    # float() alone reads '６0' as 60 and '1_000' as 1000 (issue 9, the mutation corpus).
+    assert Layout(",").number(text) is None
 
 
 def test_with_commas_a_comma_separates_cells_and_a_point_is_the_decimal_point() -> None:
