@@ -148,6 +148,10 @@ class OpcUaFeed:
             self._pending = {}
         return out
 
+    def empty(self) -> bool:
+        with self._lock:
+            return not self._pending and not self._events
+
     def take_events(self) -> list[BenchEvent | AlarmView]:
         with self._lock:
             out = list(self._events)

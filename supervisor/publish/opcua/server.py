@@ -145,6 +145,7 @@ class OpcUaServer:
         self.namespace = layout.uri
         self.written = 0  # values written into the address space since start
         self._closing = False
+        self._busy = False
         self._server: Server | None = None
         self._built = Built()
         self._events: EventPublisher | None = None
@@ -178,6 +179,11 @@ class OpcUaServer:
             await self._wait_done()
             raise
         log.info("OPC UA server listening on %s (namespace %s)", self.endpoint, self.namespace)
+
+    @property
+    def idle(self) -> bool:
+        """Nothing waits to be written or sent (what tests and benchmarks wait for)."""
+        return not self._busy and self.feed.empty()
 
     def closing(self) -> None:
         """Refuse commands from now on (the bench is going to its safe state)."""
@@ -262,6 +268,12 @@ class OpcUaServer:
             pump.cancel()
             await asyncio.gather(pump, return_exceptions=True)
             self.feed.stop()
+            # asyncua's clock task sleeps 1 s between updates and its stop waits for it.
+            clock_task = getattr(server.iserver, "time_task", None)
+            if clock_task is not None:
+                clock_task.cancel()
+                await asyncio.gather(clock_task, return_exceptions=True)
+                server.iserver.time_task = None
             await server.stop()
             log.info("OPC UA server stopped")
 
@@ -338,6 +350,7 @@ class OpcUaServer:
         while True:
             await wake.wait()
             wake.clear()
+            self._busy = True
             await self._write(server, self.feed.take())
             for item in self.feed.take_events():
                 try:
@@ -349,6 +362,7 @@ class OpcUaServer:
                     log.exception("OPC UA event %r not sent", item)
             bserver = getattr(server, "bserver", None)
             self.feed.clients = len(getattr(bserver, "clients", ()))
+            self._busy = False
 
     async def _write(self, server: Server, updates: list[Update]) -> None:
         aspace = server.iserver.aspace
