@@ -23,11 +23,13 @@ from asyncua.crypto.cert_gen import setup_self_signed_certificate
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from asyncua.server.address_space import NodeData
 from asyncua.server.internal_server import InternalServer
-from commandrig import started_bench
+from commandrig import io_map, started_bench
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
-from supervisor.app import Bench
+from supervisor.app import Bench, build_bench
 from supervisor.app.opcua import build_opcua
+from supervisor.core.clock import RealClock
+from supervisor.devices.registry import load_bench
 from supervisor.publish.opcua import OpcUaServer, OpcUaSettings, namespace_uri
 from supervisor.publish.opcua.security import Pki
 from supervisor.publish.opcua.users import hash_password
@@ -170,10 +172,20 @@ async def opcua_rig(
     tmp: Path,
     change: Callable[[OpcUaSettings], OpcUaSettings] | None = None,
     prepare: Callable[[Bench], None] | None = None,
+    real_clock: bool = False,
     **kw: Any,
 ) -> AsyncIterator[Rig]:
-    """The started bench and its started OPC UA server; both stopped on exit."""
-    bench = await started_bench(tmp)
+    """The started bench and its started OPC UA server; both stopped on exit.
+
+    ``real_clock``: the bench scans on its own at its period (wall time), from before the
+    server starts until the end; else it scans only when the test says so."""
+    if real_clock:
+        bench = build_bench(load_bench(io_map(tmp)), RealClock(), in_process=True)
+        await bench.start()
+    else:
+        bench = await started_bench(tmp)
+    stop = asyncio.Event()
+    running: asyncio.Task[None] | None = None
     if prepare is not None:
         prepare(bench)
     settings = dataclasses.replace(
@@ -187,10 +199,17 @@ async def opcua_rig(
     try:
         await server.start()
         rig = Rig(bench, server, tmp)
-        await rig.scans(1)
+        if real_clock:  # as `supervisor run` does: the server is up before the first scan
+            running = asyncio.create_task(bench.run(stop))
+            await wait_until(lambda: bench.engine.stats.count > 0, "the first scan")
+        else:
+            await rig.scans(1)
         yield rig
     finally:
         await server.stop()
+        stop.set()
+        if running is not None:
+            await running
         await bench.shutdown()
 
 

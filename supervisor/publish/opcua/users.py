@@ -95,19 +95,15 @@ def _scrypt(password: str, salt: bytes, n: int, r: int, p: int) -> bytes:
     )
 
 
+NOT_A_HASH: Final = (
+    "must be a password hash written by `supervisor opcua add-user`, never the password itself"
+)
+
+
 class UserEntry(Strict):
     role: Role
+    # Checked by ``read_users`` (a pydantic error would repeat the value: a password).
     password: str = Field(description="scrypt hash written by `supervisor opcua add-user`")
-
-    @field_validator("password")
-    @classmethod
-    def _hashed(cls, v: str) -> str:
-        if not re.match(HASH_PATTERN, v):
-            raise ValueError(
-                "must be a password hash written by `supervisor opcua add-user`, never the"
-                " password itself"
-            )
-        return v
 
 
 class UsersFile(Strict):
@@ -117,13 +113,19 @@ class UsersFile(Strict):
     @classmethod
     def _names(cls, v: dict[str, UserEntry]) -> dict[str, UserEntry]:
         for name in v:
-            if name == ANONYMOUS:
-                raise ValueError(f"{ANONYMOUS!r} is the name of anonymous sessions")
-            if not re.match(NAME_PATTERN, name):
-                raise ValueError(
-                    f"user name {name!r}: letters, digits and _.@- only (1 to 64 characters)"
-                )
+            problem = name_problem(name)
+            if problem:
+                raise ValueError(problem)
         return v
+
+
+def name_problem(name: str) -> str:
+    """Why ``name`` cannot be a user's name ("" when it can)."""
+    if name == ANONYMOUS:
+        return f"{ANONYMOUS!r} is the name of anonymous sessions"
+    if not re.match(NAME_PATTERN, name):
+        return f"user name {name!r}: letters, digits and _.@- only (1 to 64 characters)"
+    return ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,7 +146,12 @@ def read_users(path: Path) -> dict[str, UserEntry]:
     data, positions = load_yaml(path)
     if data is None:
         return {}
-    return validate(UsersFile, data, positions, str(path)).users
+    users = validate(UsersFile, data, positions, str(path)).users
+    for name, entry in users.items():
+        if not re.match(HASH_PATTERN, entry.password):
+            at = positions.nearest(("users", name, "password"))
+            raise ConfigError(f"users.{name}.password: {NOT_A_HASH}", path, at.line, at.col)
+    return users
 
 
 class UserStore:
@@ -210,7 +217,9 @@ def add_user(path: Path, name: str, role: str, password: str) -> bool:
     its owner only."""
     if role not in ROLES:
         raise ConfigError(f"role {role!r}: one of {', '.join(ROLES)}")
-    UsersFile.model_validate({"users": {name: {"role": role, "password": hash_password("x")}}})
+    problem = name_problem(name)
+    if problem:
+        raise ConfigError(problem)
     if not password:
         raise ConfigError("an empty password is not a password")
     users = read_users(path)
