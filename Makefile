@@ -66,7 +66,7 @@ bench: $(STAMP)
 	$(BIN)/supervisor bench faults
 	$(BIN)/supervisor bench estop --presses 100 --period-ms 10
 	$(BIN)/supervisor bench kill-restart --iterations 20
-	$(BIN)/supervisor bench opcua --clients 10 --seconds 10
+	$(BIN)/supervisor bench opcua --clients 10 --seconds 10 --opcua-tags 50 --period-ms 50
 
 schema: $(STAMP)
 	$(BIN)/supervisor schema --out .

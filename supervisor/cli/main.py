@@ -546,6 +546,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from supervisor.app.killrestart import kill_restart_benchmark
 
         return kill_restart_benchmark(args.iterations, args.seed)
+    if args.what == "opcua":
+        return asyncio.run(
+            benchmarks.opcua_benchmark(
+                args.clients, args.seconds, args.opcua_tags, args.period_ms / 1000
+            )
+        )
     if args.what == "dry-run":
         from supervisor.app.dryrun import dry_run, format_report
 
@@ -706,7 +712,16 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks that print figures")
     b.add_argument(
         "what",
-        choices=["scan", "manual", "seed002", "dry-run", "faults", "estop", "kill-restart"],
+        choices=[
+            "scan",
+            "manual",
+            "seed002",
+            "dry-run",
+            "faults",
+            "estop",
+            "kill-restart",
+            "opcua",
+        ],
     )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
     b.add_argument("--tags", type=int, default=1000, help="scan: number of tags")
@@ -716,6 +731,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--hours", type=float, default=10.0, help="manual: simulated hours")
     b.add_argument("--iterations", type=int, default=20, help="kill-restart: kills")
     b.add_argument("--seed", type=int, default=1, help="kill-restart: seed of the kill times")
+    b.add_argument("--clients", type=int, default=10, help="opcua: subscribed clients")
+    b.add_argument("--opcua-tags", type=int, default=100, help="opcua: analog tags changing")
     b.set_defaults(func=cmd_bench)
     return p
 

@@ -2,7 +2,7 @@
 connecting at once. The scan keeps its period — shown by its own counters (overruns, missed
 deadlines), never by a timing claim — and the other clients keep their updates.
 
-The clients run in a process of their own (tests/opcuaclients.py): on the bench's loop
+The clients run in a process of their own (supervisor/app/opcuaclients.py): on the bench's loop
 they would be part of what is measured.
 """
 
@@ -23,7 +23,6 @@ from opcuarig import Collector, Rig, eventually, opcua_rig
 from supervisor.testing import wait_until
 
 pytestmark = pytest.mark.integration
-CLIENTS = Path(__file__).resolve().parents[1] / "opcuaclients.py"
 TAGS = (
     ",".join(
         f"ch{k}.{t}" for k in range(4) for t in ("voltage", "current", "chain.step_time", "power")
@@ -35,7 +34,8 @@ TAGS = (
 async def clients(rig: Rig, n: int, seconds: float) -> asyncio.subprocess.Process:
     return await asyncio.create_subprocess_exec(
         sys.executable,
-        str(CLIENTS),
+        "-m",
+        "supervisor.app.opcuaclients",
         rig.server.endpoint,
         rig.server.namespace,
         "--clients",

@@ -1,7 +1,7 @@
 """OPC UA clients in a process of their own (the load tests and ``supervisor bench opcua``
 must not run clients on the loop they measure).
 
-``python tests/opcuaclients.py URL NAMESPACE --clients 20 --tags a,b,c --seconds 5``
+``python -m supervisor.app.opcuaclients URL NAMESPACE --clients 20 --tags a,b,c --seconds 5``
 connects every client at once, subscribes each to the tags, says ``subscribed`` on one
 line when all are, counts the data changes each receives for ``--seconds``, then prints one
 JSON line ``{"updates": [n per client], "errors": [...]}``. ``--seconds 0``: until killed.
@@ -33,7 +33,7 @@ class Counter:
 async def one(
     url: str, uri: str, tags: list[str], counter: Counter, ready: asyncio.Event, stop: asyncio.Event
 ) -> None:
-    client = Client(url, timeout=30)
+    client = Client(url, timeout=60)
     async with client:
         ns = await client.get_namespace_index(uri)
         sub = await client.create_subscription(50, counter)
@@ -59,8 +59,9 @@ async def main(argv: list[str]) -> int:
         asyncio.create_task(one(args.url, args.namespace, tags, c, r, stop))
         for c, r in zip(counters, readies, strict=True)
     ]
-    all_ready = asyncio.gather(*(r.wait() for r in readies))
-    await asyncio.wait([all_ready, *tasks], return_when=asyncio.FIRST_COMPLETED)
+    all_ready: asyncio.Future[list[bool]] = asyncio.gather(*(r.wait() for r in readies))
+    pending: list[asyncio.Future[Any]] = [all_ready, *tasks]
+    await asyncio.wait(pending, return_when=asyncio.FIRST_COMPLETED)
     errors = [repr(t.exception()) for t in tasks if t.done() and t.exception() is not None]
     if not errors:
         sys.stdout.write("subscribed\n")
