@@ -113,3 +113,18 @@ def test_a_password_in_clear_in_the_users_file_is_refused_with_its_line(tmp_path
         "opcua", "add-user", "bob", "--role", "admin", "--io-map", str(io_map), cwd=tmp_path
     )
     assert bad_role.returncode == 2 and "invalid choice: 'admin'" in bad_role.stderr
+
+
+def test_an_opc_ua_port_already_taken_is_exit_2_with_the_reason(tmp_path: Path) -> None:
+    import socket
+
+    io_map, port = opcua_map(tmp_path)
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", port))
+        taken.listen()
+        done = supervisor("run", str(io_map), "--http-port", "0", cwd=tmp_path)
+    assert done.returncode == 2
+    said = [line for line in done.stderr.splitlines() if line.startswith("supervisor:")]
+    assert len(said) == 1 and said[0].startswith("supervisor: cannot listen:"), done.stderr
+    assert str(port) in said[0] and "address already in use" in said[0]
+    assert "Traceback" not in done.stderr

@@ -352,7 +352,15 @@ class OpcUaServer:
         await self._write(server, first)
         for a in await self._call_bench(lambda: list(self.alarms())):
             await self._alarm(a)
-        await server.start()
+        # A port already taken is the caller's to report, in one line (asyncua would log
+        # its traceback first).
+        quiet = logging.getLogger("asyncua.server.server")
+        level = quiet.level
+        quiet.setLevel(logging.CRITICAL)
+        try:
+            await server.start()
+        finally:
+            quiet.setLevel(level)
         return server
 
     # --- values --------------------------------------------------------------------------
