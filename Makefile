@@ -1,5 +1,5 @@
-# Every target does its own set-up: a fresh clone needs only Python 3.11+, make and (for
-# the tests' InfluxDB server) Go.
+# Every target does its own set-up: a fresh clone needs only Python 3.11+, make, (for
+# the tests' InfluxDB server) Go and (for the OPC UA interoperability test) Node.js with npm.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -11,9 +11,21 @@ INFLUXD_VERSION := 1.8.10
 INFLUXD_CACHE   ?= $(HOME)/.cache/bench-supervisor/influxd-$(INFLUXD_VERSION)
 INFLUXD         := $(INFLUXD_CACHE)/influxd
 
-.PHONY: run test lint typecheck unit bench mutation schema check clean influxd
+# The OPC UA client that is not asyncua (node-opcua-client), for the interoperability test:
+# installed by npm from the committed lock file into a git-ignored folder.
+INTEROP     := tests/interop
+NODE_STAMP  := $(INTEROP)/node_modules/.installed
+
+.PHONY: run test lint typecheck unit bench mutation schema check clean influxd node_modules
 
 influxd: $(INFLUXD)
+
+node_modules: $(NODE_STAMP)
+
+$(NODE_STAMP): $(INTEROP)/package.json $(INTEROP)/package-lock.json
+	@command -v npm >/dev/null || { echo "npm is required for the OPC UA interoperability test (node-opcua-client)"; exit 2; }
+	cd $(INTEROP) && npm ci --no-audit --no-fund --loglevel=error
+	touch $@
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "Python 3.11+ is required")'
@@ -37,7 +49,7 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-unit: $(STAMP) $(INFLUXD)
+unit: $(STAMP) $(INFLUXD) $(NODE_STAMP)
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/pytest -q
 
 $(INFLUXD):
@@ -56,6 +68,7 @@ bench: $(STAMP) $(INFLUXD)
 	$(BIN)/supervisor bench kill-restart --iterations 20
 	$(BIN)/supervisor bench historian --tags 1000 --period-ms 10 --seconds 10
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/supervisor bench influx --points 200000 --rounds 3
+	$(BIN)/supervisor bench opcua --clients 10 --seconds 10 --opcua-tags 50 --period-ms 50
 
 ## The mutation corpus (tests/mutation.py) through the real commands, one process each,
 ## one at a time per CPU: counts per class printed, every failure in var/mutation/report.md;
@@ -72,4 +85,4 @@ check: $(STAMP)
 	$(BIN)/supervisor check io_maps/*.yaml recipes/*.yaml
 
 clean:
-	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache $(INTEROP)/node_modules

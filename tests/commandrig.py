@@ -49,6 +49,7 @@ def chadeche_map(tmp: Path) -> str:
     data.pop("tags", None)
     data.pop("simulation", None)
     data.pop("safety", None)  # the seed-002 e-stop and its tags are not in this bench
+    data.pop("opcua", None)  # `supervisor run` on it must not take 4840
     data["state_dir"] = str(tmp / "state")
     path = tmp / "chadeche.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import math
 import sys
 import time
@@ -519,3 +520,195 @@ def _week_query_figures() -> str:
         f" {agg_s * 1000:.0f} ms; the first {len(raw.samples)} raw samples in"
         f" {raw_s * 1000:.0f} ms"
     )
+
+
+# --- OPC UA ------------------------------------------------------------------------------------
+async def _opcua_clients(
+    url: str, namespace: str, tags: list[str], clients: int, seconds: float
+) -> tuple[float, list[str]]:
+    """Updates per second that ``clients`` subscribed clients (in another process) receive,
+    all together, over ``seconds`` once every client is subscribed."""
+    import json
+
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable,
+        "-m",
+        "supervisor.app.opcuaclients",
+        url,
+        namespace,
+        "--clients",
+        str(clients),
+        "--tags",
+        ",".join(tags),
+        "--seconds",
+        str(seconds),
+        stdout=asyncio.subprocess.PIPE,
+    )
+    out, _ = await proc.communicate()
+    lines = out.decode().splitlines()
+    result = json.loads(lines[-1]) if lines else {"updates": [], "errors": ["no output"]}
+    return sum(result["updates"]) / seconds, list(result["errors"])
+
+
+async def opcua_benchmark(
+    clients: int = 10, seconds: float = 10.0, n_tags: int = 100, period_s: float = 0.05
+) -> int:
+    """Tag updates per second delivered to ``clients`` subscribed asyncua clients while the
+    scan holds its period, with the server on its own thread (what ``supervisor run`` does)
+    and on the scan's own loop, next to a bare asyncua server writing the same variables
+    (docs/adr/0014-opcua-server.md). ``n_tags`` analog tags change at every scan."""
+    import tempfile
+    from datetime import UTC, datetime
+    from pathlib import Path
+
+    from asyncua import Server, ua
+
+    from supervisor.publish.opcua import (
+        Answer,
+        OpcUaFeed,
+        OpcUaServer,
+        OpcUaSettings,
+        Request,
+        UserStore,
+        namespace_uri,
+        plan,
+    )
+
+    names = [f"gen.ai{k}" for k in range(n_tags)]
+    offered = n_tags / period_s * clients
+    rows: list[tuple[str, float, str]] = []
+
+    async def served(threaded: bool, tmp: Path) -> None:
+        clock = RealClock()
+        db = TagDB()
+        gen = SignalGenerator("gen", clock, n_tags, poll_period_s=period_s)
+        inputs = [
+            InputBinding(
+                db.add(TagSpec(n, unit="V", range=(-10.0, 10.0))), gen, f"ai{k}", None, 1.0
+            )
+            for k, n in enumerate(names)
+        ]
+        engine = ScanEngine(clock, db, period_s, [gen], inputs)
+        feed = OpcUaFeed(db)
+        engine.publishers.append(feed)
+        cfg = bench_from_data(
+            {
+                "bench": "opcuabench",
+                "state_dir": str(tmp),
+                "devices": {"gen": {"driver": "chadeche", "boards": [{"address": 0}]}},
+            }
+        )
+        settings = dataclasses.replace(OpcUaSettings.of(cfg), port=_free_port(), security=("none",))
+
+        async def refuse(req: Request) -> Answer:
+            return Answer(False, "benchmark", "refused")
+
+        server = OpcUaServer(
+            settings,
+            db,
+            clock,
+            plan(cfg, db),
+            feed,
+            refuse,
+            UserStore(tmp / "users.yaml"),
+            threaded=threaded,
+        )
+        await gen.poll()
+        await server.start()
+        stop = asyncio.Event()
+        task = asyncio.create_task(engine.run(stop))
+        try:
+            await asyncio.sleep(1.0)  # first scans, then the clients
+            before = (engine.stats.overruns, engine.stats.skipped, len(engine.stats.jitters_s))
+            written, dropped, t0 = server.written, feed.dropped, time.perf_counter()
+            rate, errors = await _opcua_clients(
+                server.endpoint, server.namespace, names, clients, seconds
+            )
+            st = engine.stats
+            wall = time.perf_counter() - t0
+            written = int((server.written - written) / wall)
+            dropped = feed.dropped - dropped
+            jitter = list(st.jitters_s)[before[2] :]
+            where = "own thread" if threaded else "scan's loop"
+            rows.append(
+                (
+                    f"supervisor, server on its {where}",
+                    rate,
+                    f"scan: overruns {st.overruns - before[0]}, deadlines skipped"
+                    f" {st.skipped - before[1]}, jitter p99 {_ms(ScanStats.percentile(jitter, 99))}"
+                    f", max {_ms(max(jitter, default=0.0))}; server wrote {written:,}/s,"
+                    f" replaced before written {dropped}"
+                    + (f"; client errors {errors}" if errors else ""),
+                )
+            )
+        finally:
+            stop.set()
+            await task
+            await server.stop()
+
+    async def bare(tmp: Path) -> None:
+        server = Server()
+        await server.init()
+        port = _free_port()
+        server.set_endpoint(f"opc.tcp://127.0.0.1:{port}/bare")
+        server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+        uri = namespace_uri("bare")
+        idx = await server.register_namespace(uri)
+        nodes = []
+        for n in names:
+            var = await server.nodes.objects.add_variable(ua.NodeId(n, idx), n, 0.0)
+            nodes.append(var.nodeid)
+        await server.start()
+        stop = asyncio.Event()
+
+        async def writer() -> None:
+            # The same values at the same period, written as fast as asyncua takes them.
+            k, start = 0, time.monotonic()
+            while not stop.is_set():
+                k += 1
+                # What the supervisor writes: the value, its status and both timestamps.
+                stamp = datetime.now(UTC)
+                now = ua.DataValue(
+                    ua.Variant(float(k), ua.VariantType.Double),
+                    StatusCode=ua.StatusCode(ua.StatusCodes.Good),
+                    SourceTimestamp=stamp,
+                    ServerTimestamp=stamp,
+                )
+                for nid in nodes:
+                    await server.write_attribute_value(nid, now)
+                await asyncio.sleep(max(0.0, start + k * period_s - time.monotonic()))
+
+        task = asyncio.create_task(writer())
+        try:
+            await asyncio.sleep(1.0)
+            rate, errors = await _opcua_clients(
+                f"opc.tcp://127.0.0.1:{port}/bare", uri, names, clients, seconds
+            )
+            rows.append(
+                (
+                    "bare asyncua server, same variables",
+                    rate,
+                    f"client errors {errors}" if errors else "",
+                )
+            )
+        finally:
+            stop.set()
+            await task
+            await server.stop()
+
+    with tempfile.TemporaryDirectory() as tmp:
+        await served(True, Path(tmp) / "thread")
+        await served(False, Path(tmp) / "loop")
+        await bare(Path(tmp) / "bare")
+    _say(
+        f"OPC UA benchmark: {n_tags} analog tags changing every scan of {_ms(period_s)},"
+        f" {clients} subscribed asyncua clients in another process, {seconds:g} s each"
+        f" (offered {offered:,.0f} updates/s)"
+    )
+    for label, rate, note in rows:
+        _say(f"  {label:<40} {rate:>9,.0f} updates/s  {note}")
+    bare_rate = rows[-1][1]
+    for label, rate, _ in rows[:-1]:
+        ratio = rate / bare_rate if bare_rate else float("nan")
+        _say(f"  ratio {label} / bare: {ratio:.2f} (target >= 0.8)")
+    return 0

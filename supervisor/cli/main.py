@@ -106,6 +106,11 @@ async def _serve(
     api = HttpApi(
         bench.db, clock, cfg.hmi.host, port, estop=estop, commands=bench.commands, history=history
     )
+    opcua = None
+    if cfg.opcua.enabled:
+        from supervisor.app.opcua import build_opcua
+
+        opcua = build_opcua(bench)  # ConfigError for a bad users file: exit 2
     for spec in args.recipe:
         channel, _, file = spec.partition("=")
         if not file:
@@ -133,10 +138,14 @@ async def _serve(
     loop.add_signal_handler(signal.SIGUSR2, _dump_tasks)
     try:
         await api.start()
+        if opcua is not None:
+            await opcua.start()
         await bench.start()
     except OSError as exc:
         _err(f"supervisor: cannot listen: {exc.strerror or exc} ({exc})")
         await bench.shutdown()
+        if opcua is not None:
+            await opcua.stop()
         await api.stop()
         return EXIT_USAGE
     _out(
@@ -144,6 +153,8 @@ async def _serve(
         f" scan period {cfg.scan.period_s * 1000:g} ms"
     )
     _out(f"HTTP API listening on {api.url}/tags")
+    if opcua is not None:
+        _out(f"OPC UA server listening on {opcua.endpoint} (namespace {opcua.namespace})")
     if bench.sim is not None and bench.sim.served:
         for line in bench.sim.addresses():
             _out(f"simulated {line}")
@@ -164,7 +175,11 @@ async def _serve(
     try:
         await bench.run(stop)
     finally:
+        if opcua is not None:
+            opcua.closing()  # no command while the outputs go safe; clients see them go
         unconfirmed = await bench.shutdown()
+        if opcua is not None:
+            await opcua.stop()
         await api.stop()
     if unconfirmed:
         # Said only when every device confirmed it: an unreachable supply is not "safe".
@@ -554,6 +569,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from supervisor.app.influxbench import influx_benchmark
 
         return influx_benchmark(args.points, args.rounds)
+    if args.what == "opcua":
+        return asyncio.run(
+            benchmarks.opcua_benchmark(
+                args.clients, args.seconds, args.opcua_tags, args.period_ms / 1000
+            )
+        )
     if args.what == "dry-run":
         from supervisor.app.dryrun import dry_run, format_report
 
@@ -562,6 +583,45 @@ def cmd_bench(args: argparse.Namespace) -> int:
             _out(line)
         return EXIT_OK
     return asyncio.run(benchmarks.manual_charge_benchmark(args.hours))
+
+
+# --- opcua ---------------------------------------------------------------------------------
+def cmd_opcua(args: argparse.Namespace) -> int:
+    """``supervisor opcua add-user|remove-user|list-users``: the OPC UA users file of a bench
+    (hashes only; ``<state_dir>/opcua/users.yaml`` unless its I/O map names another)."""
+    from supervisor.devices.registry import load_bench
+    from supervisor.publish.opcua import OpcUaSettings, add_user, remove_user
+    from supervisor.publish.opcua.users import read_users
+
+    if not Path(args.io_map).exists():
+        _err(f"{args.io_map}: no such I/O map (give a path, e.g. io_maps/sim.yaml)")
+        return EXIT_USAGE
+    if args.action != "list-users" and not args.name:
+        _err(f"supervisor opcua {args.action}: give the user's name")
+        return EXIT_USAGE
+    path = OpcUaSettings.of(load_bench(args.io_map)).users_file
+    if args.action == "list-users":
+        for name, entry in sorted(read_users(path).items()):
+            _out(f"{name}\t{entry.role}")
+        return EXIT_OK
+    if args.action == "remove-user":
+        if not remove_user(path, args.name):
+            _err(f"{path}: no user {args.name!r}")
+            return EXIT_USAGE
+        _out(f"{path}: user {args.name} removed")
+        return EXIT_OK
+    if args.password_stdin:
+        password = sys.stdin.readline().rstrip("\r\n")
+    else:
+        import getpass
+
+        password = getpass.getpass(f"password for {args.name}: ")
+        if getpass.getpass("again: ") != password:
+            _err("the two passwords differ; nothing written")
+            return EXIT_USAGE
+    new = add_user(path, args.name, args.role, password)
+    _out(f"{path}: user {args.name} ({args.role}) {'added' if new else 'updated'}")
+    return EXIT_OK
 
 
 class _Parser(argparse.ArgumentParser):
@@ -671,6 +731,16 @@ def build_parser() -> argparse.ArgumentParser:
     ca.add_argument("--board", type=int, default=0)
     ca.set_defaults(func=cmd_calibrate)
 
+    ou = sub.add_parser("opcua", help="OPC UA users of a bench: add-user, remove-user, list-users")
+    ou.add_argument("action", choices=["add-user", "remove-user", "list-users"])
+    ou.add_argument("name", nargs="?", default="", help="the user (add-user, remove-user)")
+    ou.add_argument("--role", choices=["viewer", "operator", "engineer"], default="viewer")
+    ou.add_argument("--io-map", default=str(DEFAULT_IO_MAP), help="the bench whose users")
+    ou.add_argument(
+        "--password-stdin", action="store_true", help="read the password from stdin (scripts)"
+    )
+    ou.set_defaults(func=cmd_opcua)
+
     b = sub.add_parser("bench", help="benchmarks that print figures")
     b.add_argument(
         "what",
@@ -684,6 +754,7 @@ def build_parser() -> argparse.ArgumentParser:
             "kill-restart",
             "historian",
             "influx",
+            "opcua",
         ],
     )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
@@ -700,6 +771,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--seed", type=int, default=1, help="kill-restart: seed of the kill times")
     b.add_argument("--points", type=int, default=200_000, help="influx: points per round")
     b.add_argument("--rounds", type=int, default=3, help="influx: rounds of each writer")
+    b.add_argument("--clients", type=int, default=10, help="opcua: subscribed clients")
+    b.add_argument("--opcua-tags", type=int, default=100, help="opcua: analog tags changing")
     b.set_defaults(func=cmd_bench)
     return p
 

@@ -69,6 +69,46 @@ class HmiConfig(Strict):
     port: int = Field(8080, ge=0, le=65535, description="0 picks a free port.")
 
 
+OpcUaSecurity = Literal["none", "sign", "sign_and_encrypt"]
+"""An endpoint's message security: none, or Basic256Sha256 with Sign / SignAndEncrypt."""
+
+
+class OpcUaConfig(Strict):
+    """The OPC UA server (``opc.tcp://<host>:<port>/supervisor``, docs/adr/0014-opcua-server.md):
+    the bench's tags, channel methods, events and alarms for SCADA and OPC UA clients."""
+
+    enabled: bool = Field(False, description="Serve OPC UA while the bench runs.")
+    host: str = Field("127.0.0.1", description="Address the OPC UA server listens on.")
+    port: int = Field(4840, ge=1, le=65535, description="TCP port (4840 is OPC UA's own).")
+    security: list[OpcUaSecurity] = Field(
+        ["none", "sign", "sign_and_encrypt"],
+        min_length=1,
+        description="Endpoints offered: leave out none to refuse unsecured sessions;"
+        " sign and sign_and_encrypt are Basic256Sha256 with a certificate made on first start.",
+    )
+    anonymous: bool = Field(True, description="Anonymous sessions may read (never write or call).")
+    users_file: str | None = Field(
+        None,
+        description="Users, roles and password hashes (`supervisor opcua add-user`); default"
+        " <state_dir>/opcua/users.yaml. Passwords are never written here in clear.",
+    )
+    pki_dir: str | None = Field(
+        None,
+        description="The server's own certificate and key (own/), and the client certificates"
+        " it trusts (trusted/; refused ones land in rejected/); default <state_dir>/opcua/pki.",
+    )
+    recipes_dir: str = Field(
+        "recipes", description="Where Start(recipe) finds a recipe given by name (name.yaml)."
+    )
+
+    @field_validator("security")
+    @classmethod
+    def _distinct(cls, v: list[str]) -> list[str]:
+        if len(set(v)) != len(v):
+            raise ValueError("each security mode once")
+        return v
+
+
 # --- scaling, alarms, history ---------------------------------------------------------
 class LinearScaling(Strict):
     """``eu = a·raw + b``."""
@@ -665,6 +705,7 @@ class BenchConfig(Strict):
     description: str = ""
     scan: ScanConfig = ScanConfig()
     hmi: HmiConfig = HmiConfig()
+    opcua: OpcUaConfig = OpcUaConfig()
     state_dir: str = Field("var", description="Where retained state and results go.")
     retain: RetainConfig = RetainConfig()
     history: HistorianConfig = HistorianConfig()

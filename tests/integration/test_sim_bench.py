@@ -145,6 +145,7 @@ def test_supervisor_run_serves_the_api_charges_on_request_and_exits_0_on_sigterm
     data = yaml.safe_load(SIM.read_text(encoding="utf-8"))
     for dev in ("adam", "ea", "bms"):
         data["devices"][dev]["port"] = free_tcp_port()
+    data["opcua"]["port"] = free_tcp_port()
     io_map = tmp_path / "sim.yaml"
     io_map.write_text(yaml.safe_dump(data), encoding="utf-8")
     ea_port = data["devices"]["ea"]["port"]

@@ -1,0 +1,97 @@
+"""A bench's OPC UA server, wired (the composition root: the command path, the alarm model
+and the event feed meet the server here; the server itself imports none of them, ADR 0003).
+
+- Method calls and writes become ``Command``s on the one command path (ADR 0008), with the
+  session's user as the actor (``opcua:<name>``); the path's role hook learns the OPC UA
+  users (``OpcUaRoles``) and keeps answering the other actors as before.
+- The scan publishes changed tags to the server (``OpcUaFeed``, a scan publisher).
+- Chain steps and operator commands reach it through an ``EventFeed``; alarm transitions
+  from the alarm model's listeners, with the alarm's whole state (``AlarmView``).
+"""
+
+from __future__ import annotations
+
+from supervisor.app.bench import Bench
+from supervisor.app.events import EventFeed
+from supervisor.commands import Command, Target, Verb
+from supervisor.core.clock import Clock
+from supervisor.publish.opcua import (
+    AlarmView,
+    Answer,
+    OpcUaFeed,
+    OpcUaRoles,
+    OpcUaServer,
+    OpcUaSettings,
+    Request,
+    UserStore,
+    plan,
+)
+from supervisor.safety import Alarm, AlarmEvent, AlarmManager
+
+__all__ = ["build_opcua"]
+
+
+def build_opcua(
+    bench: Bench, settings: OpcUaSettings | None = None, *, threaded: bool = True
+) -> OpcUaServer:
+    """The OPC UA server of ``bench`` (not started: ``await server.start()`` before the scan
+    runs, ``await server.stop()`` after the bench's shutdown). Raises ``ConfigError`` for a
+    bad users file."""
+    settings = settings or OpcUaSettings.of(bench.cfg)
+    users = UserStore(settings.users_file)
+    feed = OpcUaFeed(bench.db)  # declares opcua.*: before the layout is planned
+    bench.engine.publishers.append(feed)
+    alarms = bench.alarms
+    layout = plan(bench.cfg, bench.db, [a.id for a in alarms] if alarms is not None else [])
+    bench.commands.roles = OpcUaRoles(users, bench.commands.roles)
+
+    async def operate(req: Request) -> Answer:
+        verb = Verb.parse(req.verb)
+        if verb is None:
+            return Answer(False, f"unknown command {req.verb!r}", "not found")
+        if req.kind == "channel":
+            command = Command(Target.channel(req.target), verb, dict(req.args), req.actor)
+        elif req.kind == "alarm":
+            command = Command(Target.alarm(req.target), verb, dict(req.args), req.actor)
+        else:
+            command = Command(Target.bench(), verb, dict(req.args), req.actor)
+        result = await bench.commands.execute_async(command)
+        return Answer(result.accepted, result.reason, "" if result.accepted else result.kind.value)
+
+    def views() -> list[AlarmView]:
+        return [] if alarms is None else [alarm_view(a, None, bench.clock) for a in alarms]
+
+    server = OpcUaServer(
+        settings, bench.db, bench.clock, layout, feed, operate, users, views, threaded=threaded
+    )
+    events = EventFeed()
+    events.sinks.append(feed)
+    events.attach(bench)
+    if alarms is not None:
+        _listen(alarms, feed, bench.clock)
+    return server
+
+
+def _listen(alarms: AlarmManager, feed: OpcUaFeed, clock: Clock) -> None:
+    def on_alarm(ev: AlarmEvent) -> None:
+        feed.on_alarm(alarm_view(alarms[ev.alarm_id], ev, clock))
+
+    alarms.listeners.append(on_alarm)
+
+
+def alarm_view(a: Alarm, ev: AlarmEvent | None, clock: Clock) -> AlarmView:
+    """An alarm as the OPC UA server shows it, after the transition ``ev`` (None: now)."""
+    return AlarmView(
+        id=a.id,
+        group=a.group,
+        severity=int(a.severity),
+        message=a.message,
+        state=a.state.value,
+        active=a.active,
+        acked=a.acked,
+        latched=a.latched,
+        tripped=a.tripped,
+        transition=ev.transition.value if ev is not None else "",
+        actor=ev.actor if ev is not None else "",
+        wall=ev.wall if ev is not None else clock.wall(),
+    )

@@ -1,0 +1,86 @@
+"""OPC UA clients in a process of their own (the load tests and ``supervisor bench opcua``
+must not run clients on the loop they measure).
+
+``python -m supervisor.app.opcuaclients URL NAMESPACE --clients 20 --tags a,b,c --seconds 5``
+connects every client at once, subscribes each to the tags, says ``subscribed`` on one
+line when all are, counts the data changes each receives for ``--seconds``, then prints one
+JSON line ``{"updates": [n per client], "errors": [...]}``. ``--seconds 0``: until killed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import sys
+from typing import Any
+
+from asyncua import Client, ua
+
+
+class Counter:
+    def __init__(self) -> None:
+        self.n = 0
+
+    def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+        self.n += 1
+
+    def status_change_notification(self, status: Any) -> None:
+        pass
+
+
+async def one(
+    url: str, uri: str, tags: list[str], counter: Counter, ready: asyncio.Event, stop: asyncio.Event
+) -> None:
+    client = Client(url, timeout=60)
+    async with client:
+        ns = await client.get_namespace_index(uri)
+        sub = await client.create_subscription(50, counter)
+        await sub.subscribe_data_change([client.get_node(ua.NodeId(t, ns)) for t in tags])
+        ready.set()
+        await stop.wait()
+
+
+async def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser()
+    p.add_argument("url")
+    p.add_argument("namespace")
+    p.add_argument("--clients", type=int, default=1)
+    p.add_argument("--tags", default="scan.count")
+    p.add_argument("--seconds", type=float, default=5.0)
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.ERROR)
+    tags = args.tags.split(",")
+    counters = [Counter() for _ in range(args.clients)]
+    readies = [asyncio.Event() for _ in counters]
+    stop = asyncio.Event()
+    tasks = [
+        asyncio.create_task(one(args.url, args.namespace, tags, c, r, stop))
+        for c, r in zip(counters, readies, strict=True)
+    ]
+    all_ready: asyncio.Future[list[bool]] = asyncio.gather(*(r.wait() for r in readies))
+    pending: list[asyncio.Future[Any]] = [all_ready, *tasks]
+    await asyncio.wait(pending, return_when=asyncio.FIRST_COMPLETED)
+    errors = [repr(t.exception()) for t in tasks if t.done() and t.exception() is not None]
+    if not errors:
+        sys.stdout.write("subscribed\n")
+        sys.stdout.flush()
+        base = [c.n for c in counters]
+        if args.seconds > 0:
+            await asyncio.sleep(args.seconds)
+        else:
+            await asyncio.Event().wait()  # until killed
+        got = [c.n - b for c, b in zip(counters, base, strict=True)]
+    else:
+        all_ready.cancel()
+        got = [c.n for c in counters]
+    stop.set()
+    results = await asyncio.gather(*tasks, return_exceptions=True)
+    errors += [repr(r) for r in results if isinstance(r, BaseException) and repr(r) not in errors]
+    sys.stdout.write(json.dumps({"updates": got, "errors": errors}) + "\n")
+    return 0 if not errors else 1
+
+
+if __name__ == "__main__":
+    sys.exit(asyncio.run(main(sys.argv[1:])))

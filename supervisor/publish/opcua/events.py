@@ -1,0 +1,150 @@
+"""Events: chain steps and operator commands (BenchEventType), alarms (AlarmConditionType).
+
+A ``BenchEvent`` (supervisor.core.records) becomes a **ChainEventType** event (a step,
+state or message of a chain) or a **CommandEventType** event (an operator command,
+accepted or refused, with its actor), both subtypes of **BenchEventType** whose properties
+say where and who (``Channel``, ``Kind``, ``Source``, ``Actor``, ``TestId``, ``Recipe``).
+Each is notified on its channel's object (or the Bench object) and on the Server object,
+where SCADA clients usually subscribe.
+
+An alarm transition becomes an **AlarmConditionType** event (Part 9) carrying ConditionName
+(the alarm id), ConditionId (its object under Bench/Alarms), ActiveState, AckedState,
+Severity, Retain (true until the alarm is back to normal, ISA-18.2) and the message; the
+state machine stays in the alarm model (``supervisor.safety``), never in OPC UA. asyncua
+keeps the last retained event of each condition, which is what ``ConditionRefresh``
+replays to a client that (re)connects.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+import uuid
+from datetime import UTC, datetime
+from typing import Any
+
+from asyncua import Server, ua
+
+from supervisor.core.records import BenchEvent
+from supervisor.publish.opcua.feed import AlarmView
+from supervisor.publish.opcua.space import Built
+
+SEVERITY_CHAIN = 100
+SEVERITY_COMMAND = 200
+SEVERITY_REFUSED = 400
+"""Event severities (1..1000): steps are information, a refused command is worth a look."""
+
+
+def _utc(wall: float) -> datetime:
+    return datetime.fromtimestamp(wall, UTC)
+
+
+def _stamp(event: Any, wall: float) -> None:
+    """What ``EventGenerator.trigger`` sets before an event goes out."""
+    event.EventId = ua.Variant(uuid.uuid4().hex.encode("utf-8"), ua.VariantType.ByteString)
+    event.Time = _utc(wall)
+    event.ReceiveTime = datetime.now(UTC)
+    local = ua.uaprotocol_auto.TimeZoneDataType()
+    lt = time.localtime(wall)
+    local.Offset = lt.tm_gmtoff // 60
+    local.DaylightSavingInOffset = bool(lt.tm_isdst > 0)
+    event.LocalTime = local
+
+
+class EventPublisher:
+    """Fires events into asyncua's subscriptions (runs on the server's loop)."""
+
+    def __init__(self, server: Server, built: Built, bench: str) -> None:
+        self.server = server
+        self.built = built
+        self.bench = bench
+        self._templates: dict[str, Any] = {}
+        self._server_node = ua.NodeId(ua.ObjectIds.Server)
+
+    async def init(self) -> None:
+        """One event object per type, copied for each event (a generator's event object is
+        stateful, and asyncua keeps a reference to each retained condition)."""
+        for key, etype in (
+            ("chain", self.built.chain_event),
+            ("command", self.built.command_event),
+            ("alarm", ua.NodeId(ua.ObjectIds.AlarmConditionType)),
+        ):
+            gen = await self.server.get_event_generator(etype, self.built.bench)
+            self._templates[key] = gen.event
+        # The channel objects and the Server also generate these (GeneratesEvent refs).
+        for node in (*self.built.channels.values(), self._server_node):
+            for key in ("chain", "command", "alarm"):
+                ref = ua.AddReferencesItem()
+                ref.IsForward = True
+                ref.ReferenceTypeId = ua.NodeId(ua.ObjectIds.GeneratesEvent)
+                ref.SourceNodeId = node
+                ref.TargetNodeClass = ua.NodeClass.ObjectType
+                ref.TargetNodeId = self._templates[key].EventType
+                await self.server.iserver.isession.add_references([ref])
+
+    def _source(self, channel: str) -> tuple[ua.NodeId, str]:
+        node = self.built.channels.get(channel)
+        return (node, channel) if node is not None else (self.built.bench, self.bench)
+
+    async def _fire(self, event: Any) -> None:
+        """Notify on the source's object, then on the Server object."""
+        subs = self.server.iserver.subscription_service
+        event.emitting_node = event.SourceNode
+        await subs.trigger_event(event)
+        at_server = copy.copy(event)
+        at_server.emitting_node = self._server_node
+        await subs.trigger_event(at_server)
+
+    async def bench_event(self, ev: BenchEvent) -> None:
+        key = "command" if ev.kind == "command" else "chain"
+        event = copy.deepcopy(self._templates[key])
+        source, name = self._source(ev.channel)
+        event.SourceNode = source
+        event.SourceName = name
+        event.Message = ua.LocalizedText(ev.text)
+        refused = key == "command" and ": refused" in ev.text
+        event.Severity = (
+            SEVERITY_REFUSED
+            if refused
+            else SEVERITY_COMMAND
+            if key == "command"
+            else SEVERITY_CHAIN
+        )
+        for field, value in (
+            ("Channel", ev.channel),
+            ("Kind", ev.kind),
+            ("Source", ev.source),
+            ("Actor", ev.actor),
+            ("TestId", ev.test_id),
+            ("Recipe", ev.recipe),
+        ):
+            setattr(event, field, value)
+        _stamp(event, ev.wall)
+        await self._fire(event)
+
+    async def alarm(self, a: AlarmView) -> None:
+        event = copy.deepcopy(self._templates["alarm"])
+        source, name = self._source(a.group)
+        condition = self.built.alarms.get(a.id)
+        event.SourceNode = source
+        event.SourceName = name
+        event.ConditionName = a.id
+        event.NodeId = condition  # the ConditionId: the alarm's object
+        event.Message = ua.LocalizedText(a.message or a.id)
+        event.Severity = max(1, min(1000, a.severity))
+        event.LastSeverity = event.Severity
+        event.Retain = a.retained
+        event.Quality = ua.StatusCode(ua.StatusCodes.Good)
+        event.ClientUserId = a.actor
+        event.BranchId = ua.NodeId()
+        for field, value in (
+            ("EnabledState", ua.LocalizedText("Enabled")),
+            ("EnabledState/Id", True),
+            ("ActiveState", ua.LocalizedText("Active" if a.active else "Inactive")),
+            ("ActiveState/Id", a.active),
+            ("AckedState", ua.LocalizedText("Acknowledged" if a.acked else "Unacknowledged")),
+            ("AckedState/Id", a.acked),
+        ):
+            setattr(event, field, value)
+        _stamp(event, a.wall or time.time())
+        await self._fire(event)

@@ -1,0 +1,194 @@
+"""The methods of a channel object, their arguments, and how a call becomes a command.
+
+asyncua does not check a call's arguments against the method's declaration, so each call
+is checked here: the number of arguments (Bad_ArgumentsMissing / Bad_TooManyArguments) and
+each one's type (Bad_InvalidArgument, with Bad_TypeMismatch for that argument). A call
+that passes becomes a ``Request`` for the command path, which checks everything else
+(state, interlocks, role, values) and records it with its actor. Every method answers one
+output argument, ``Result``: the command path's reason, accepted or not — the only place
+an OPC UA client can read why a call was refused (a status code carries no text).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+from asyncua import ua
+
+from supervisor.publish.opcua.ports import Request
+from supervisor.tags.spec import shown
+
+VT = ua.VariantType
+S = ua.StatusCodes
+
+
+@dataclass(frozen=True, slots=True)
+class Arg:
+    name: str
+    description: str
+    types: tuple[ua.VariantType, ...]
+    array_ok: bool = False  # a String array is also taken (ValueRank ScalarOrOneDimension)
+
+
+@dataclass(frozen=True, slots=True)
+class Method:
+    name: str
+    verb: str  # the command path's verb
+    description: str
+    args: tuple[Arg, ...] = ()
+
+
+RECIPE = Arg(
+    "Recipe",
+    "A recipe file (recipes/x.yaml) or its name in the recipes folder; empty: the loaded one",
+    (VT.String,),
+)
+PARAMETERS = Arg(
+    "Parameters",
+    'Overrides of recipe parameters: "v_max=1.8 V;q_max=1300 mAh", or one "k=v" per element',
+    (VT.String,),
+    array_ok=True,
+)
+
+METHODS: Final[tuple[Method, ...]] = (
+    Method("Start", "start", "Load a recipe (if given) and start its test", (RECIPE, PARAMETERS)),
+    Method("Hold", "hold", "Hold the running test (ISA-88 Hold): current to 0 A"),
+    Method("Resume", "resume", "Resume a held test where it was"),
+    Method("Advance", "advance", "Leave the current step now (Chadèche CTRL-Z)"),
+    Method("Stop", "stop", "Stop the test (ISA-88 Stop)"),
+    Method("Abort", "abort", "Abort the test (ISA-88 Abort)"),
+    Method("Reset", "reset", "Back to Idle after the end of a test; the channel in Manual"),
+    Method(
+        "SetMode",
+        "mode",
+        "Auto (the step chain drives the channel) or Manual (operator setpoints)",
+        (Arg("Mode", "Auto or Manual", (VT.String,)),),
+    ),
+    Method(
+        "SetManualCurrent",
+        "manual_current",
+        "The Manual setpoint in A (+ charges); clamped to the channel's limits",
+        (Arg("Current", "Current in A (+ charges)", (VT.Double, VT.Float)),),
+    ),
+    Method(
+        "AcknowledgeAlarms",
+        "acknowledge",
+        "Acknowledge what holds the channel (its chain alarm and trips) and reset the trips"
+        " whose cause is gone",
+    ),
+)
+RESULT = Arg("Result", "What the bench did, or why it refused", (VT.String,))
+
+
+@dataclass(frozen=True, slots=True)
+class Invalid:
+    """A call refused before it is a command."""
+
+    status: int
+    reason: str
+    arg_results: tuple[int, ...] = ()
+
+
+def _type_name(v: ua.Variant) -> str:
+    t = v.VariantType.name if v.VariantType is not None else "Null"
+    return f"{t} array" if v.is_array or isinstance(v.Value, list) else t
+
+
+def check(method: Method, args: Sequence[ua.Variant]) -> Invalid | None:
+    """Why these arguments are not what ``method`` declares (None when they are)."""
+    want, got = len(method.args), len(args)
+    if got < want:
+        names = ", ".join(a.name for a in method.args[got:])
+        return Invalid(S.BadArgumentsMissing, f"{method.name}: missing argument {names}")
+    if got > want:
+        return Invalid(
+            S.BadTooManyArguments,
+            f"{method.name}: takes {want} argument{'s' if want != 1 else ''}, got {got}",
+        )
+    results: list[int] = []
+    wrong: list[str] = []
+    for a, v in zip(method.args, args, strict=True):
+        is_list = v.is_array or isinstance(v.Value, list)
+        ok = v.VariantType in a.types and (not is_list or a.array_ok)
+        if ok and is_list:
+            ok = all(isinstance(x, str) for x in v.Value)
+        results.append(S.Good if ok else S.BadTypeMismatch)
+        if not ok:
+            expected = " or ".join(t.name for t in a.types) + (
+                " (or a String array)" if a.array_ok else ""
+            )
+            wrong.append(f"{a.name} must be a {expected}, got {_type_name(v)} {shown(v.Value)}")
+    if wrong:
+        return Invalid(S.BadInvalidArgument, f"{method.name}: " + "; ".join(wrong), tuple(results))
+    return None
+
+
+def parse_parameters(value: object) -> dict[str, str]:
+    """``"k=v;k=v"`` or ``["k=v", ...]`` → {k: v}; ValueError naming the bad item."""
+    items = value if isinstance(value, list) else str(value).split(";")
+    out: dict[str, str] = {}
+    for raw in items:
+        item = str(raw).strip()
+        if not item:
+            continue
+        key, eq, val = item.partition("=")
+        if not eq or not key.strip():
+            raise ValueError(f"parameter {shown(item)} is not name=value (e.g. v_max=1.8 V)")
+        out[key.strip()] = val.strip()
+    return out
+
+
+def resolve_recipe(name: str, recipes_dir: Path) -> str:
+    """A recipe named without a folder or suffix is ``<recipes_dir>/<name>.yaml`` when that
+    file exists; anything else is a path for the command path to open (or refuse)."""
+    if name and "/" not in name and not name.endswith((".yaml", ".yml")):
+        candidate = recipes_dir / f"{name}.yaml"
+        if candidate.is_file():
+            return str(candidate)
+    return name
+
+
+def request(
+    method: Method, channel: str, args: Sequence[ua.Variant], actor: str, recipes_dir: Path
+) -> Request | Invalid:
+    """The command of a call whose argument types ``check`` accepted."""
+    values = [v.Value for v in args]
+    if method.verb == "start":
+        recipe, params = str(values[0] or ""), values[1]
+        try:
+            parameters = parse_parameters(params if params is not None else "")
+        except ValueError as exc:
+            return Invalid(S.BadInvalidArgument, f"Start: {exc}", (S.Good, S.BadInvalidArgument))
+        if not recipe:
+            if parameters:
+                return Invalid(
+                    S.BadInvalidArgument,
+                    "Start: parameters are given with a recipe (the loaded one has its own)",
+                    (S.Good, S.BadInvalidArgument),
+                )
+            return Request("channel", channel, "start", {}, actor)
+        path = resolve_recipe(recipe, recipes_dir)
+        return Request(
+            "channel", channel, "start", {"recipe": path, "parameters": parameters}, actor
+        )
+    if method.verb == "mode":
+        mode = str(values[0])
+        # "Auto"/"Manual" as SCADA screens write them; the command path checks the value.
+        return Request("channel", channel, "mode", {"value": mode.strip().lower()}, actor)
+    if method.verb == "manual_current":
+        return Request("channel", channel, "manual_current", {"value": float(values[0])}, actor)
+    return Request("channel", channel, method.verb, {}, actor)
+
+
+def argument(a: Arg) -> ua.Argument:
+    """The ``InputArguments``/``OutputArguments`` entry of ``a``."""
+    arg = ua.Argument()
+    arg.Name = a.name
+    arg.DataType = ua.NodeId(a.types[0].value)
+    arg.ValueRank = ua.ValueRank.ScalarOrOneDimension if a.array_ok else ua.ValueRank.Scalar
+    arg.ArrayDimensions = []
+    arg.Description = ua.LocalizedText(a.description)
+    return arg

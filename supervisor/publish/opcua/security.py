@@ -1,0 +1,250 @@
+"""Who may connect and what they may do (docs/adr/0014-opcua-server.md, "Security").
+
+- **Users**: user name and password checked against the users file (``users.py``); an
+  anonymous session is allowed when the I/O map says so, as a viewer. The session's user
+  becomes the command path's actor ``opcua:<name>`` (``opcua:anonymous``), and
+  ``OpcUaRoles`` is the command path's role hook for those actors: a viewer may give no
+  command, an operator the channel commands and operator writes, an engineer everything.
+  Other actors (the HTTP API, the command line) keep the role hook they had.
+- **Who is calling**: asyncua hands a method handler neither the session nor its user; its
+  permission ruleset does see the user of every request, just before the request runs on
+  the same task. ``SessionRules`` puts that user in a context variable there, and the
+  method and write handlers read it (``current_user``).
+- **Certificates**: a self-signed certificate made on first start (its URI is the
+  application URI, as OPC UA requires), Basic256Sha256 Sign and SignAndEncrypt endpoints,
+  and a trust list: a client certificate is accepted only when it (or its issuer) is in
+  ``<pki>/trusted``; a refused one is saved in ``<pki>/rejected`` so an administrator can
+  trust it by moving the file (read again at the next connection, no restart).
+"""
+
+from __future__ import annotations
+
+import contextvars
+import hashlib
+import logging
+import socket
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final, Protocol
+
+from asyncua import ua
+from asyncua.common.utils import ServiceError
+from asyncua.crypto.cert_gen import setup_self_signed_certificate
+from asyncua.crypto.permission_rules import ADMIN_TYPES, USER_TYPES, PermissionRuleset, UserRole
+from asyncua.crypto.permission_rules import User as UaUser
+from asyncua.crypto.truststore import TrustStore
+from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
+from cryptography import x509
+from cryptography.hazmat.primitives.serialization import Encoding
+from cryptography.x509.oid import ExtendedKeyUsageOID
+
+from supervisor.publish.opcua.users import ANONYMOUS, ROLE_ACCESS, UserStore
+from supervisor.tags import Access
+
+log = logging.getLogger(__name__)
+
+ACTOR_PREFIX: Final = "opcua:"
+
+
+@dataclass
+class SessionUser(UaUser):  # type: ignore[misc]
+    """asyncua's session user, with the project's role."""
+
+    access_role: str = "viewer"
+
+    @property
+    def actor(self) -> str:
+        return ACTOR_PREFIX + (self.name or ANONYMOUS)
+
+
+_current: contextvars.ContextVar[UaUser | None] = contextvars.ContextVar(
+    "opcua_session_user", default=None
+)
+
+
+def current_user() -> UaUser | None:
+    """The user of the request being served (set by ``SessionRules``)."""
+    return _current.get()
+
+
+def actor_of(user: UaUser | None) -> str:
+    if isinstance(user, SessionUser):
+        return user.actor
+    return ACTOR_PREFIX + ANONYMOUS
+
+
+class SessionRules(PermissionRuleset):  # type: ignore[misc]
+    """Lets every session read, browse, subscribe, write and call (the handlers decide per
+    node, with per-item status codes), none change the address space; and records who
+    sends each request for the handlers."""
+
+    def __init__(self) -> None:
+        self._allowed = {ua.NodeId(t) for t in USER_TYPES}
+        self._never = {ua.NodeId(t) for t in ADMIN_TYPES}
+
+    def check_validity(self, user: Any, action_type_id: Any, body: Any) -> bool:
+        _current.set(user)
+        return action_type_id in self._allowed and action_type_id not in self._never
+
+
+class PasswordUsers:
+    """asyncua's user manager: users of the users file, and anonymous sessions if allowed."""
+
+    def __init__(self, store: UserStore, anonymous: bool) -> None:
+        self.store = store
+        self.anonymous = anonymous
+
+    def get_user(
+        self,
+        iserver: Any,
+        username: str | None = None,
+        password: str | None = None,
+        certificate: Any = None,
+    ) -> UaUser | None:
+        # ``certificate`` is the secure channel's client certificate, whatever the token;
+        # X509 user tokens are not offered (asyncua refuses them before asking here).
+        if username is None:
+            if not self.anonymous:
+                return None
+            return SessionUser(role=UserRole.Anonymous, name=None, access_role="viewer")
+        user = self.store.authenticate(username, password or "")
+        if user is None:
+            log.warning("OPC UA login refused for user %r", username)
+            return None
+        return SessionUser(role=UserRole.User, name=user.name, access_role=user.role)
+
+
+class CommandLike(Protocol):
+    @property
+    def actor(self) -> str: ...
+
+
+class FallbackRoles(Protocol):
+    def access_of(self, actor: str) -> Access: ...
+
+    def refuses(self, command: Any) -> str: ...
+
+
+class OpcUaRoles:
+    """The command path's role hook (``supervisor.commands.Roles``) for OPC UA actors; any
+    other actor is asked of ``fallback`` (what the command path had)."""
+
+    def __init__(self, store: UserStore, fallback: FallbackRoles) -> None:
+        self.store = store
+        self.fallback = fallback
+
+    def _role(self, actor: str) -> str:
+        name = actor[len(ACTOR_PREFIX) :]
+        if name == ANONYMOUS:
+            return "viewer"
+        return self.store.role_of(name) or "viewer"  # a user removed since they logged in
+
+    def access_of(self, actor: str) -> Access:
+        if not actor.startswith(ACTOR_PREFIX):
+            return self.fallback.access_of(actor)
+        return ROLE_ACCESS[self._role(actor)]
+
+    def refuses(self, command: Any) -> str:
+        actor = str(getattr(command, "actor", ""))
+        if not actor.startswith(ACTOR_PREFIX):
+            return self.fallback.refuses(command)
+        role = self._role(actor)
+        if role == "viewer":
+            who = "an anonymous session" if actor.endswith(":" + ANONYMOUS) else actor
+            return f"{who} may only read (role viewer): log in as an operator"
+        return ""
+
+
+# --- certificates ------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class Pki:
+    root: Path
+
+    @property
+    def cert(self) -> Path:
+        return self.root / "own" / "cert.der"
+
+    @property
+    def key(self) -> Path:
+        return self.root / "own" / "key.pem"
+
+    @property
+    def trusted(self) -> Path:
+        return self.root / "trusted"
+
+    @property
+    def rejected(self) -> Path:
+        return self.root / "rejected"
+
+    async def ensure(self, app_uri: str, bench: str) -> None:
+        """Make the server's key and self-signed certificate on first start (again when the
+        certificate expired or names another application URI)."""
+        for d in (self.cert.parent, self.trusted, self.rejected):
+            d.mkdir(parents=True, exist_ok=True)
+        await setup_self_signed_certificate(
+            self.key,
+            self.cert,
+            app_uri,
+            socket.gethostname(),
+            [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH],
+            {
+                "countryName": "FR",
+                "organizationName": "bench-supervisor",
+                "commonName": f"bench-supervisor {bench}",
+            },
+        )
+        self.key.chmod(0o600)
+
+
+VALIDATION: Final = (
+    CertificateValidatorOptions.TRUSTED_VALIDATION | CertificateValidatorOptions.PEER_CLIENT
+)
+
+
+class TrustList:
+    """The certificate validator: the client certificate must be valid now, name the
+    client's application URI, allow client use, and be in ``trusted/`` (or be signed by a
+    certificate there). Without it asyncua accepts any client certificate."""
+
+    def __init__(self, pki: Pki) -> None:
+        self.pki = pki
+        self._stamp: tuple[tuple[str, int], ...] | None = None
+        self._validator: CertificateValidator | None = None
+
+    def _listing(self) -> tuple[tuple[str, int], ...]:
+        try:
+            files = sorted(self.pki.trusted.iterdir())
+        except OSError:
+            return ()
+        return tuple((f.name, f.stat().st_mtime_ns) for f in files if f.is_file())
+
+    async def __call__(self, cert: x509.Certificate, app: ua.ApplicationDescription) -> None:
+        stamp = self._listing()
+        if stamp != self._stamp:
+            self._validator = None
+            if stamp:  # an empty trust list trusts nobody (and asyncua cannot build one)
+                store = TrustStore([self.pki.trusted], [])
+                await store.load()
+                self._validator = CertificateValidator(VALIDATION, store)
+            self._stamp = stamp
+        try:
+            if self._validator is None:
+                raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
+            await self._validator(cert, app)
+        except ServiceError as exc:
+            der = cert.public_bytes(Encoding.DER)
+            name = f"{hashlib.sha1(der).hexdigest()}.der"
+            try:
+                self.pki.rejected.mkdir(parents=True, exist_ok=True)
+                (self.pki.rejected / name).write_bytes(der)
+            except OSError:
+                log.exception("could not keep the rejected certificate")
+            log.warning(
+                "OPC UA client %s (%s) refused: %s; to trust it, move %s into %s",
+                app.ApplicationUri,
+                app.ApplicationName.Text if app.ApplicationName else "",
+                ua.StatusCode(exc.code).name,
+                self.pki.rejected / name,
+                self.pki.trusted,
+            )
+            raise

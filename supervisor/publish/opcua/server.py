@@ -1,0 +1,637 @@
+"""The OPC UA server of a bench (docs/adr/0014-opcua-server.md).
+
+It runs on **its own thread with its own event loop** (measured: with 10 subscribed clients
+asyncua's publishing work in the bench's loop delays scans by up to hundreds of
+milliseconds; in a thread the scan waits at most the interpreter's switch interval for the
+GIL). The bench and the server meet in three places only:
+
+- the scan's publisher (``OpcUaFeed``): changed tags and events into bounded queues, the
+  server woken, never awaited;
+- method calls and writes: handed to the bench's loop (``call_soon_threadsafe``) and run
+  there between two scans, through the one command path (``Operate``), as the HTTP API's
+  commands are;
+- start and stop, awaited by the bench's loop (``start`` raises ``OSError`` when the port is
+  taken, as the HTTP API does).
+
+``threaded=False`` runs the same server on the bench's own loop (what ``supervisor bench
+opcua --same-loop`` measures against).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import contextlib
+import gc
+import logging
+import threading
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, Final, TypeVar
+
+from asyncua import Server, ua
+from asyncua.crypto.permission_rules import User as UaUser
+from asyncua.crypto.permission_rules import UserRole
+from asyncua.server.address_space import AttributeService
+
+from supervisor.config.limits import RECIPE_COMPILE_TIMEOUT_S
+from supervisor.config.models import BenchConfig
+from supervisor.core.clock import Clock
+from supervisor.core.quality import Quality
+from supervisor.core.records import BenchEvent
+from supervisor.publish.opcua import methods
+from supervisor.publish.opcua.events import EventPublisher
+from supervisor.publish.opcua.feed import AlarmView, OpcUaFeed, Update
+from supervisor.publish.opcua.layout import Layout
+from supervisor.publish.opcua.ports import Answer, Operate, Request
+from supervisor.publish.opcua.security import (
+    PasswordUsers,
+    Pki,
+    SessionRules,
+    TrustList,
+    actor_of,
+    current_user,
+)
+from supervisor.publish.opcua.space import Built, build_space
+from supervisor.publish.opcua.statuses import NO_VALUE, quality_status, refusal_status
+from supervisor.publish.opcua.users import UserStore
+from supervisor.tags import TagDB
+
+log = logging.getLogger(__name__)
+
+S = ua.StatusCodes
+VT = ua.VariantType
+T = TypeVar("T")
+
+WRITE_CHUNK: Final = 200
+"""Values written between two yields to the server's loop: the publish task (which sends
+notifications to the clients) runs at least every chunk (about 7 ms at 35 µs per write with
+a subscriber, ecosystem.md)."""
+BENCH_CALL_TIMEOUT_S: Final = 10.0
+"""A method call or write waits this long at most for the bench's loop."""
+STOP_TIMEOUT_S: Final = 10.0
+PATH: Final = "supervisor"
+
+POLICIES: Final = {
+    "none": ua.SecurityPolicyType.NoSecurity,
+    "sign": ua.SecurityPolicyType.Basic256Sha256_Sign,
+    "sign_and_encrypt": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
+}
+
+
+@dataclass(frozen=True, slots=True)
+class OpcUaSettings:
+    """The I/O map's ``opcua:`` section with its paths resolved."""
+
+    bench: str
+    description: str
+    host: str
+    port: int
+    security: tuple[str, ...]
+    anonymous: bool
+    users_file: Path
+    pki_dir: Path
+    recipes_dir: Path
+    scan_period_s: float
+
+    @classmethod
+    def of(cls, cfg: BenchConfig) -> OpcUaSettings:
+        o = cfg.opcua
+        base = Path(cfg.state_dir) / "opcua"
+        return cls(
+            bench=cfg.bench,
+            description=cfg.description,
+            host=o.host,
+            port=o.port,
+            security=tuple(o.security),
+            anonymous=o.anonymous,
+            users_file=Path(o.users_file) if o.users_file else base / "users.yaml",
+            pki_dir=Path(o.pki_dir) if o.pki_dir else base / "pki",
+            recipes_dir=Path(o.recipes_dir),
+            scan_period_s=cfg.scan.period_s,
+        )
+
+    @property
+    def endpoint(self) -> str:
+        return f"opc.tcp://{self.host}:{self.port}/{PATH}"
+
+
+class OpcUaServer:
+    """Serves a bench over OPC UA; ``start`` before the scan runs, ``stop`` after it."""
+
+    def __init__(
+        self,
+        settings: OpcUaSettings,
+        db: TagDB,
+        clock: Clock,
+        layout: Layout,
+        feed: OpcUaFeed,
+        operate: Operate,
+        users: UserStore,
+        alarms: Callable[[], Sequence[AlarmView]] = tuple,
+        *,
+        threaded: bool = True,
+    ) -> None:
+        self.settings = settings
+        self.db = db
+        self.clock = clock
+        self.layout = layout
+        self.feed = feed
+        self.operate = operate
+        self.users = users
+        self.alarms = alarms
+        self.threaded = threaded
+        self.endpoint = settings.endpoint
+        self.namespace = layout.uri
+        self.written = 0  # values written into the address space since start
+        self._closing = False
+        self._frozen = False
+        self._busy = False
+        self._server: Server | None = None
+        self._built = Built()
+        self._events: EventPublisher | None = None
+        self._by_index: dict[int, tuple[ua.NodeId, str]] = {}
+        self._by_node: dict[ua.NodeId, str] = {}
+        self._bench_loop: asyncio.AbstractEventLoop | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._wake: asyncio.Event | None = None
+        self._stop: asyncio.Event | None = None
+        self._thread: threading.Thread | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._done: concurrent.futures.Future[None] | None = None
+
+    # --- the bench's side ------------------------------------------------------------------
+    async def start(self) -> None:
+        """Build the address space, listen, and serve until ``stop``. Raises ``OSError`` when
+        the endpoint cannot be bound and ``ConfigError`` for a bad users file."""
+        self._bench_loop = asyncio.get_running_loop()
+        ready: concurrent.futures.Future[None] = concurrent.futures.Future()
+        self._done = concurrent.futures.Future()
+        if self.threaded:
+            self._thread = threading.Thread(
+                target=self._thread_main, args=(ready,), name="opcua-server", daemon=True
+            )
+            self._thread.start()
+        else:
+            self._task = asyncio.create_task(self._main(ready), name="opcua-server")
+        try:
+            await asyncio.wrap_future(ready)
+        except BaseException:
+            await self._wait_done()
+            raise
+        # The address space is tens of thousands of objects that live as long as the server;
+        # a full garbage collection walking them stopped every thread for 470 ms with 20
+        # clients connecting (measured, ADR 0014): the scan missed its deadlines. Collected
+        # once now, before the first scan, then kept out of the collector's way.
+        gc.collect()
+        gc.freeze()
+        self._frozen = True
+        log.info("OPC UA server listening on %s (namespace %s)", self.endpoint, self.namespace)
+
+    @property
+    def idle(self) -> bool:
+        """Nothing waits to be written or sent (what tests and benchmarks wait for)."""
+        return not self._busy and self.feed.empty()
+
+    def closing(self) -> None:
+        """Refuse commands from now on (the bench is going to its safe state)."""
+        self._closing = True
+
+    async def stop(self) -> None:
+        self._closing = True
+        if self._frozen:
+            gc.unfreeze()  # what the server leaves behind may be collected again
+            self._frozen = False
+        loop, stop = self._loop, self._stop
+        if loop is not None and stop is not None and not loop.is_closed():
+            with contextlib.suppress(RuntimeError):  # the loop already ended
+                loop.call_soon_threadsafe(stop.set)
+        await self._wait_done()
+
+    async def _wait_done(self) -> None:
+        done = self._done
+        if done is None:
+            return
+        try:
+            await asyncio.wait_for(asyncio.shield(asyncio.wrap_future(done)), STOP_TIMEOUT_S)
+        except TimeoutError:
+            log.error("OPC UA server did not stop within %g s", STOP_TIMEOUT_S)
+        except Exception:
+            log.exception("OPC UA server ended with an error")
+        if self._thread is not None:
+            await asyncio.to_thread(self._thread.join, STOP_TIMEOUT_S)
+            self._thread = None
+        self._task = None
+
+    async def _call_bench(self, fn: Callable[[], T]) -> T:
+        """Run ``fn`` on the bench's loop (between two scans) and return what it returns."""
+        bench = self._bench_loop
+        assert bench is not None
+        if not self.threaded:
+            return fn()
+        fut: concurrent.futures.Future[T] = concurrent.futures.Future()
+
+        def run() -> None:
+            if fut.set_running_or_notify_cancel():
+                try:
+                    fut.set_result(fn())
+                except BaseException as exc:
+                    fut.set_exception(exc)
+
+        bench.call_soon_threadsafe(run)
+        return await asyncio.wait_for(asyncio.wrap_future(fut), BENCH_CALL_TIMEOUT_S)
+
+    async def _call_bench_async(self, fn: Callable[[], Awaitable[T]]) -> T:
+        """Await ``fn()`` on the bench's loop: a command that loads a recipe compiles it in a
+        worker thread there (the command path's time limit, plus a margin, bounds the wait)."""
+        bench = self._bench_loop
+        assert bench is not None
+        if not self.threaded:
+            return await fn()
+
+        async def run() -> T:
+            return await fn()
+
+        fut = asyncio.run_coroutine_threadsafe(run(), bench)
+        limit_s = max(BENCH_CALL_TIMEOUT_S, RECIPE_COMPILE_TIMEOUT_S + BENCH_CALL_TIMEOUT_S)
+        return await asyncio.wait_for(asyncio.wrap_future(fut), limit_s)
+
+    # --- the server's thread -----------------------------------------------------------------
+    def _thread_main(self, ready: concurrent.futures.Future[None]) -> None:
+        try:
+            asyncio.run(self._main(ready))
+        except BaseException as exc:  # never lost: the bench's loop awaits ``ready``
+            if not ready.done():
+                ready.set_exception(exc)
+            else:
+                log.exception("OPC UA server thread failed")
+
+    async def _main(self, ready: concurrent.futures.Future[None]) -> None:
+        assert self._done is not None
+        try:
+            await self._serve(ready)
+        except BaseException as exc:
+            if not ready.done():
+                ready.set_exception(exc)
+            elif not isinstance(exc, asyncio.CancelledError):
+                log.exception("OPC UA server failed")
+        finally:
+            self.feed.stop()
+            self._loop = None
+            if not self._done.done():
+                self._done.set_result(None)
+
+    async def _serve(self, ready: concurrent.futures.Future[None]) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._wake = asyncio.Event()
+        self._stop = asyncio.Event()
+        server = await self._setup()
+        pump = asyncio.create_task(self._pump(), name="opcua-pump")
+        try:
+            ready.set_result(None)
+            await self._stop.wait()
+        finally:
+            pump.cancel()
+            await asyncio.gather(pump, return_exceptions=True)
+            self.feed.stop()
+            # asyncua's clock task sleeps 1 s between updates and its stop waits for it.
+            clock_task = getattr(server.iserver, "time_task", None)
+            if clock_task is not None:
+                clock_task.cancel()
+                await asyncio.gather(clock_task, return_exceptions=True)
+                server.iserver.time_task = None
+            await server.stop()
+            log.info("OPC UA server stopped")
+
+    async def _setup(self) -> Server:
+        s = self.settings
+        if logging.getLogger("asyncua").level == logging.NOTSET:
+            # asyncua logs every request at INFO; the bench's own log says what matters.
+            logging.getLogger("asyncua").setLevel(logging.WARNING)
+        server = Server(user_manager=PasswordUsers(self.users, s.anonymous))
+        # ConditionRefresh replays the retained alarm conditions (asyncua keeps them).
+        server.iserver.bind_condition_methods = True
+        self._server = server
+        await server.init()
+        server.set_endpoint(self.endpoint)
+        server.set_server_name(f"bench-supervisor {s.bench}")
+        server.allow_remote_admin(False)
+        await server.set_application_uri(self.namespace)
+        server.product_uri = "urn:bench-supervisor"
+        tokens: list[type] = [ua.UserNameIdentityToken]
+        if s.anonymous:
+            tokens.insert(0, ua.AnonymousIdentityToken)
+        server.set_identity_tokens(tokens)
+        server.set_security_policy(
+            [POLICIES[p] for p in s.security], permission_ruleset=SessionRules()
+        )
+        if any(p != "none" for p in s.security):
+            pki = Pki(s.pki_dir)
+            await pki.ensure(self.namespace, s.bench)
+            await server.load_certificate(pki.cert)
+            await server.load_private_key(pki.key)
+            server.set_certificate_validator(TrustList(pki))
+        elif len(self.users):
+            log.warning("OPC UA: no secure endpoint, passwords travel in clear (security: [none])")
+        idx = await server.register_namespace(self.namespace)
+        built = await build_space(server, idx, self.layout, s.scan_period_s)
+        self._built = built
+        for nid, (channel, m) in built.methods.items():
+            server.iserver.isession.add_method_callback(nid, self._method_handler(channel, m))
+        server.link_method(
+            server.get_node(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
+            self._acknowledge,
+        )
+        server.iserver.attribute_service = GuardedWrites(server.iserver.aspace, self)
+        events = EventPublisher(server, built, s.bench)
+        await events.init()
+        self._events = events
+        # First values: the whole tag database as it is, then changes as they come.
+        index_of = {t.name: t.index for t in self.db}
+        for name, (nid, kind) in built.tags.items():
+            self._by_index[index_of[name]] = (nid, kind)
+            self._by_node[nid] = name
+        loop = asyncio.get_running_loop()
+        wake = self._wake
+        assert wake is not None
+
+        def wake_up() -> None:
+            if self.threaded:
+                with contextlib.suppress(RuntimeError):  # the server's loop has ended
+                    loop.call_soon_threadsafe(wake.set)
+            else:
+                wake.set()
+
+        first = await self._call_bench(lambda: self.feed.start(self.db, wake_up))
+        await self._write(server, first)
+        for a in await self._call_bench(lambda: list(self.alarms())):
+            await self._alarm(a)
+        # A port already taken is the caller's to report, in one line (asyncua would log
+        # its traceback first).
+        quiet = logging.getLogger("asyncua.server.server")
+        level = quiet.level
+        quiet.setLevel(logging.CRITICAL)
+        try:
+            await server.start()
+        finally:
+            quiet.setLevel(level)
+        return server
+
+    # --- values --------------------------------------------------------------------------
+    async def _pump(self) -> None:
+        server, wake = self._server, self._wake
+        assert server is not None and wake is not None and self._events is not None
+        while True:
+            await wake.wait()
+            wake.clear()
+            self._busy = True
+            await self._write(server, self.feed.take())
+            for item in self.feed.take_events():
+                try:
+                    if isinstance(item, AlarmView):
+                        await self._alarm(item)
+                    else:
+                        await self._bench_event(item)
+                except Exception:
+                    log.exception("OPC UA event %r not sent", item)
+            bserver = getattr(server, "bserver", None)
+            self.feed.clients = len(getattr(bserver, "clients", ()))
+            self._busy = False
+
+    async def _write(self, server: Server, updates: list[Update]) -> None:
+        aspace = server.iserver.aspace
+        for n, u in enumerate(updates, 1):
+            target = self._by_index.get(u.index)
+            if target is None:
+                continue  # declared after the server started
+            nid, kind = target
+            await aspace.write_attribute_value(nid, ua.AttributeIds.Value, self._value(u, kind))
+            self.written += 1
+            if n % WRITE_CHUNK == 0:
+                await asyncio.sleep(0)  # let the publish task send notifications
+
+    def _value(self, u: Update, kind: str) -> ua.DataValue:
+        clock = self.clock
+        if u.server_t <= 0.0 and not clock.virtual:
+            # Set before the first scan (TagDB's scan time is still 0): no time to tell.
+            server_t = source_t = None
+        else:
+            server_t = _utc(clock.to_wall(u.server_t))
+            source_t = _utc(clock.to_wall(u.source_t))
+        status = None
+        variant = ua.Variant(None)
+        if u.quality is Quality.BAD:
+            status = quality_status(u.quality, u.reason)
+        elif u.value is None:
+            status = NO_VALUE
+        else:
+            try:
+                variant = _variant(u.value, kind)
+            except (TypeError, ValueError):
+                status = S.BadConfigurationError  # a tag holding the wrong type: a bug
+            else:
+                status = quality_status(u.quality, u.reason)
+        return ua.DataValue(
+            variant,
+            StatusCode=ua.StatusCode(status),
+            SourceTimestamp=source_t,
+            ServerTimestamp=server_t,
+        )
+
+    # --- events --------------------------------------------------------------------------
+    def on_event(self, event: BenchEvent) -> None:
+        """An ``EventSink`` (supervisor.app.events.EventFeed): queued, never awaited."""
+        self.feed.on_event(event)
+
+    def on_alarm(self, alarm: AlarmView) -> None:
+        self.feed.on_alarm(alarm)
+
+    async def _bench_event(self, ev: BenchEvent) -> None:
+        assert self._events is not None
+        await self._events.bench_event(ev)
+
+    async def _alarm(self, a: AlarmView) -> None:
+        assert self._events is not None and self._server is not None
+        aspace = self._server.iserver.aspace
+        fields = self._built.alarm_fields
+        values = {
+            "State": ua.Variant(a.state, VT.String),
+            "Active": ua.Variant(a.active, VT.Boolean),
+            "Acked": ua.Variant(a.acked, VT.Boolean),
+            "Severity": ua.Variant(max(0, min(1000, a.severity)), VT.UInt16),
+            "Message": ua.Variant(a.message, VT.String),
+            "Tripped": ua.Variant(a.tripped, VT.Boolean),
+        }
+        when = _utc(a.wall) if a.wall else datetime.now(UTC)
+        for name, variant in values.items():
+            nid = fields.get((a.id, name))
+            if nid is not None:
+                dv = ua.DataValue(variant, SourceTimestamp=when, ServerTimestamp=when)
+                await aspace.write_attribute_value(nid, ua.AttributeIds.Value, dv)
+        if a.id in self._built.alarms and (a.transition or a.retained):
+            await self._events.alarm(a)
+
+    # --- methods -------------------------------------------------------------------------
+    def _method_handler(self, channel: str, method: methods.Method) -> Callable[..., Any]:
+        async def handler(parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
+            actor = actor_of(current_user())
+            if self._closing:
+                return _result(S.BadShutdown, "the supervisor is stopping", len(args))
+            bad = methods.check(method, args)
+            if bad is None:
+                req = methods.request(method, channel, args, actor, self.settings.recipes_dir)
+            else:
+                req = bad
+            if isinstance(req, methods.Invalid):
+                log.warning(
+                    "OPC UA %s.%s by %s refused: %s", channel, method.name, actor, req.reason
+                )
+                return _result(req.status, req.reason, len(args), req.arg_results)
+            answer = await self._ask(req)
+            status = S.Good if answer.accepted else refusal_status(answer.refusal)
+            return _result(status, answer.reason, len(args))
+
+        return handler
+
+    async def _acknowledge(self, parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
+        """AcknowledgeableConditionType.Acknowledge(EventId, Comment) on an alarm's
+        condition: the alarm model acknowledges it (through the command path)."""
+        actor = actor_of(current_user())
+        alarm = next((a for a, nid in self._built.alarms.items() if nid == parent), None)
+        if alarm is None:
+            return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", len(args))
+        if self._closing:
+            return _result(S.BadShutdown, "the supervisor is stopping", len(args))
+        answer = await self._ask(Request("alarm", alarm, "acknowledge", {}, actor))
+        if answer.accepted:
+            return _result(S.Good, answer.reason, len(args), out=False)
+        # Part 9: acknowledging what is not waiting for it is Bad_ConditionBranchAlreadyAcked.
+        status = (
+            S.BadConditionBranchAlreadyAcked
+            if answer.refusal == "refused" and "not waiting" in answer.reason
+            else refusal_status(answer.refusal)
+        )
+        return _result(status, answer.reason, len(args), out=False)
+
+    async def _ask(self, req: Request) -> Answer:
+        try:
+            return await self._call_bench_async(lambda: self.operate(req))
+        except TimeoutError:
+            return Answer(False, "the bench did not answer in time", "internal error")
+        except Exception as exc:
+            log.exception("OPC UA request %r failed", req)
+            return Answer(False, f"internal error: {exc}", "internal error")
+
+    # --- writes --------------------------------------------------------------------------
+    async def write_tag(self, wv: ua.WriteValue, user: UaUser) -> ua.StatusCode:
+        """A client's write of a tag variable: type checked here, then the command path
+        (role, range, choices, Manual vs Auto), with its actor."""
+        name = self._by_node.get(wv.NodeId)
+        if name is None:
+            known = self._server is not None and wv.NodeId in self._server.iserver.aspace
+            return ua.StatusCode(S.BadNotWritable if known else S.BadNodeIdUnknown)
+        variable = self.layout.variables[name]
+        if wv.AttributeId != ua.AttributeIds.Value or not variable.writable:
+            return ua.StatusCode(S.BadNotWritable)
+        if wv.IndexRange:
+            return ua.StatusCode(S.BadWriteNotSupported)
+        if self._closing:
+            return ua.StatusCode(S.BadShutdown)
+        variant = wv.Value.Value if wv.Value is not None else None
+        value = variant.Value if variant is not None else None
+        if variant is None or not _type_ok(variable.kind, variant):
+            log.warning(
+                "OPC UA write %s by %s refused: %s is not a %s",
+                name,
+                actor_of(user),
+                variant.VariantType.name if variant is not None else "Null",
+                variable.kind,
+            )
+            return ua.StatusCode(S.BadTypeMismatch)
+        answer = await self._ask(
+            Request("bench", "", "write", {"tag": name, "value": value}, actor_of(user))
+        )
+        if answer.accepted:
+            return ua.StatusCode(S.Good)
+        if answer.refusal == "bad argument":
+            return ua.StatusCode(S.BadOutOfRange)  # the type was right: the value is not
+        if answer.refusal == "forbidden" and not variable.writable:
+            return ua.StatusCode(S.BadNotWritable)
+        return ua.StatusCode(refusal_status(answer.refusal))
+
+
+_ADMIN: Final = UaUser(role=UserRole.Admin)
+
+
+class GuardedWrites(AttributeService):  # type: ignore[misc]
+    """asyncua's attribute service with clients' writes routed through the command path
+    (the server's own writes, by its internal Admin session, go straight in)."""
+
+    def __init__(self, aspace: Any, owner: OpcUaServer) -> None:
+        super().__init__(aspace)
+        self.owner = owner
+
+    async def write(self, params: ua.WriteParameters, user: UaUser = _ADMIN) -> list[ua.StatusCode]:
+        if user.role is UserRole.Admin:
+            written: list[ua.StatusCode] = await super().write(params, user)
+            return written
+        return [await self.owner.write_tag(wv, user) for wv in params.NodesToWrite]
+
+
+def _utc(wall: float) -> datetime:
+    return datetime.fromtimestamp(wall, UTC)
+
+
+INTEGER_TYPES: Final = (
+    VT.SByte,
+    VT.Byte,
+    VT.Int16,
+    VT.UInt16,
+    VT.Int32,
+    VT.UInt32,
+    VT.Int64,
+    VT.UInt64,
+)
+
+
+def _type_ok(kind: str, v: ua.Variant) -> bool:
+    if v.is_array or isinstance(v.Value, list):
+        return False
+    t = v.VariantType
+    if kind == "analog":
+        return t in (VT.Double, VT.Float, *INTEGER_TYPES)
+    if kind in ("int", "state"):
+        return t in INTEGER_TYPES
+    if kind == "bool":
+        return t is VT.Boolean
+    return t is VT.String
+
+
+def _variant(value: object, kind: str) -> ua.Variant:
+    if kind == "analog":
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise TypeError(value)
+        return ua.Variant(float(value), VT.Double)
+    if kind in ("int", "state"):
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise TypeError(value)
+        return ua.Variant(int(value), VT.Int32 if kind == "state" else VT.Int64)
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise TypeError(value)
+        return ua.Variant(value, VT.Boolean)
+    return ua.Variant(str(value), VT.String)
+
+
+def _result(
+    status: int, reason: str, n_args: int, arg_results: Sequence[int] = (), out: bool = True
+) -> ua.CallMethodResult:
+    res = ua.CallMethodResult()
+    res.StatusCode = ua.StatusCode(status)
+    res.InputArgumentResults = [ua.StatusCode(c) for c in arg_results] or [
+        ua.StatusCode() for _ in range(n_args)
+    ]
+    res.OutputArguments = [ua.Variant(reason, VT.String)] if out else []
+    return res
