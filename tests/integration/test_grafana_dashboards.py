@@ -1,5 +1,5 @@
 """Every Flux query of the Grafana dashboards returns data from a real InfluxDB holding a
-simulated run, written in the schema the InfluxDB writer follows.
+simulated run, written by the product's own InfluxDB writer (the bench's ``influxdb:``).
 
 The run: the simulated bench of ``io_maps/sim.yaml`` on a virtual clock (every device in
 process), two charge/discharge cycles of a short recipe on ``ch4`` (the seed 002 bench:
@@ -17,7 +17,7 @@ import json
 import math
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -26,20 +26,14 @@ import pytest
 import yaml
 from grafanarig import Query, dashboard_files, load, queries, substitute, variables
 from influxdb_client import InfluxDBClient
-from influxdb_client.client.write_api import SYNCHRONOUS
 from influxdb_client.rest import ApiException
 from influxrig import InfluxServer
 
 from supervisor.app import build_bench
-from supervisor.app.events import EventFeed
 from supervisor.commands import Command, Verb
 from supervisor.core.clock import VirtualClock
-from supervisor.core.driver import Value
-from supervisor.core.quality import Quality
-from supervisor.core.records import BenchEvent
 from supervisor.devices.registry import load_bench
-from supervisor.publish.changes import ChangeFeed
-from supervisor.tags import TagDB, TagSpec
+from supervisor.publish.influx.spool import Spool
 from supervisor.testing import run_scans
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -62,149 +56,33 @@ RUN_S = 2 * 50.0 + 10.0  # the two cycles and a margin
 WINDOW_S = 1
 
 
-# --- stand-in for the InfluxDB writer -------------------------------------------------
-# Replace by the writer (supervisor/publish/influx/) once merged: it follows the same
-# schema (brief: measurements channel/device/diagnostics/event, tag keys bench, channel,
-# device, source, kind, test_id, recipe; analog values as floats; BAD → no field).
-DIAGNOSTIC_PREFIXES = ("scan", "influx", "historian")
-WRITER_TAGS = {  # the writer's and historian's status tags the diagnostics dashboard reads
-    "influx.spool_depth": 0.0,
-    "influx.spool_bytes": 0.0,
-    "influx.drain_rate": 0.0,
-    "influx.dead_letters": 0.0,
-    "influx.dropped": 0.0,
-    "influx.failed_writes": 0.0,
-    "influx.timeouts": 0.0,
-    "influx.last_error": "",
-    "historian.queue": 0.0,
-    "historian.last_error": "",
-}
-
-
-def _tag_value(v: str) -> str:
-    return v.replace("\\", "\\\\").replace(",", "\\,").replace("=", "\\=").replace(" ", "\\ ")
-
-
-def _field_value(v: Value) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        return repr(float(v))  # analog values always float: an int would fix the field type
-    return '"' + str(v).replace("\\", "\\\\").replace('"', '\\"') + '"'
-
-
-def _line(measurement: str, tags: dict[str, str], fields: dict[str, str], wall: float) -> str:
-    keys = ",".join(f"{k}={_tag_value(v)}" for k, v in tags.items() if v)
-    values = ",".join(f"{k}={v}" for k, v in fields.items())
-    return f"{measurement},{keys} {values} {round(wall * 1e9)}"
-
-
-@dataclass
-class StandInWriter:
-    """Publisher and event sink: the change feed and the bench events as line protocol."""
-
-    bench: str
-    channels: list[str]
-    clock: VirtualClock
-    name: str = "influx-stand-in"
-    lines: list[str] = field(default_factory=list)
-    _feed: ChangeFeed | None = None
-    _tests: dict[str, tuple[str, str]] = field(default_factory=dict)
-    _event_ns: set[tuple[str, int]] = field(default_factory=set)
-    _pending: int = 0
-
-    def on_scan(self, db: TagDB, t: float) -> None:
-        if self._feed is None:
-            self._feed = ChangeFeed(db, self.clock)
-        grouped: dict[tuple[str, tuple[tuple[str, str], ...], float], dict[str, str]] = {}
-        for s in self._feed.take():
-            if s.value is None:  # BAD: no field, a gap
-                continue
-            measurement, tags, name = self._place(db, s.name)
-            key = (measurement, tuple(tags.items()), s.wall)
-            grouped.setdefault(key, {})[name] = _field_value(s.value)
-        # A channel's first point of a new test carries every field of the channel (its
-        # counters' baseline and its cycle), so that a test's series start complete.
-        for ch in self.channels:
-            test = self._test_of(db, ch)
-            if self._tests.get(ch) != test:
-                self._tests[ch] = test
-                tags = self._channel_tags(db, ch)
-                fields = {
-                    tag.name[len(ch) + 1 :].replace(".", "_"): _field_value(tag.value)
-                    for tag in db
-                    if tag.name.startswith(ch + ".")
-                    and tag.quality is not Quality.BAD
-                    and tag.value is not None  # e.g. no ETA yet
-                }
-                key = ("channel", tuple(tags.items()), self.clock.wall())
-                grouped[key] = {**fields, **grouped.get(key, {})}
-        for (measurement, tags_items, wall), fields in grouped.items():
-            self.lines.append(_line(measurement, dict(tags_items), fields, wall))
-        self._status(db, len(grouped))
-
-    def on_event(self, e: BenchEvent) -> None:
-        tags = {
-            "bench": self.bench,
-            "kind": e.kind,
-            "channel": e.channel,
-            "test_id": e.test_id,
-            "recipe": e.recipe,
-        }
-        ns = round(e.wall * 1e9)
-        series = ",".join(f"{k}={v}" for k, v in tags.items() if v)
-        while (series, ns) in self._event_ns:  # same series and time would overwrite
-            ns += 1
-        self._event_ns.add((series, ns))
-        fields = {
-            "text": _field_value(e.text),
-            "source": _field_value(e.source),
-            "actor": _field_value(e.actor),
-            "severity": _field_value(float(e.severity)),
-        }
-        self.lines.append(_line("event", tags, fields, ns / 1e9))
-
-    def _place(self, db: TagDB, name: str) -> tuple[str, dict[str, str], str]:
-        head, _, rest = name.partition(".")
-        fieldname = (rest or "value").replace(".", "_")
-        if head in self.channels:
-            return "channel", self._channel_tags(db, head), fieldname
-        if head in DIAGNOSTIC_PREFIXES:
-            return "diagnostics", {"bench": self.bench, "source": head}, fieldname
-        return "device", {"bench": self.bench, "device": head}, fieldname
-
-    def _channel_tags(self, db: TagDB, ch: str) -> dict[str, str]:
-        test_id, recipe = self._test_of(db, ch)
-        return {"bench": self.bench, "channel": ch, "test_id": test_id, "recipe": recipe}
-
-    @staticmethod
-    def _test_of(db: TagDB, ch: str) -> tuple[str, str]:
-        return str(db[f"{ch}.chain.test_id"].value or ""), str(db[f"{ch}.chain.recipe"].value or "")
-
-    def _status(self, db: TagDB, lines: int) -> None:
-        """The writer's status tags as a spool flushed every second would show them."""
-        self._pending += lines
-        flushed = round(self.clock.now() * 10) % 10 == 0
-        db.update(db["influx.spool_depth"], float(self._pending))
-        db.update(db["influx.spool_bytes"], float(self._pending * 120))
-        if flushed:
-            db.update(db["influx.drain_rate"], float(self._pending))
-            self._pending = 0
-
-
 # --- the simulated run ----------------------------------------------------------------
 @dataclass
 class Run:
-    lines: list[str]
     test_id: str
     start: datetime
     stop: datetime
     summary: dict[str, Any]
 
 
-def _simulate(tmp: Path) -> Run:
+def _simulate(tmp: Path, server: InfluxServer) -> Run:
+    """The run, published by the bench's own InfluxDB writer (``influxdb:``) into
+    ``server``, with the historian recording too (its status tags feed the diagnostics
+    dashboard). The writer's threads run on real time beside the virtual scan; at shutdown
+    it sends everything it spooled (checked: nothing left, nothing refused)."""
     data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
     data["state_dir"] = str(tmp / "state")
+    token = tmp / "influx.token"
+    token.write_text(server.token + "\n", encoding="utf-8")
+    data["influxdb"] = {
+        "url": server.url,
+        "org": server.org,
+        "bucket": server.bucket,
+        "token_file": str(token),
+        "flush_interval_s": 0.2,
+        "stop_flush_s": 120.0,  # a bound for a loaded machine: shutdown sends all of it
+    }
+    data["history"] = {**data.get("history", {}), "enabled": True}
     io_map = tmp / "bench.yaml"
     io_map.write_text(yaml.safe_dump(data), encoding="utf-8")
     recipe = tmp / "short-cycle.yaml"
@@ -213,16 +91,11 @@ def _simulate(tmp: Path) -> Run:
     epoch = float(int(time.time()) - 3600)
     clock = VirtualClock(wall_epoch_s=epoch)
     cfg = load_bench(io_map)
-    writer = StandInWriter(BENCH, [c.name for c in cfg.channels], clock)
 
-    async def scenario() -> tuple[str, Path]:
-        bench = build_bench(cfg, clock, [writer], in_process=True)
-        for name, initial in WRITER_TAGS.items():
-            dtype = "str" if isinstance(initial, str) else "float"
-            bench.db.add(TagSpec(name, dtype=dtype, initial=initial))
-        feed = EventFeed()
-        feed.sinks.append(writer)
-        feed.attach(bench)
+    async def scenario() -> tuple[str, Path, Path]:
+        bench = build_bench(cfg, clock, in_process=True)
+        assert bench.influx is not None
+        bench.record_history()
         try:
             await bench.start()
             await run_scans(bench.engine, 30)
@@ -235,14 +108,20 @@ def _simulate(tmp: Path) -> Run:
             assert bench.sim is not None
             bench.sim.press_estop(True)  # an alarm for the annotations
             await run_scans(bench.engine, 20)
-            return test_id, bench.results[TEST_CHANNEL].folder
+            return test_id, bench.results[TEST_CHANNEL].folder, bench.influx.spool.path
         finally:
             await bench.shutdown()
 
-    test_id, folder = asyncio.run(scenario())
+    test_id, folder, spool_path = asyncio.run(scenario())
+    spool = Spool(spool_path, 256 * 1024 * 1024)
+    spool.open()
+    try:
+        counts = spool.counts()
+    finally:
+        spool.close()
+    assert counts.sent > 0 and counts.waiting == 0 and counts.dead == 0, counts
     summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
     return Run(
-        writer.lines,
         test_id,
         # The time range starts after the first points, so that the "value in force at
         # the start of the range" parts of the queries are exercised too.
@@ -253,23 +132,19 @@ def _simulate(tmp: Path) -> Run:
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
-    return _simulate(tmp_path_factory.mktemp("run"))
-
-
-@pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory, run: Run) -> Iterator[InfluxServer]:
-    """One InfluxDB for the module, holding the run (the queries only read)."""
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[InfluxServer]:
+    """One InfluxDB for the module (the queries only read what the run wrote)."""
     s = InfluxServer(tmp_path_factory.mktemp("influxdb"))
     s.start()
     try:
-        with InfluxDBClient(url=s.url, token=s.token, org=s.org) as client:
-            write = client.write_api(write_options=SYNCHRONOUS)
-            for i in range(0, len(run.lines), 5000):
-                write.write(bucket=s.bucket, record=run.lines[i : i + 5000])
         yield s
     finally:
         s.stop()
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory, server: InfluxServer) -> Run:
+    return _simulate(tmp_path_factory.mktemp("run"), server)
 
 
 def _rows(server: InfluxServer, flux: str) -> list[dict[str, Any]]:

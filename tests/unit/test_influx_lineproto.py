@@ -99,6 +99,15 @@ def test_a_bad_sample_or_a_non_finite_value_writes_no_field() -> None:
     assert out == {}
 
 
+def test_a_good_sample_without_a_value_writes_no_field_of_any_type() -> None:
+    # A GOOD tag never set (an ETA before the first estimate) has no value: writing it as
+    # a string "None" would fix its field's type and make every later float a conflict.
+    out = encoder(types={"ch0.eta_s": "float"}).encode(
+        [sample("ch0.eta_s", None), sample("pack.note", None), sample("ch0.voltage", 3.7)]
+    )
+    assert out == {"channel": [f"channel,bench=b1,channel=ch0 voltage=3.7 {timestamp_ns(WALL)}"]}
+
+
 def test_samples_of_one_series_at_one_instant_share_a_line_and_go_out_oldest_first() -> None:
     out = encoder().encode(
         [

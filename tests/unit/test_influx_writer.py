@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from influxrig import Reply, ScriptedInflux
+from influxrig import Reply, ScriptedInflux, parse_line
 
 from supervisor.app import build_bench
 from supervisor.cli.main import main
@@ -200,6 +200,46 @@ async def test_a_spool_that_cannot_be_written_is_alarmed_and_retried_until_it_ca
         assert alarms.of("influx.spool") == [True, False]
     finally:
         w.close()
+
+
+def test_a_new_test_writes_every_current_field_of_its_channel_once_with_the_new_tags(
+    tmp_path: Path, db: TagDB, virtual_clock: VirtualClock
+) -> None:
+    # A test that starts at the cycle number the last one ended at changes no chain_cycle:
+    # without this its series would have no chain_cycle point (dashboards: per-cycle panels).
+    db.add(TagSpec("ch0.chain.test_id", dtype="str", initial=""))
+    db.add(TagSpec("ch0.chain.recipe", dtype="str", initial=""))
+    db.add(TagSpec("ch0.chain.cycle", dtype="int", initial=1))
+    db.add(TagSpec("ch0.eta_s", unit="s"))  # GOOD, never set: no field
+    db.add(TagSpec("ch1.voltage", unit="V"))  # another channel's: not rewritten
+    w = writer_for(tmp_path, "http://127.0.0.1:9", db, virtual_clock, Alarms())
+    lines: list[str] = []
+    w.writer.put = lambda measurement, batch: lines.extend(batch)  # type: ignore[method-assign]
+    scan(w, db, virtual_clock, ch0__voltage=3.5, ch1__voltage=3.6)
+    virtual_clock.advance(0.1)
+    scan(w, db, virtual_clock, ch0__voltage=3.6)
+    lines.clear()
+
+    virtual_clock.advance(0.1)
+    db.set_scan_time(virtual_clock.now())
+    db.update(db["ch0.chain.test_id"], "T-2")
+    db.update(db["ch0.chain.recipe"], "cycle")
+    w.on_scan(db, virtual_clock.now())
+    [line] = [x for x in lines if x.startswith("channel,")]
+    _, tags, fields, ts = parse_line(line)
+    assert tags == {"bench": "b1", "channel": "ch0", "recipe": "cycle", "test_id": "T-2"}
+    assert fields == {
+        "voltage": 3.6,
+        "chain_cycle": 1.0,
+        "chain_test_id": "T-2",
+        "chain_recipe": "cycle",
+    }
+    assert ts == round(virtual_clock.wall() * 1e9)
+
+    lines.clear()  # once: the next scan writes only what changed
+    virtual_clock.advance(0.1)
+    scan(w, db, virtual_clock, ch0__voltage=3.7)
+    assert [parse_line(x)[2] for x in lines if x.startswith("channel,")] == [{"voltage": 3.7}]
 
 
 async def test_bench_events_become_event_lines(

@@ -29,6 +29,7 @@ from pathlib import Path
 
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Value
+from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
 from supervisor.publish.changes import ChangeFeed, Sample
 from supervisor.publish.influx.client import CONFIGURATION, TRANSIENT, WriteClient
@@ -359,6 +360,9 @@ class InfluxWriter:
         self._tests = {
             ch: (db.get(f"{ch}.chain.test_id"), db.get(f"{ch}.chain.recipe")) for ch in channels
         }
+        # Each channel's (test id, recipe) as its points were last tagged: a change starts
+        # new series, which get every field of the channel once (``_new_test_samples``).
+        self._tagged: dict[str, tuple[str, str]] = self._current_tests()
         self._alarms: dict[str, tuple[bool, str]] = {}
         self._spool_problem = ""
         self._started = False
@@ -424,18 +428,47 @@ class InfluxWriter:
                 x if x.t >= floor else Sample(x.name, x.value, x.quality, floor, self._floor_wall)
                 for x in samples
             ]
+        tests = self._current_tests()
+        if tests != self._tagged:
+            samples = samples + self._new_test_samples(db, tests, samples, t)
+            self._tagged = tests
         if samples:
-            tests = {
-                ch: (
-                    str(tid.value) if tid is not None and tid.value else "",
-                    str(rec.value) if rec is not None and rec.value else "",
-                )
-                for ch, (tid, rec) in self._tests.items()
-            }
             put = self.writer.put
             for measurement, lines in self.encoder.encode(samples, tests).items():
                 put(measurement, lines)
         self._publish_status(db)
+
+    def _current_tests(self) -> dict[str, tuple[str, str]]:
+        return {
+            ch: (
+                str(tid.value) if tid is not None and tid.value else "",
+                str(rec.value) if rec is not None and rec.value else "",
+            )
+            for ch, (tid, rec) in self._tests.items()
+        }
+
+    def _new_test_samples(
+        self, db: TagDB, tests: dict[str, tuple[str, str]], samples: list[Sample], t: float
+    ) -> list[Sample]:
+        """Every current field of each channel whose test id or recipe changed, at this
+        scan's time: the change feed only carries what changed, so a test's series would
+        lack the fields that kept their value (a test starting at the cycle number the last
+        one ended at has no ``chain_cycle`` point, and the dashboards' per-cycle panels
+        find no cycle). A field that changed this scan is already in ``samples``; a BAD or
+        unset (None) value writes no field, as everywhere."""
+        changed = [ch for ch, test in tests.items() if self._tagged.get(ch) != test]
+        prefixes = tuple(f"{ch}." for ch in changed)
+        present = {s.name for s in samples}
+        wall = self.clock.to_wall(t)
+        return [
+            Sample(tag.name, tag.value, tag.quality, t, wall)
+            for tag in db
+            if tag.name.startswith(prefixes)
+            and tag.name not in present
+            and tag.spec.history.enabled
+            and tag.quality is not Quality.BAD
+            and tag.value is not None
+        ]
 
     def on_event(self, event: BenchEvent) -> None:
         """A bench event → one ``event`` line (Grafana annotations); returns at once."""
