@@ -28,7 +28,7 @@ from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from supervisor.app import Bench, build_bench
 from supervisor.app.opcua import build_opcua
-from supervisor.core.clock import RealClock
+from supervisor.core.clock import RealClock, VirtualClock
 from supervisor.devices.registry import load_bench
 from supervisor.publish.opcua import OpcUaServer, OpcUaSettings, namespace_uri
 from supervisor.publish.opcua.security import Pki
@@ -173,13 +173,28 @@ async def opcua_rig(
     change: Callable[[OpcUaSettings], OpcUaSettings] | None = None,
     prepare: Callable[[Bench], None] | None = None,
     real_clock: bool = False,
+    history: bool = False,
+    unhistorised: tuple[str, ...] = (),
     **kw: Any,
 ) -> AsyncIterator[Rig]:
     """The started bench and its started OPC UA server; both stopped on exit.
 
     ``real_clock``: the bench scans on its own at its period (wall time), from before the
-    server starts until the end; else it scans only when the test says so."""
-    if real_clock:
+    server starts until the end; else it scans only when the test says so. ``history``:
+    the bench records its history (the embedded historian) from its start on, except the
+    I/O map tags named in ``unhistorised`` (``history: {enabled: false}``)."""
+    if history:
+        path = io_map(tmp)
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        for t in data["tags"]:
+            if t["name"] in unhistorised:
+                t["history"] = {"enabled": False}
+        path.write_text(yaml.safe_dump(data), encoding="utf-8")
+        bench = build_bench(load_bench(path), VirtualClock(), in_process=True)
+        bench.record_history()
+        await bench.start()
+        await run_scans(bench.engine, 10)
+    elif real_clock:
         bench = build_bench(load_bench(io_map(tmp)), RealClock(), in_process=True)
         await bench.start()
     else:

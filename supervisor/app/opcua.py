@@ -61,8 +61,20 @@ def build_opcua(
     def views() -> list[AlarmView]:
         return [] if alarms is None else [alarm_view(a, None, bench.clock) for a in alarms]
 
+    # HistoryRead from the embedded historian when the bench records one (record_history
+    # before this call); without it no tag is historised.
+    history = bench.historian.query if bench.historian is not None else None
     server = OpcUaServer(
-        settings, bench.db, bench.clock, layout, feed, operate, users, views, threaded=threaded
+        settings,
+        bench.db,
+        bench.clock,
+        layout,
+        feed,
+        operate,
+        users,
+        views,
+        threaded=threaded,
+        history=history,
     )
     events = EventFeed()
     events.sinks.append(feed)

@@ -41,9 +41,11 @@ from supervisor.config.models import BenchConfig
 from supervisor.core.clock import Clock
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
+from supervisor.publish.historian import HistoryQuery
 from supervisor.publish.opcua import methods
 from supervisor.publish.opcua.events import EventPublisher
 from supervisor.publish.opcua.feed import AlarmView, OpcUaFeed, Update
+from supervisor.publish.opcua.history import HistoryService, HistorySpace
 from supervisor.publish.opcua.layout import Layout
 from supervisor.publish.opcua.ports import Answer, Operate, Request
 from supervisor.publish.opcua.security import (
@@ -133,8 +135,10 @@ class OpcUaServer:
         alarms: Callable[[], Sequence[AlarmView]] = tuple,
         *,
         threaded: bool = True,
+        history: HistoryQuery | None = None,
     ) -> None:
         self.settings = settings
+        self.history = history
         self.db = db
         self.clock = clock
         self.layout = layout
@@ -336,8 +340,9 @@ class OpcUaServer:
         elif len(self.users):
             log.warning("OPC UA: no secure endpoint, passwords travel in clear (security: [none])")
         idx = await server.register_namespace(self.namespace)
-        built = await build_space(server, idx, self.layout, s.scan_period_s)
+        built = await build_space(server, idx, self.layout, s.scan_period_s, self._historised())
         self._built = built
+        self._serve_history(server, built, self.history)
         for nid, (channel, m) in built.methods.items():
             server.iserver.isession.add_method_callback(nid, self._method_handler(channel, m))
         server.link_method(
@@ -399,6 +404,32 @@ class OpcUaServer:
             bserver = getattr(server, "bserver", None)
             self.feed.clients = len(getattr(bserver, "clients", ()))
             self._busy = False
+
+    def _historised(self) -> frozenset[str]:
+        """The tags the historian keeps (none without one): each tag's history settings."""
+        if self.history is None:
+            return frozenset()
+        names = (t.name for t in self.db if t.spec.history.enabled)
+        return frozenset(n for n in names if n in self.layout.variables)
+
+    def _serve_history(self, server: Server, built: Built, query: HistoryQuery | None) -> None:
+        """HistoryRead answered from the historian's file (history.py), not asyncua's own;
+        without a historian every node answers Bad_HistoryOperationUnsupported."""
+        historised = self._historised()
+        space = HistorySpace(
+            tags={
+                nid: (name, kind) for name, (nid, kind) in built.tags.items() if name in historised
+            },
+            event_sources={}
+            if query is None
+            else {built.bench: None, **{nid: ch for ch, nid in built.channels.items()}},
+            event_types={
+                "step": built.chain_event,
+                "state": built.chain_event,
+                "command": built.command_event,
+            },
+        )
+        server.iserver.history_manager = HistoryService(server.iserver, query, space, _variant)
 
     async def _write(self, server: Server, updates: list[Update]) -> None:
         aspace = server.iserver.aspace

@@ -67,6 +67,7 @@ EVENT_FIELDS: Final = ("Channel", "Kind", "Source", "Actor", "TestId", "Recipe")
 
 READ: Final = ua.AccessLevel.CurrentRead.mask
 WRITE: Final = ua.AccessLevel.CurrentWrite.mask
+HISTORY: Final = ua.AccessLevel.HistoryRead.mask
 
 
 @dataclass
@@ -96,6 +97,7 @@ def _variable(
     access: int = READ,
     value_rank: int = ua.ValueRank.Scalar,
     sampling_ms: float = 0.0,
+    historizing: bool = False,
 ) -> ua.AddNodesItem:
     it = ua.AddNodesItem()
     it.RequestedNewNodeId = nid
@@ -113,6 +115,7 @@ def _variable(
     a.AccessLevel = access
     a.UserAccessLevel = access
     a.MinimumSamplingInterval = sampling_ms
+    a.Historizing = historizing
     it.NodeAttributes = a
     return it
 
@@ -213,10 +216,16 @@ async def build_types(server: Server, idx: int, built: Built) -> None:
 
 
 def _tag_items(
-    v: Variable, parent: ua.NodeId, idx: int, built: Built, sampling_ms: float
+    v: Variable,
+    parent: ua.NodeId,
+    idx: int,
+    built: Built,
+    sampling_ms: float,
+    historised: frozenset[str],
 ) -> Iterable[ua.AddNodesItem]:
     nid = ua.NodeId(v.tag, idx)
-    access = READ | (WRITE if v.writable else 0)
+    kept = v.tag in historised  # Part 11: Historizing and the HistoryRead access bit
+    access = READ | (WRITE if v.writable else 0) | (HISTORY if kept else 0)
     browse = ua.QualifiedName(v.browse, idx)
     built.tags[v.tag] = (nid, v.kind)
     if v.kind == "state":
@@ -231,6 +240,7 @@ def _tag_items(
             v.description or "ISA-88/PackML state (OPC UA StateEnumeration numbers)",
             access,
             sampling_ms=sampling_ms,
+            historizing=kept,
         )
         return
     if v.kind != "analog":
@@ -245,6 +255,7 @@ def _tag_items(
             v.description,
             access,
             sampling_ms=sampling_ms,
+            historizing=kept,
         )
         return
     yield _variable(
@@ -258,6 +269,7 @@ def _tag_items(
         v.description,
         access,
         sampling_ms=sampling_ms,
+        historizing=kept,
     )
     low, high = v.range if v.range is not None else (NO_RANGE.Low, NO_RANGE.High)
     yield _variable(
@@ -284,7 +296,12 @@ def _tag_items(
 
 
 def _folder_items(
-    f: Folder, parent: ua.NodeId, idx: int, built: Built, sampling_ms: float
+    f: Folder,
+    parent: ua.NodeId,
+    idx: int,
+    built: Built,
+    sampling_ms: float,
+    historised: frozenset[str],
 ) -> Iterable[ua.AddNodesItem]:
     nid = ua.NodeId(f.node, idx)
     notifier = bool(f.channel) or f.node == "/Bench"
@@ -309,7 +326,7 @@ def _folder_items(
                 description,
             )
     for v in f.variables:
-        yield from _tag_items(v, nid, idx, built, sampling_ms)
+        yield from _tag_items(v, nid, idx, built, sampling_ms, historised)
     if f.channel:
         for m in METHODS:
             mid = ua.NodeId(f"{f.node}/{m.name}", idx)
@@ -330,15 +347,24 @@ def _folder_items(
                     value_rank=ua.ValueRank.OneDimension,
                 )
     for c in f.children:
-        yield from _folder_items(c, nid, idx, built, sampling_ms)
+        yield from _folder_items(c, nid, idx, built, sampling_ms, historised)
 
 
-async def build_space(server: Server, idx: int, layout: Layout, scan_period_s: float) -> Built:
-    """Types, then every object, variable and method of ``layout`` under Objects."""
+async def build_space(
+    server: Server,
+    idx: int,
+    layout: Layout,
+    scan_period_s: float,
+    historised: frozenset[str] = frozenset(),
+) -> Built:
+    """Types, then every object, variable and method of ``layout`` under Objects; the tags
+    in ``historised`` with Historizing true and the HistoryRead access bit."""
     built = Built()
     await build_types(server, idx, built)
     objects = ua.NodeId(O.ObjectsFolder)
-    items = list(_folder_items(layout.root, objects, idx, built, scan_period_s * 1000.0))
+    items = list(
+        _folder_items(layout.root, objects, idx, built, scan_period_s * 1000.0, historised)
+    )
     results = await server.iserver.isession.add_nodes(items)
     bad = [
         (i.RequestedNewNodeId, r.StatusCode)
