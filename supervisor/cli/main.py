@@ -21,6 +21,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Final, NoReturn
 
+from supervisor.cli import ctl
 from supervisor.config.models import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 
@@ -740,6 +741,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--password-stdin", action="store_true", help="read the password from stdin (scripts)"
     )
     ou.set_defaults(func=cmd_opcua)
+
+    ctl.add_parser(sub)
 
     b = sub.add_parser("bench", help="benchmarks that print figures")
     b.add_argument(
