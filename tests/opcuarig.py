@@ -28,11 +28,11 @@ from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from supervisor.app import Bench, build_bench
 from supervisor.app.opcua import build_opcua
+from supervisor.config.users import hash_password
 from supervisor.core.clock import RealClock, VirtualClock
 from supervisor.devices.registry import load_bench
 from supervisor.publish.opcua import OpcUaServer, OpcUaSettings, namespace_uri
 from supervisor.publish.opcua.security import Pki
-from supervisor.publish.opcua.users import hash_password
 from supervisor.testing import free_tcp_port, run_scans, wait_until
 
 # --- one standard address space per test session ---------------------------------------------

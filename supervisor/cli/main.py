@@ -590,9 +590,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def cmd_opcua(args: argparse.Namespace) -> int:
     """``supervisor opcua add-user|remove-user|list-users``: the OPC UA users file of a bench
     (hashes only; ``<state_dir>/opcua/users.yaml`` unless its I/O map names another)."""
+    from supervisor.config.users import read_users
     from supervisor.devices.registry import load_bench
     from supervisor.publish.opcua import OpcUaSettings, add_user, remove_user
-    from supervisor.publish.opcua.users import read_users
 
     if not Path(args.io_map).exists():
         _err(f"{args.io_map}: no such I/O map (give a path, e.g. io_maps/sim.yaml)")

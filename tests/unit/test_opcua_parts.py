@@ -10,6 +10,7 @@ from asyncua import ua
 from commandrig import io_map
 
 from supervisor.commands import Command, EveryoneOperates, ResultKind, Verb
+from supervisor.config.users import check_password, hash_password, read_users
 from supervisor.core.errors import ConfigError
 from supervisor.core.quality import Quality, Reason
 from supervisor.core.records import BenchEvent
@@ -25,7 +26,6 @@ from supervisor.publish.opcua.methods import (
 )
 from supervisor.publish.opcua.statuses import REFUSAL_STATUS, quality_status
 from supervisor.publish.opcua.units import eu_information, unit_id
-from supervisor.publish.opcua.users import check_password, hash_password, read_users
 from supervisor.tags import Access, TagDB, TagSpec
 
 S = ua.StatusCodes

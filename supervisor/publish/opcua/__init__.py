@@ -7,12 +7,12 @@ command path, events for steps, commands and alarms, users with roles and a secu
 endpoint. ``supervisor.app.opcua`` wires it to a bench.
 """
 
+from supervisor.config.users import ROLES, UserStore, add_user, remove_user
 from supervisor.publish.opcua.feed import AlarmView, OpcUaFeed
 from supervisor.publish.opcua.layout import Layout, namespace_uri, plan
 from supervisor.publish.opcua.ports import Answer, Operate, Request
 from supervisor.publish.opcua.security import ACTOR_PREFIX, OpcUaRoles
 from supervisor.publish.opcua.server import OpcUaServer, OpcUaSettings
-from supervisor.publish.opcua.users import ROLES, UserStore, add_user, remove_user
 
 __all__ = [
     "ACTOR_PREFIX",

@@ -38,7 +38,7 @@ from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
-from supervisor.publish.opcua.users import ANONYMOUS, ROLE_ACCESS, UserStore
+from supervisor.config.users import ANONYMOUS, ROLE_ACCESS, UserStore
 from supervisor.tags import Access
 
 log = logging.getLogger(__name__)

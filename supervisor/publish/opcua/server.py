@@ -38,6 +38,7 @@ from asyncua.server.address_space import AttributeService
 
 from supervisor.config.limits import RECIPE_COMPILE_TIMEOUT_S
 from supervisor.config.models import BenchConfig
+from supervisor.config.users import UserStore
 from supervisor.core.clock import Clock
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
@@ -58,7 +59,6 @@ from supervisor.publish.opcua.security import (
 )
 from supervisor.publish.opcua.space import Built, build_space
 from supervisor.publish.opcua.statuses import NO_VALUE, quality_status, refusal_status
-from supervisor.publish.opcua.users import UserStore
 from supervisor.tags import TagDB
 
 log = logging.getLogger(__name__)

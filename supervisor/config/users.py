@@ -1,4 +1,4 @@
-"""OPC UA users: names, roles and password hashes in a YAML file (never a password).
+"""Bench users (OPC UA and the HMI): names, roles, password hashes (never a password).
 
 ``users.yaml`` (``<state_dir>/opcua/users.yaml`` unless the I/O map names another)::
 
