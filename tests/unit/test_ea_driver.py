@@ -47,6 +47,7 @@ from supervisor.devices.ea import (
     TcpScpiTransport,
 )
 from supervisor.devices.ea.protocol import MAX_LINE_BYTES, QUES_OCP_BIT, WATCHDOG_ENABLE_HEADER
+from supervisor.devices.ea.sim import LINE_LOG_LENGTH
 from supervisor.devices.registry import bench_from_data
 from supervisor.sim.plant import BenchPlant
 from supervisor.testing import wait_until
@@ -647,3 +648,14 @@ async def test_a_cccv_dry_run_goes_through_the_ea_driver_and_simulator(tmp_path:
     # 1 A for 20 min out; in: 1 A until the CV phase at 3.9 V tapers it, within 30 min.
     assert cycle["discharge_capacity_ah"] == pytest.approx(1 / 3, rel=0.01)
     assert 0.05 < cycle["charge_capacity_ah"] < 0.45
+
+
+# --- the simulator's own memory ----------------------------------------------------------------
+def test_the_simulator_keeps_a_bounded_log_of_the_lines_it_received(sim: EaSimulator) -> None:
+    # A simulated bench runs for days: one line per poll must not grow memory without end
+    # (issue 13: about 7 MiB per hour before).
+    for i in range(3 * LINE_LOG_LENGTH):
+        sim.handle_line(f"VOLT {i % 50}.0000".encode())
+    assert len(sim.lines) <= LINE_LOG_LENGTH
+    assert len(sim.commands) <= LINE_LOG_LENGTH
+    assert sim.lines[-1] == f"VOLT {(3 * LINE_LOG_LENGTH - 1) % 50}.0000"  # the newest kept

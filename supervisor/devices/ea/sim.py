@@ -88,6 +88,12 @@ SIM_SERIAL = "2775129999"
 SIM_FIRMWARE = "V3.03 05.10.2022 V3.06 24.05.2023 V1.0.2.20"
 _CC_TOLERANCE_A = 1e-3
 PARSE_CACHE_SIZE = 256
+LINE_LOG_LENGTH = 4096
+"""How many received lines (and commands) the simulator keeps for tests to look at.
+
+Bounded: a bench simulated for days receives a line per poll, and an unbounded log grew by
+about 7 MiB per hour (issue 13). The newest are kept; the oldest go in blocks of half the
+length so that trimming costs O(1) per line on average."""
 """Command texts whose parse the simulator remembers (see ``EaSimulator._parse``)."""
 
 _Handler = Callable[[Command], str | None]
@@ -247,11 +253,11 @@ class EaSimulator:
         except ProtocolError:
             self._push_error(ERR_COMMAND)
             return None
-        self.lines.append(text)
+        _remember(self.lines, text)
         replies: list[str] = []
         queries_only = True
         for cmd_text in split_commands(text):
-            self.commands.append(cmd_text)
+            _remember(self.commands, cmd_text)
             cmd = self._parse(cmd_text)
             queries_only = queries_only and cmd is not None and cmd.query
             reply = self._execute(cmd)
@@ -641,3 +647,9 @@ class EaTcpSimulator(EaSimulator):
         while True:
             self.check()
             await self.clock.sleep_until(self.clock.now() + CHECK_PERIOD_S)
+
+
+def _remember(log: list[str], text: str) -> None:
+    log.append(text)
+    if len(log) > LINE_LOG_LENGTH:
+        del log[: len(log) - LINE_LOG_LENGTH // 2]
