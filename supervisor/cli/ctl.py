@@ -6,6 +6,14 @@ methods; a refused command answers a Bad status code with the command path's rea
 ``Result`` output argument, which is printed (exit 2). The server unreachable: one line,
 exit 1. A login the server refuses: one line, exit 2 (a user mistake, like a refused
 command: fix the user or the password and run again).
+
+Security (ADR 0014 "Security"): ``--security sign|sign_and_encrypt`` connects over
+Basic256Sha256 with a client certificate, ``--cert/--key`` or one made on first use in
+``$XDG_CONFIG_HOME/bench-supervisor/ctl-pki`` (``supervisor ctl cert`` prints its path). The
+server accepts it only once an administrator copied it into the server's ``pki/trusted``:
+until then ctl says so in one line and exits 1 (nothing to fix on this command line). A
+server with the None policy switched off is told apart from a refusal: one line saying to
+use ``--security``, exit 2.
 """
 
 from __future__ import annotations
@@ -16,10 +24,12 @@ import contextlib
 import getpass
 import logging
 import os
+import socket
 import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
 if TYPE_CHECKING:
@@ -30,6 +40,28 @@ PASSWORD_ENV: Final = "SUPERVISOR_OPCUA_PASSWORD"
 EXIT_OK, EXIT_FAIL, EXIT_REFUSED = 0, 1, 2
 CONNECT_TIMEOUT_S: Final = 5.0
 LIVENESS_S: Final = 1.0  # watch: how often an idle watch reads the server to see it is there
+SECURITY: Final = ("none", "sign", "sign_and_encrypt")
+# The server's trust list (supervisor/publish/opcua/security.py::Pki), for the messages.
+SERVER_TRUSTED: Final = "<state_dir>/opcua/pki/trusted"
+# A refusal of the client's certificate (OPC UA Part 4 §7.34 certificate status codes), as
+# opposed to a refused login: the fix is on the server, not on this command line.
+CERT_REFUSALS: Final = frozenset(
+    {
+        "BadCertificateUntrusted",
+        "BadCertificateInvalid",
+        "BadCertificateUriInvalid",
+        "BadCertificateTimeInvalid",
+        "BadCertificateIssuerTimeInvalid",
+        "BadCertificateUseNotAllowed",
+        "BadCertificateRevoked",
+        "BadCertificateIssuerRevoked",
+        "BadCertificateRevocationUnknown",
+        "BadCertificateIssuerRevocationUnknown",
+        "BadCertificateChainIncomplete",
+        "BadCertificatePolicyCheckFailed",
+        "BadSecurityChecksFailed",
+    }
+)
 
 # verb → the channel method (supervisor/publish/opcua/methods.py::METHODS)
 COMMANDS: Final[dict[str, str]] = {
@@ -83,13 +115,24 @@ def add_parser(sub: Any) -> None:
         "ctl",
         help="command a running supervisor over OPC UA (status, start, hold, …)",
         description="A command-line OPC UA client of a running supervisor.",
-        epilog="exit codes: 0 done; 1 the server cannot be reached; 2 a usage error, a login"
-        f" or a command the server refused (its reason is printed). The password: --password"
-        f" or ${PASSWORD_ENV} (asked for when neither is given and --user is).",
+        epilog="exit codes: 0 done; 1 the server cannot be reached, or it does not trust this"
+        " client's certificate (copy it into the server's pki/trusted); 2 a usage error, a"
+        " security mode the server does not offer, a login or a command the server refused"
+        f" (its reason is printed). The password: --password or ${PASSWORD_ENV} (asked for"
+        " when neither is given and --user is). The client certificate: --cert/--key, or"
+        f" made on first use in {default_pki_hint()} (`supervisor ctl cert` prints it).",
     )
     p.add_argument("--url", default=DEFAULT_URL, help=f"the server (default {DEFAULT_URL})")
     p.add_argument("--user", default=None, help="log in as this user (default: anonymous)")
     p.add_argument("--password", default=None, help=f"the user's password (or ${PASSWORD_ENV})")
+    p.add_argument(
+        "--security",
+        choices=SECURITY,
+        default="none",
+        help="the message security (Basic256Sha256 for sign and sign_and_encrypt; default none)",
+    )
+    p.add_argument("--cert", type=Path, default=None, help="this client's certificate (DER/PEM)")
+    p.add_argument("--key", type=Path, default=None, help="its private key (PEM)")
     what = p.add_subparsers(dest="what", required=True)
     what.add_parser("status", help="a table of the channels: state, step, V, I, Ah")
     st = what.add_parser("start", help="load a recipe and start its test")
@@ -99,16 +142,52 @@ def add_parser(sub: Any) -> None:
         "-p", "--param", action="append", default=[], metavar="NAME=VALUE", help="a parameter"
     )
     for verb in COMMANDS:
-        if verb != "start":
+        if verb not in ("start", "ack"):
             what.add_parser(verb, help=f"{COMMANDS[verb]} a channel").add_argument("channel")
+    what.add_parser(
+        "ack", help="acknowledge what holds a channel, or one alarm (its id in `ctl alarms`)"
+    ).add_argument("channel", metavar="CHANNEL|ALARM")
     what.add_parser("alarms", help="the alarms that are active or not acknowledged")
-    w = what.add_parser("watch", help="live lines until Ctrl-C: each step/state change")
+    w = what.add_parser(
+        "watch", help="live lines until Ctrl-C (or --count): each step/state change"
+    )
     w.add_argument("channel", nargs="?", default=None, help="one channel (default: all)")
     w.add_argument(
         "--every", type=_positive, default=10.0, metavar="S", help="a line every S s too"
     )
-    w.add_argument("--lines", type=int, default=0, help="stop after this many lines (0: never)")
+    w.add_argument(
+        "--count",
+        "--lines",
+        dest="lines",
+        type=_count,
+        default=0,
+        metavar="N",
+        help="stop after N lines (default 0: until Ctrl-C)",
+    )
+    what.add_parser(
+        "cert", help="print this client's certificate file (made if missing), to be trusted"
+    )
     p.set_defaults(func=cmd_ctl)
+
+
+def default_pki() -> Path:
+    """Where ctl keeps the client certificate it makes: per user (XDG base directories)."""
+    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base) / "bench-supervisor" / "ctl-pki"
+
+
+def default_pki_hint() -> str:
+    return "$XDG_CONFIG_HOME/bench-supervisor/ctl-pki (~/.config/… by default)"
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of lines") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: give 0 (no end) or a positive count")
+    return value
 
 
 def _positive(text: str) -> float:
@@ -133,10 +212,13 @@ def cmd_ctl(args: argparse.Namespace) -> int:
 
 
 def _ctl(args: argparse.Namespace) -> int:
-    password = args.password if args.password is not None else os.environ.get(PASSWORD_ENV)
-    if args.user and password is None:
-        password = getpass.getpass(f"OPC UA password for {args.user}: ")
     try:
+        _check_security_options(args)
+        if args.what == "cert":
+            return asyncio.run(_cert(args))
+        password = args.password if args.password is not None else os.environ.get(PASSWORD_ENV)
+        if args.user and password is None:
+            password = getpass.getpass(f"OPC UA password for {args.user}: ")
         return asyncio.run(_run(args, password))
     except CtlError as exc:
         _err(f"supervisor ctl: {exc}")
@@ -145,19 +227,195 @@ def _ctl(args: argparse.Namespace) -> int:
         return EXIT_OK
 
 
+# --- security ------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class ClientCertificate:
+    """This client's certificate and key, and the application URI it names (OPC UA Part 6
+    §6.2.2: the client's ApplicationUri must be the certificate's subjectAltName URI)."""
+
+    cert: Path
+    key: Path
+    uri: str
+
+
+def _check_security_options(args: argparse.Namespace) -> None:
+    if (args.cert is None) != (args.key is None):
+        raise CtlError(
+            "--cert and --key go together: give both, or neither for the certificate ctl"
+            f" makes in {default_pki()}",
+            EXIT_REFUSED,
+        )
+    if args.cert is not None and args.security == "none" and args.what != "cert":
+        raise CtlError(
+            "--cert/--key are used with --security sign or sign_and_encrypt", EXIT_REFUSED
+        )
+    for option, path in (("--cert", args.cert), ("--key", args.key)):
+        if path is not None and not path.is_file():
+            raise CtlError(f"{option} {path}: no such file", EXIT_REFUSED)
+
+
+def app_uri() -> str:
+    """The application URI of the certificate ctl makes: one per host."""
+    return f"urn:{socket.gethostname()}:bench-supervisor:ctl"
+
+
+async def client_certificate(args: argparse.Namespace) -> ClientCertificate:
+    """``--cert/--key`` when given, else the one in ``default_pki()``, made on first use (or
+    again when it expired or names another host): then its path is printed, to be copied
+    into the server's trust list."""
+    if args.cert is not None:
+        return ClientCertificate(args.cert, args.key, _uri_of(args.cert))
+    from asyncua.crypto.cert_gen import setup_self_signed_certificate
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+
+    folder = default_pki()
+    cert, key = folder / "cert.der", folder / "key.pem"
+    uri = app_uri()
+    try:
+        before = cert.read_bytes() if cert.is_file() else None
+        folder.mkdir(parents=True, exist_ok=True, mode=0o700)
+        host = socket.gethostname()
+        await setup_self_signed_certificate(
+            key,
+            cert,
+            uri,
+            host,
+            [ExtendedKeyUsageOID.CLIENT_AUTH],
+            {"organizationName": "bench-supervisor", "commonName": f"supervisor ctl {host}"},
+        )
+        key.chmod(0o600)  # the private key: this user's only
+        made = cert.read_bytes() != before
+    except OSError as exc:
+        raise CtlError(
+            f"cannot make the client certificate in {folder}: {exc}", EXIT_FAIL
+        ) from None
+    if made:
+        _err(
+            f"supervisor ctl: made this client's certificate {cert}: a server accepts it once"
+            f" it is copied into its pki/trusted ({SERVER_TRUSTED})"
+        )
+    return ClientCertificate(cert, key, uri)
+
+
+def _uri_of(path: Path) -> str:
+    from cryptography import x509
+
+    data = path.read_bytes()
+    try:
+        if data.lstrip().startswith(b"-----BEGIN"):
+            cert = x509.load_pem_x509_certificate(data)
+        else:
+            cert = x509.load_der_x509_certificate(data)
+    except ValueError as exc:
+        raise CtlError(f"--cert {path}: not a certificate (DER or PEM): {exc}", 2) from None
+    try:
+        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+        uris = san.get_values_for_type(x509.UniformResourceIdentifier)
+    except x509.ExtensionNotFound:
+        uris = []
+    if not uris:
+        raise CtlError(
+            f"--cert {path}: the certificate names no application URI (a subjectAltName URI,"
+            " which OPC UA requires)",
+            EXIT_REFUSED,
+        )
+    return str(uris[0])
+
+
+async def _cert(args: argparse.Namespace) -> int:
+    """``ctl cert``: the certificate's path on stdout, to copy into the server's trust list."""
+    ident = await client_certificate(args)
+    _out(str(ident.cert))
+    return EXIT_OK
+
+
+def _mode_of(security: str) -> Any:
+    from asyncua import ua
+
+    return {
+        "none": ua.MessageSecurityMode.None_,
+        "sign": ua.MessageSecurityMode.Sign,
+        "sign_and_encrypt": ua.MessageSecurityMode.SignAndEncrypt,
+    }[security]
+
+
+def _offered(endpoints: Sequence[Any]) -> str:
+    names = {"None_": "none", "Sign": "sign", "SignAndEncrypt": "sign_and_encrypt"}
+    modes = dict.fromkeys(names.get(e.SecurityMode.name, e.SecurityMode.name) for e in endpoints)
+    return ", ".join(modes) or "nothing"
+
+
+def _endpoint(endpoints: Sequence[Any], security: str, url: str) -> Any:
+    """The server's endpoint for ``--security``; a mode it does not offer is the user's to
+    change: one line saying what it offers (exit 2)."""
+    from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+
+    mode = _mode_of(security)
+    policy = (
+        "http://opcfoundation.org/UA/SecurityPolicy#None"
+        if security == "none"
+        else SecurityPolicyBasic256Sha256.URI
+    )
+    for e in endpoints:
+        if e.SecurityMode == mode and e.SecurityPolicyUri == policy:
+            return e
+    if security == "none":
+        raise CtlError(
+            f"{url}: the server accepts no unsecured connection (its None policy is switched"
+            f" off; it offers {_offered(endpoints)}): use --security sign_and_encrypt",
+            EXIT_REFUSED,
+        )
+    raise CtlError(
+        f"{url}: the server offers no Basic256Sha256 {security} endpoint (it offers"
+        f" {_offered(endpoints)}): change --security",
+        EXIT_REFUSED,
+    )
+
+
+def _first_certificate(der: bytes) -> bytes:
+    """The server's own certificate (an endpoint may carry its chain, OPC UA Part 6 §6.2.3)."""
+    from asyncua.crypto.uacrypto import x509_from_der
+    from cryptography.hazmat.primitives.serialization import Encoding
+
+    return bytes(x509_from_der(der).public_bytes(Encoding.DER))
+
+
 async def _run(args: argparse.Namespace, password: str | None) -> int:
     from asyncua import Client, ua
+    from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
+    ident = await client_certificate(args) if args.security != "none" else None
     c = Client(args.url, timeout=CONNECT_TIMEOUT_S)
+    if ident is not None:
+        c.application_uri = ident.uri
     if args.user:
         c.set_user(args.user)
         c.set_password(password or "")
     try:
+        # The endpoints first: a security mode the server does not offer gets its own
+        # message, not asyncua's "No matching endpoints".
+        endpoint = _endpoint(await c.connect_and_get_server_endpoints(), args.security, args.url)
+        if ident is not None:
+            await c.set_security(
+                SecurityPolicyBasic256Sha256,
+                str(ident.cert),
+                str(ident.key),
+                server_certificate=_first_certificate(endpoint.ServerCertificate),
+                mode=_mode_of(args.security),
+            )
         await c.connect()
     except ua.UaStatusCodeError as exc:
+        code = _code_name(exc.code)
+        if code in CERT_REFUSALS and ident is not None:
+            raise CtlError(
+                f"{args.url}: the server refused this client's certificate ({code}): copy"
+                f" {ident.cert} into the server's pki/trusted ({SERVER_TRUSTED}; it keeps the"
+                " refused one in pki/rejected) and run again",
+                EXIT_FAIL,
+            ) from None
         who = f"user {args.user!r}" if args.user else "an anonymous session"
         raise CtlError(
-            f"{args.url}: the server refused the login of {who} ({_code_name(exc.code)}):"
+            f"{args.url}: the server refused the login of {who} ({code}):"
             " check --user and the password",
             EXIT_REFUSED,
         ) from None
@@ -227,6 +485,10 @@ class Bench:
         results = await self.client.uaclient.read(params)
         return [None if not r.StatusCode.is_good() else r.Value.Value for r in results]
 
+    async def alarm_ids(self) -> list[str]:
+        folder = self.client.get_node(self.node("/Bench/Alarms"))
+        return [str((await n.read_browse_name()).Name) for n in await folder.get_children()]
+
     async def alive(self) -> None:
         """Read the server's state: raises when the connection is gone."""
         from asyncua import ua
@@ -263,6 +525,14 @@ async def _do(bench: Bench, args: argparse.Namespace) -> int:
         return await _alarms(bench)
     if args.what == "watch":
         return await _watch(bench, args)
+    if args.what == "ack" and args.channel not in bench.channels:
+        if args.channel in await bench.alarm_ids():
+            return await _ack_alarm(bench, args.channel)
+        raise CtlError(
+            f"{args.channel}: no such channel or alarm (channels: {', '.join(bench.channels)};"
+            " alarms: `supervisor ctl alarms`)",
+            EXIT_REFUSED,
+        )
     bench.check_channel(args.channel)
     call_args: list[Any] = []
     if args.what == "start":
@@ -332,9 +602,38 @@ def watch_line(channel: str, v: dict[str, Any], wall: float) -> str:
     )
 
 
+async def _ack_alarm(bench: Bench, alarm: str) -> int:
+    """Acknowledge one alarm through its condition's Acknowledge (OPC UA Part 9 §5.7.3), as
+    a SCADA alarm list does: the server acknowledges it in the alarm model, with this
+    session's user as the actor."""
+    from asyncua import ua
+
+    obj = bench.node(f"/Bench/Alarms/{alarm}")
+    try:  # the condition's last EventId, as Part 9 asks (the server keys on the condition)
+        event_id = await bench.client.get_node(obj).get_child("0:EventId")
+        event = await event_id.read_value()
+    except ua.UaError:
+        event = b""
+    req = ua.CallMethodRequest()
+    req.ObjectId = obj
+    req.MethodId = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
+    req.InputArguments = [
+        ua.Variant(event or b"", ua.VariantType.ByteString),
+        ua.Variant(ua.LocalizedText("supervisor ctl"), ua.VariantType.LocalizedText),
+    ]
+    (res,) = await bench.client.uaclient.call([req])
+    code = str(res.StatusCode.name)
+    if code == "BadConditionBranchAlreadyAcked":
+        raise CtlError(f"{alarm}: ack refused ({code}): nothing to acknowledge", EXIT_REFUSED)
+    if not res.StatusCode.is_good():
+        raise CtlError(f"{alarm}: ack refused ({code})", EXIT_REFUSED)
+    (state,) = await bench.read([f"/Bench/Alarms/{alarm}/State"])
+    _out(f"{alarm}: acknowledged ({_text(state)})")
+    return EXIT_OK
+
+
 async def _alarms(bench: Bench) -> int:
-    folder = bench.client.get_node(bench.node("/Bench/Alarms"))
-    ids = [str((await n.read_browse_name()).Name) for n in await folder.get_children()]
+    ids = await bench.alarm_ids()
     shown = 0
     for alarm in ids:
         state, active, acked, severity, message = await bench.read(
