@@ -511,6 +511,8 @@ class OpcUaServer:
             if self._closing:
                 return _result(S.BadShutdown, "the supervisor is stopping", len(args))
             bad = methods.check(method, args)
+            if bad is None and method.verb in ("force", "unforce"):
+                return await self._force(method, args, actor)
             if bad is None:
                 req = methods.request(method, channel, args, actor, self.settings.recipes_dir)
             else:
@@ -525,6 +527,40 @@ class OpcUaServer:
             return _result(status, answer.reason, len(args))
 
         return handler
+
+    async def _force(
+        self, method: methods.Method, args: Sequence[ua.Variant], actor: str
+    ) -> ua.CallMethodResult:
+        """ForceTag(Tag, Value) / UnforceTag(Tag) on the Bench object (ADR 0015): the value
+        text read as the tag's type here (Bad_TypeMismatch), then the command path (role:
+        Bad_UserAccessDenied, range or choices: Bad_OutOfRange, a tag the safety phase
+        reads or drives: Bad_NotSupported, with the reason)."""
+        n = len(args)
+        name = str(args[0].Value)
+        variable = self.layout.variables.get(name)
+        if variable is None:
+            return _result(S.BadNodeIdUnknown, f"{method.name}: unknown tag {name!r}", n)
+        req = methods.request(method, "", args, actor, self.settings.recipes_dir)
+        assert isinstance(req, Request)
+        if method.verb == "force":
+            text = str(args[1].Value)
+            try:
+                value = methods.parse_value(text, variable.kind)
+            except ValueError:
+                wants = methods.KIND_WORDS.get(variable.kind, variable.kind)
+                reason = f"ForceTag: {name} takes {wants}, not {text!r}"
+                log.warning("OPC UA ForceTag by %s refused: %s", actor, reason)
+                return _result(S.BadTypeMismatch, reason, n, (S.Good, S.BadTypeMismatch))
+            req = Request(req.kind, req.target, req.verb, {"tag": name, "value": value}, actor)
+        answer = await self._ask(req)
+        if answer.accepted:
+            return _result(S.Good, answer.reason, n)
+        status = {
+            "bad argument": S.BadOutOfRange,  # the type was right: the value is not
+            "not found": S.BadNodeIdUnknown,
+            "refused": S.BadNotSupported,  # never forceable: the safety phase uses it
+        }.get(answer.refusal) or refusal_status(answer.refusal)
+        return _result(status, answer.reason, n)
 
     async def _acknowledge(self, parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
         """AcknowledgeableConditionType.Acknowledge(EventId, Comment) on an alarm's

@@ -22,7 +22,7 @@ from asyncua import Server, ua
 from asyncua.common.structures104 import new_enum
 
 from supervisor.publish.opcua.layout import Folder, Layout, Variable
-from supervisor.publish.opcua.methods import METHODS, RESULT, Method, argument
+from supervisor.publish.opcua.methods import BENCH_METHODS, METHODS, RESULT, Method, argument
 from supervisor.publish.opcua.units import eu_information
 
 O = ua.ObjectIds  # noqa: E741 - asyncua's own abbreviation
@@ -327,8 +327,9 @@ def _folder_items(
             )
     for v in f.variables:
         yield from _tag_items(v, nid, idx, built, sampling_ms, historised)
-    if f.channel:
-        for m in METHODS:
+    own = METHODS if f.channel else BENCH_METHODS if f.node == "/Bench" else ()
+    if own:
+        for m in own:
             mid = ua.NodeId(f"{f.node}/{m.name}", idx)
             built.methods[mid] = (f.channel, m)
             yield _method(mid, ua.QualifiedName(m.name, idx), nid, m.description)
