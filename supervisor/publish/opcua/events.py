@@ -29,6 +29,8 @@ from supervisor.core.records import BenchEvent
 from supervisor.publish.opcua.feed import AlarmView
 from supervisor.publish.opcua.space import Built
 
+VT = ua.VariantType
+LT = VT.LocalizedText
 SEVERITY_CHAIN = 100
 SEVERITY_COMMAND = 200
 SEVERITY_REFUSED = 400
@@ -137,6 +139,11 @@ class EventPublisher:
         event.Quality = ua.StatusCode(ua.StatusCodes.Good)
         event.ClientUserId = a.actor
         event.BranchId = ua.NodeId()
+        shelving, state_id = (
+            ("TimedShelved", ua.ObjectIds.ShelvedStateMachineType_TimedShelved)
+            if a.shelved
+            else ("Unshelved", ua.ObjectIds.ShelvedStateMachineType_Unshelved)
+        )
         for field, value in (
             ("EnabledState", ua.LocalizedText("Enabled")),
             ("EnabledState/Id", True),
@@ -146,5 +153,17 @@ class EventPublisher:
             ("AckedState/Id", a.acked),
         ):
             setattr(event, field, value)
+        # Optional fields of AlarmConditionType (declared with their types: asyncua encodes
+        # an event's fields by the types it knows). A latched trip is confirmed by its reset
+        # (ISA-18.2 reset ~ Part 9 Confirm); the shelving state is the alarm model's.
+        for field, value, vt in (
+            ("ConfirmedState", ua.LocalizedText("Unconfirmed" if a.tripped else "Confirmed"), LT),
+            ("ConfirmedState/Id", not a.tripped, VT.Boolean),
+            ("ShelvingState/CurrentState", ua.LocalizedText(shelving), LT),
+            ("ShelvingState/CurrentState/Id", ua.NodeId(state_id), VT.NodeId),
+            ("ShelvingState/UnshelveTime", a.unshelve_s * 1000.0, VT.Double),
+            ("SuppressedOrShelved", a.shelved, VT.Boolean),
+        ):
+            event.add_property(field, value, vt)
         _stamp(event, a.wall or time.time())
         await self._fire(event)

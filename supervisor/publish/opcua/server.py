@@ -349,6 +349,15 @@ class OpcUaServer:
             server.get_node(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
             self._acknowledge,
         )
+        for method_ids, handler in (
+            (SHELVE_IDS, self._shelving("shelve")),
+            (ONE_SHOT_IDS, self._shelving("one shot")),
+            (UNSHELVE_IDS, self._shelving("unshelve")),
+            ((O.AcknowledgeableConditionType_Confirm,), self._confirm),
+        ):
+            for mid in method_ids:
+                server.link_method(server.get_node(ua.NodeId(mid)), handler)
+        await self._method_references(server, built)
         server.iserver.attribute_service = GuardedWrites(server.iserver.aspace, self)
         events = EventPublisher(server, built, s.bench)
         await events.init()
@@ -494,6 +503,7 @@ class OpcUaServer:
             "Severity": ua.Variant(max(0, min(1000, a.severity)), VT.UInt16),
             "Message": ua.Variant(a.message, VT.String),
             "Tripped": ua.Variant(a.tripped, VT.Boolean),
+            "Shelved": ua.Variant(a.shelved, VT.Boolean),
         }
         when = _utc(a.wall) if a.wall else datetime.now(UTC)
         for name, variant in values.items():
@@ -582,6 +592,106 @@ class OpcUaServer:
         )
         return _result(status, answer.reason, len(args), out=False)
 
+    async def _method_references(self, server: Server, built: Built) -> None:
+        """Each condition has Acknowledge and Confirm, each ShelvingState its three methods
+        (the standard method nodes, referenced as instances share them), for browsing."""
+        refs = []
+        for alarm, cond in built.alarms.items():
+            owned: list[tuple[ua.NodeId, int]] = [
+                (cond, O.AcknowledgeableConditionType_Acknowledge),
+                (cond, O.AcknowledgeableConditionType_Confirm),
+            ]
+            shelving = built.shelving.get(alarm)
+            if shelving is not None:
+                owned += [(shelving, m) for m in (*SHELVE_IDS[:1], *ONE_SHOT_IDS[:1])]
+                owned.append((shelving, UNSHELVE_IDS[0]))
+            for source, method in owned:
+                ref = ua.AddReferencesItem()
+                ref.IsForward = True
+                ref.ReferenceTypeId = ua.NodeId(O.HasComponent)
+                ref.SourceNodeId = source
+                ref.TargetNodeClass = ua.NodeClass.Method
+                ref.TargetNodeId = ua.NodeId(method)
+                refs.append(ref)
+        await server.iserver.isession.add_references(refs)
+
+    def _alarm_of(self, parent: ua.NodeId) -> str | None:
+        """The alarm whose condition (or ShelvingState) object ``parent`` is."""
+        for alarm, nid in self._built.alarms.items():
+            if nid == parent or self._built.shelving.get(alarm) == parent:
+                return alarm
+        return None
+
+    def _shelving(self, what: str) -> Callable[..., Any]:
+        """TimedShelve(ShelvingTime ms), OneShotShelve(), Unshelve() of Part 9's
+        ShelvedStateMachineType, bound to the alarm model's shelve / unshelve (ADR 0015)."""
+
+        async def handler(parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
+            n = len(args)
+            actor = actor_of(current_user())
+            alarm = self._alarm_of(parent)
+            if alarm is None:
+                return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", n)
+            if self._closing:
+                return _result(S.BadShutdown, "the supervisor is stopping", n, out=False)
+            if what == "one shot":
+                # ISA-18.2 shelving is for a time: a one-shot shelve (until it clears) would
+                # hide a trip-worthy recurrence for ever; the alarm model has none.
+                return _result(
+                    S.BadNotSupported,
+                    f"alarm {alarm}: OneShotShelve is not offered: shelve for a time"
+                    " (TimedShelve, at most 7 days)",
+                    n,
+                )
+            if what == "shelve":
+                want = (VT.Double, VT.Float, VT.Int32, VT.UInt32, VT.Int64, VT.UInt64)
+                if n != 1 or args[0].VariantType not in want or isinstance(args[0].Value, list):
+                    status = S.BadArgumentsMissing if n == 0 else S.BadInvalidArgument
+                    if n > 1:
+                        status = S.BadTooManyArguments
+                    return _result(status, "TimedShelve takes ShelvingTime (Duration, ms)", n)
+                duration_s = float(args[0].Value) / 1000.0
+                req = Request("alarm", alarm, "shelve", {"duration_s": duration_s}, actor)
+            else:
+                req = Request("alarm", alarm, "unshelve", {}, actor)
+            answer = await self._ask(req)
+            if answer.accepted:  # Part 9 declares no output: the reason only with a refusal
+                return _result(S.Good, answer.reason, n, out=False)
+            reason = answer.reason
+            if answer.refusal != "refused":
+                status = refusal_status(answer.refusal)
+            elif "is a trip" in reason:
+                status = S.BadNotSupported  # a trip protects its channel: never shelved
+            elif "shelving lasts" in reason:
+                status = S.BadShelvingTimeOutOfRange
+            elif "is not shelved" in reason:
+                status = S.BadConditionNotShelved
+            else:
+                status = S.BadInvalidState
+            return _result(status, reason, n)
+
+        return handler
+
+    async def _confirm(self, parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
+        """AcknowledgeableConditionType.Confirm(EventId, Comment): the reset of a latched
+        trip whose cause is gone (ISA-18.2's reset is what Part 9 calls confirming that the
+        condition was dealt with; ADR 0015)."""
+        n = len(args)
+        actor = actor_of(current_user())
+        alarm = self._alarm_of(parent)
+        if alarm is None:
+            return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", n)
+        if self._closing:
+            return _result(S.BadShutdown, "the supervisor is stopping", n, out=False)
+        answer = await self._ask(Request("alarm", alarm, "reset", {}, actor))
+        if answer.accepted:
+            return _result(S.Good, answer.reason, n, out=False)
+        if answer.refusal == "refused" and "not a trip waiting" in answer.reason:
+            status = S.BadConditionBranchAlreadyConfirmed
+        else:
+            status = refusal_status(answer.refusal)
+        return _result(status, answer.reason, n)  # the reason as text, with the Bad code
+
     async def _ask(self, req: Request) -> Answer:
         try:
             return await self._call_bench_async(lambda: self.operate(req))
@@ -628,6 +738,22 @@ class OpcUaServer:
             return ua.StatusCode(S.BadNotWritable)
         return ua.StatusCode(refusal_status(answer.refusal))
 
+
+O = ua.ObjectIds  # noqa: E741 - asyncua's own abbreviation
+SHELVE_IDS: Final = (
+    O.ShelvedStateMachineType_TimedShelve,
+    O.AlarmConditionType_ShelvingState_TimedShelve,
+)
+ONE_SHOT_IDS: Final = (
+    O.ShelvedStateMachineType_OneShotShelve,
+    O.AlarmConditionType_ShelvingState_OneShotShelve,
+)
+UNSHELVE_IDS: Final = (
+    O.ShelvedStateMachineType_Unshelve,
+    O.AlarmConditionType_ShelvingState_Unshelve,
+)
+"""Part 9's shelving methods: the type's own and AlarmConditionType's instance declaration
+(clients call either on a condition's ShelvingState)."""
 
 _ADMIN: Final = UaUser(role=UserRole.Admin)
 

@@ -60,6 +60,7 @@ ALARM_FIELDS: Final = (
     ("Severity", VT.UInt16, "1..1000"),
     ("Message", VT.String, "What happened"),
     ("Tripped", VT.Boolean, "A trip that still holds its channel (until reset)"),
+    ("Shelved", VT.Boolean, "Shelved for a time (ISA-18.2): not annunciated meanwhile"),
 )
 
 EVENT_FIELDS: Final = ("Channel", "Kind", "Source", "Actor", "TestId", "Recipe")
@@ -78,6 +79,7 @@ class Built:
     channels: dict[str, ua.NodeId] = field(default_factory=dict)
     alarms: dict[str, ua.NodeId] = field(default_factory=dict)
     alarm_fields: dict[tuple[str, str], ua.NodeId] = field(default_factory=dict)
+    shelving: dict[str, ua.NodeId] = field(default_factory=dict)  # alarm → its ShelvingState
     methods: dict[ua.NodeId, tuple[str, Method]] = field(default_factory=dict)
     bench: ua.NodeId = field(default_factory=ua.NodeId)
     state_type: ua.NodeId = field(default_factory=ua.NodeId)
@@ -312,6 +314,10 @@ def _folder_items(
         built.channels[f.channel] = nid
     if f.alarm:
         built.alarms[f.alarm] = nid
+        # Part 9: the shelving methods are called on the condition's ShelvingState object.
+        sid = ua.NodeId(f"{f.node}/ShelvingState", idx)
+        built.shelving[f.alarm] = sid
+        yield _object(sid, ua.QualifiedName("ShelvingState", 0), nid, False, "Shelving")
         for name, vt, description in ALARM_FIELDS:
             fid = ua.NodeId(f"{f.node}/{name}", idx)
             built.alarm_fields[(f.alarm, name)] = fid
@@ -327,6 +333,8 @@ def _folder_items(
             )
     for v in f.variables:
         yield from _tag_items(v, nid, idx, built, sampling_ms, historised)
+    for c in f.children:
+        yield from _folder_items(c, nid, idx, built, sampling_ms, historised)
     own = METHODS if f.channel else BENCH_METHODS if f.node == "/Bench" else ()
     if own:
         for m in own:
@@ -347,8 +355,6 @@ def _folder_items(
                     prop,
                     value_rank=ua.ValueRank.OneDimension,
                 )
-    for c in f.children:
-        yield from _folder_items(c, nid, idx, built, sampling_ms, historised)
 
 
 async def build_space(
