@@ -433,10 +433,25 @@ class OpcUaServer:
             if query is None
             else {built.bench: None, **{nid: ch for ch, nid in built.channels.items()}},
             event_types={
+                # The type each kind has when it is notified live (events.py).
                 "step": built.chain_event,
                 "state": built.chain_event,
+                "message": built.chain_event,
                 "command": built.command_event,
+                "alarm": ua.NodeId(ua.ObjectIds.AlarmConditionType),
             },
+            supertypes={
+                built.chain_event: (built.bench_event,),
+                built.command_event: (built.bench_event,),
+                ua.NodeId(ua.ObjectIds.AlarmConditionType): tuple(
+                    ua.NodeId(t)
+                    for t in (
+                        ua.ObjectIds.AcknowledgeableConditionType,
+                        ua.ObjectIds.ConditionType,
+                    )
+                ),
+            },
+            conditions=dict(built.alarms),
         )
         server.iserver.history_manager = HistoryService(server.iserver, query, space, _variant)
 

@@ -83,6 +83,7 @@ class Built:
     methods: dict[ua.NodeId, tuple[str, Method]] = field(default_factory=dict)
     bench: ua.NodeId = field(default_factory=ua.NodeId)
     state_type: ua.NodeId = field(default_factory=ua.NodeId)
+    bench_event: ua.NodeId = field(default_factory=ua.NodeId)
     chain_event: ua.NodeId = field(default_factory=ua.NodeId)
     command_event: ua.NodeId = field(default_factory=ua.NodeId)
 
@@ -213,6 +214,7 @@ async def build_types(server: Server, idx: int, built: Built) -> None:
     command = await bench_event.add_object_type(
         ua.NodeId("/Types/CommandEventType", idx), ua.QualifiedName("CommandEventType", idx)
     )
+    built.bench_event = bench_event.nodeid
     built.chain_event = chain.nodeid
     built.command_event = command.nodeid
 
