@@ -38,7 +38,7 @@ from asyncua.server.address_space import AttributeService
 
 from supervisor.config.limits import RECIPE_COMPILE_TIMEOUT_S
 from supervisor.config.models import BenchConfig
-from supervisor.config.users import UserStore
+from supervisor.config.users import ROLE_ACCESS, UserStore
 from supervisor.core.clock import Clock
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
@@ -59,7 +59,7 @@ from supervisor.publish.opcua.security import (
 )
 from supervisor.publish.opcua.space import Built, build_space
 from supervisor.publish.opcua.statuses import NO_VALUE, quality_status, refusal_status
-from supervisor.tags import TagDB
+from supervisor.tags import Access, TagDB
 
 log = logging.getLogger(__name__)
 
@@ -716,6 +716,47 @@ class OpcUaServer:
             log.exception("OPC UA request %r failed", req)
             return Answer(False, f"internal error: {exc}", "internal error")
 
+    # --- per-user access ------------------------------------------------------------------
+    def _access(self, user: UaUser | None) -> Access | None:
+        """The session's tag access (None: the server's own Admin session, unrestricted)."""
+        if user is not None and user.role is UserRole.Admin:
+            return None
+        name = getattr(user, "name", None)
+        # The users file's role now (it is read again when it changes), as the command
+        # path's role hook sees it.
+        role = (self.users.role_of(name) if name else None) or "viewer"
+        return ROLE_ACCESS.get(role, Access.READ_ONLY)
+
+    def user_access_level(self, nid: ua.NodeId, user: UaUser | None) -> int | None:
+        """A tag variable's AccessLevel without CurrentWrite when the session's role may not
+        write it (a viewer reads only; an operator writes operator tags, an engineer also
+        engineer tags); None for any other node (asyncua's answer stands)."""
+        name = self._by_node.get(nid)
+        server = self._server
+        if name is None or server is None:
+            return None
+        access = self._access(user)
+        dv = server.iserver.aspace.read_attribute_value(nid, ua.AttributeIds.AccessLevel)
+        level = int(dv.Value.Value) if dv.Value is not None and dv.Value.Value is not None else 0
+        tag = self.db.get(name)
+        needs = tag.spec.access if tag is not None else Access.READ_ONLY
+        if access is not None and (needs is Access.READ_ONLY or access < needs):
+            level &= ~ua.AccessLevel.CurrentWrite.mask
+        return level
+
+    def user_executable(self, nid: ua.NodeId, user: UaUser | None) -> bool | None:
+        """A bench or channel method is executable for an operator (channel methods) or an
+        engineer (also ForceTag / UnforceTag), never for a viewer; None for other nodes."""
+        found = self._built.methods.get(nid)
+        if found is None:
+            return None
+        access = self._access(user)
+        if access is None:
+            return True
+        _, method = found
+        needs = Access.ENGINEER if method.verb in ("force", "unforce") else Access.OPERATOR
+        return access >= needs
+
     # --- writes --------------------------------------------------------------------------
     async def write_tag(self, wv: ua.WriteValue, user: UaUser) -> ua.StatusCode:
         """A client's write of a tag variable: type checked here, then the command path
@@ -780,6 +821,23 @@ class GuardedWrites(AttributeService):  # type: ignore[misc]
     def __init__(self, aspace: Any, owner: OpcUaServer) -> None:
         super().__init__(aspace)
         self.owner = owner
+
+    def read(self, params: ua.ReadParameters) -> list[ua.DataValue]:
+        """asyncua's read, with UserAccessLevel and UserExecutable answered for the session's
+        role (its user is the request's, ``current_user``: the read runs on the request's
+        task right after ``SessionRules`` saw it)."""
+        results: list[ua.DataValue] = super().read(params)
+        user = current_user()
+        for i, rv in enumerate(params.NodesToRead):
+            if rv.AttributeId == ua.AttributeIds.UserAccessLevel:
+                level = self.owner.user_access_level(rv.NodeId, user)
+                if level is not None:
+                    results[i] = ua.DataValue(ua.Variant(level, VT.Byte))
+            elif rv.AttributeId == ua.AttributeIds.UserExecutable:
+                executable = self.owner.user_executable(rv.NodeId, user)
+                if executable is not None:
+                    results[i] = ua.DataValue(ua.Variant(executable, VT.Boolean))
+        return results
 
     async def write(self, params: ua.WriteParameters, user: UaUser = _ADMIN) -> list[ua.StatusCode]:
         if user.role is UserRole.Admin:
