@@ -9,8 +9,10 @@ where SCADA clients usually subscribe.
 
 An alarm transition becomes an **AlarmConditionType** event (Part 9) carrying ConditionName
 (the alarm id), ConditionId (its object under Bench/Alarms), ActiveState, AckedState,
-Severity, Retain (true until the alarm is back to normal, ISA-18.2) and the message; the
-state machine stays in the alarm model (``supervisor.safety``), never in OPC UA. asyncua
+Severity, Retain (true until the alarm is back to normal, ISA-18.2, and while it is
+shelved), ConfirmedState (false while a trip waits for its reset), the shelving state
+(ShelvingState/CurrentState, UnshelveTime, SuppressedOrShelved) and the message; the state
+machine stays in the alarm model (``supervisor.safety``), never in OPC UA (ADR 0015). asyncua
 keeps the last retained event of each condition, which is what ``ConditionRefresh``
 replays to a client that (re)connects.
 """
