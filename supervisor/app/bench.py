@@ -24,6 +24,7 @@ from supervisor.commands import (
     PreparedRecipe,
     compile_recipe_file,
 )
+from supervisor.commands.force import bench_safety_tags
 from supervisor.config.models import BenchConfig, LinearScaling, TagMapping
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver, DType
@@ -88,6 +89,7 @@ class Bench:
             self.safety.guards,
             self.alarms,
             loader=self,
+            protected=bench_safety_tags(self.cfg),  # what a force may never touch
         )
         for name, runner in self.runners.items():
             runner.command_handler = self._command_tag(name)

@@ -93,6 +93,8 @@ def _listen(alarms: AlarmManager, feed: OpcUaFeed, clock: Clock) -> None:
 
 def alarm_view(a: Alarm, ev: AlarmEvent | None, clock: Clock) -> AlarmView:
     """An alarm as the OPC UA server shows it, after the transition ``ev`` (None: now)."""
+    now = clock.now()
+    shelved = a.shelved(now)
     return AlarmView(
         id=a.id,
         group=a.group,
@@ -106,4 +108,6 @@ def alarm_view(a: Alarm, ev: AlarmEvent | None, clock: Clock) -> AlarmView:
         transition=ev.transition.value if ev is not None else "",
         actor=ev.actor if ev is not None else "",
         wall=ev.wall if ev is not None else clock.wall(),
+        shelved=shelved,
+        unshelve_s=max(0.0, a.shelved_until - now) if shelved and a.shelved_until else 0.0,
     )

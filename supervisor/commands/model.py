@@ -66,6 +66,9 @@ class Verb(StrEnum):
     ENABLE = "enable"
     # Any other operator tag.
     WRITE = "write"
+    # Commissioning overrides of a tag (engineer only; never a tag the safety phase uses).
+    FORCE = "force"
+    UNFORCE = "unforce"
 
     @classmethod
     def parse(cls, text: str) -> Verb | None:
@@ -98,7 +101,7 @@ CHANNEL_VERBS = (
     Verb.WRITE,
 )
 ALARM_VERBS = (Verb.ACKNOWLEDGE, Verb.RESET, Verb.SHELVE, Verb.UNSHELVE)
-BENCH_VERBS = (Verb.WRITE,)
+BENCH_VERBS = (Verb.WRITE, Verb.FORCE, Verb.UNFORCE)
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,13 +127,24 @@ class Command:
         """The write of an operator tag (a channel's command tags become their verbs)."""
         return cls(Target.bench(), Verb.WRITE, {"tag": tag, "value": value}, actor)
 
+    @classmethod
+    def force(cls, tag: str, value: Any, actor: str = "operator") -> Command:
+        """Force ``tag`` to ``value`` (a text is read as the tag's type) until unforced."""
+        return cls(Target.bench(), Verb.FORCE, {"tag": tag, "value": value}, actor)
+
+    @classmethod
+    def unforce(cls, tag: str, actor: str = "operator") -> Command:
+        return cls(Target.bench(), Verb.UNFORCE, {"tag": tag}, actor)
+
     def describe(self) -> str:
         """``mode manual (keep setpoint)``, ``manual_current 0.3 A``, ``write x := 1``."""
         a = self.args
         v = self.verb
         extra = ""
-        if v is Verb.WRITE:
+        if v is Verb.WRITE or v is Verb.FORCE:
             extra = f" {a.get('tag')} := {clipped_repr(a.get('value'))}"
+        elif v is Verb.UNFORCE:
+            extra = f" {a.get('tag')}"
         elif v is Verb.MODE:
             extra = f" {a.get('value')}" + (" (keep setpoint)" if a.get("keep_setpoint") else "")
         elif v is Verb.MANUAL_CURRENT:

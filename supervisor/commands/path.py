@@ -44,6 +44,7 @@ from typing import Any
 from supervisor.chains.engine import ChainRunner
 from supervisor.chains.states import MANUAL_DRIVEN, State
 from supervisor.channels import Mode
+from supervisor.commands.force import channel_safety_tags, parse_forced
 from supervisor.commands.model import (
     ALARM_VERBS,
     BENCH_VERBS,
@@ -100,6 +101,7 @@ class CommandPath:
         loader: RecipeLoader | None = None,
         roles: Roles | None = None,
         compile_timeout_s: float = RECIPE_COMPILE_TIMEOUT_S,
+        protected: Mapping[str, str] | None = None,
     ) -> None:
         self.db = db
         self.clock = clock
@@ -109,6 +111,13 @@ class CommandPath:
         self.loader = loader
         self.roles: Roles = roles or EveryoneOperates()
         self.compile_timeout_s = compile_timeout_s
+        # Tags a force may never touch → what reads them (commands/force.py); without the
+        # bench's list, at least every channel guard's.
+        self.protected: Mapping[str, str] = (
+            protected
+            if protected is not None
+            else {t: w for g in self.guards.values() for t, w in channel_safety_tags(g.cfg).items()}
+        )
         self.log: deque[CommandEvent] = deque(maxlen=LOG_LENGTH)
         self.listeners: list[Callable[[CommandEvent], None]] = []
         # Channel -> the recipe file its worker is compiling (one load at a time each).
@@ -210,6 +219,8 @@ class CommandPath:
             return self._alarm(command)
         if command.verb not in BENCH_VERBS:
             raise Refusal(ResultKind.NOT_FOUND, f"the bench has no command {command.verb.value}")
+        if command.verb in (Verb.FORCE, Verb.UNFORCE):
+            return self._force(command)
         return self._write(command, command.args)
 
     # --- channels -----------------------------------------------------------------------
@@ -518,6 +529,62 @@ class CommandPath:
         except OperatorError as exc:  # a choice or a range: the value is wrong
             raise Refusal(ResultKind.BAD_ARGUMENT, str(exc)) from None
         return Result.ok(f"{name} := {tag.value!r}", tag=name)
+
+    def _force(self, c: Command) -> Result:
+        """Force or unforce a tag: engineers only, never a tag the safety phase reads or
+        drives (a force must never defeat the e-stop or a channel's guard), nor a channel's
+        command tag (give the command instead: it takes the command's checks)."""
+        forcing = c.verb is Verb.FORCE
+        if forcing:
+            _only(c, "tag", "value")
+        else:
+            _only(c, "tag")
+        name = _text(c.args, "tag")
+        access = self.roles.access_of(c.actor)
+        if access < Access.ENGINEER:
+            raise Refusal(ResultKind.FORBIDDEN, f"{c.verb.value} {name}: needs engineer access")
+        tag = self.db.get(name)
+        if tag is None:
+            raise Refusal(ResultKind.NOT_FOUND, f"unknown tag {name!r}")
+        if not forcing:
+            if not tag.forced:
+                return Result.ok(f"{name} was not forced", tag=name)
+            self.db.unforce(name)
+            return Result.ok(
+                f"{name} unforced: last known value until the process writes it", tag=name
+            )
+        why = self.protected.get(name)
+        if why is not None:
+            raise Refusal(
+                ResultKind.REFUSED,
+                f"{name} cannot be forced: {why} (a force never overrides the safety phase)",
+            )
+        channel, _, field = name.partition(".")
+        if channel in self.runners and field in CHANNEL_COMMAND_TAGS:
+            raise Refusal(
+                ResultKind.REFUSED,
+                f"{name} cannot be forced: a command tag of {channel} (give the command)",
+            )
+        if "value" not in c.args:
+            raise Refusal(ResultKind.BAD_ARGUMENT, f"{name}: no value to force")
+        spec = tag.spec
+        try:
+            value = parse_forced(spec, c.args["value"])
+        except (TypeError, ValueError) as exc:
+            raise Refusal(ResultKind.BAD_ARGUMENT, str(exc)) from None
+        if spec.choices is not None and value not in spec.choices:
+            choices = ", ".join(spec.choices)
+            raise Refusal(ResultKind.BAD_ARGUMENT, f"{name}: {value!r} is not one of {choices}")
+        rng = spec.range
+        if rng is not None and isinstance(value, int | float) and not isinstance(value, bool):
+            lo, hi = rng
+            if not lo <= value <= hi:
+                raise Refusal(
+                    ResultKind.BAD_ARGUMENT,
+                    f"{name}: {value} {spec.unit} is outside its range [{lo}, {hi}]".strip(),
+                )
+        self.db.force(name, value)
+        return Result.ok(f"{name} forced := {value!r} (until unforced)", tag=name)
 
     # --- the record -----------------------------------------------------------------------
     def _record(self, c: Command, result: Result) -> None:

@@ -164,6 +164,13 @@ class HttpApi:
                 web.post("/api/alarms/{alarm}/{action}", self._alarm_command),
             ]
         )
+        # Forcing (engineers only; never a tag the safety phase uses): ADR 0015.
+        app.add_routes(
+            [
+                web.put("/api/tags/{name}/force", self._force),
+                web.delete("/api/tags/{name}/force", self._unforce),
+            ]
+        )
         if history is not None:  # GET /api/history, /api/events (hmi/history_api.py)
             add_history_routes(app, history, db, clock, self.commands.runners)
         if estop is not None:
@@ -315,3 +322,17 @@ class HttpApi:
         if body is None or "value" not in body:
             return self._bad('body must be JSON {"value": ...}')
         return await self._answer(Command.write(name, body["value"], self.actor(request)))
+
+    async def _force(self, request: web.Request) -> web.Response:
+        """``PUT /api/tags/{name}/force`` ``{"value": ...}``: force the tag (a text is read as
+        the tag's type) until ``DELETE``; 403 below engineer, 409 for a tag the safety phase
+        reads or drives, 400 a wrong value, 404 an unknown tag."""
+        name = request.match_info["name"]
+        body = await self._body(request, empty_ok=False)
+        if body is None or "value" not in body:
+            return self._bad('body must be JSON {"value": ...}')
+        return await self._answer(Command.force(name, body["value"], self.actor(request)))
+
+    async def _unforce(self, request: web.Request) -> web.Response:
+        """``DELETE /api/tags/{name}/force``: hand the tag back to the process."""
+        return await self._answer(Command.unforce(request.match_info["name"], self.actor(request)))

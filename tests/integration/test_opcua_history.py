@@ -9,6 +9,7 @@ on ch0 for a few seconds, its history written to the file, then the tests only r
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import AsyncIterator
 from datetime import UTC, datetime
 from pathlib import Path
@@ -189,3 +190,95 @@ async def test_a_bench_without_a_historian_serves_no_history(tmp_path: Path) -> 
         with pytest.raises(ua.UaStatusCodeError) as raised:
             await node.read_raw_history(utc(0.0), utc(1e10))
         assert raised.value.code == S.BadHistoryOperationUnsupported
+
+
+async def test_event_history_gives_each_event_the_type_it_has_live(rig: Rig) -> None:
+    """Steps and states are ChainEventType, commands CommandEventType, alarm transitions
+    AlarmConditionType with their ConditionName and condition: never BaseEventType."""
+    stored_events = query(rig).events(0.0, 1e12)
+    kinds = {e.kind for e in stored_events}
+    assert {"step", "state", "command", "alarm"} <= kinds
+    async with rig.client("bob") as c:
+        ns = await rig.ns(c)
+        bench = c.get_node(ua.NodeId("/Bench", ns))
+        alarm_type = c.get_node(ua.ObjectIds.AlarmConditionType)
+        events = await bench.read_event_history(utc(0.0), utc(1e11), evtypes=[alarm_type])
+        commands = await bench.read_event_history(
+            utc(0.0), utc(1e11), evtypes=[c.get_node(ua.NodeId("/Types/CommandEventType", ns))]
+        )
+        every = await bench.read_event_history(utc(0.0), utc(1e11))
+    want = {
+        "step": ua.NodeId("/Types/ChainEventType", ns),
+        "state": ua.NodeId("/Types/ChainEventType", ns),
+        "command": ua.NodeId("/Types/CommandEventType", ns),
+        "alarm": ua.NodeId(ua.ObjectIds.AlarmConditionType),
+    }
+    assert [e.EventType for e in every] == [want[s.kind] for s in stored_events]
+    # A where clause of OfType elements (asyncua's evtypes=…) picks the events of a type.
+    alarms = [s for s in stored_events if s.kind == "alarm"]
+    assert [e.Message.Text for e in events] == [s.text for s in alarms]
+    assert {e.EventType for e in events} == {ua.NodeId(ua.ObjectIds.AlarmConditionType)}
+    assert [e.ConditionName for e in events] == [s.source for s in alarms]
+    room = next(e for e in events if e.ConditionName == "room.temp.H")
+    assert room.NodeId == ua.NodeId("/Bench/Alarms/room.temp.H", ns)
+    assert [e.Message.Text for e in commands] == [
+        s.text for s in stored_events if s.kind == "command"
+    ]
+
+
+async def raw(
+    c: Client, nid: ua.NodeId, start: float, end: float, bounds: bool = True
+) -> list[ua.DataValue]:
+    details = ua.ReadRawModifiedDetails()
+    details.IsReadModified = False
+    details.StartTime = utc(start)
+    details.EndTime = utc(end)
+    details.ReturnBounds = bounds
+    res = await c.get_node(nid).history_read(details)
+    res.StatusCode.check()
+    return list(res.HistoryData.DataValues)
+
+
+async def test_raw_history_with_bounds_gives_the_values_at_both_ends(rig: Rig) -> None:
+    _, _, samples = stored(rig)
+    a, b = samples[3], samples[8]
+    start, end = a.t + 0.01, b.t - 0.01  # between two samples at each end
+    inside = [s for s in samples if start <= s.t <= end]
+    after = next(s for s in samples if s.t >= end)
+    async with rig.client("bob") as c:
+        nid = ua.NodeId(TAG, await rig.ns(c))
+        without = await raw(c, nid, start, end, bounds=False)
+        values = await raw(c, nid, start, end)
+        early = await raw(c, nid, samples[0].t - 100.0, samples[1].t - 1e-3)
+    assert [dv.Value.Value for dv in without] == [s.value for s in inside]
+    # The sample before StartTime (the value at StartTime), then the range, then the first
+    # sample after EndTime.
+    assert [dv.Value.Value for dv in values] == [a.value, *(s.value for s in inside), after.value]
+    assert aware(values[0].SourceTimestamp) == utc(a.t)
+    assert aware(values[-1].SourceTimestamp) == utc(after.t)
+    # Nothing stored before the start: Bad_BoundNotFound at StartTime.
+    assert early[0].StatusCode.value == S.BadBoundNotFound
+    assert aware(early[0].SourceTimestamp) == utc(samples[0].t - 100.0)
+    assert early[1].Value.Value == samples[0].value
+
+
+async def test_time_average_weights_each_value_by_how_long_it_held(rig: Rig) -> None:
+    start, end, samples = stored(rig)
+    interval_s = 1.0
+    async with rig.client("bob") as c:
+        nid = ua.NodeId(TAG, await rig.ns(c))
+        res = await processed(
+            c, nid, start, end, interval_s, ua.ObjectIds.AggregateFunction_TimeAverage
+        )
+    res.StatusCode.check()
+    values = res.HistoryData.DataValues
+    assert len(values) == bucket_count(start, end, interval_s)
+    # By hand: each stored value holds until the next sample (stepped).
+    lo, hi = start, start + interval_s
+    area = sum(
+        float(s.value) * (min(n.t, hi) - max(s.t, lo))  # type: ignore[arg-type]
+        for s, n in itertools.pairwise(samples)
+        if s.t < hi and n.t > lo
+    )
+    assert values[0].StatusCode.is_good()
+    assert values[0].Value.Value == pytest.approx(area / interval_s)

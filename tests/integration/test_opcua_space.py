@@ -39,7 +39,9 @@ async def test_the_tree_mirrors_the_bench_channels_devices_alarms_diagnostics(ri
         bench = c.get_node(ua.NodeId("/Bench", ns))
         objects = await names(c.nodes.objects)
         assert "Bench" in objects
-        assert await names(bench) == ["Channels", "Devices", "Alarms", "Diagnostics"]
+        assert await names(bench) == [
+            "Channels", "Devices", "Alarms", "Diagnostics", "ForceTag", "UnforceTag",
+        ]  # fmt: skip
         channels = c.get_node(ua.NodeId("/Bench/Channels", ns))
         assert await names(channels) == ["ch0", "ch1", "ch2", "ch3"]
         ch0 = await names(c.get_node(ua.NodeId("/Bench/Channels/ch0", ns)))

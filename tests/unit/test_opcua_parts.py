@@ -15,8 +15,10 @@ from supervisor.core.errors import ConfigError
 from supervisor.core.quality import Quality, Reason
 from supervisor.core.records import BenchEvent
 from supervisor.devices.registry import load_bench
+from supervisor.publish.historian import StoredSample
 from supervisor.publish.opcua import OpcUaFeed, OpcUaRoles, UserStore, add_user, plan, remove_user
 from supervisor.publish.opcua.feed import EVENT_QUEUE, AlarmView
+from supervisor.publish.opcua.history import time_average
 from supervisor.publish.opcua.methods import (
     METHODS,
     check,
@@ -265,3 +267,19 @@ def test_the_feed_does_not_queue_before_the_server_serves() -> None:
     feed.on_scan(db, 0.0)
     feed.on_event(BenchEvent(0.0, 0.0, "step", "", "", ""))
     assert feed.empty() and feed.dropped == 0
+
+
+def test_time_average_is_stepped_and_skips_what_had_no_value() -> None:
+    good, bad = Quality.GOOD, Quality.BAD
+    samples = [
+        StoredSample(10.5, 2.0, good),  # 1.0 holds before it (``before``)
+        StoredSample(11.0, None, bad),  # no value for [11, 11.5)
+        StoredSample(11.5, 4.0, good),
+    ]
+    before = StoredSample(9.0, 1.0, good)
+    got = time_average(samples, before, 10.0, 12.0, 1.0, 2)
+    assert got[0] == (pytest.approx(1.5), False)  # 1.0 for 0.5 s, 2.0 for 0.5 s
+    assert got[1] == (pytest.approx(4.0), True)  # only [11.5, 12) had a value
+    # Nothing before the first sample: that part has no value, the interval is partial.
+    assert time_average(samples, None, 10.0, 11.0, 1.0, 1) == [(pytest.approx(2.0), True)]
+    assert time_average([], None, 10.0, 11.0, 1.0, 1) == [(None, True)]

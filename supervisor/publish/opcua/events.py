@@ -9,8 +9,10 @@ where SCADA clients usually subscribe.
 
 An alarm transition becomes an **AlarmConditionType** event (Part 9) carrying ConditionName
 (the alarm id), ConditionId (its object under Bench/Alarms), ActiveState, AckedState,
-Severity, Retain (true until the alarm is back to normal, ISA-18.2) and the message; the
-state machine stays in the alarm model (``supervisor.safety``), never in OPC UA. asyncua
+Severity, Retain (true until the alarm is back to normal, ISA-18.2, and while it is
+shelved), ConfirmedState (false while a trip waits for its reset), the shelving state
+(ShelvingState/CurrentState, UnshelveTime, SuppressedOrShelved) and the message; the state
+machine stays in the alarm model (``supervisor.safety``), never in OPC UA (ADR 0015). asyncua
 keeps the last retained event of each condition, which is what ``ConditionRefresh``
 replays to a client that (re)connects.
 """
@@ -29,6 +31,8 @@ from supervisor.core.records import BenchEvent
 from supervisor.publish.opcua.feed import AlarmView
 from supervisor.publish.opcua.space import Built
 
+VT = ua.VariantType
+LT = VT.LocalizedText
 SEVERITY_CHAIN = 100
 SEVERITY_COMMAND = 200
 SEVERITY_REFUSED = 400
@@ -137,6 +141,11 @@ class EventPublisher:
         event.Quality = ua.StatusCode(ua.StatusCodes.Good)
         event.ClientUserId = a.actor
         event.BranchId = ua.NodeId()
+        shelving, state_id = (
+            ("TimedShelved", ua.ObjectIds.ShelvedStateMachineType_TimedShelved)
+            if a.shelved
+            else ("Unshelved", ua.ObjectIds.ShelvedStateMachineType_Unshelved)
+        )
         for field, value in (
             ("EnabledState", ua.LocalizedText("Enabled")),
             ("EnabledState/Id", True),
@@ -146,5 +155,17 @@ class EventPublisher:
             ("AckedState/Id", a.acked),
         ):
             setattr(event, field, value)
+        # Optional fields of AlarmConditionType (declared with their types: asyncua encodes
+        # an event's fields by the types it knows). A latched trip is confirmed by its reset
+        # (ISA-18.2 reset ~ Part 9 Confirm); the shelving state is the alarm model's.
+        for field, value, vt in (
+            ("ConfirmedState", ua.LocalizedText("Unconfirmed" if a.tripped else "Confirmed"), LT),
+            ("ConfirmedState/Id", not a.tripped, VT.Boolean),
+            ("ShelvingState/CurrentState", ua.LocalizedText(shelving), LT),
+            ("ShelvingState/CurrentState/Id", ua.NodeId(state_id), VT.NodeId),
+            ("ShelvingState/UnshelveTime", a.unshelve_s * 1000.0, VT.Double),
+            ("SuppressedOrShelved", a.shelved, VT.Boolean),
+        ):
+            event.add_property(field, value, vt)
         _stamp(event, a.wall or time.time())
         await self._fire(event)

@@ -61,11 +61,14 @@ class AlarmView:
     transition: str = ""  # what just happened ("activated", "acknowledged", …; "" at start)
     actor: str = ""
     wall: float = 0.0  # Unix time of the transition
+    shelved: bool = False  # shelved for a time (ISA-18.2), not annunciated meanwhile
+    unshelve_s: float = 0.0  # seconds until the shelving expires (0 when not shelved)
 
     @property
     def retained(self) -> bool:
-        """ISA-18.2 / Part 9 Retain: worth showing until it is back to normal."""
-        return self.state != "normal"
+        """ISA-18.2 / Part 9 Retain: worth showing until it is back to normal, and while it
+        is shelved (so that ConditionRefresh shows a client what is shelved)."""
+        return self.state != "normal" or self.shelved
 
 
 class OpcUaFeed:

@@ -14,15 +14,21 @@ server's loop must not wait.
   time and its quality as a status code (statuses.py; the historian keeps the quality, not
   its reason). At most ``NumValuesPerNode`` (0: ``PAGE``) per answer; more come with a
   continuation point that holds the time of the last sample sent (stateless: a tag has one
-  sample per time). Reversed ranges (start after end) and bounding values are not served.
+  sample per time). ReturnBounds: the sample at or before StartTime first (the value at
+  that time: the historian stores a value when it changes) and the one at or after EndTime
+  last, Bad_BoundNotFound where the file holds none. Reversed ranges are not served.
 - ``ReadProcessedDetails``: Average, Minimum, Maximum per ProcessingInterval (Part 13; 0:
   one interval over the whole range) from ``HistoryQuery.aggregate``: an interval without
   values is Bad_NoData, one with some BAD samples Uncertain_DataSubNormal; other
-  aggregates Bad_AggregateNotSupported. Average is the mean of the stored samples, not
-  time-weighted (query.py says why). At most ``MAX_BUCKETS`` intervals, no continuation.
+  aggregates Bad_AggregateNotSupported. Average is the mean of the stored samples (query.py
+  says why); TimeAverage is time-weighted, computed here from the raw samples (stepped: each
+  value holds until the next; a range of more than ``MAX_RAW_ROWS`` samples answers
+  Bad_AggregateInvalidInputs). At most ``MAX_BUCKETS`` intervals, no continuation.
 - ``ReadEventDetails`` on the Bench object (every event) or a channel (its own): the
-  stored events, the filter's select clauses answered by field name; where clauses are not
-  applied. At most ``NumValuesPerNode`` (0: ``PAGE``), no continuation.
+  stored events, each with the type it has live (alarm transitions AlarmConditionType with
+  ConditionName and ConditionId), the filter's select clauses answered by field (browse)
+  path; a where clause of event types (``EventType InList``, ``OfType``) is applied, any
+  other is not. At most ``NumValuesPerNode`` (0: ``PAGE``), no continuation.
 
 A node that is not a historised tag answers Bad_HistoryOperationUnsupported; a historised
 tag not yet written to the file, Good_NoData.
@@ -47,6 +53,7 @@ from asyncua.server.history import HistoryManager
 from supervisor.core.quality import Quality, Reason
 from supervisor.publish.historian import (
     MAX_BUCKETS,
+    MAX_RAW_ROWS,
     BadRange,
     HistoryQuery,
     StoredEvent,
@@ -70,6 +77,9 @@ AGGREGATES: Final[Mapping[int, str]] = {
     O.AggregateFunction_Maximum: "max",
 }
 """The aggregates the historian computes, by their standard NodeId (Part 13)."""
+TIME_AVERAGE: Final = O.AggregateFunction_TimeAverage
+"""Computed here from the raw samples (stepped: the historian stores a value when it moves
+past its deadband, so each value holds until the next sample)."""
 
 NO_END: Final = sys.float_info.max
 """An unspecified end time: every sample from the start on."""
@@ -84,6 +94,49 @@ class HistorySpace:
     tags: dict[ua.NodeId, tuple[str, str]] = field(default_factory=dict)  # node: (tag, kind)
     event_sources: dict[ua.NodeId, str | None] = field(default_factory=dict)  # node → channel
     event_types: dict[str, ua.NodeId] = field(default_factory=dict)  # event kind → type
+    # An event type → its supertypes below BaseEventType (for a where clause's OfType).
+    supertypes: dict[ua.NodeId, tuple[ua.NodeId, ...]] = field(default_factory=dict)
+    conditions: dict[str, ua.NodeId] = field(default_factory=dict)  # alarm id → its object
+
+    def event_type(self, kind: str) -> ua.NodeId:
+        return self.event_types.get(kind, ua.NodeId(O.BaseEventType))
+
+    def is_of_type(self, kind: str, wanted: tuple[frozenset[ua.NodeId], bool]) -> bool:
+        types, exact = wanted
+        t = self.event_type(kind)
+        if exact:
+            return t in types
+        lineage = {t, *self.supertypes.get(t, ()), ua.NodeId(O.BaseEventType)}
+        return not types.isdisjoint(lineage)
+
+
+def of_types(where: Any) -> tuple[frozenset[ua.NodeId], bool] | None:
+    """The event types a where clause asks for: (types, exact). ``EventType InList [...]``
+    (asyncua's ``read_event_history(evtypes=…)``, the subtypes listed) is exact; ``OfType``
+    elements joined by Or include subtypes. None for no clause or any other clause (not
+    applied: ADR 0014)."""
+    elements = list(getattr(where, "Elements", None) or [])
+    if not elements:
+        return None
+    wanted: set[ua.NodeId] = set()
+    exact = False
+    for e in elements:
+        operands = list(e.FilterOperands)
+        if e.FilterOperator == ua.FilterOperator.Or:
+            continue
+        if e.FilterOperator == ua.FilterOperator.InList and operands:
+            path = list(getattr(operands[0], "BrowsePath", None) or [])
+            if [p.Name for p in path] != ["EventType"]:
+                return None
+            operands, exact = operands[1:], True
+        elif e.FilterOperator != ua.FilterOperator.OfType or len(operands) != 1:
+            return None
+        for operand in operands:
+            value = getattr(getattr(operand, "Value", None), "Value", None)
+            if not isinstance(value, ua.NodeId):
+                return None
+            wanted.add(value)
+    return (frozenset(wanted), exact) if wanted else None
 
 
 def _seconds(t: datetime | None) -> float | None:
@@ -99,6 +152,65 @@ def _seconds(t: datetime | None) -> float | None:
 
 def _utc(wall: float) -> datetime:
     return datetime.fromtimestamp(wall, UTC)
+
+
+def time_average(
+    samples: list[StoredSample],
+    before: StoredSample | None,
+    start: float,
+    end: float,
+    interval_s: float,
+    n: int,
+) -> list[tuple[float | None, bool]]:
+    """Per interval [start + k·interval_s, + interval_s) ∩ [start, end]: the time-weighted
+    mean of the stepped value (each sample holds until the next; ``before`` holds from
+    ``start``), and whether part of the interval had no usable value (BAD, or before the
+    first sample): (None, True) when none of it had one."""
+    # Steps: (from time, value or None), from start on.
+    steps: list[tuple[float, float | None]] = []
+    if before is not None:
+        steps.append((start, _number(before.value)))
+    for smp in samples:
+        steps.append((max(smp.t, start), _number(smp.value)))
+    out: list[tuple[float | None, bool]] = []
+    i = 0
+    for k in range(n):
+        lo = start + k * interval_s
+        hi = min(end, lo + interval_s)
+        while i + 1 < len(steps) and steps[i + 1][0] <= lo:
+            i += 1
+        area = covered = 0.0
+        j = i
+        while j < len(steps) and steps[j][0] < hi:
+            t0 = max(steps[j][0], lo)
+            t1 = min(steps[j + 1][0], hi) if j + 1 < len(steps) else hi
+            v = steps[j][1]
+            if v is not None and t1 > t0:
+                area += v * (t1 - t0)
+                covered += t1 - t0
+            j += 1
+        span = hi - lo
+        if covered <= 0.0:
+            out.append((None, True))
+        else:
+            out.append((area / covered, covered < span * (1 - 1e-9)))
+    return out
+
+
+def _number(v: object) -> float | None:
+    if v is None or isinstance(v, str):
+        return None
+    return float(v)  # type: ignore[arg-type]
+
+
+def _no_bound(t: float) -> ua.DataValue:
+    when = _utc(t)
+    return ua.DataValue(
+        ua.Variant(None),
+        StatusCode=ua.StatusCode(S.BadBoundNotFound),
+        SourceTimestamp=when,
+        ServerTimestamp=when,
+    )
 
 
 def _result(status: int, data: Any = None, cont: bytes | None = None) -> ua.HistoryReadResult:
@@ -204,10 +316,49 @@ class HistoryService(HistoryManager):  # type: ignore[misc]
             samples = [s for s in samples if s.t > after]
         more = len(samples) > page or series.truncated
         samples = samples[:page]
+        values = [self._value(s, kind) for s in samples]
+        if d.ReturnBounds:
+            values = await self._bounds(
+                values, samples, series.before, tag, kind, start, end, after, more
+            )
         data = ua.HistoryData()
-        data.DataValues = [self._value(s, kind) for s in samples]
+        data.DataValues = values
         cont = struct.pack("<d", samples[-1].t) if more and samples else None
-        return _result(S.Good if samples else S.GoodNoData, data, cont)
+        return _result(S.Good if values else S.GoodNoData, data, cont)
+
+    async def _bounds(
+        self,
+        values: list[ua.DataValue],
+        samples: list[StoredSample],
+        before: StoredSample | None,
+        tag: str,
+        kind: str,
+        start: float | None,
+        end: float | None,
+        after: float | None,
+        more: bool,
+    ) -> list[ua.DataValue]:
+        """Part 11 §6.4.3.2 bounding values: the sample at or before StartTime on the first
+        page, the sample at or after EndTime on the last; Bad_BoundNotFound (at that time)
+        when the file holds none. The historian keeps a value until it changes (its
+        deadband), so the sample before a time is the value at that time."""
+        out = list(values)
+        if start is not None and after is None and not (samples and samples[0].t == start):
+            if before is not None:
+                out.insert(0, self._value(before, kind))
+            else:
+                out.insert(0, _no_bound(start))
+        if (
+            end is not None
+            and end != NO_END
+            and not more
+            and not (samples and samples[-1].t == end)
+        ):
+            query = self.query
+            assert query is not None
+            nxt = await asyncio.to_thread(query.samples, tag, end, NO_END, 1)
+            out.append(self._value(nxt.samples[0], kind) if nxt.samples else _no_bound(end))
+        return out
 
     # --- processed ------------------------------------------------------------------------
     async def _processed(
@@ -220,7 +371,10 @@ class HistoryService(HistoryManager):  # type: ignore[misc]
             aggregate = types[i]
         else:
             return _result(S.BadAggregateListMismatch)
-        what = AGGREGATES.get(aggregate.Identifier) if aggregate.NamespaceIndex == 0 else None
+        standard = aggregate.NamespaceIndex == 0
+        what = AGGREGATES.get(aggregate.Identifier) if standard else None
+        if standard and aggregate.Identifier == TIME_AVERAGE:
+            what = "time average"
         if what is None:
             return _result(S.BadAggregateNotSupported)
         start, end = _seconds(d.StartTime), _seconds(d.EndTime)
@@ -231,6 +385,8 @@ class HistoryService(HistoryManager):  # type: ignore[misc]
             interval_s = max(end - start, 1e-3)
         query = self.query
         assert query is not None  # (checked by _one)
+        if what == "time average":
+            return await self._time_average(tag, kind, start, end, interval_s)
         try:
             agg = await asyncio.to_thread(query.aggregate, tag, start, end, interval_s)
         except UnknownTag:
@@ -272,6 +428,51 @@ class HistoryService(HistoryManager):  # type: ignore[misc]
         data.DataValues = values
         return _result(S.Good, data)
 
+    async def _time_average(
+        self, tag: str, kind: str, start: float, end: float, interval_s: float
+    ) -> ua.HistoryReadResult:
+        if kind == "str":
+            return _result(S.BadAggregateInvalidInputs)
+        n = math.ceil((end - start) / interval_s) if end > start else 1
+        if n > MAX_BUCKETS:
+            return _result(S.BadHistoryOperationInvalid)
+        query = self.query
+        assert query is not None
+        try:
+            series = await asyncio.to_thread(query.samples, tag, start, end, MAX_RAW_ROWS)
+        except UnknownTag:
+            return _result(S.GoodNoData, ua.HistoryData())
+        except BadRange as exc:
+            log.warning("OPC UA HistoryRead (TimeAverage) of %s refused: %s", tag, exc)
+            return _result(S.BadHistoryOperationInvalid)
+        if series.truncated:  # more raw samples than one read takes: Average serves it
+            log.warning("OPC UA TimeAverage of %s: over %d samples", tag, MAX_RAW_ROWS)
+            return _result(S.BadAggregateInvalidInputs)
+        values = []
+        for k, (avg, partial) in enumerate(
+            time_average(series.samples, series.before, start, end, interval_s, max(1, n))
+        ):
+            t = _utc(start + k * interval_s)
+            if avg is None:
+                values.append(
+                    ua.DataValue(
+                        ua.Variant(None), StatusCode=ua.StatusCode(S.BadNoData), SourceTimestamp=t
+                    )
+                )
+                continue
+            status = S.UncertainDataSubNormal if partial else S.Good
+            values.append(
+                ua.DataValue(
+                    ua.Variant(avg, VT.Double),
+                    StatusCode=ua.StatusCode(status),
+                    SourceTimestamp=t,
+                    ServerTimestamp=t,
+                )
+            )
+        data = ua.HistoryData()
+        data.DataValues = values
+        return _result(S.Good, data)
+
     # --- events ---------------------------------------------------------------------------
     async def _events(
         self, d: ua.ReadEventDetails, rv: ua.HistoryReadValueId
@@ -293,6 +494,9 @@ class HistoryService(HistoryManager):  # type: ignore[misc]
             log.warning("OPC UA HistoryRead (events) refused: %s", exc)
             return _result(S.BadHistoryOperationInvalid)
         clauses = list(d.Filter.SelectClauses) if d.Filter is not None else []
+        wanted = of_types(d.Filter.WhereClause) if d.Filter is not None else None
+        if wanted is not None:
+            events = [ev for ev in events if self.space.is_of_type(ev.kind, wanted)]
         data = ua.HistoryEvent()
         data.Events = [self._fields(ev, clauses, rv.NodeId) for ev in events]
         return _result(S.Good if events else S.GoodNoData, data)
@@ -304,9 +508,7 @@ class HistoryService(HistoryManager):  # type: ignore[misc]
         key = f"{ev.wall!r}|{ev.kind}|{ev.channel}|{ev.source}|{ev.text}".encode()
         known: dict[str, ua.Variant] = {
             "EventId": ua.Variant(hashlib.sha1(key).digest(), VT.ByteString),
-            "EventType": ua.Variant(
-                self.space.event_types.get(ev.kind, ua.NodeId(O.BaseEventType)), VT.NodeId
-            ),
+            "EventType": ua.Variant(self.space.event_type(ev.kind), VT.NodeId),
             "SourceNode": ua.Variant(source, VT.NodeId),
             "SourceName": ua.Variant(ev.source or ev.channel or "bench", VT.String),
             "Time": ua.Variant(when, VT.DateTime),
@@ -320,9 +522,19 @@ class HistoryService(HistoryManager):  # type: ignore[misc]
             "TestId": ua.Variant(ev.test_id, VT.String),
             "Recipe": ua.Variant(ev.recipe, VT.String),
         }
+        if ev.kind == "alarm":  # the transition of a condition: which one
+            known["ConditionName"] = ua.Variant(ev.source, VT.String)
+            condition = self.space.conditions.get(ev.source)
+            if condition is not None:
+                known["NodeId"] = ua.Variant(condition, VT.NodeId)  # ConditionId (Part 9)
         fields = ua.HistoryEventFieldList()
         for c in clauses:
             path = list(getattr(c, "BrowsePath", []) or [])
-            name = path[-1].Name if path else ""
+            if path:
+                name = "/".join(p.Name for p in path)
+            elif getattr(c, "AttributeId", None) == ua.AttributeIds.NodeId:
+                name = "NodeId"  # Part 9: the ConditionId is the NodeId of the condition type
+            else:
+                name = ""
             fields.EventFields.append(known.get(name, ua.Variant(None)))
         return fields

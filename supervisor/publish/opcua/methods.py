@@ -82,6 +82,50 @@ METHODS: Final[tuple[Method, ...]] = (
 )
 RESULT = Arg("Result", "What the bench did, or why it refused", (VT.String,))
 
+TAG = Arg("Tag", "The tag's name (its NodeId's string, e.g. room.temp)", (VT.String,))
+BENCH_METHODS: Final[tuple[Method, ...]] = (
+    Method(
+        "ForceTag",
+        "force",
+        "Engineers: force a tag to a value until UnforceTag (commissioning); never a tag the"
+        " e-stop, an interlock or a channel's guard reads or drives",
+        (
+            TAG,
+            Arg("Value", "The value as text, read as the tag's type (1.5, true, …)", (VT.String,)),
+        ),
+    ),
+    Method("UnforceTag", "unforce", "Engineers: hand a forced tag back to the process", (TAG,)),
+)
+"""The methods of the Bench object (ADR 0015)."""
+
+_TRUE: Final = ("true", "on", "yes", "1")
+_FALSE: Final = ("false", "off", "no", "0")
+
+
+KIND_WORDS: Final = {
+    "analog": "a number",
+    "int": "an integer",
+    "state": "an integer",
+    "bool": "true or false",
+    "str": "a text",
+}
+
+
+def parse_value(text: str, kind: str) -> object:
+    """A forced value written as text, in the type of a variable of ``kind`` (layout.py);
+    ``ValueError`` when it is not one (the command path checks range and choices)."""
+    t = text.strip()
+    if kind == "analog":
+        return float(t)
+    if kind in ("int", "state"):
+        return int(t)
+    if kind == "bool":
+        low = t.lower()
+        if low not in (*_TRUE, *_FALSE):
+            raise ValueError(text)
+        return low in _TRUE
+    return text
+
 
 @dataclass(frozen=True, slots=True)
 class Invalid:
@@ -178,6 +222,12 @@ def request(
         mode = str(values[0])
         # "Auto"/"Manual" as SCADA screens write them; the command path checks the value.
         return Request("channel", channel, "mode", {"value": mode.strip().lower()}, actor)
+    if method.verb in ("force", "unforce"):
+        tag = str(values[0])
+        fargs: dict[str, object] = {"tag": tag}
+        if method.verb == "force":
+            fargs["value"] = values[1]  # parsed by the server, which knows the tag's type
+        return Request("bench", "", method.verb, fargs, actor)
     if method.verb == "manual_current":
         return Request("channel", channel, "manual_current", {"value": float(values[0])}, actor)
     return Request("channel", channel, method.verb, {}, actor)

@@ -38,7 +38,7 @@ from asyncua.server.address_space import AttributeService
 
 from supervisor.config.limits import RECIPE_COMPILE_TIMEOUT_S
 from supervisor.config.models import BenchConfig
-from supervisor.config.users import UserStore
+from supervisor.config.users import ROLE_ACCESS, UserStore
 from supervisor.core.clock import Clock
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
@@ -59,7 +59,7 @@ from supervisor.publish.opcua.security import (
 )
 from supervisor.publish.opcua.space import Built, build_space
 from supervisor.publish.opcua.statuses import NO_VALUE, quality_status, refusal_status
-from supervisor.tags import TagDB
+from supervisor.tags import Access, TagDB
 
 log = logging.getLogger(__name__)
 
@@ -349,6 +349,15 @@ class OpcUaServer:
             server.get_node(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
             self._acknowledge,
         )
+        for method_ids, handler in (
+            (SHELVE_IDS, self._shelving("shelve")),
+            (ONE_SHOT_IDS, self._shelving("one shot")),
+            (UNSHELVE_IDS, self._shelving("unshelve")),
+            ((O.AcknowledgeableConditionType_Confirm,), self._confirm),
+        ):
+            for mid in method_ids:
+                server.link_method(server.get_node(ua.NodeId(mid)), handler)
+        await self._method_references(server, built)
         server.iserver.attribute_service = GuardedWrites(server.iserver.aspace, self)
         events = EventPublisher(server, built, s.bench)
         await events.init()
@@ -424,10 +433,25 @@ class OpcUaServer:
             if query is None
             else {built.bench: None, **{nid: ch for ch, nid in built.channels.items()}},
             event_types={
+                # The type each kind has when it is notified live (events.py).
                 "step": built.chain_event,
                 "state": built.chain_event,
+                "message": built.chain_event,
                 "command": built.command_event,
+                "alarm": ua.NodeId(ua.ObjectIds.AlarmConditionType),
             },
+            supertypes={
+                built.chain_event: (built.bench_event,),
+                built.command_event: (built.bench_event,),
+                ua.NodeId(ua.ObjectIds.AlarmConditionType): tuple(
+                    ua.NodeId(t)
+                    for t in (
+                        ua.ObjectIds.AcknowledgeableConditionType,
+                        ua.ObjectIds.ConditionType,
+                    )
+                ),
+            },
+            conditions=dict(built.alarms),
         )
         server.iserver.history_manager = HistoryService(server.iserver, query, space, _variant)
 
@@ -494,6 +518,7 @@ class OpcUaServer:
             "Severity": ua.Variant(max(0, min(1000, a.severity)), VT.UInt16),
             "Message": ua.Variant(a.message, VT.String),
             "Tripped": ua.Variant(a.tripped, VT.Boolean),
+            "Shelved": ua.Variant(a.shelved, VT.Boolean),
         }
         when = _utc(a.wall) if a.wall else datetime.now(UTC)
         for name, variant in values.items():
@@ -511,6 +536,8 @@ class OpcUaServer:
             if self._closing:
                 return _result(S.BadShutdown, "the supervisor is stopping", len(args))
             bad = methods.check(method, args)
+            if bad is None and method.verb in ("force", "unforce"):
+                return await self._force(method, args, actor)
             if bad is None:
                 req = methods.request(method, channel, args, actor, self.settings.recipes_dir)
             else:
@@ -525,6 +552,40 @@ class OpcUaServer:
             return _result(status, answer.reason, len(args))
 
         return handler
+
+    async def _force(
+        self, method: methods.Method, args: Sequence[ua.Variant], actor: str
+    ) -> ua.CallMethodResult:
+        """ForceTag(Tag, Value) / UnforceTag(Tag) on the Bench object (ADR 0015): the value
+        text read as the tag's type here (Bad_TypeMismatch), then the command path (role:
+        Bad_UserAccessDenied, range or choices: Bad_OutOfRange, a tag the safety phase
+        reads or drives: Bad_NotSupported, with the reason)."""
+        n = len(args)
+        name = str(args[0].Value)
+        variable = self.layout.variables.get(name)
+        if variable is None:
+            return _result(S.BadNodeIdUnknown, f"{method.name}: unknown tag {name!r}", n)
+        req = methods.request(method, "", args, actor, self.settings.recipes_dir)
+        assert isinstance(req, Request)
+        if method.verb == "force":
+            text = str(args[1].Value)
+            try:
+                value = methods.parse_value(text, variable.kind)
+            except ValueError:
+                wants = methods.KIND_WORDS.get(variable.kind, variable.kind)
+                reason = f"ForceTag: {name} takes {wants}, not {text!r}"
+                log.warning("OPC UA ForceTag by %s refused: %s", actor, reason)
+                return _result(S.BadTypeMismatch, reason, n, (S.Good, S.BadTypeMismatch))
+            req = Request(req.kind, req.target, req.verb, {"tag": name, "value": value}, actor)
+        answer = await self._ask(req)
+        if answer.accepted:
+            return _result(S.Good, answer.reason, n)
+        status = {
+            "bad argument": S.BadOutOfRange,  # the type was right: the value is not
+            "not found": S.BadNodeIdUnknown,
+            "refused": S.BadNotSupported,  # never forceable: the safety phase uses it
+        }.get(answer.refusal) or refusal_status(answer.refusal)
+        return _result(status, answer.reason, n)
 
     async def _acknowledge(self, parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
         """AcknowledgeableConditionType.Acknowledge(EventId, Comment) on an alarm's
@@ -546,6 +607,106 @@ class OpcUaServer:
         )
         return _result(status, answer.reason, len(args), out=False)
 
+    async def _method_references(self, server: Server, built: Built) -> None:
+        """Each condition has Acknowledge and Confirm, each ShelvingState its three methods
+        (the standard method nodes, referenced as instances share them), for browsing."""
+        refs = []
+        for alarm, cond in built.alarms.items():
+            owned: list[tuple[ua.NodeId, int]] = [
+                (cond, O.AcknowledgeableConditionType_Acknowledge),
+                (cond, O.AcknowledgeableConditionType_Confirm),
+            ]
+            shelving = built.shelving.get(alarm)
+            if shelving is not None:
+                owned += [(shelving, m) for m in (*SHELVE_IDS[:1], *ONE_SHOT_IDS[:1])]
+                owned.append((shelving, UNSHELVE_IDS[0]))
+            for source, method in owned:
+                ref = ua.AddReferencesItem()
+                ref.IsForward = True
+                ref.ReferenceTypeId = ua.NodeId(O.HasComponent)
+                ref.SourceNodeId = source
+                ref.TargetNodeClass = ua.NodeClass.Method
+                ref.TargetNodeId = ua.NodeId(method)
+                refs.append(ref)
+        await server.iserver.isession.add_references(refs)
+
+    def _alarm_of(self, parent: ua.NodeId) -> str | None:
+        """The alarm whose condition (or ShelvingState) object ``parent`` is."""
+        for alarm, nid in self._built.alarms.items():
+            if nid == parent or self._built.shelving.get(alarm) == parent:
+                return alarm
+        return None
+
+    def _shelving(self, what: str) -> Callable[..., Any]:
+        """TimedShelve(ShelvingTime ms), OneShotShelve(), Unshelve() of Part 9's
+        ShelvedStateMachineType, bound to the alarm model's shelve / unshelve (ADR 0015)."""
+
+        async def handler(parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
+            n = len(args)
+            actor = actor_of(current_user())
+            alarm = self._alarm_of(parent)
+            if alarm is None:
+                return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", n)
+            if self._closing:
+                return _result(S.BadShutdown, "the supervisor is stopping", n, out=False)
+            if what == "one shot":
+                # ISA-18.2 shelving is for a time: a one-shot shelve (until it clears) would
+                # hide a trip-worthy recurrence for ever; the alarm model has none.
+                return _result(
+                    S.BadNotSupported,
+                    f"alarm {alarm}: OneShotShelve is not offered: shelve for a time"
+                    " (TimedShelve, at most 7 days)",
+                    n,
+                )
+            if what == "shelve":
+                want = (VT.Double, VT.Float, VT.Int32, VT.UInt32, VT.Int64, VT.UInt64)
+                if n != 1 or args[0].VariantType not in want or isinstance(args[0].Value, list):
+                    status = S.BadArgumentsMissing if n == 0 else S.BadInvalidArgument
+                    if n > 1:
+                        status = S.BadTooManyArguments
+                    return _result(status, "TimedShelve takes ShelvingTime (Duration, ms)", n)
+                duration_s = float(args[0].Value) / 1000.0
+                req = Request("alarm", alarm, "shelve", {"duration_s": duration_s}, actor)
+            else:
+                req = Request("alarm", alarm, "unshelve", {}, actor)
+            answer = await self._ask(req)
+            if answer.accepted:  # Part 9 declares no output: the reason only with a refusal
+                return _result(S.Good, answer.reason, n, out=False)
+            reason = answer.reason
+            if answer.refusal != "refused":
+                status = refusal_status(answer.refusal)
+            elif "is a trip" in reason:
+                status = S.BadNotSupported  # a trip protects its channel: never shelved
+            elif "shelving lasts" in reason:
+                status = S.BadShelvingTimeOutOfRange
+            elif "is not shelved" in reason:
+                status = S.BadConditionNotShelved
+            else:
+                status = S.BadInvalidState
+            return _result(status, reason, n)
+
+        return handler
+
+    async def _confirm(self, parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
+        """AcknowledgeableConditionType.Confirm(EventId, Comment): the reset of a latched
+        trip whose cause is gone (ISA-18.2's reset is what Part 9 calls confirming that the
+        condition was dealt with; ADR 0015)."""
+        n = len(args)
+        actor = actor_of(current_user())
+        alarm = self._alarm_of(parent)
+        if alarm is None:
+            return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", n)
+        if self._closing:
+            return _result(S.BadShutdown, "the supervisor is stopping", n, out=False)
+        answer = await self._ask(Request("alarm", alarm, "reset", {}, actor))
+        if answer.accepted:
+            return _result(S.Good, answer.reason, n, out=False)
+        if answer.refusal == "refused" and "not a trip waiting" in answer.reason:
+            status = S.BadConditionBranchAlreadyConfirmed
+        else:
+            status = refusal_status(answer.refusal)
+        return _result(status, answer.reason, n)  # the reason as text, with the Bad code
+
     async def _ask(self, req: Request) -> Answer:
         try:
             return await self._call_bench_async(lambda: self.operate(req))
@@ -554,6 +715,47 @@ class OpcUaServer:
         except Exception as exc:
             log.exception("OPC UA request %r failed", req)
             return Answer(False, f"internal error: {exc}", "internal error")
+
+    # --- per-user access ------------------------------------------------------------------
+    def _access(self, user: UaUser | None) -> Access | None:
+        """The session's tag access (None: the server's own Admin session, unrestricted)."""
+        if user is not None and user.role is UserRole.Admin:
+            return None
+        name = getattr(user, "name", None)
+        # The users file's role now (it is read again when it changes), as the command
+        # path's role hook sees it.
+        role = (self.users.role_of(name) if name else None) or "viewer"
+        return ROLE_ACCESS.get(role, Access.READ_ONLY)
+
+    def user_access_level(self, nid: ua.NodeId, user: UaUser | None) -> int | None:
+        """A tag variable's AccessLevel without CurrentWrite when the session's role may not
+        write it (a viewer reads only; an operator writes operator tags, an engineer also
+        engineer tags); None for any other node (asyncua's answer stands)."""
+        name = self._by_node.get(nid)
+        server = self._server
+        if name is None or server is None:
+            return None
+        access = self._access(user)
+        dv = server.iserver.aspace.read_attribute_value(nid, ua.AttributeIds.AccessLevel)
+        level = int(dv.Value.Value) if dv.Value is not None and dv.Value.Value is not None else 0
+        tag = self.db.get(name)
+        needs = tag.spec.access if tag is not None else Access.READ_ONLY
+        if access is not None and (needs is Access.READ_ONLY or access < needs):
+            level &= ~ua.AccessLevel.CurrentWrite.mask
+        return level
+
+    def user_executable(self, nid: ua.NodeId, user: UaUser | None) -> bool | None:
+        """A bench or channel method is executable for an operator (channel methods) or an
+        engineer (also ForceTag / UnforceTag), never for a viewer; None for other nodes."""
+        found = self._built.methods.get(nid)
+        if found is None:
+            return None
+        access = self._access(user)
+        if access is None:
+            return True
+        _, method = found
+        needs = Access.ENGINEER if method.verb in ("force", "unforce") else Access.OPERATOR
+        return access >= needs
 
     # --- writes --------------------------------------------------------------------------
     async def write_tag(self, wv: ua.WriteValue, user: UaUser) -> ua.StatusCode:
@@ -593,6 +795,22 @@ class OpcUaServer:
         return ua.StatusCode(refusal_status(answer.refusal))
 
 
+O = ua.ObjectIds  # noqa: E741 - asyncua's own abbreviation
+SHELVE_IDS: Final = (
+    O.ShelvedStateMachineType_TimedShelve,
+    O.AlarmConditionType_ShelvingState_TimedShelve,
+)
+ONE_SHOT_IDS: Final = (
+    O.ShelvedStateMachineType_OneShotShelve,
+    O.AlarmConditionType_ShelvingState_OneShotShelve,
+)
+UNSHELVE_IDS: Final = (
+    O.ShelvedStateMachineType_Unshelve,
+    O.AlarmConditionType_ShelvingState_Unshelve,
+)
+"""Part 9's shelving methods: the type's own and AlarmConditionType's instance declaration
+(clients call either on a condition's ShelvingState)."""
+
 _ADMIN: Final = UaUser(role=UserRole.Admin)
 
 
@@ -603,6 +821,23 @@ class GuardedWrites(AttributeService):  # type: ignore[misc]
     def __init__(self, aspace: Any, owner: OpcUaServer) -> None:
         super().__init__(aspace)
         self.owner = owner
+
+    def read(self, params: ua.ReadParameters) -> list[ua.DataValue]:
+        """asyncua's read, with UserAccessLevel and UserExecutable answered for the session's
+        role (its user is the request's, ``current_user``: the read runs on the request's
+        task right after ``SessionRules`` saw it)."""
+        results: list[ua.DataValue] = super().read(params)
+        user = current_user()
+        for i, rv in enumerate(params.NodesToRead):
+            if rv.AttributeId == ua.AttributeIds.UserAccessLevel:
+                level = self.owner.user_access_level(rv.NodeId, user)
+                if level is not None:
+                    results[i] = ua.DataValue(ua.Variant(level, VT.Byte))
+            elif rv.AttributeId == ua.AttributeIds.UserExecutable:
+                executable = self.owner.user_executable(rv.NodeId, user)
+                if executable is not None:
+                    results[i] = ua.DataValue(ua.Variant(executable, VT.Boolean))
+        return results
 
     async def write(self, params: ua.WriteParameters, user: UaUser = _ADMIN) -> list[ua.StatusCode]:
         if user.role is UserRole.Admin:

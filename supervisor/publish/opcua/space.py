@@ -22,7 +22,7 @@ from asyncua import Server, ua
 from asyncua.common.structures104 import new_enum
 
 from supervisor.publish.opcua.layout import Folder, Layout, Variable
-from supervisor.publish.opcua.methods import METHODS, RESULT, Method, argument
+from supervisor.publish.opcua.methods import BENCH_METHODS, METHODS, RESULT, Method, argument
 from supervisor.publish.opcua.units import eu_information
 
 O = ua.ObjectIds  # noqa: E741 - asyncua's own abbreviation
@@ -60,6 +60,7 @@ ALARM_FIELDS: Final = (
     ("Severity", VT.UInt16, "1..1000"),
     ("Message", VT.String, "What happened"),
     ("Tripped", VT.Boolean, "A trip that still holds its channel (until reset)"),
+    ("Shelved", VT.Boolean, "Shelved for a time (ISA-18.2): not annunciated meanwhile"),
 )
 
 EVENT_FIELDS: Final = ("Channel", "Kind", "Source", "Actor", "TestId", "Recipe")
@@ -78,9 +79,11 @@ class Built:
     channels: dict[str, ua.NodeId] = field(default_factory=dict)
     alarms: dict[str, ua.NodeId] = field(default_factory=dict)
     alarm_fields: dict[tuple[str, str], ua.NodeId] = field(default_factory=dict)
+    shelving: dict[str, ua.NodeId] = field(default_factory=dict)  # alarm → its ShelvingState
     methods: dict[ua.NodeId, tuple[str, Method]] = field(default_factory=dict)
     bench: ua.NodeId = field(default_factory=ua.NodeId)
     state_type: ua.NodeId = field(default_factory=ua.NodeId)
+    bench_event: ua.NodeId = field(default_factory=ua.NodeId)
     chain_event: ua.NodeId = field(default_factory=ua.NodeId)
     command_event: ua.NodeId = field(default_factory=ua.NodeId)
 
@@ -211,6 +214,7 @@ async def build_types(server: Server, idx: int, built: Built) -> None:
     command = await bench_event.add_object_type(
         ua.NodeId("/Types/CommandEventType", idx), ua.QualifiedName("CommandEventType", idx)
     )
+    built.bench_event = bench_event.nodeid
     built.chain_event = chain.nodeid
     built.command_event = command.nodeid
 
@@ -312,6 +316,10 @@ def _folder_items(
         built.channels[f.channel] = nid
     if f.alarm:
         built.alarms[f.alarm] = nid
+        # Part 9: the shelving methods are called on the condition's ShelvingState object.
+        sid = ua.NodeId(f"{f.node}/ShelvingState", idx)
+        built.shelving[f.alarm] = sid
+        yield _object(sid, ua.QualifiedName("ShelvingState", 0), nid, False, "Shelving")
         for name, vt, description in ALARM_FIELDS:
             fid = ua.NodeId(f"{f.node}/{name}", idx)
             built.alarm_fields[(f.alarm, name)] = fid
@@ -327,8 +335,11 @@ def _folder_items(
             )
     for v in f.variables:
         yield from _tag_items(v, nid, idx, built, sampling_ms, historised)
-    if f.channel:
-        for m in METHODS:
+    for c in f.children:
+        yield from _folder_items(c, nid, idx, built, sampling_ms, historised)
+    own = METHODS if f.channel else BENCH_METHODS if f.node == "/Bench" else ()
+    if own:
+        for m in own:
             mid = ua.NodeId(f"{f.node}/{m.name}", idx)
             built.methods[mid] = (f.channel, m)
             yield _method(mid, ua.QualifiedName(m.name, idx), nid, m.description)
@@ -346,8 +357,6 @@ def _folder_items(
                     prop,
                     value_rank=ua.ValueRank.OneDimension,
                 )
-    for c in f.children:
-        yield from _folder_items(c, nid, idx, built, sampling_ms, historised)
 
 
 async def build_space(
