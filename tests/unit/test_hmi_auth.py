@@ -4,10 +4,12 @@ I/O map that would let anyone on the network operate is refused."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 import yaml
+from aiohttp import web
 from commandrig import chadeche_map
 
 from supervisor.cli.main import main
@@ -15,7 +17,14 @@ from supervisor.commands import Command, Verb
 from supervisor.commands.roles import EveryoneOperates
 from supervisor.config.models import HmiConfig, is_loopback
 from supervisor.config.users import User, UserStore, add_user
-from supervisor.hmi.auth import HmiRoles, Sessions
+from supervisor.hmi.auth import (
+    ANONYMOUS_VIEWER,
+    PRINCIPAL_KEY,
+    HmiRoles,
+    Principal,
+    Sessions,
+    refuse_unless,
+)
 from supervisor.tags import Access
 
 
@@ -130,3 +139,27 @@ def test_supervisor_run_refuses_login_off_on_the_network_with_one_message_and_ex
     assert len(err) == 1, err
     assert err[0].startswith(f"{path}:")
     assert "host '0.0.0.0' is not loopback and login is false" in err[0]
+
+
+def test_routes_that_are_not_commands_check_the_role_with_refuse_unless() -> None:
+    from aiohttp.test_utils import make_mocked_request
+
+    def request(p: Principal | None) -> web.Request:
+        r = make_mocked_request("PUT", "/api/recipes/x")
+        if p is not None:
+            r[PRINCIPAL_KEY] = p
+        return r
+
+    session = Sessions(60.0, Now()).open(User("erin", "engineer"))
+    engineer = Principal("erin", "engineer", "hmi:erin", session)
+    operator = Principal("otto", "operator", "hmi:otto", session)
+    assert refuse_unless(request(engineer), "engineer", "save recipes") is None
+    refused = refuse_unless(request(operator), "engineer", "save recipes")
+    assert refused is not None and refused.status == 403
+    assert json.loads(refused.text or "") == {
+        "accepted": False,
+        "reason": "operator may not save recipes: log in as an engineer",
+    }
+    anonymous = refuse_unless(request(ANONYMOUS_VIEWER), "engineer", "save recipes")
+    assert anonymous is not None and anonymous.status == 401
+    assert refuse_unless(request(None), "engineer", "save recipes") is None  # login off
