@@ -16,7 +16,7 @@ INFLUXD         := $(INFLUXD_CACHE)/influxd
 INTEROP     := tests/interop
 NODE_STAMP  := $(INTEROP)/node_modules/.installed
 
-.PHONY: run test lint typecheck unit bench mutation schema check clean influxd node_modules
+.PHONY: run demo-users test lint typecheck unit bench mutation schema check clean influxd node_modules
 
 influxd: $(INFLUXD)
 
@@ -35,8 +35,17 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 ## The simulated bench (io_maps/sim.yaml); Ctrl-C stops it with every output safe.
-run: $(STAMP)
+## First run: demo users viewer/viewer, operator/operator, engineer/engineer (DEMO ONLY).
+run: $(STAMP) demo-users
 	$(BIN)/supervisor run io_maps/sim.yaml
+
+demo-users: $(STAMP)
+	@if [ -z "$$($(BIN)/supervisor opcua list-users --io-map io_maps/sim.yaml)" ]; then \
+	  for u in viewer operator engineer; do \
+	    echo $$u | $(BIN)/supervisor opcua add-user $$u --role $$u --password-stdin --io-map io_maps/sim.yaml || exit 2; \
+	  done; \
+	  echo "demo users (demo only, never on a real bench): viewer/viewer operator/operator engineer/engineer"; \
+	fi
 
 ## Lint, type-check and the whole test suite.
 test: lint typecheck unit
