@@ -28,6 +28,7 @@ from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 if TYPE_CHECKING:
     from supervisor.app import Bench
     from supervisor.config.models import BenchConfig
+    from supervisor.hmi.recipes_api import RecipesConfig
 
 log = logging.getLogger("supervisor")
 
@@ -98,6 +99,7 @@ async def _serve(
     from supervisor.app.hmi import build_screens
     from supervisor.commands import Command, Verb
     from supervisor.hmi import HttpApi
+    from supervisor.hmi.tests_api import TestsConfig
 
     clock = bench.clock
     port = cfg.hmi.port if args.http_port is None else args.http_port
@@ -106,7 +108,15 @@ async def _serve(
 
     history = bench.historian.query if bench.historian is not None else None
     api = HttpApi(
-        bench.db, clock, cfg.hmi.host, port, estop=estop, commands=bench.commands, history=history
+        bench.db,
+        clock,
+        cfg.hmi.host,
+        port,
+        estop=estop,
+        commands=bench.commands,
+        history=history,
+        recipes=_recipes_config(cfg, bench),
+        tests=TestsConfig(Path(cfg.state_dir) / "results", bench.results, bench.runners),
     )
     screens = build_screens(bench, api)  # ConfigError for a bad users file: exit 2
     opcua = None
@@ -199,6 +209,20 @@ async def _serve(
         return EXIT_FAIL
     _out("stopped: all outputs safe")
     return EXIT_OK
+
+
+def _recipes_config(cfg: BenchConfig, bench: Bench) -> RecipesConfig:
+    """The HMI's recipes: the folder OPC UA's Start(recipe) finds them in; its dry-run
+    preview in a child process (app/preview.py)."""
+    from supervisor.app.preview import preview_in_child
+    from supervisor.hmi.recipes_api import RecipesConfig
+
+    return RecipesConfig(
+        Path(cfg.opcua.recipes_dir),
+        preview_in_child,
+        target_of=bench.target,
+        channels=bench.runners,
+    )
 
 
 def _dump_tasks() -> None:
