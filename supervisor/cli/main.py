@@ -215,13 +215,17 @@ def _recipes_config(cfg: BenchConfig, bench: Bench) -> RecipesConfig:
     """The HMI's recipes: the folder OPC UA's Start(recipe) finds them in; its dry-run
     preview in a child process (app/preview.py)."""
     from supervisor.app.preview import preview_in_child
+    from supervisor.hmi.auth import session_actor, session_role
     from supervisor.hmi.recipes_api import RecipesConfig
 
+    # A save needs an engineer's session: the same users and roles as the commands.
     return RecipesConfig(
         Path(cfg.opcua.recipes_dir),
         preview_in_child,
         target_of=bench.target,
         channels=bench.runners,
+        role_of=session_role,
+        actor_of=session_actor,
     )
 
 

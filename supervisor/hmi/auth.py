@@ -172,6 +172,21 @@ def principal(request: web.Request) -> Principal:
     return found
 
 
+def session_role(request: web.Request) -> Role | None:
+    """The role a route that is not a command checks (a recipe save): an engineer when
+    ``hmi.login`` is off (loopback only, everyone may), None without a session (anonymous
+    viewers log in first), else the session user's role."""
+    p = principal(request)
+    if p is LOGIN_OFF:
+        return "engineer"
+    return p.role if p.session is not None else None
+
+
+def session_actor(request: web.Request) -> str:
+    """Who to record for a route that is not a command (``hmi:<user>``)."""
+    return principal(request).actor
+
+
 def role_at_least(p: Principal, role: Role) -> bool:
     return ROLES.index(p.role) >= ROLES.index(role)
 

@@ -90,6 +90,13 @@ def test_supervisor_run_with_login_takes_commands_from_logged_in_operators(
                 break
             time.sleep(0.1)
         assert mode is not None and mode["value"] == "manual"
+        # Saving a recipe needs an engineer's session, as in the HMI's roles.
+        recipe = {"text": (Path.cwd() / "recipes" / "nimh-ds2710.yaml").read_text("utf-8")}
+        status, body = _call(anonymous, "PUT", f"{url}/api/recipes/otto-made", recipe)
+        assert status == 401, body
+        status, body = _call(otto, "PUT", f"{url}/api/recipes/otto-made", recipe)
+        assert status == 403 and "operator may not save recipes" in body["reason"], body
+        assert not list(tmp_path.rglob("otto-made.yaml"))
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=20)
         assert proc.returncode == 0, err
