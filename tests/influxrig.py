@@ -35,6 +35,7 @@ from typing import Any
 import pytest
 import yaml
 
+from supervisor.core.processes import stop_with_parent
 from supervisor.testing import free_tcp_port
 
 __all__ = [
@@ -123,6 +124,7 @@ bind-address = "127.0.0.1:{self.rpc_port}"
                 stdout=log,
                 stderr=subprocess.STDOUT,
                 stdin=subprocess.DEVNULL,
+                preexec_fn=stop_with_parent(),  # no influxd left behind by a killed run
             )
         deadline = time.monotonic() + START_TIMEOUT_S
         while not self._ping():

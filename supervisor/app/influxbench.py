@@ -25,6 +25,7 @@ import urllib.parse
 import urllib.request
 from pathlib import Path
 
+from supervisor.core.processes import stop_with_parent
 from supervisor.core.quality import Quality
 from supervisor.publish.changes import Sample
 from supervisor.publish.influx import Forwarder, LineEncoder, Spool, WriteClient
@@ -89,6 +90,7 @@ bind-address = "127.0.0.1:{_free_port()}"
             stdout=self._log,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
+            preexec_fn=stop_with_parent(),  # no influxd left behind by a killed run
         )
         deadline = time.monotonic() + START_TIMEOUT_S
         while not self._ping():
