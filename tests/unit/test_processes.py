@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -29,7 +30,7 @@ def _alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     # A zombie (dead, not yet reaped by init) counts as gone.
-    with open(f"/proc/{pid}/stat", encoding="ascii") as f:
+    with Path(f"/proc/{pid}/stat").open(encoding="ascii") as f:
         return f.read().split(")")[-1].split()[0] != "Z"
 
 
