@@ -16,7 +16,15 @@ INFLUXD         := $(INFLUXD_CACHE)/influxd
 INTEROP     := tests/interop
 NODE_STAMP  := $(INTEROP)/node_modules/.installed
 
-.PHONY: run test lint typecheck unit bench mutation schema check clean influxd node_modules
+# The HMI's front-end libraries (uPlot), installed by npm from hmi/package-lock.json into
+# the git-ignored hmi/node_modules: the supervisor serves them at /vendor/, never a CDN.
+HMI_STAMP   := hmi/node_modules/.installed
+
+# The browser the HMI's browser tests drive (tests/browser/): Debian's Chromium, never a
+# browser downloaded by Playwright.
+CHROMIUM    := /usr/bin/chromium
+
+.PHONY: run test lint typecheck unit bench mutation schema check clean influxd node_modules hmi chromium
 
 influxd: $(INFLUXD)
 
@@ -27,6 +35,19 @@ $(NODE_STAMP): $(INTEROP)/package.json $(INTEROP)/package-lock.json
 	cd $(INTEROP) && npm ci --no-audit --no-fund --loglevel=error
 	touch $@
 
+hmi: $(HMI_STAMP)
+
+$(HMI_STAMP): hmi/package.json hmi/package-lock.json
+	@command -v npm >/dev/null || { echo "npm is required to install the HMI's chart library (uPlot)"; exit 2; }
+	cd hmi && npm ci --no-audit --no-fund --loglevel=error
+	touch $@
+
+chromium: $(CHROMIUM)
+
+$(CHROMIUM):
+	@echo "installing Debian's chromium for the HMI's browser tests"
+	apt-get install -y chromium || { echo "install the Debian package chromium (apt-get install chromium) for tests/browser/"; exit 2; }
+
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "Python 3.11+ is required")'
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -35,7 +56,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 ## The simulated bench (io_maps/sim.yaml); Ctrl-C stops it with every output safe.
-run: $(STAMP)
+run: $(STAMP) $(HMI_STAMP)
 	$(BIN)/supervisor run io_maps/sim.yaml
 
 ## Lint, type-check and the whole test suite.
@@ -49,7 +70,7 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-unit: $(STAMP) $(INFLUXD) $(NODE_STAMP)
+unit: $(STAMP) $(INFLUXD) $(NODE_STAMP) $(HMI_STAMP) $(CHROMIUM)
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/pytest -q
 
 $(INFLUXD):
@@ -85,4 +106,4 @@ check: $(STAMP)
 	$(BIN)/supervisor check io_maps/*.yaml recipes/*.yaml
 
 clean:
-	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache $(INTEROP)/node_modules
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache $(INTEROP)/node_modules hmi/node_modules
