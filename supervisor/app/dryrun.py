@@ -16,6 +16,7 @@ files (``results_dir``) are written row by row as the run goes.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,8 +28,9 @@ from supervisor.chains.program import Program
 from supervisor.chains.run import ChainSnapshot
 from supervisor.config.limits import DRY_RUN_CYCLES_KEPT, DRY_RUN_EVENTS_KEPT
 from supervisor.config.models import BenchConfig
-from supervisor.config.recipe import load_recipe
+from supervisor.config.recipe import load_recipe, load_recipe_text
 from supervisor.core.clock import VirtualClock
+from supervisor.core.records import Record
 from supervisor.core.units import parse_quantity
 from supervisor.devices.registry import bench_from_data
 from supervisor.publish.results import FirstAndLast, ResultCollector
@@ -185,8 +187,18 @@ async def dry_run(
     start: str = DEFAULT_START,
     max_hours: float = 1000.0,
     results_dir: Path | None = None,
+    text: str | None = None,
+    recorders: Sequence[Callable[[Record], None]] = (),
+    should_stop: Callable[[], bool] | None = None,
 ) -> DryRunResult:
-    recipe, pos = load_recipe(recipe_path)
+    """``text``: the recipe's text (an upload not saved yet; ``recipe_path`` then only names
+    it in messages and finds its profile CSVs). ``recorders`` get every result record (the
+    HMI's preview trace). ``should_stop``: asked between chunks; True stops the run as the
+    ``max_hours`` cap does (``finished`` False; the HMI's time limit)."""
+    if text is not None:
+        recipe, pos = load_recipe_text(text, str(recipe_path))
+    else:
+        recipe, pos = load_recipe(recipe_path)
     needs_cv = any(s.kind in ("cv", "cccv") for s in recipe.steps)
     if model is None:
         model = "liion-pack" if needs_cv or recipe.chemistry in ("liion", "lfp") else "nimh-aa"
@@ -219,6 +231,7 @@ async def dry_run(
     )
     runner.listeners.append(collector.on_event)
     runner.recorders.append(collector.on_record)
+    runner.recorders.extend(recorders)
     sequence: FirstAndLast[tuple[str, str]] = FirstAndLast(DRY_RUN_EVENTS_KEPT)
 
     def steps(ev: Any) -> None:
@@ -234,6 +247,8 @@ async def dry_run(
     sim0 = clock.now()
     limit = sim0 + max_hours * 3600
     while runner.state not in TERMINAL and clock.now() < limit:
+        if should_stop is not None and should_stop():
+            break
         await bench.engine.run_for(min(CHUNK_S, limit - clock.now()))
     wall = time.perf_counter() - t0
     finished = runner.state in TERMINAL

@@ -28,6 +28,7 @@ from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 if TYPE_CHECKING:
     from supervisor.app import Bench
     from supervisor.config.models import BenchConfig
+    from supervisor.hmi.recipes_api import RecipesConfig
 
 log = logging.getLogger("supervisor")
 
@@ -105,7 +106,14 @@ async def _serve(
 
     history = bench.historian.query if bench.historian is not None else None
     api = HttpApi(
-        bench.db, clock, cfg.hmi.host, port, estop=estop, commands=bench.commands, history=history
+        bench.db,
+        clock,
+        cfg.hmi.host,
+        port,
+        estop=estop,
+        commands=bench.commands,
+        history=history,
+        recipes=_recipes_config(cfg, bench),
     )
     opcua = None
     if cfg.opcua.enabled:
@@ -189,6 +197,16 @@ async def _serve(
         return EXIT_FAIL
     _out("stopped: all outputs safe")
     return EXIT_OK
+
+
+def _recipes_config(cfg: BenchConfig, bench: Bench) -> RecipesConfig:
+    """The HMI's recipes: the folder OPC UA's Start(recipe) finds them in, the dry run."""
+    from supervisor.app.dryrun import dry_run
+    from supervisor.hmi.recipes_api import RecipesConfig
+
+    return RecipesConfig(
+        Path(cfg.opcua.recipes_dir), dry_run, target_of=bench.target, channels=bench.runners
+    )
 
 
 def _dump_tasks() -> None:

@@ -23,6 +23,7 @@ from supervisor.core.errors import ConfigError
 __all__ = [
     "DRY_RUN_CYCLES_KEPT",
     "DRY_RUN_EVENTS_KEPT",
+    "DRY_RUN_PREVIEW_TIMEOUT_S",
     "MAX_CYCLES",
     "MAX_INITIAL_CHARGE_AH",
     "MAX_IO_MAP_TAGS",
@@ -94,6 +95,10 @@ DRY_RUN_EVENTS_KEPT: Final = 1_000
 ones between is reported)."""
 DRY_RUN_CYCLES_KEPT: Final = 200
 """Cycles a dry run reports one by one (the first half and the last half)."""
+DRY_RUN_PREVIEW_TIMEOUT_S: Final = 60.0
+"""Computing time of the HMI's dry-run preview (``POST /api/recipes/dryrun``, in a worker
+thread): the 25 h NiMH recipe takes about 6 s; past the limit the preview stops where it
+is and says so (``supervisor dry-run`` runs a longer test to its end)."""
 
 
 class TooLarge(ConfigError):

@@ -32,6 +32,7 @@ from supervisor.commands import Command, CommandPath, Result, ResultKind, Verb
 from supervisor.core.clock import Clock
 from supervisor.core.quality import Quality
 from supervisor.hmi.history_api import HistoryQuery, add_history_routes
+from supervisor.hmi.recipes_api import RecipesConfig, add_recipe_routes
 from supervisor.safety import Alarm, AlarmEvent
 from supervisor.tags import Tag, TagDB
 
@@ -142,6 +143,7 @@ class HttpApi:
         commands: CommandPath | None = None,
         sim_state: Callable[[], dict[str, Any]] | None = None,
         history: HistoryQuery | None = None,
+        recipes: RecipesConfig | None = None,
     ):
         self.db = db
         self._estop = estop
@@ -166,6 +168,8 @@ class HttpApi:
         )
         if history is not None:  # GET /api/history, /api/events (hmi/history_api.py)
             add_history_routes(app, history, db, clock, self.commands.runners)
+        if recipes is not None:  # /api/recipes… (hmi/recipes_api.py)
+            add_recipe_routes(app, recipes)
         if estop is not None:
             # Simulation only: the e-stop button of the simulated bench.
             app.add_routes([web.put("/api/sim/estop", self._sim_estop)])
