@@ -24,13 +24,14 @@ const ROUTES = [
   [/^\/diagnostics$/, diagnostics, "diagnostics"],
 ];
 
-// How often the page asks whether its session still holds (it expires on inactivity).
-const SESSION_CHECK_S = 15;
+// How long after its announced expiry the page checks its session.
+const SESSION_SLACK_S = 0.5;
 
 const app = {
   live: new Live(),
   session: null, // {user, role, login}
   bench: null,
+  tagNames: new Set(), // every tag of the bench (from /api/tags at start)
   screen: null,
   sound: new Sound(),
   goLogin,
@@ -60,6 +61,7 @@ async function loadSession() {
   const answer = await get("/api/session", { no401: true });
   if (answer.ok) {
     app.session = answer.data;
+    scheduleSessionCheck();
     return true;
   }
   if (answer.status === 404) {
@@ -73,10 +75,10 @@ async function loadSession() {
 
 /** The bench's layout: /api/bench, or (older supervisors) guessed from the tag names. */
 async function loadBench() {
-  const answer = await get("/api/bench");
-  if (answer.ok && Array.isArray(answer.data.channels)) return normaliseBench(answer.data);
-  const tags = await get("/api/tags");
+  const [answer, tags] = await Promise.all([get("/api/bench"), get("/api/tags")]);
   const names = tags.ok && Array.isArray(tags.data) ? tags.data.map((t) => t.name) : [];
+  app.tagNames = new Set(names);
+  if (answer.ok && Array.isArray(answer.data.channels)) return normaliseBench(answer.data);
   const channels = names
     .filter((n) => /^ch\d+\.voltage$/.test(n))
     .map((n) => n.split(".")[0])
@@ -110,7 +112,8 @@ function normaliseBench(b) {
     progress: `${ch}.chain.progress`,
     eta: `${ch}.chain.eta_s`,
     fault: `${ch}.fault`,
-    ...Object.fromEntries(Object.entries(given || {}).filter(([, v]) => v)),
+    // /api/bench names every tag (null where the channel has none): keep its answer.
+    ...(given || {}),
   });
   return {
     ...b,
@@ -183,6 +186,14 @@ app.live.subscribe((change) => {
   if (app.screen?.update) app.screen.update(change);
 });
 
+// A restarted supervisor has forgotten every session: back to login, then to this page.
+app.live.onReconnect = async () => {
+  if (app.session && app.session.login !== false) {
+    const answer = await get("/api/session", { no401: true });
+    if (answer.status === 401) goLogin();
+  }
+};
+
 app.live.onDisconnect = async () => {
   // A WebSocket refused before its upgrade (401) looks like any lost connection: ask.
   if (app.session && app.session.login !== false) {
@@ -226,12 +237,27 @@ const sound = $("#sound");
 sound.checked = app.sound.enabled;
 sound.addEventListener("change", () => app.sound.setEnabled(sound.checked));
 
-setInterval(async () => {
-  if (app.session && app.session.login !== false && parseHash().path !== "/login") {
+// The session expires after hmi.session_timeout_s without a request (the WebSocket's
+// messages do not count). The page asks again just after the time the supervisor gave:
+// still open (another request used it) -> ask again later; expired -> the login screen,
+// keeping the page's place. No periodic polling: it would keep an unattended panel's
+// session open for ever.
+let sessionTimer = null;
+function scheduleSessionCheck() {
+  clearTimeout(sessionTimer);
+  const s = app.session;
+  if (!s || s.login === false || typeof s.expires_s !== "number") return;
+  sessionTimer = setTimeout(async () => {
+    if (parseHash().path === "/login") return;
     const answer = await get("/api/session", { no401: true });
     if (answer.status === 401) goLogin();
-  }
-}, SESSION_CHECK_S * 1000);
+    else if (answer.ok) {
+      app.session = { ...app.session, ...answer.data };
+      scheduleSessionCheck();
+    }
+  }, (s.expires_s + SESSION_SLACK_S) * 1000);
+}
+app.scheduleSessionCheck = scheduleSessionCheck;
 
 window.addEventListener("hashchange", route);
 paintLink();

@@ -25,6 +25,7 @@ export class Live {
     this._retryTimer = null;
     this._stopped = false;
     this.onDisconnect = null; // app.js checks the session then (a 401 before the upgrade)
+    this.onReconnect = null; // ... and after a reconnect (a restarted supervisor forgot it)
     this.stats = { messages: 0, reconnects: 0, lastMessageAt: 0 };
   }
 
@@ -122,6 +123,7 @@ export class Live {
       this.version = msg.version || 0;
       this._setState("live");
       this._emit({ kind: "tags", names: null });
+      if (this.stats.reconnects > 0 && this.onReconnect) this.onReconnect();
     } else if (msg.type === "delta") {
       const names = Object.keys(msg.tags || {});
       for (const name of names) this.tags.set(name, msg.tags[name]);

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -53,7 +54,9 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def wait_for(what: str, pred: Callable[[], Any], timeout_s: float = 20.0, poll_s: float = 0.1) -> Any:
+def wait_for(
+    what: str, pred: Callable[[], Any], timeout_s: float = 20.0, poll_s: float = 0.1
+) -> Any:
     """``pred()``'s first truthy answer, or AssertionError naming ``what``."""
     deadline = time.monotonic() + timeout_s
     last: Any = None
@@ -73,8 +76,8 @@ def hmi_options() -> set[str]:
 
 
 def bench_map(workdir: Path, **hmi: Any) -> Path:
-    """io_maps/sim.yaml on free loopback ports with its state under ``workdir``, OPC UA
-    off (not what this tests; 4840 may be taken), login on when the supervisor has it."""
+    """io_maps/sim.yaml on free loopback ports with its state and recipes under
+    ``workdir``, login on when the supervisor has it."""
     data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
     for name in ("adam", "ea", "bms"):
         data["devices"][name]["port"] = free_port()
@@ -85,7 +88,13 @@ def bench_map(workdir: Path, **hmi: Any) -> Path:
         "port": 0,
         **{k: v for k, v in wanted.items() if k in known},
     }
-    data.pop("opcua", None)
+    # OPC UA off (not what this tests; 4840 may be taken); its recipes folder, which the
+    # HMI's Recipes screen shares, is a copy: a test that saves never writes into recipes/.
+    recipes = workdir / "recipes"
+    recipes.mkdir(exist_ok=True)
+    for src in [*(ROOT / "recipes").glob("*.yaml"), SHORT_RECIPE]:
+        shutil.copy(src, recipes / src.name)
+    data["opcua"] = {"enabled": False, "recipes_dir": str(recipes)}
     data["state_dir"] = str(workdir / "state")
     path = workdir / "sim.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")

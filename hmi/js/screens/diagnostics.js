@@ -30,7 +30,7 @@ function kvTable(id, obj) {
 
 export async function render({ root, app }) {
   root.dataset.title = "Diagnostics";
-  const names = Array.from(app.live.tags.keys());
+  const names = Array.from(app.tagNames.size ? app.tagNames : app.live.tags.keys());
   const liveRows = (prefixes) =>
     names
       .filter((n) => prefixes.some((pre) => n.startsWith(pre)))

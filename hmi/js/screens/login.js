@@ -34,6 +34,7 @@ export async function render({ root, app, query }) {
       return;
     }
     app.session = { login: true, ...answer.data };
+    app.scheduleSessionCheck();
     // A fresh session: the live connection re-authenticates with its cookie.
     app.live.stop();
     app.live._started = false;

@@ -61,7 +61,9 @@ export async function render({ root, app }) {
   const supply = mimicTag(m.supply);
   const contactor = mimicTag(m.contactor);
   const bms = mimicTag(m.bms);
-  const has = (n) => app.live.tags.size === 0 || app.live.tags.has(n);
+  const has = (n) => app.tagNames.has(n);
+  const opt = (label, tag, attrs) => (has(tag) ? row(label, tag, attrs) : "");
+  const link = 'data-true="ok" data-false="LOST" data-abn="false"';
   const mimic = [];
   if (estop)
     mimic.push(mimicBox("estop", "E-stop", [row("circuit", estop, 'data-true="closed" data-false="PRESSED" data-abn="false" class="big"')]));
@@ -69,27 +71,30 @@ export async function render({ root, app }) {
     mimic.push(
       mimicBox("supply", "Supply", [
         row("output", supply, 'data-true="on" data-false="off"'),
-        has("ea.voltage") ? row("voltage", "ea.voltage", 'data-fmt="n2"') : "",
-        has("ea.connected") ? row("link", "ea.connected", 'data-true="ok" data-false="LOST" data-abn="false"') : "",
+        opt("voltage", "ea.voltage", 'data-fmt="n2"'),
+        opt("link", "ea.connected", link),
       ]),
     );
   if (contactor)
     mimic.push(
       mimicBox("contactor", "Contactor", [
         row("contacts", contactor, 'data-true="closed" data-false="open" class="big"'),
-        has("contactor.cmd") ? row("coil", "contactor.cmd", 'data-true="on" data-false="off"') : "",
+        contactor !== "contactor.cmd" ? opt("coil", "contactor.cmd", 'data-true="on" data-false="off"') : "",
       ]),
     );
-  if (bms)
+  if (bms) {
+    // /api/bench names the BMS's link tag; older supervisors its pack voltage.
+    const isLink = bms.endsWith(".connected");
     mimic.push(
       mimicBox("bms", "BMS", [
-        row("pack", bms, 'data-fmt="n2"'),
-        has("bms.cell_min") ? row("cell min", "bms.cell_min", 'data-fmt="n3"') : "",
-        has("bms.cell_max") ? row("cell max", "bms.cell_max", 'data-fmt="n3"') : "",
-        has("bms.temp_max") ? row("temp max", "bms.temp_max", 'data-fmt="n1"') : "",
-        has("bms.connected") ? row("link", "bms.connected", 'data-true="ok" data-false="LOST" data-abn="false"') : "",
+        isLink ? row("link", bms, link) : row("pack", bms, 'data-fmt="n2"'),
+        isLink ? opt("pack", "bms.voltage", 'data-fmt="n2"') : opt("link", "bms.connected", link),
+        opt("cell min", "bms.cell_min", 'data-fmt="n3"'),
+        opt("cell max", "bms.cell_max", 'data-fmt="n3"'),
+        opt("temp max", "bms.temp_max", 'data-fmt="n1"'),
       ]),
     );
+  }
   root.innerHTML = `
     <h1 class="sr-only">Overview</h1>
     ${mimic.length ? `<div class="mimic" aria-label="Bench mimic">${mimic.join('<span class="wire" aria-hidden="true"></span>')}</div>` : ""}
