@@ -22,24 +22,48 @@ export function autoResize(chart, el, height) {
   return () => ro.disconnect();
 }
 
-/** A simple x/y line (or bar-like stepped) plot of arrays. */
-export function simplePlot(el, { title, xLabel, series, x, ys, height = 220, time = false, bars = false }) {
+/** Tick labels with enough digits for small values (mAh-sized Ah, efficiencies). */
+const ticks = (u, vals) => vals.map((v) => (v === null ? "" : Math.abs(v) >= 100 ? v.toFixed(0) : +v.toPrecision(3)));
+
+/**
+ * A simple plot of arrays: lines, a stepped line (`stepped`: a timeline of steps) or bars
+ * (`bars`, x ordinal: one group per cycle).
+ */
+export function simplePlot(el, { title, xLabel, yLabel, series, x, ys, height = 220, bars = false, stepped = false, yValues }) {
+  // Bars side by side: the first series left of its cycle, the second right of it.
+  const pathsOf = (i) =>
+    bars
+      ? uPlot.paths.bars({ size: [series.length > 1 ? 0.35 : 0.6, 60], align: series.length > 1 ? (i ? 1 : -1) : 0 })
+      : stepped
+        ? uPlot.paths.stepped({ align: 1 })
+        : undefined;
   const opts = {
     title,
     width: widthOf(el),
     height,
-    scales: { x: { time } },
-    axes: [{ label: xLabel }, { label: series.map((s) => s.label).join(" / ") }],
+    scales: { x: bars ? { time: false, distr: 2 } : { time: false } },
+    axes: [
+      { label: xLabel, values: ticks },
+      { label: yLabel ?? series.map((s) => s.label).join(" / "), values: yValues ?? ticks, size: 60 },
+    ],
     series: [
       { label: xLabel },
       ...series.map((s, i) => ({
         label: s.label,
         ...SERIES_STYLE[i % SERIES_STYLE.length],
-        ...(bars ? { paths: uPlot.paths.bars({ size: [0.6, 40] }), fill: i ? "#b9c2cc" : "#5a6b7d" } : {}),
-        points: { show: bars ? false : x.length < 60 },
+        ...(bars || stepped ? { paths: pathsOf(i) } : {}),
+        ...(bars ? { fill: i ? "#b9c2cc" : "#6f7a85", dash: undefined } : {}),
+        points: { show: !bars && !stepped && x.length < 60 },
       })),
     ],
   };
   const chart = new uPlot(opts, [x, ...ys], el);
   return { chart, stop: autoResize(chart, el, height) };
+}
+
+/** A time axis for a duration: seconds, minutes or hours, whichever reads best. */
+export function timeAxis(durationS) {
+  if (durationS < 600) return { unit: "s", scale: 1 };
+  if (durationS < 36000) return { unit: "min", scale: 60 };
+  return { unit: "h", scale: 3600 };
 }

@@ -1,4 +1,4 @@
-"""Fixtures of the HMI's browser tests (hmirig.py): one supervisor and one Chromium per
+"""Fixtures of the HMI's browser tests (browserrig.py): one supervisor and one Chromium per
 module, a fresh browser context (cookies, storage) per test.
 
 Playwright's sync API runs its own event loop in this thread while the browser is open: the
@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from hmirig import CHROMIUM, CHROMIUM_ARGS, ROOT, USERS, Supervisor, supervisor_fixture
+from browserrig import CHROMIUM, CHROMIUM_ARGS, ROOT, USERS, Supervisor, supervisor_fixture
 
 VIEWPORT = {"width": 1366, "height": 768}  # the panel PC of issue 12
 

@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 from conftest import VIEWPORT, login
-from hmirig import (
+from browserrig import (
     ARTIFACTS,
     SHORT_RECIPE,
     Supervisor,

@@ -244,7 +244,7 @@ export async function render({ root, app, params }) {
   // --- trend ----------------------------------------------------------------------------
   const trendEl = $("#trend", root);
   const trendTags = [t.voltage, t.current, t.temperature];
-  let spanS = 1800;
+  let spanS = 300;
   let following = true;
   let data = [[], [], [], []];
   let dirty = false;

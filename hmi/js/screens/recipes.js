@@ -3,7 +3,7 @@
 // (timeline, duration, capacity per cycle) before anything is saved or started.
 import { get, post, put } from "../api.js";
 import { esc, fmtDuration, fmtTime, showResult, $ } from "../dom.js";
-import { simplePlot } from "../chart.js";
+import { simplePlot, timeAxis } from "../chart.js";
 
 export async function render({ root, app, params }) {
   root.dataset.title = "Recipes";
@@ -141,31 +141,41 @@ export async function render({ root, app, params }) {
       pl.stop();
       pl.chart.destroy();
     }
-    const tl = d.timeline || [];
+    const tl = (d.timeline || []).filter((e) => e.step);
     const stepNames = [];
     for (const e of tl) if (!stepNames.includes(e.step)) stepNames.push(e.step);
+    const ax = timeAxis(d.duration_s || 0);
     if (tl.length) {
-      const x = tl.map((e) => e.t_s / 3600);
+      // The timeline ends where the run ends: the last step lasts until duration_s.
+      const x = [...tl.map((e) => e.t_s / ax.scale), (d.duration_s || 0) / ax.scale];
+      const y = [...tl.map((e) => stepNames.indexOf(e.step)), stepNames.indexOf(tl[tl.length - 1].step)];
       plots.push(
         simplePlot($("#dry-timeline", root), {
-          title: `Timeline (steps: ${stepNames.map((s, i) => `${i}=${s}`).join(", ")})`,
-          xLabel: "h",
+          title: "Timeline: step over time",
+          xLabel: ax.unit,
+          yLabel: "step",
           series: [{ label: "step" }],
           x,
-          ys: [tl.map((e) => stepNames.indexOf(e.step))],
-          height: 180,
+          ys: [y],
+          height: 200,
+          stepped: true,
+          yValues: (u, vals) => vals.map((v) => (Number.isInteger(v) ? stepNames[v] ?? "" : "")),
         }),
       );
     }
     const cycles = d.cycles || [];
     if (cycles.length) {
+      const big = cycles.some((c) => Math.abs(c.charge_ah || 0) >= 1 || Math.abs(c.discharge_ah || 0) >= 1);
+      const k = big ? 1 : 1000;
+      const unit = big ? "Ah" : "mAh";
       plots.push(
         simplePlot($("#dry-cycles", root), {
-          title: "Capacity per cycle (Ah)",
+          title: `Predicted capacity per cycle (${unit})`,
           xLabel: "cycle",
-          series: [{ label: "charge Ah" }, { label: "discharge Ah" }],
+          yLabel: unit,
+          series: [{ label: `charge ${unit}` }, { label: `discharge ${unit}` }],
           x: cycles.map((c) => c.cycle),
-          ys: [cycles.map((c) => c.charge_ah), cycles.map((c) => c.discharge_ah)],
+          ys: [cycles.map((c) => (c.charge_ah ?? 0) * k), cycles.map((c) => (c.discharge_ah ?? 0) * k)],
           bars: true,
         }),
       );
@@ -175,9 +185,9 @@ export async function render({ root, app, params }) {
       plots.push(
         simplePlot($("#dry-trace", root), {
           title: "Predicted voltage and current",
-          xLabel: "h",
+          xLabel: ax.unit,
           series: [{ label: "V" }, { label: "A" }],
-          x: tr.t_s.map((s) => s / 3600),
+          x: tr.t_s.map((s) => s / ax.scale),
           ys: [tr.voltage_v, tr.current_a],
         }),
       );
