@@ -200,12 +200,16 @@ async def _serve(
 
 
 def _recipes_config(cfg: BenchConfig, bench: Bench) -> RecipesConfig:
-    """The HMI's recipes: the folder OPC UA's Start(recipe) finds them in, the dry run."""
-    from supervisor.app.dryrun import dry_run
+    """The HMI's recipes: the folder OPC UA's Start(recipe) finds them in; its dry-run
+    preview in a child process (app/preview.py)."""
+    from supervisor.app.preview import preview_in_child
     from supervisor.hmi.recipes_api import RecipesConfig
 
     return RecipesConfig(
-        Path(cfg.opcua.recipes_dir), dry_run, target_of=bench.target, channels=bench.runners
+        Path(cfg.opcua.recipes_dir),
+        preview_in_child,
+        target_of=bench.target,
+        channels=bench.runners,
     )
 
 

@@ -12,7 +12,7 @@
   the dry run (``supervisor dry-run``'s, injected as :class:`DryRunner`: this layer does not
   import the application's) with its timeline, capacity per cycle and a V/I trace of at
   most ``MAX_TRACE_POINTS`` points. ``channel``: the recipe is also checked against that
-  channel's limits and the preview's cell gets its capacity.
+  channel's limits and the preview's cell gets its capacity. One at a time (409 else).
 - ``PUT /api/recipes/{name} {"text", "overwrite"?}``: engineers only; validated first, then
   written atomically (a temporary file in the same folder, then a rename: a reader sees the
   old recipe or the new one, never half of one). 422 with the errors and nothing written;
@@ -21,8 +21,10 @@
 Names match :data:`NAME_PATTERN` (no folder, no ``..``): anything else is refused before a
 path is made of it. A text over ``MAX_YAML_BYTES`` is answered 413 with the message
 ``supervisor check`` gives for such a file; so is a request body too large to hold one.
-Validation and dry runs run in a worker thread (``commands/worker.py``) with a time limit,
-never on the scan's event loop; the disk is read and written in threads too.
+Validation runs in a worker thread (``commands/worker.py``) with a time limit, never on
+the scan's event loop; the disk is read and written in threads too. A dry run runs flat out
+for seconds: ``supervisor run`` computes it in a child process (``app/preview.py`` says
+why: in a thread it cost the scan deadlines), stopped at ``DRY_RUN_PREVIEW_TIMEOUT_S``.
 """
 
 from __future__ import annotations
@@ -34,8 +36,7 @@ import math
 import os
 import re
 import tempfile
-import threading
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Final, Protocol
@@ -84,9 +85,6 @@ limit (1 MiB) is below a recipe at its limit once escaped."""
 TITLE_SCAN_BYTES: Final = 64 * 1024
 """How much of a recipe the listing reads for its title (``description:`` or ``recipe:``
 at the top level): a listing does not parse every recipe in full."""
-DRY_RUN_GRACE_S: Final = 10.0
-"""After its time limit a dry run is asked to stop (between two chunks of virtual time);
-if it has not returned this much later it is abandoned (503)."""
 MAX_PREVIEW_HOURS: Final = 1000.0
 """The virtual time a preview runs at most by default (``supervisor dry-run``'s default)."""
 
@@ -105,35 +103,22 @@ def _hmi_actor(request: web.Request) -> str:
     return "hmi"
 
 
-class DryRunOutcome(Protocol):
-    """What the HMI reads of ``supervisor.app.dryrun.DryRunResult``."""
-
-    @property
-    def end_reason(self) -> str: ...
-    @property
-    def simulated_s(self) -> float: ...
-    @property
-    def finished(self) -> bool: ...
-    @property
-    def summary(self) -> dict[str, Any]: ...
-    @property
-    def program(self) -> Program: ...
-
-
 class DryRunner(Protocol):
-    """``supervisor.app.dryrun.dry_run`` (the composition root hands it over)."""
+    """``supervisor.app.preview.preview_in_child`` (the composition root hands it over):
+    the dry run's answer as a mapping (``recipe``, ``end_reason``, ``finished``,
+    ``simulated_s``, ``timed_out``, ``summary`` as summary.json, ``trace`` as
+    :meth:`Trace.as_json`), or ``{"errors": [{"message", "file", "line", "col"}]}``; raises
+    when no answer came (the reason is its message)."""
 
     async def __call__(
         self,
-        recipe_path: str | Path,
-        *,
-        params: dict[str, str] | None = ...,
-        capacity_ah: float | None = ...,
-        max_hours: float = ...,
-        text: str | None = ...,
-        recorders: Sequence[Callable[[Record], None]] = ...,
-        should_stop: Callable[[], bool] | None = ...,
-    ) -> DryRunOutcome: ...
+        file: str,
+        text: str,
+        params: Mapping[str, str],
+        capacity_ah: float | None,
+        max_hours: float,
+        timeout_s: float,
+    ) -> Mapping[str, Any]: ...
 
 
 @dataclass
@@ -197,8 +182,8 @@ def error_json(e: ConfigError) -> dict[str, Any]:
     }
 
 
-def _errors_of(exc: ConfigErrors | ConfigError) -> list[ConfigError]:
-    return exc.errors if isinstance(exc, ConfigErrors) else [exc]
+def _config_error(e: Mapping[str, Any]) -> ConfigError:
+    return ConfigError(str(e["message"]), e.get("file"), e.get("line"), e.get("col"))
 
 
 class Trace:
@@ -317,9 +302,14 @@ class BadBody(Exception):
         self.errors = errors or []
 
     def response(self) -> web.Response:
-        if self.errors:
-            return _refused(self.errors, self.status)
-        return _error(self.status, self.reason)
+        resp = (
+            _refused(self.errors, self.status) if self.errors else _error(self.status, self.reason)
+        )
+        if self.status == 413:
+            # The rest of the body is not read: the connection is closed after the answer
+            # instead of reading on to the next request.
+            resp.force_close()
+        return resp
 
 
 def _no_constant(name: str) -> Any:
@@ -569,60 +559,30 @@ class RecipesApi:
         max_hours: float,
     ) -> web.Response:
         timeout_s = self.config.dry_run_timeout_s
-        stop = threading.Event()
-        trace = Trace()
         capacity_ah = target.capacity_ah if target is not None else None
-
-        def job() -> DryRunOutcome:
-            # The dry run's own bench on its own virtual clock and event loop, in this
-            # worker thread: the scan's loop never runs any of it.
-            return asyncio.run(
-                runner(
-                    file,
-                    text=text,
-                    params=params,
-                    capacity_ah=capacity_ah,
-                    max_hours=max_hours,
-                    recorders=(trace,),
-                    should_stop=stop.is_set,
-                )
-            )
-
-        timed_out: list[bool] = []
-
-        def time_up() -> None:
-            timed_out.append(True)
-            stop.set()
-
-        timer = asyncio.get_running_loop().call_later(timeout_s, time_up)
         try:
-            res = await run_in_worker(job, timeout_s + DRY_RUN_GRACE_S, f"dry run of {file}")
-        except WorkerTimeout:
-            return _error(
-                503,
-                f"the dry run of {file} did not stop within {timeout_s + DRY_RUN_GRACE_S:g} s;"
-                " abandoned (README: Input limits)",
-            )
-        except (ConfigErrors, ConfigError) as exc:
-            return _refused(_errors_of(exc))
-        finally:
-            timer.cancel()
-            stop.set()  # a request that went away (cancelled) stops its dry run too
-        end_reason = res.end_reason
-        if timed_out and not res.finished:
+            res = await runner(file, text, params, capacity_ah, max_hours, timeout_s)
+        except Exception as exc:  # no answer (killed at its limit, crashed): say why
+            log.error("recipes: dry run of %s: %s", file, exc)
+            return _error(503, f"{exc} (README: Input limits)")
+        if "errors" in res:
+            return _refused([_config_error(e) for e in res["errors"]])
+        end_reason = str(res["end_reason"])
+        if res.get("timed_out"):
             end_reason = (
                 f"the preview stopped after {timeout_s:g} s of computing, at test time"
-                f" {_hms(res.simulated_s)}; `supervisor dry-run {file}` runs it to its end"
+                f" {_hms(float(res['simulated_s']))}; `supervisor dry-run {file}` runs it to"
+                " its end"
             )
-        summary = res.summary
+        summary: Mapping[str, Any] = res["summary"]
         return _json(
             {
                 "ok": True,
-                "recipe": res.program.name,
+                "recipe": res["recipe"],
                 "file": file,
-                "finished": res.finished,
+                "finished": res["finished"],
                 "state": summary.get("state"),
-                "duration_s": round(res.simulated_s, 3),
+                "duration_s": round(float(res["simulated_s"]), 3),
                 "end_reason": end_reason,
                 "cycles": [cycle_json(c) for c in summary.get("cycles", [])],
                 "cycles_omitted": summary.get("cycles_omitted", 0),
@@ -637,7 +597,7 @@ class RecipesApi:
                     for e in summary.get("timeline", [])
                 ],
                 "timeline_omitted": summary.get("timeline_omitted", 0),
-                "trace": trace.as_json(),
+                "trace": res["trace"],
             }
         )
 

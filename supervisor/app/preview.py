@@ -1,0 +1,139 @@
+"""The HMI's dry-run preview (``POST /api/recipes/dryrun``), computed in a child process.
+
+Not in a thread of the supervisor: a dry run is pure Python that runs flat out for
+seconds, and a thread of it holds the interpreter's lock in 5 ms slices against the scan's
+event loop, which gives the lock up at every socket read and waits up to a slice to get it
+back. Measured on the simulated bench (io_maps/sim.yaml, 0.1 s scan): during a dry run of
+the 25 h NiMH recipe in a worker thread the scan skipped 12 deadlines and the e-stop sense
+went stale (tests/integration/test_hmi_recipes_api.py). A child process has its own lock
+and, niced, gives the CPU to the scan on a machine with one core.
+
+The child (``python -m supervisor.app.preview``) reads one JSON job on stdin and writes one
+JSON answer on stdout: the dry run's end, its summary and a trace of at most
+``MAX_TRACE_POINTS`` points, or the recipe's errors. It stops itself at its time limit
+(between two chunks of virtual time, answering what it has); the parent kills it if it has
+not answered a grace period later.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import os
+import sys
+import time
+from collections.abc import Mapping
+from typing import Any, Final
+
+from supervisor.app.dryrun import dry_run
+from supervisor.core.errors import ConfigError, ConfigErrors
+from supervisor.hmi.recipes_api import Trace
+
+log = logging.getLogger(__name__)
+
+__all__ = ["PreviewFailed", "preview_in_child"]
+
+GRACE_S: Final = 15.0
+"""How long after its time limit the parent waits for the child's answer (it stops at the
+end of the chunk under way, then shuts its bench down) before killing it."""
+NICENESS: Final = 10
+"""The child's scheduling priority below the supervisor's (``nice``): on one core the
+scan comes first."""
+
+
+class PreviewFailed(Exception):
+    """The child did not answer (killed at its time limit, crashed): the reason."""
+
+
+def _error_json(e: ConfigError) -> dict[str, Any]:
+    return {"message": e.message, "file": e.file, "line": e.line, "col": e.col}
+
+
+async def _run(job: Mapping[str, Any]) -> dict[str, Any]:
+    deadline = time.monotonic() + float(job["timeout_s"])
+    trace = Trace()
+    try:
+        res = await dry_run(
+            job["file"],
+            text=job["text"],
+            params=dict(job.get("params") or {}),
+            capacity_ah=job.get("capacity_ah"),
+            max_hours=float(job["max_hours"]),
+            recorders=(trace,),
+            should_stop=lambda: time.monotonic() > deadline,
+        )
+    except ConfigErrors as exc:
+        return {"errors": [_error_json(e) for e in exc.errors]}
+    except ConfigError as exc:
+        return {"errors": [_error_json(exc)]}
+    return {
+        "recipe": res.program.name,
+        "end_reason": res.end_reason,
+        "finished": res.finished,
+        "simulated_s": res.simulated_s,
+        "timed_out": not res.finished and time.monotonic() > deadline,
+        "summary": res.summary,
+        "trace": trace.as_json(),
+    }
+
+
+def child_main() -> int:
+    """The child's entry: a job on stdin, the answer on stdout."""
+    logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
+    with contextlib.suppress(OSError):
+        os.nice(NICENESS)
+    job = json.loads(sys.stdin.read())
+    answer = asyncio.run(_run(job))
+    sys.stdout.write(json.dumps(answer, allow_nan=False) + "\n")
+    return 0
+
+
+async def preview_in_child(
+    file: str,
+    text: str,
+    params: Mapping[str, str],
+    capacity_ah: float | None,
+    max_hours: float,
+    timeout_s: float,
+) -> dict[str, Any]:
+    """The preview's answer (see :func:`_run`); ``PreviewFailed`` when none came."""
+    job = {
+        "file": file,
+        "text": text,
+        "params": dict(params),
+        "capacity_ah": capacity_ah,
+        "max_hours": max_hours,
+        "timeout_s": timeout_s,
+    }
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable,
+        "-m",
+        "supervisor.app.preview",
+        stdin=asyncio.subprocess.PIPE,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
+    try:
+        out, err = await asyncio.wait_for(
+            proc.communicate(json.dumps(job).encode("utf-8")), timeout_s + GRACE_S
+        )
+    except TimeoutError:
+        raise PreviewFailed(
+            f"the dry run of {file} did not answer within {timeout_s + GRACE_S:g} s; stopped"
+        ) from None
+    finally:
+        if proc.returncode is None:  # timed out, or the request went away (cancelled)
+            proc.kill()
+            await proc.wait()
+    if proc.returncode != 0:
+        why = err.decode("utf-8", "replace").strip().splitlines()[-1:] or ["no message"]
+        log.error("dry run of %s: child exited %s: %s", file, proc.returncode, err.decode())
+        raise PreviewFailed(f"the dry run of {file} failed: {why[0]}")
+    answer: dict[str, Any] = json.loads(out)
+    return answer
+
+
+if __name__ == "__main__":
+    sys.exit(child_main())
