@@ -13,6 +13,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -37,6 +38,7 @@ CHROMIUM_ARGS = [
 ARTIFACTS = ROOT / "tests" / "artifacts"
 SCREENS = ARTIFACTS / "screens"
 FIGURES = ARTIFACTS / "hmi-figures.json"
+VIEWPORT = {"width": 1366, "height": 768}  # the panel PC of issue 12
 SHORT_RECIPE = Path(__file__).resolve().parent / "short-cycle.yaml"
 
 # Demo users of the test bench (role = name), as `make run` creates them.
@@ -120,6 +122,7 @@ class Supervisor:
     workdir: Path
     log_path: Path
     login: bool
+    drain: threading.Thread
     jars: dict[str, urllib.request.OpenerDirector] = field(default_factory=dict)
 
     @property
@@ -203,12 +206,13 @@ def start_supervisor(workdir: Path, **hmi: Any) -> Supervisor:
             break
     if not base:
         stop(proc)
+        proc.stdout.close()
         tail = log_path.read_text(encoding="utf-8")[-3000:]
         raise AssertionError(f"supervisor run did not start: {lines}\n{tail}")
-    # The rest of stdout goes to the log (a full pipe would block the supervisor).
-    threading_drain(proc, workdir / "supervisor.stdout")
+    # The rest of stdout goes to a file (a full pipe would block the supervisor).
+    drain = threading_drain(proc, workdir / "supervisor.stdout")
     login = "login" in hmi_options()
-    sup = Supervisor(proc, base, workdir, log_path, login)
+    sup = Supervisor(proc, base, workdir, log_path, login, drain)
     wait_for(
         "the simulated devices connected",
         lambda: all(sup.tag(t) is True for t in ("adam.connected", "ea.connected", "estop.ok")),
@@ -218,16 +222,16 @@ def start_supervisor(workdir: Path, **hmi: Any) -> Supervisor:
     return sup
 
 
-def threading_drain(proc: subprocess.Popen[str], path: Path) -> None:
-    import threading
-
+def threading_drain(proc: subprocess.Popen[str], path: Path) -> threading.Thread:
     def drain() -> None:
         assert proc.stdout is not None
         with path.open("w", encoding="utf-8") as out:
             for line in proc.stdout:
                 out.write(line)
 
-    threading.Thread(target=drain, name=f"stdout-{proc.pid}", daemon=True).start()
+    thread = threading.Thread(target=drain, name=f"stdout-{proc.pid}", daemon=True)
+    thread.start()
+    return thread
 
 
 def stop(proc: subprocess.Popen[str]) -> None:
@@ -247,6 +251,9 @@ def supervisor_fixture(workdir: Path, **hmi: Any) -> Iterator[Supervisor]:
         yield sup
     finally:
         stop(sup.proc)
+        sup.drain.join(STOP_TIMEOUT_S)  # at the end of its output once the process ended
+        if sup.proc.stdout is not None:
+            sup.proc.stdout.close()
 
 
 def screenshot(page: Any, name: str) -> Path:
@@ -270,3 +277,14 @@ def save_figures(update: dict[str, Any]) -> None:
     figures.update(update)
     FIGURES.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
     print(f"figures: {FIGURES.relative_to(ROOT)}")
+
+
+def login(page: Any, bench: Supervisor, user: str, where: str = "#/") -> None:
+    """Open ``where`` and log in as ``user`` on the login screen (if the bench has login)."""
+    page.goto(f"{bench.base}/{where}")
+    if bench.login:
+        page.wait_for_selector("#login-form")
+        page.fill("#login-user", user)
+        page.fill("#login-password", USERS[user])
+        page.click("#login-submit")
+    page.wait_for_selector("#top:not([hidden])")

@@ -13,9 +13,15 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from browserrig import CHROMIUM, CHROMIUM_ARGS, ROOT, USERS, Supervisor, supervisor_fixture
-
-VIEWPORT = {"width": 1366, "height": 768}  # the panel PC of issue 12
+from browserrig import (
+    CHROMIUM,
+    CHROMIUM_ARGS,
+    ROOT,
+    VIEWPORT,
+    Supervisor,
+    login,
+    supervisor_fixture,
+)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
@@ -69,17 +75,6 @@ def page(context: Any) -> Iterator[Any]:
     pg.on("pageerror", lambda exc: errors.append(str(exc)))
     yield pg
     assert not errors, f"the page raised: {errors}"
-
-
-def login(page: Any, bench: Supervisor, user: str, where: str = "#/") -> None:
-    """Open ``where`` and log in as ``user`` on the login screen (if the bench has login)."""
-    page.goto(f"{bench.base}/{where}")
-    if bench.login:
-        page.wait_for_selector("#login-form")
-        page.fill("#login-user", user)
-        page.fill("#login-password", USERS[user])
-        page.click("#login-submit")
-    page.wait_for_selector("#top:not([hidden])")
 
 
 @pytest.fixture

@@ -17,12 +17,13 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import VIEWPORT, login
 from browserrig import (
     ARTIFACTS,
     SHORT_RECIPE,
+    VIEWPORT,
     Supervisor,
     hmi_options,
+    login,
     save_figures,
     screenshot,
     supervisor_fixture,

@@ -6,25 +6,40 @@ import { bindTags, esc, $ } from "../dom.js";
 
 const isObj = (v) => v && typeof v === "object" && !Array.isArray(v);
 
+/** A {value, description} pair (a tag's value with what it means) or anything else. */
+const isTagValue = (v) => isObj(v) && "value" in v;
+
 function fmt(v) {
   if (v === null || v === undefined) return "—";
+  if (isTagValue(v)) return fmt(v.value);
   if (typeof v === "number") return Number.isInteger(v) ? String(v) : v.toPrecision(4);
   if (typeof v === "boolean") return v ? "yes" : "no";
-  if (isObj(v) || Array.isArray(v)) return JSON.stringify(v);
+  if (Array.isArray(v)) return v.map(fmt).join(", ");
+  if (isObj(v)) return Object.entries(v).map(([k, x]) => `${k} ${fmt(x)}`).join(", ");
   return String(v);
+}
+
+/** One cell: nested objects as lines "name value" (the description as a tooltip). */
+function cell(v) {
+  if (isObj(v) && !isTagValue(v) && Object.values(v).some((x) => isObj(x))) {
+    return Object.entries(v)
+      .map(([k, x]) => `<div class="sub" title="${esc(isTagValue(x) ? x.description || "" : "")}"><span class="muted">${esc(k)}</span> ${esc(fmt(x))}</div>`)
+      .join("");
+  }
+  return esc(fmt(v));
 }
 
 function table(id, rows, abnormal = () => false) {
   if (!rows || !rows.length) return '<p class="muted">none</p>';
   const cols = Array.from(new Set(rows.flatMap((r) => Object.keys(r))));
   return `<table class="grid" id="${id}"><thead><tr>${cols.map((c) => `<th>${esc(c)}</th>`).join("")}</tr></thead><tbody>
-    ${rows.map((r) => `<tr class="${abnormal(r) ? "abn" : ""}">${cols.map((c) => `<td>${esc(fmt(r[c]))}</td>`).join("")}</tr>`).join("")}</tbody></table>`;
+    ${rows.map((r) => `<tr class="${abnormal(r) ? "abn" : ""}">${cols.map((c) => `<td>${cell(r[c])}</td>`).join("")}</tr>`).join("")}</tbody></table>`;
 }
 
 function kvTable(id, obj) {
   if (!isObj(obj)) return '<p class="muted">none</p>';
   return `<table class="grid kvt" id="${id}"><tbody>${Object.entries(obj)
-    .map(([k, v]) => `<tr><th>${esc(k)}</th><td>${esc(fmt(v))}</td></tr>`)
+    .map(([k, v]) => `<tr><th>${esc(k)}</th><td>${cell(v)}</td></tr>`)
     .join("")}</tbody></table>`;
 }
 
@@ -39,9 +54,9 @@ export async function render({ root, app }) {
   root.innerHTML = `
     <h1>Diagnostics</h1>
     <div class="diag-grid">
-      <section class="panel"><h2>Devices</h2><div id="diag-devices"><p class="muted">…</p></div></section>
+      <section class="panel wide"><h2>Devices</h2><div id="diag-devices"><p class="muted">…</p></div></section>
       <section class="panel"><h2>Scan</h2><div id="diag-scan"></div></section>
-      <section class="panel"><h2>Publishers</h2><div id="diag-publishers"></div></section>
+      <section class="panel wide"><h2>Publishers</h2><div id="diag-publishers"></div></section>
       <section class="panel"><h2>Spool</h2><div id="diag-spool"></div></section>
       <section class="panel"><h2>Live counters</h2>
         <table class="grid kvt" id="diag-live"><tbody>${liveRows(["scan.", "historian.", "hmi.", "influx.", "opcua.", "retain."])}${app.bench.devices
