@@ -15,6 +15,7 @@ const SPANS_S = [
 const TREND_HEIGHT = 260;
 const MAX_LIVE_POINTS = 20000;
 const REDRAW_MS = 500;
+const HOLD_S = 1.0;
 
 const VERBS = [
   ["start", "Start"],
@@ -319,12 +320,14 @@ export async function render({ root, app, params }) {
     }
     redraw();
   }
-  const livePoint = (names) => {
+  // A live point on each change of V, I or T, and (sample and hold, as a SCADA trend
+  // does) at least every HOLD_S: a value that does not change is still the current one.
+  const livePoint = (names, now) => {
     if (names && !trendTags.some((n) => names.includes(n))) return;
-    let ts = 0;
+    let ts = now || 0;
     const row = trendTags.map((n) => {
       const tag = app.live.tags.get(n);
-      if (tag?.source_time) ts = Math.max(ts, tag.source_time);
+      if (!now && tag?.source_time) ts = Math.max(ts, tag.source_time);
       return tag && typeof tag.value === "number" && tag.quality !== "BAD" ? tag.value : null;
     });
     ts = ts || Date.now() / 1000;
@@ -338,6 +341,9 @@ export async function render({ root, app, params }) {
   makeChart();
   loadHistory();
   const timer = setInterval(() => {
+    const now = Date.now() / 1000;
+    const n = data[0].length;
+    if (app.live.state === "live" && (!n || now - data[0][n - 1] >= HOLD_S)) livePoint(null, now);
     if (dirty || following) {
       dirty = false;
       redraw();
