@@ -98,6 +98,7 @@ async def _serve(
 ) -> int:
     from supervisor.commands import Command, Verb
     from supervisor.hmi import HttpApi
+    from supervisor.hmi.tests_api import TestsConfig
 
     clock = bench.clock
     port = cfg.hmi.port if args.http_port is None else args.http_port
@@ -114,6 +115,7 @@ async def _serve(
         commands=bench.commands,
         history=history,
         recipes=_recipes_config(cfg, bench),
+        tests=TestsConfig(Path(cfg.state_dir) / "results", bench.results, bench.runners),
     )
     opcua = None
     if cfg.opcua.enabled:

@@ -33,6 +33,7 @@ from supervisor.core.clock import Clock
 from supervisor.core.quality import Quality
 from supervisor.hmi.history_api import HistoryQuery, add_history_routes
 from supervisor.hmi.recipes_api import RecipesConfig, add_recipe_routes
+from supervisor.hmi.tests_api import TestsConfig, add_test_routes
 from supervisor.safety import Alarm, AlarmEvent
 from supervisor.tags import Tag, TagDB
 
@@ -144,6 +145,7 @@ class HttpApi:
         sim_state: Callable[[], dict[str, Any]] | None = None,
         history: HistoryQuery | None = None,
         recipes: RecipesConfig | None = None,
+        tests: TestsConfig | None = None,
     ):
         self.db = db
         self._estop = estop
@@ -170,6 +172,8 @@ class HttpApi:
             add_history_routes(app, history, db, clock, self.commands.runners)
         if recipes is not None:  # /api/recipes… (hmi/recipes_api.py)
             add_recipe_routes(app, recipes)
+        if tests is not None:  # /api/tests… (hmi/tests_api.py)
+            add_test_routes(app, tests, clock)
         if estop is not None:
             # Simulation only: the e-stop button of the simulated bench.
             app.add_routes([web.put("/api/sim/estop", self._sim_estop)])

@@ -1,0 +1,183 @@
+"""The Tests screen's endpoints against the real aiohttp server on loopback (issue 12): a
+test run through the HTTP API on a simulated Chadèche channel (virtual clock) is listed
+while it runs and after, with its capacity and efficiency per cycle, and its result files
+download as attachments; nothing else under the state directory can be fetched."""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import pytest
+from commandrig import recipe, started_bench
+from yarl import URL
+
+from supervisor.app import Bench
+from supervisor.chains.states import State
+from supervisor.hmi import HttpApi
+from supervisor.hmi.tests_api import TestsConfig
+from supervisor.publish.results import BDF_COLUMNS
+from supervisor.testing import run_scans
+
+pytestmark = pytest.mark.integration
+
+TWO_CYCLES = (
+    "recipe: two-cycles\ncycles: 2\nsteps:\n"
+    "  - {id: c, charge: 300 mA, duration: 60 s}\n"
+    "  - {id: d, discharge: 300 mA, duration: 60 s}\n"
+)
+
+
+@dataclass
+class Client:
+    bench: Bench
+    api: HttpApi
+    session: aiohttp.ClientSession
+    results: Path
+
+    async def call(self, method: str, path: str, body: Any = None) -> tuple[int, Any]:
+        kw: dict[str, Any] = {} if body is None else {"json": body}
+        url = URL(self.api.url + path, encoded=True)
+        async with self.session.request(method, url, **kw) as resp:
+            return resp.status, await resp.json()
+
+    async def download(self, path: str) -> tuple[int, dict[str, str], bytes]:
+        url = URL(self.api.url + path, encoded=True)
+        async with self.session.get(url) as resp:
+            return resp.status, dict(resp.headers), await resp.read()
+
+    async def start(self, tmp_path: Path, text: str = TWO_CYCLES) -> str:
+        status, body = await self.call(
+            "POST", "/channels/ch0/commands/start", {"recipe": recipe(tmp_path, text)}
+        )
+        assert status == 200 and body["accepted"] is True, body
+        await run_scans(self.bench.engine, 5)
+        return self.bench.runners["ch0"].test_id
+
+
+@pytest.fixture
+async def client(tmp_path: Path) -> AsyncIterator[Client]:
+    bench = await started_bench(tmp_path)
+    results = Path(bench.cfg.state_dir) / "results"
+    tests = TestsConfig(results, bench.results, bench.runners)
+    api = HttpApi(bench.db, bench.clock, "127.0.0.1", 0, commands=bench.commands, tests=tests)
+    await api.start()
+    try:
+        async with aiohttp.ClientSession() as session:
+            yield Client(bench, api, session, results)
+    finally:
+        await api.stop()
+        await bench.shutdown()
+
+
+async def run_to_the_end(c: Client) -> None:
+    runner = c.bench.runners["ch0"]
+    for _ in range(20):
+        await c.bench.engine.run_for(30.0)
+        if runner.state is State.COMPLETE:
+            return
+    raise AssertionError(f"the test did not complete: {runner.state}")
+
+
+async def test_no_test_yet_is_an_empty_list(client: Client) -> None:
+    assert await client.call("GET", "/tests") == (200, {"tests": []})
+
+
+async def test_a_running_test_is_listed_with_its_state_from_the_chain(
+    client: Client, tmp_path: Path
+) -> None:
+    test_id = await client.start(tmp_path)
+    await client.bench.engine.run_for(90.0)  # past the first step change (a record)
+    status, body = await client.call("GET", "/tests")
+    assert status == 200
+    (test,) = body["tests"]
+    assert test["id"] == test_id
+    assert (test["channel"], test["recipe"], test["state"]) == ("ch0", "two-cycles", "Running")
+    assert test["running"] is True and test["complete"] is False and test["ended"] is None
+    assert test["started"] == pytest.approx(client.bench.clock.wall() - 90.0, abs=2.0)
+    kinds = {f["kind"] for f in test["files"]}
+    assert {"bdf", "chadeche"} <= kinds
+    status, detail = await client.call("GET", f"/tests/{test_id}")
+    assert status == 200 and detail["cycles"][0]["cycle"] == 1
+    assert detail["cycles"][0]["charge_ah"] > 0
+
+
+async def test_a_finished_test_has_its_files_and_capacity_and_efficiency_per_cycle(
+    client: Client, tmp_path: Path
+) -> None:
+    test_id = await client.start(tmp_path)
+    await run_to_the_end(client)
+    status, body = await client.call("GET", "/tests")
+    (test,) = body["tests"]
+    assert (test["state"], test["running"], test["complete"]) == ("Complete", False, True)
+    assert test["end_reason"].startswith("complete after step d of cycle 2")
+    assert test["ended"] == pytest.approx(test["started"] + test["duration_s"])
+    assert test["duration_s"] == pytest.approx(240.0, abs=2.0)
+    files = {f["kind"]: f for f in test["files"]}
+    assert sorted(files) == ["bdf", "chadeche", "summary"]
+    assert files["bdf"]["name"] == f"{test_id}.bdf.csv"
+    for f in files.values():
+        assert f["bytes"] == (client.results / test_id / f["name"]).stat().st_size > 0
+
+    status, detail = await client.call("GET", f"/tests/{test_id}")
+    assert status == 200 and detail["id"] == test_id
+    assert [c["cycle"] for c in detail["cycles"]] == [1, 2]
+    for c in detail["cycles"]:
+        # 300 mA for 60 s each way: 5 mAh in, 5 mAh out.
+        assert c["charge_ah"] == pytest.approx(0.005, rel=0.05)
+        assert c["discharge_ah"] == pytest.approx(0.005, rel=0.05)
+        assert c["efficiency"] == pytest.approx(1.0, abs=0.05)
+    assert any(e["text"].startswith("starting step") for e in detail["timeline"])
+
+
+async def test_a_result_file_downloads_as_an_attachment(client: Client, tmp_path: Path) -> None:
+    test_id = await client.start(tmp_path)
+    await run_to_the_end(client)
+    name = f"{test_id}.bdf.csv"
+    status, headers, data = await client.download(f"/tests/{test_id}/files/{name}")
+    assert status == 200
+    assert headers["Content-Disposition"] == f'attachment; filename="{name}"'
+    assert headers["Content-Type"].startswith("text/csv")
+    assert data == (client.results / test_id / name).read_bytes()
+    rows = list(csv.reader(io.StringIO(data.decode("utf-8"))))
+    assert tuple(rows[0]) == BDF_COLUMNS and len(rows) > 2
+    status, headers, data = await client.download(f"/tests/{test_id}/files/summary.json")
+    assert status == 200 and headers["Content-Type"].startswith("application/json")
+
+
+async def test_unknown_tests_and_files_are_404(client: Client, tmp_path: Path) -> None:
+    test_id = await client.start(tmp_path)
+    await run_to_the_end(client)
+    (client.results / test_id / "summary.json.tmp").write_text("{}", encoding="utf-8")
+    assert (await client.call("GET", "/tests/no-such-test"))[0] == 404
+    for path in (
+        "/tests/no-such-test/files/summary.json",
+        f"/tests/{test_id}/files/nothing.csv",
+        f"/tests/{test_id}/files/summary.json.tmp",  # a temporary is not a result
+    ):
+        assert (await client.download(path))[0] == 404, path
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        "/tests/..%2F..%2Fbench.yaml",
+        "/tests/%2E%2E/files/bench.yaml",
+        "/tests/{id}/files/..%2F..%2F..%2Fbench.yaml",
+        "/tests/{id}/files/%2E%2E%2Fstate.sqlite",
+        "/tests/..%2Fresults/files/state.sqlite",
+    ],
+)
+async def test_no_path_leaves_the_results_directory(
+    client: Client, tmp_path: Path, path: str
+) -> None:
+    test_id = await client.start(tmp_path)
+    await run_to_the_end(client)
+    status, _, data = await client.download(path.replace("{id}", test_id))
+    assert status in (400, 404), status
+    assert b"safety" not in data and b"SQLite" not in data  # nothing of bench.yaml, state
