@@ -281,8 +281,12 @@ def save_figures(update: dict[str, Any]) -> None:
 
 def login(page: Any, bench: Supervisor, user: str, where: str = "#/") -> None:
     """Open ``where`` and log in as ``user`` on the login screen (if the bench has login)."""
+    # A full load (a page already on the HMI would only change its hash, and the login
+    # screen found could be the one about to be replaced).
+    page.goto("about:blank")
     page.goto(f"{bench.base}/{where}")
     if bench.login:
+        page.wait_for_function("() => location.hash.startsWith('#/login')")
         page.wait_for_selector("#login-form")
         page.fill("#login-user", user)
         page.fill("#login-password", USERS[user])

@@ -56,12 +56,20 @@ def test_an_operator_logs_in_and_sees_the_bench_mimic_and_a_tile_per_channel(
         transferred.append((req.url, sizes["responseBodySize"] + sizes["responseHeadersSize"]))
 
     page.on("requestfinished", finished)
+    problems: list[str] = []
+    page.on("pageerror", lambda exc: problems.append(f"page error: {exc}"))
+    page.on("console", lambda m: problems.append(f"console {m.type}: {m.text}"))
+    page.on("response", lambda r: r.status >= 400 and problems.append(f"{r.status} {r.url}"))
     try:
         page.goto(f"{bench.base}/")
         if bench.login:
             page.wait_for_selector("#login-form")
             screenshot(page, "login")
-        login(page, bench, "operator")
+        try:
+            login(page, bench, "operator")
+        except Exception:
+            print("\n".join(problems))
+            raise
         page.wait_for_selector("#tile-ch4")
         wait_for("live values", lambda: page.text_content("#tile-ch0 .big") not in ("", "—"))
         page.wait_for_load_state("networkidle")
