@@ -79,7 +79,7 @@ $(INFLUXD):
 	GOBIN=$(INFLUXD_CACHE) GOFLAGS=-buildvcs=false go install github.com/influxdata/influxdb/cmd/influxd@v$(INFLUXD_VERSION)
 
 ## Benchmarks: figures are printed, never asserted.
-bench: $(STAMP) $(INFLUXD)
+bench: $(STAMP) $(INFLUXD) $(HMI_STAMP) $(CHROMIUM)
 	$(BIN)/supervisor bench scan --tags 1000 --period-ms 10 --seconds 10
 	$(BIN)/supervisor bench manual --hours 10
 	$(BIN)/supervisor bench dry-run --recipe recipes/nimh-25h-slow-cycle.yaml
@@ -90,6 +90,9 @@ bench: $(STAMP) $(INFLUXD)
 	$(BIN)/supervisor bench historian --tags 1000 --period-ms 10 --seconds 10
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/supervisor bench influx --points 200000 --rounds 3
 	$(BIN)/supervisor bench opcua --clients 10 --seconds 10 --opcua-tags 50 --period-ms 50
+	# The HMI in Chromium: update latency tag change -> page (p50/p99) and the page's weight
+	# (tests/artifacts/hmi-figures.json).
+	$(BIN)/pytest -q -s -p no:cacheprovider tests/browser -k "logs_in or update_latency"
 
 ## The mutation corpus (tests/mutation.py) through the real commands, one process each,
 ## one at a time per CPU: counts per class printed, every failure in var/mutation/report.md;

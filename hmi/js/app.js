@@ -202,15 +202,21 @@ app.live.onDisconnect = async () => {
   }
 };
 
+// Routes can overlap (a hash change while the previous screen still loads): only the
+// latest one renders.
+let routeGen = 0;
+
 async function route() {
+  const gen = ++routeGen;
   const here = parseHash();
   const found = ROUTES.find(([re]) => re.test(here.path)) || ROUTES[1];
   const [re, mod] = found;
   if (mod !== login && !app.session && !(await loadSession())) {
-    goLogin();
+    if (gen === routeGen) goLogin();
     return;
   }
   if (mod !== login && !app.bench) app.bench = await loadBench();
+  if (gen !== routeGen) return;
   if (mod !== login && !app.live._started) {
     app.live._started = true;
     app.live.start();
@@ -223,7 +229,12 @@ async function route() {
   paintHeader();
   paintAlarmCount();
   const params = here.path.match(re).slice(1);
-  app.screen = (await mod.render({ root, app, params, query: here.query })) || null;
+  const screen = (await mod.render({ root, app, params, query: here.query })) || null;
+  if (gen !== routeGen) {
+    if (screen?.destroy) screen.destroy();
+    return;
+  }
+  app.screen = screen;
   document.title = `${root.dataset.title || found[2]} — bench supervisor`;
 }
 
