@@ -29,7 +29,9 @@ const ticks = (u, vals) => vals.map((v) => (v === null ? "" : Math.abs(v) >= 100
  * A simple plot of arrays: lines, a stepped line (`stepped`: a timeline of steps) or bars
  * (`bars`, x ordinal: one group per cycle).
  */
-export function simplePlot(el, { title, xLabel, yLabel, series, x, ys, height = 220, bars = false, stepped = false, yValues }) {
+export function simplePlot(el, { title, xLabel, yLabel, series, x, ys, height = 220, bars = false, stepped = false, yValues, integerX = false }) {
+  // Cycles are whole numbers: ticks on integers only, half a cycle of room each side.
+  const whole = integerX || bars;
   // Bars side by side: the first series left of its cycle, the second right of it.
   const pathsOf = (i) =>
     bars
@@ -41,9 +43,11 @@ export function simplePlot(el, { title, xLabel, yLabel, series, x, ys, height = 
     title,
     width: widthOf(el),
     height,
-    scales: { x: bars ? { time: false, distr: 2 } : { time: false } },
+    scales: { x: whole ? { time: false, range: (u, min, max) => [min - 0.6, max + 0.6] } : { time: false } },
     axes: [
-      { label: xLabel, values: ticks },
+      whole
+        ? { label: xLabel, incrs: [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000], values: (u, vals) => vals.map((v) => (Number.isInteger(v) ? v : "")) }
+        : { label: xLabel, values: ticks },
       { label: yLabel ?? series.map((s) => s.label).join(" / "), values: yValues ?? ticks, size: 60 },
     ],
     series: [

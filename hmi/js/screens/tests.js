@@ -4,9 +4,11 @@ import { get } from "../api.js";
 import { esc, fmtTime, $ } from "../dom.js";
 import { simplePlot } from "../chart.js";
 
+const TIMES = new Set(["started", "ended", "start", "end", "updated"]);
+
 const fileUrl = (id, name) => `/api/tests/${encodeURIComponent(id)}/files/${encodeURIComponent(name)}`;
 
-const fmtNum = (v, d = 3) => (typeof v === "number" ? v.toFixed(d) : "—");
+const fmtNum = (v, d = 3) => (typeof v === "number" ? (Math.abs(v) < 0.01 && v !== 0 ? v.toPrecision(3) : v.toFixed(d)) : "—");
 
 function fmtBytes(n) {
   if (typeof n !== "number") return "";
@@ -54,7 +56,7 @@ export async function render({ root, app, params }) {
       el.innerHTML = `<h2>${esc(id)}</h2>
         <table class="grid kvt"><tbody>${Object.entries(t)
           .filter(([k, v]) => !skip.has(k) && (typeof v !== "object" || v === null))
-          .map(([k, v]) => `<tr><th>${esc(k)}</th><td>${esc(typeof v === "number" && !Number.isInteger(v) ? v.toFixed(4) : v)}</td></tr>`)
+          .map(([k, v]) => `<tr><th>${esc(k)}</th><td>${esc(TIMES.has(k) && typeof v === "number" ? fmtTime(v) : typeof v === "number" && !Number.isInteger(v) ? v.toFixed(4) : v)}</td></tr>`)
           .join("")}</tbody></table>
         <h3>Files</h3><ul class="links" id="test-files">${files
           .map((f) => `<li><a href="${fileUrl(id, f.name)}" download="${esc(f.name)}" class="dl">${esc(f.name)}</a> <small class="muted">${esc(f.kind || "")} ${fmtBytes(f.bytes)}</small></li>`)
@@ -70,19 +72,26 @@ export async function render({ root, app, params }) {
         }`;
       if (cycles.length) {
         const x = cycles.map((c) => c.cycle);
+        const big = cycles.some((c) => Math.abs(c.charge_ah || 0) >= 1 || Math.abs(c.discharge_ah || 0) >= 1);
+        const k = big ? 1 : 1000;
+        const unit = big ? "Ah" : "mAh";
+        const scaled = (v) => (typeof v === "number" ? v * k : null);
         plots.push(
           simplePlot($("#test-capacity", el), {
-            title: "Capacity per cycle (Ah)",
+            title: `Capacity per cycle (${unit})`,
             xLabel: "cycle",
-            series: [{ label: "charge Ah" }, { label: "discharge Ah" }],
+            yLabel: unit,
+            series: [{ label: `charge ${unit}` }, { label: `discharge ${unit}` }],
             x,
-            ys: [cycles.map((c) => c.charge_ah ?? null), cycles.map((c) => c.discharge_ah ?? null)],
+            ys: [cycles.map((c) => scaled(c.charge_ah)), cycles.map((c) => scaled(c.discharge_ah))],
             bars: true,
           }),
           simplePlot($("#test-efficiency", el), {
             title: "Coulombic efficiency per cycle (%)",
             xLabel: "cycle",
+            yLabel: "%",
             series: [{ label: "efficiency %" }],
+            integerX: true,
             x,
             ys: [cycles.map((c) => (typeof c.efficiency === "number" ? c.efficiency * 100 : null))],
           }),
