@@ -10,6 +10,7 @@ int. Numbers are finite (``allow_inf_nan=False``): ``.inf`` and ``.nan`` are ref
 
 from __future__ import annotations
 
+import ipaddress
 import os
 import re
 import urllib.parse
@@ -64,9 +65,59 @@ class ScanConfig(Strict):
     )
 
 
+HMI_SESSION_TIMEOUT_S: Final = 8 * 3600.0
+"""An operator's shift: a session unused for this long logs out (issue 12 "Access")."""
+
+
+def is_loopback(host: str) -> bool:
+    """Is ``host`` reachable from this machine only (``localhost``, 127.0.0.0/8, ::1)?"""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:  # a host name: it may resolve to anything
+        return False
+
+
 class HmiConfig(Strict):
+    """The HTTP API and the operator screens (docs/adr/0016-hmi-sessions-live-data.md)."""
+
     host: str = Field("127.0.0.1", description="Address the HTTP API listens on.")
     port: int = Field(8080, ge=0, le=65535, description="0 picks a free port.")
+    login: bool = Field(
+        False,
+        description="Users log in (the OPC UA users: `supervisor opcua add-user`); viewers"
+        " see, operators command, engineers edit recipes. Without it everyone on the API"
+        " operates, so the host must then be loopback.",
+    )
+    anonymous_read: bool = Field(
+        True,
+        description="With login: a visitor who has not logged in sees the screens"
+        " (a viewer: no command, no write).",
+    )
+    session_timeout_s: float = Field(
+        HMI_SESSION_TIMEOUT_S,
+        gt=0,
+        le=7 * 86400.0,
+        description="A session unused for this long expires (the page goes back to login).",
+    )
+    publish_period_s: float = Field(
+        0.2,
+        ge=0.05,
+        le=10.0,
+        description="How often the screens get the tags that changed (WebSocket /api/ws).",
+    )
+
+    @model_validator(mode="after")
+    def _login_off_the_loopback(self) -> HmiConfig:
+        # Without login every client operates (the bench's outputs): only this machine's.
+        if not self.login and not is_loopback(self.host):
+            raise ValueError(
+                f"host {self.host!r} is not loopback and login is false: anyone on the"
+                " network could command the bench; set hmi.login: true (users:"
+                " `supervisor opcua add-user`) or host: 127.0.0.1"
+            )
+        return self
 
 
 OpcUaSecurity = Literal["none", "sign", "sign_and_encrypt"]

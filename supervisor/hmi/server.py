@@ -24,7 +24,7 @@ import json
 import logging
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Final
 
 from aiohttp import web
 
@@ -39,6 +39,9 @@ from supervisor.tags import Tag, TagDB
 
 log = logging.getLogger(__name__)
 
+
+ACTOR_KEY: Final = web.RequestKey[str]("actor")
+"""Where the login middleware (``supervisor.hmi.auth``) leaves a request's actor."""
 
 NOT_FINITE_REASON = "not a finite number"
 """The reason sent with a tag whose value is NaN or ±inf (sent as null, quality BAD)."""
@@ -217,9 +220,11 @@ class HttpApi:
     # --- commands -------------------------------------------------------------------------
     @staticmethod
     def actor(request: web.Request) -> str:
-        """Who sends the command. The hook for users: until the API authenticates them,
-        everyone on the (loopback) API is the operator."""
-        return "operator"
+        """Who sends the command: ``hmi:<user>`` as the login middleware found it
+        (``supervisor.hmi.auth``); without logins everyone on the (loopback) API is the
+        operator."""
+        actor: str = request.get(ACTOR_KEY, "operator")
+        return actor
 
     async def _answer(self, command: Command) -> web.Response:
         # A recipe to load is compiled in a worker thread, never on the scan's loop.

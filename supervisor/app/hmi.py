@@ -1,0 +1,39 @@
+"""A bench's operator screens, wired (the composition root: the users file, the scan's
+publisher list and the bench's events meet the HMI here; ``supervisor.hmi`` imports none
+of them, ADR 0003)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from supervisor.app.bench import Bench
+from supervisor.app.events import EventFeed
+from supervisor.config.models import HmiConfig
+from supervisor.config.users import UserStore
+from supervisor.hmi import HttpApi
+from supervisor.hmi.live import QUEUE_SIZE
+from supervisor.hmi.screens import DEFAULT_ROOT, Screens, install_screens
+from supervisor.publish.opcua import OpcUaSettings
+
+__all__ = ["build_screens"]
+
+
+def build_screens(
+    bench: Bench,
+    api: HttpApi,
+    root: Path = DEFAULT_ROOT,
+    queue_size: int = QUEUE_SIZE,
+    cfg: HmiConfig | None = None,
+) -> Screens:
+    """The screens of ``bench`` on ``api`` (before ``api.start()``). The users are the OPC UA
+    users (one file, ``opcua.users_file`` or ``<state_dir>/opcua/users.yaml``). Raises
+    ``ConfigError`` for a bad users file. ``cfg``: instead of the I/O map's ``hmi:``
+    (tests)."""
+    cfg = cfg or bench.cfg.hmi
+    users = UserStore(OpcUaSettings.of(bench.cfg).users_file) if cfg.login else None
+    screens = install_screens(api, cfg, users, bench, root, queue_size)
+    bench.engine.publishers.append(screens.live)
+    events = EventFeed()
+    events.sinks.append(screens.live)
+    events.attach(bench)
+    return screens

@@ -1,0 +1,95 @@
+"""What the screens draw, read from the bench model (no server): sim.yaml's layout names
+the real tags of each channel and of the mimic, and a compiled recipe becomes the chain the
+channel screen draws."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from supervisor.app import build_bench
+from supervisor.chains.compiler import compile_recipe
+from supervisor.config.recipe import load_recipe
+from supervisor.core.clock import VirtualClock
+from supervisor.devices.registry import load_bench
+from supervisor.hmi.layout import CHANNEL_TAGS, Layout, program_json
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture
+def layout() -> Layout:
+    bench = build_bench(load_bench(ROOT / "io_maps" / "sim.yaml"), VirtualClock(), in_process=True)
+    return Layout(bench, bench.clock)
+
+
+def test_the_bench_layout_names_each_channel_s_tags(layout: Layout) -> None:
+    body = layout.bench_json()
+    assert (body["bench"], body["period_s"]) == ("sim", 0.1)
+    assert [c["name"] for c in body["channels"]] == ["ch0", "ch1", "ch2", "ch3", "ch4"]
+    ch0 = body["channels"][0]
+    assert (ch0["kind"], ch0["device"], ch0["board"], ch0["unit_prefix"]) == (
+        "chadeche",
+        "chadeche",
+        0,
+        "ch0",
+    )
+    assert ch0["limits"] == {
+        "current_a": [-0.4, 0.4],
+        "voltage_v": [0.8, 1.9],
+        "temperature_c": [None, None],
+    }
+    assert set(ch0["tags"]) == set(CHANNEL_TAGS)
+    assert ch0["tags"]["voltage"] == "ch0.voltage"
+    assert ch0["tags"]["charge"] == "ch0.charge_ah"
+    assert ch0["tags"]["state"] == "ch0.chain.state"
+    assert ch0["tags"]["eta"] == "ch0.chain.eta_s"
+    assert ch0["tags"]["output"] is None  # a Chadèche board has no output switch
+    ch4 = body["channels"][4]
+    assert (ch4["kind"], ch4["tags"]["output"]) == ("ea-psb", "ch4.output_fb")
+    assert {d["name"]: d["health_tag"] for d in body["devices"]} == {
+        "chadeche": "chadeche.connected",
+        "adam": "adam.connected",
+        "ea": "ea.connected",
+        "bms": "bms.connected",
+    }
+
+
+def test_the_mimic_names_the_power_path_s_tags(layout: Layout) -> None:
+    assert layout.bench_json()["mimic"] == {
+        "estop": "estop.ok",
+        "estop_relay": None,  # the contactor is its channel's, not the e-stop's
+        "supply": "ch4.output_fb",
+        "contactor": "contactor.closed",
+        "bms": "bms.connected",
+        "channel": "ch4",
+    }
+
+
+def test_a_compiled_recipe_is_drawn_as_its_chain() -> None:
+    file = str(ROOT / "recipes" / "nimh-ds2710.yaml")
+    recipe, positions = load_recipe(file)
+    body = program_json("ch0", compile_recipe(recipe, positions, file))
+    assert body["recipe"] == "nimh-ds2710" and body["channel"] == "ch0"
+    steps = {s["name"]: s for s in body["steps"]}
+    assert [s["index"] for s in body["steps"]] == list(range(len(body["steps"])))
+    assert steps["discharge"]["kind"] == "discharge"
+    assert steps["discharge"]["current_a"] == pytest.approx(-0.2)
+    assert steps["discharge"]["transitions"] == [
+        {"to": "rest2", "condition": "voltage <= v_min", "action": "next"},
+        {"to": "rest2", "condition": "charge <= q_min", "action": "next"},
+        {"to": "rest2", "condition": "step time >= 90000 s", "action": "next"},
+    ]
+    assert steps["pulse"]["transitions"][0] == {
+        "to": "topoff",
+        "condition": "voltage >= v_max",
+        "action": "goto topoff",
+    }
+    assert steps["loop"]["transitions"] == [
+        {"to": "rest2", "condition": "always", "action": "goto"}
+    ]
+    assert steps["end"]["transitions"] == [
+        {"to": "next cycle", "condition": "always", "action": "next_cycle"}
+    ]
+    assert body["tags"]["step_index"] == "ch0.chain.step_index"
