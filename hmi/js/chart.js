@@ -43,7 +43,11 @@ export function simplePlot(el, { title, xLabel, yLabel, series, x, ys, height = 
     title,
     width: widthOf(el),
     height,
-    scales: { x: whole ? { time: false, range: (u, min, max) => [min - 0.6, max + 0.6] } : { time: false } },
+    scales: {
+      x: whole ? { time: false, range: (u, min, max) => [min - 0.6, max + 0.6] } : { time: false },
+      // Bars start at zero (a bar's length is its value).
+      ...(bars ? { y: { range: (u, min, max) => [Math.min(0, min), max > 0 ? max * 1.1 : 1] } } : {}),
+    },
     axes: [
       whole
         ? { label: xLabel, incrs: [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000], values: (u, vals) => vals.map((v) => (Number.isInteger(v) ? v : "")) }
