@@ -181,7 +181,7 @@ def start_supervisor(workdir: Path, **hmi: Any) -> Supervisor:
     path = bench_map(workdir, **hmi)
     create_users(workdir / "state")
     log_path = workdir / "supervisor.log"
-    log_file = log_path.open("w", encoding="utf-8")
+    log_file = log_path.open("a", encoding="utf-8")  # a restart appends
     exe = [sys.executable, "-m", "supervisor.cli.main"]
     if (Path(sys.executable).parent / "supervisor").exists():
         exe = [str(Path(sys.executable).parent / "supervisor")]
@@ -245,15 +245,19 @@ def stop(proc: subprocess.Popen[str]) -> None:
             proc.wait()
 
 
+def stop_supervisor(sup: Supervisor) -> None:
+    stop(sup.proc)
+    sup.drain.join(STOP_TIMEOUT_S)  # at the end of its output once the process ended
+    if sup.proc.stdout is not None:
+        sup.proc.stdout.close()
+
+
 def supervisor_fixture(workdir: Path, **hmi: Any) -> Iterator[Supervisor]:
     sup = start_supervisor(workdir, **hmi)
     try:
         yield sup
     finally:
-        stop(sup.proc)
-        sup.drain.join(STOP_TIMEOUT_S)  # at the end of its output once the process ended
-        if sup.proc.stdout is not None:
-            sup.proc.stdout.close()
+        stop_supervisor(sup)
 
 
 def screenshot(page: Any, name: str) -> Path:

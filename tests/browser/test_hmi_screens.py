@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -23,10 +24,13 @@ from browserrig import (
     USERS,
     VIEWPORT,
     Supervisor,
+    free_port,
     hmi_options,
     login,
     save_figures,
     screenshot,
+    start_supervisor,
+    stop_supervisor,
     supervisor_fixture,
     wait_for,
 )
@@ -323,6 +327,7 @@ def test_the_simulated_estop_shows_the_alarm_which_is_acknowledged_then_reset(
     page = as_operator
     page.goto(f"{bench.base}/#/alarms")
     page.wait_for_selector("#alarm-active")
+    page.check("#sound")  # the optional audible alert, switched on
     status, body = bench.call("PUT", "/api/sim/estop", {"pressed": True})
     assert status == 200, body
     row = page.locator("#alarm-table tr[data-alarm='estop']")
@@ -330,6 +335,8 @@ def test_the_simulated_estop_shows_the_alarm_which_is_acknowledged_then_reset(
     assert "FIRST OUT" in row.text_content()
     assert "unacknowledged" in row.text_content()
     assert page.locator("#banner").is_visible()
+    played = page.evaluate("() => window.hmi.sound.played.map(p => p.kind)")
+    assert "alarm" in played, played
     screenshot(page, "alarms-estop")
     page.goto(f"{bench.base}/#/")
     page.wait_for_function(
@@ -381,3 +388,40 @@ def test_an_expired_session_goes_to_login_and_back_to_the_same_page(
     page.click("#login-submit")
     page.wait_for_selector("#cmd-hold")
     assert page.url.endswith("#/channel/ch1")
+
+
+@pytest.fixture(scope="module")
+def restartable(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    """A supervisor on a fixed port, which the test stops and starts again."""
+    workdir = tmp_path_factory.mktemp("hmi-restart")
+    port = free_port()
+    held = {"sup": start_supervisor(workdir, port=port), "workdir": workdir, "port": port}
+    try:
+        yield held
+    finally:
+        stop_supervisor(held["sup"])
+
+
+def test_the_page_reconnects_by_itself_after_a_supervisor_restart(
+    page: Any, restartable: dict[str, Any]
+) -> None:
+    sup = restartable["sup"]
+    login(page, sup, "operator", "#/channel/ch2")
+    link = "() => document.querySelector('#link').textContent"
+    page.wait_for_function(f"{link} === 'live'")
+    stop_supervisor(sup)
+    page.wait_for_function(f"{link} === 'disconnected'")
+    assert page.evaluate("() => document.body.classList.contains('stale')")
+    screenshot(page, "channel-supervisor-down")
+    sup = restartable["sup"] = start_supervisor(restartable["workdir"], port=restartable["port"])
+    if sup.login:
+        # A restart forgets every session: the page reconnects by itself, finds its
+        # session gone and asks for a login, keeping its place.
+        page.wait_for_selector("#login-form", timeout=30_000)
+        assert "channel%2Fch2" in page.url
+        page.fill("#login-user", "operator")
+        page.fill("#login-password", USERS["operator"])
+        page.click("#login-submit")
+    page.wait_for_function(f"{link} === 'live'", timeout=30_000)
+    assert page.url.endswith("#/channel/ch2")
+    assert not page.evaluate("() => document.body.classList.contains('stale')")
