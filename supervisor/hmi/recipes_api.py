@@ -160,12 +160,18 @@ class Checked:
         }
 
 
-def check_recipe_text(text: str, file: str, target: Target | None = None) -> Checked:
+def check_recipe_text(
+    text: str,
+    file: str,
+    target: Target | None = None,
+    overrides: Mapping[str, str] | None = None,
+) -> Checked:
     """Parse and compile ``text`` as ``supervisor check`` does the file ``file``
-    (``ConfigErrors`` with the same messages); ``target``: also against a channel."""
+    (``ConfigErrors`` with the same messages); ``target``: also against a channel;
+    ``overrides``: parameter values given for a run."""
     recipe, pos = load_recipe_text(text, file)
     try:
-        program = compile_recipe(recipe, pos, file, target)
+        program = compile_recipe(recipe, pos, file, target, overrides)
         return Checked(program, {k: str(v) for k, v in recipe.parameters.items()})
     finally:
         del recipe
@@ -481,13 +487,21 @@ class RecipesApi:
         return _json({"name": name, "file": str(path), "text": text, "modified": modified})
 
     # --- validating ---------------------------------------------------------------------
-    async def _check(self, text: str, file: str, target: Target | None) -> Checked:
+    async def _check(
+        self,
+        text: str,
+        file: str,
+        target: Target | None,
+        overrides: Mapping[str, str] | None = None,
+    ) -> Checked:
         """``check_recipe_text`` in a worker thread; ``ConfigErrors`` when refused,
         ``BadBody`` 503 past the time limit."""
         timeout_s = self.config.validate_timeout_s
         try:
             return await run_in_worker(
-                lambda: check_recipe_text(text, file, target), timeout_s, f"validating {file}"
+                lambda: check_recipe_text(text, file, target, overrides),
+                timeout_s,
+                f"validating {file}",
             )
         except WorkerTimeout:
             raise BadBody(
@@ -540,7 +554,7 @@ class RecipesApi:
         try:
             # Refused as `supervisor check` refuses it (and by the channel, if one is named)
             # before anything is simulated.
-            await self._check(text, file, target)
+            await self._check(text, file, target, params)
             return await self._dry_run(runner, file, text, params, target, float(max_hours))
         except BadBody as exc:
             return exc.response()
@@ -670,12 +684,18 @@ class RecipesApi:
 
 
 def add_recipe_routes(
-    app: web.Application, config: RecipesConfig, role_of: RoleOf | None = None
+    app: web.Application,
+    config: RecipesConfig,
+    role_of: RoleOf | None = None,
+    actor_of: ActorOf | None = None,
 ) -> RecipesApi:
-    """Register the recipe endpoints on ``app``; ``role_of`` (the HTTP API's sessions)
-    replaces the configuration's."""
+    """Register the recipe endpoints on ``app``. ``role_of`` and ``actor_of`` (the HTTP
+    API's sessions: the user's role, None without a valid session; ``hmi:<user>``)
+    replace the configuration's."""
     if role_of is not None:
         config = replace(config, role_of=role_of)
+    if actor_of is not None:
+        config = replace(config, actor_of=actor_of)
     api = RecipesApi(config)
     app.add_routes(
         [

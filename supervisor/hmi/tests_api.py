@@ -216,13 +216,14 @@ class TestsApi:
                 continue
             if runner.test_id != collector.test_id:
                 continue
-            state = runner.state.value
+            state, now = runner.state.value, self.clock.now()
+            # Test time now, not at the last record (records may be minutes apart).
             summary = (
-                collector.summary("", state, complete=False)
+                collector.summary("", state, complete=False, now=now)
                 if detail
                 else {
                     "recipe": collector.recipe,
-                    "duration_s": round(collector.test_time_s(), 3),
+                    "duration_s": round(collector.test_time_s(now), 3),
                     "channel": channel,
                 }
             )

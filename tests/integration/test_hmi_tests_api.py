@@ -100,6 +100,7 @@ async def test_a_running_test_is_listed_with_its_state_from_the_chain(
     assert (test["channel"], test["recipe"], test["state"]) == ("ch0", "two-cycles", "Running")
     assert test["running"] is True and test["complete"] is False and test["ended"] is None
     assert test["started"] == pytest.approx(client.bench.clock.wall() - 90.0, abs=2.0)
+    assert test["duration_s"] == pytest.approx(90.0, abs=2.0)  # now, not at the last record
     kinds = {f["kind"] for f in test["files"]}
     assert {"bdf", "chadeche"} <= kinds
     status, detail = await client.call("GET", f"/tests/{test_id}")
