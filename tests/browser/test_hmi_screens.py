@@ -111,6 +111,26 @@ def test_an_operator_logs_in_and_sees_the_bench_mimic_and_a_tile_per_channel(
     )
 
 
+def test_the_screens_are_reachable_with_the_keyboard_and_show_the_focus(
+    as_operator: Any, bench: Supervisor
+) -> None:
+    page = as_operator
+    page.wait_for_selector("#tile-ch0")
+    page.locator("body").focus()
+    focused = ""
+    for _ in range(40):  # skip link, screens, header controls, then the tiles
+        page.keyboard.press("Tab")
+        focused = page.evaluate("() => document.activeElement.id")
+        if focused == "tile-ch0":
+            break
+    assert focused == "tile-ch0"
+    outline = page.evaluate("() => getComputedStyle(document.activeElement).outlineStyle")
+    assert outline not in ("", "none"), outline
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#load-form")
+    assert page.url.endswith("#/channel/ch0")
+
+
 def test_an_operator_loads_and_starts_a_recipe_and_sees_the_step_advance_and_the_trend_grow(
     as_operator: Any, bench: Supervisor
 ) -> None:
