@@ -1,7 +1,6 @@
 // Charts with uPlot (installed from npm by `make hmi`, served at /vendor/uplot/).
-import uPlot from "/vendor/uplot/uPlot.esm.js";
-
-export { uPlot };
+// The minified build, loaded by index.html before the app (window.uPlot).
+export const uPlot = window.uPlot;
 
 // Grey lines for normal data (high-performance HMI); series told apart by dash and weight.
 export const SERIES_STYLE = [

@@ -40,7 +40,7 @@ def _no_leftover_tasks() -> None:
 def browser() -> Iterator[Any]:
     if not CHROMIUM.exists():
         pytest.fail(f"{CHROMIUM} is missing: `make chromium` installs Debian's chromium")
-    if not (ROOT / "hmi" / "node_modules" / "uplot" / "dist" / "uPlot.esm.js").exists():
+    if not (ROOT / "hmi" / "node_modules" / "uplot" / "dist" / "uPlot.iife.min.js").exists():
         pytest.fail("hmi/node_modules/uplot is missing: `make hmi` installs it (npm ci)")
     from playwright.sync_api import sync_playwright
 
