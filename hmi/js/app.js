@@ -32,6 +32,7 @@ const app = {
   session: null, // {user, role, login}
   bench: null,
   tagNames: new Set(), // every tag of the bench (from /api/tags at start)
+  anonymousRead: false, // the supervisor lets a visitor see without logging in
   screen: null,
   sound: new Sound(),
   goLogin,
@@ -64,6 +65,7 @@ async function loadSession() {
     scheduleSessionCheck();
     return true;
   }
+  if (answer.status === 401) app.anonymousRead = answer.data?.anonymous_read === true;
   if (answer.status === 404) {
     // A supervisor without sessions: everyone on the loopback API operates.
     app.session = { user: "anonymous", role: "operator", login: false };
@@ -188,7 +190,7 @@ app.live.subscribe((change) => {
 
 // A restarted supervisor has forgotten every session: back to login, then to this page.
 app.live.onReconnect = async () => {
-  if (app.session && app.session.login !== false) {
+  if (app.session && app.session.login !== false && !app.session.anonymous) {
     const answer = await get("/api/session", { no401: true });
     if (answer.status === 401) goLogin();
   }
@@ -196,7 +198,7 @@ app.live.onReconnect = async () => {
 
 app.live.onDisconnect = async () => {
   // A WebSocket refused before its upgrade (401) looks like any lost connection: ask.
-  if (app.session && app.session.login !== false) {
+  if (app.session && app.session.login !== false && !app.session.anonymous) {
     const answer = await get("/api/session", { no401: true });
     if (answer.status === 401) goLogin();
   }
@@ -241,6 +243,8 @@ async function route() {
 $("#logout").addEventListener("click", async () => {
   await post("/api/logout", {}, { no401: true });
   app.session = null;
+  app.live.stop();
+  app.live._started = false;
   location.hash = "#/login";
 });
 

@@ -16,7 +16,16 @@ export async function render({ root, app, query }) {
       <input id="login-password" name="password" type="password" autocomplete="current-password" required>
       <button type="submit" class="primary" id="login-submit">Log in</button>
       <p id="login-result" class="result" role="status" hidden></p>
+      ${app.anonymousRead ? '<button type="button" id="login-anonymous">Continue without logging in (view only)</button>' : ""}
     </form>`;
+  const anonymous = $("#login-anonymous", root);
+  if (anonymous)
+    anonymous.addEventListener("click", () => {
+      // hmi.anonymous_read: the screens answer a visitor as a viewer; any command asks
+      // for a login (401), which brings the visitor back here.
+      app.session = { user: "visitor", role: "viewer", login: true, anonymous: true };
+      location.hash = next.startsWith("#") && !next.startsWith("#/login") ? next : "#/";
+    });
   const form = $("#login-form", root);
   form.addEventListener("submit", async (ev) => {
     ev.preventDefault();
