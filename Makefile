@@ -24,7 +24,7 @@ HMI_STAMP   := hmi/node_modules/.installed
 # browser downloaded by Playwright.
 CHROMIUM    := /usr/bin/chromium
 
-.PHONY: run test lint typecheck unit bench mutation schema check clean influxd node_modules hmi chromium
+.PHONY: run demo-users test lint typecheck unit bench mutation schema check clean influxd node_modules hmi chromium
 
 influxd: $(INFLUXD)
 
@@ -56,8 +56,17 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 ## The simulated bench (io_maps/sim.yaml); Ctrl-C stops it with every output safe.
-run: $(STAMP) $(HMI_STAMP)
+## First run: demo users viewer/viewer, operator/operator, engineer/engineer (DEMO ONLY).
+run: $(STAMP) $(HMI_STAMP) demo-users
 	$(BIN)/supervisor run io_maps/sim.yaml
+
+demo-users: $(STAMP)
+	@if [ -z "$$($(BIN)/supervisor opcua list-users --io-map io_maps/sim.yaml)" ]; then \
+	  for u in viewer operator engineer; do \
+	    echo $$u | $(BIN)/supervisor opcua add-user $$u --role $$u --password-stdin --io-map io_maps/sim.yaml || exit 2; \
+	  done; \
+	  echo "demo users (demo only, never on a real bench): viewer/viewer operator/operator engineer/engineer"; \
+	fi
 
 ## Lint, type-check and the whole test suite.
 test: lint typecheck unit

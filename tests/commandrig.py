@@ -28,6 +28,7 @@ CV_ON_CHADECHE = (
 
 def io_map(tmp: Path) -> Path:
     data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
+    data["hmi"]["login"] = False  # its HTTP clients do not log in
     data["devices"] = {k: data["devices"][k] for k in ("chadeche", "adam")}
     data["tags"] = [t for t in data["tags"] if t["device"] == "adam"]
     for t in data["tags"]:
@@ -44,6 +45,7 @@ def io_map(tmp: Path) -> Path:
 def chadeche_map(tmp: Path) -> str:
     """sim.yaml's Chadèche stack alone (nothing to serve on the network)."""
     data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
+    data["hmi"]["login"] = False  # its HTTP clients do not log in
     data["devices"] = {"chadeche": data["devices"]["chadeche"]}
     data["channels"] = [c for c in data["channels"] if c["source"]["device"] == "chadeche"]
     data.pop("tags", None)

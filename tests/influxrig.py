@@ -241,6 +241,7 @@ def sim_map(tmp: Path, influx: InfluxServer, **overrides: Any) -> Path:
         if "port" in dev:
             dev["port"] = free_tcp_port()
     data["hmi"]["port"] = 0
+    data["hmi"]["login"] = False  # its HTTP clients do not log in
     data["state_dir"] = str(tmp / "var")
     token = tmp / "influx.token"
     token.write_text(influx.token + "\n", encoding="utf-8")

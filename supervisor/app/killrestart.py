@@ -187,6 +187,7 @@ def kill_restart_map(workdir: Path, io_map: str = "io_maps/sim.yaml") -> Path:
     for dev in data["devices"].values():
         dev["port"] = _free_port()
     data["hmi"]["port"] = 0
+    data["hmi"]["login"] = False  # its HTTP client does not log in (loopback)
     data.pop("opcua", None)  # not what this measures (and 4840 may be taken)
     data["state_dir"] = str(workdir / "var")
     path = workdir / "seed002.yaml"

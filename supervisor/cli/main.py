@@ -96,6 +96,7 @@ async def _run_locked(args: argparse.Namespace, cfg: BenchConfig) -> int:
 async def _serve(
     args: argparse.Namespace, cfg: BenchConfig, bench: Bench, restored: list[str]
 ) -> int:
+    from supervisor.app.hmi import build_screens
     from supervisor.commands import Command, Verb
     from supervisor.hmi import HttpApi
     from supervisor.hmi.tests_api import TestsConfig
@@ -117,6 +118,7 @@ async def _serve(
         recipes=_recipes_config(cfg, bench),
         tests=TestsConfig(Path(cfg.state_dir) / "results", bench.results, bench.runners),
     )
+    screens = build_screens(bench, api)  # ConfigError for a bad users file: exit 2
     opcua = None
     if cfg.opcua.enabled:
         from supervisor.app.opcua import build_opcua
@@ -164,6 +166,14 @@ async def _serve(
         f" scan period {cfg.scan.period_s * 1000:g} ms"
     )
     _out(f"HTTP API listening on {api.url}/tags")
+    login = screens.access.users
+    _out(
+        f"operator screens: http://{api.host}:{api.port}/ ("
+        + (f"login: the users of {login.path}" if login is not None else "no login")
+        + ")"
+    )
+    if login is not None and not len(login):
+        _out(f"no users yet: supervisor opcua add-user NAME --role operator --io-map {args.io_map}")
     if opcua is not None:
         _out(f"OPC UA server listening on {opcua.endpoint} (namespace {opcua.namespace})")
     if bench.sim is not None and bench.sim.served:

@@ -71,6 +71,7 @@ def _simulate(tmp: Path, server: InfluxServer) -> Run:
     dashboard). The writer's threads run on real time beside the virtual scan; at shutdown
     it sends everything it spooled (checked: nothing left, nothing refused)."""
     data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
+    data["hmi"]["login"] = False  # its HTTP clients do not log in
     data["state_dir"] = str(tmp / "state")
     token = tmp / "influx.token"
     token.write_text(server.token + "\n", encoding="utf-8")

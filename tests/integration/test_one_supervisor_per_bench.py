@@ -84,6 +84,7 @@ def test_the_kernel_drops_the_lock_of_a_killed_holder(tmp_path: Path) -> None:
 def seed002_map(tmp_path: Path) -> Path:
     """sim.yaml without the Chadèche stack, on free loopback ports, state in tmp_path."""
     data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
+    data["hmi"]["login"] = False  # its HTTP clients do not log in
     del data["devices"]["chadeche"]
     data["channels"] = [c for c in data["channels"] if c["source"]["device"] == "ea"]
     for name in ("adam", "ea", "bms"):

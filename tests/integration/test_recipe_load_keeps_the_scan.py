@@ -46,6 +46,7 @@ LOAD_LIMIT_S = 120.0
 
 def sim_map(tmp_path: Path) -> Path:
     data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
+    data["hmi"]["login"] = False  # its HTTP clients do not log in
     for name in ("adam", "ea", "bms"):
         data["devices"][name]["port"] = free_tcp_port()
     data["hmi"]["port"] = 0

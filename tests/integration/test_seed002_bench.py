@@ -35,6 +35,7 @@ pytestmark = pytest.mark.integration
 def seed002_map(tmp_path: Path) -> Path:
     """sim.yaml without the Chadèche stack, on free loopback ports."""
     data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
+    data["hmi"]["login"] = False  # its HTTP clients do not log in
     del data["devices"]["chadeche"]
     data["channels"] = [c for c in data["channels"] if c["source"]["device"] == "ea"]
     for name in ("adam", "ea", "bms"):

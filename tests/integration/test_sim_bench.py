@@ -30,6 +30,7 @@ pytestmark = pytest.mark.integration
 def chadeche_only(tmp: Path) -> Path:
     """sim.yaml's Chadèche stack alone (the network devices need their own servers)."""
     data = yaml.safe_load(SIM.read_text(encoding="utf-8"))
+    data["hmi"]["login"] = False  # its HTTP clients do not log in
     data["devices"] = {"chadeche": data["devices"]["chadeche"]}
     data["channels"] = [c for c in data["channels"] if c["source"]["device"] == "chadeche"]
     data.pop("tags", None)
@@ -143,6 +144,7 @@ def test_supervisor_run_serves_the_api_charges_on_request_and_exits_0_on_sigterm
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     # sim.yaml on free loopback ports, so a bench already running here does not collide.
     data = yaml.safe_load(SIM.read_text(encoding="utf-8"))
+    data["hmi"]["login"] = False  # its HTTP clients do not log in
     for dev in ("adam", "ea", "bms"):
         data["devices"][dev]["port"] = free_tcp_port()
     data["opcua"]["port"] = free_tcp_port()

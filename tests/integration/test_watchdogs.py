@@ -70,6 +70,7 @@ def http(method: str, url: str, body: object | None = None) -> Any:
 def seed002_map(tmp_path: Path, change: Callable[[dict[str, Any]], None] | None = None) -> Path:
     """sim.yaml's seed 002 devices and their channel, on free loopback ports."""
     data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
+    data["hmi"]["login"] = False  # its HTTP clients do not log in
     del data["devices"]["chadeche"]
     data["channels"] = [c for c in data["channels"] if c["source"]["device"] == "ea"]
     for name in ("adam", "ea", "bms"):
