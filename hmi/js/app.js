@@ -49,8 +49,9 @@ function parseHash() {
 function goLogin() {
   const here = parseHash();
   if (here.path === "/login") return;
+  const had = app.session && app.session.login !== false && !app.session.anonymous;
   app.session = null;
-  location.hash = `#/login?next=${encodeURIComponent("#" + here.raw)}`;
+  location.hash = `#/login?next=${encodeURIComponent("#" + here.raw)}${had ? "&expired=1" : ""}`;
 }
 
 onUnauthorized(() => {

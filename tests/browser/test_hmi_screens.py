@@ -402,6 +402,8 @@ def test_an_expired_session_goes_to_login_and_back_to_the_same_page(
     # screen by itself (the live values do not keep a session open).
     page.wait_for_selector("#login-form", timeout=15_000)
     assert "next=" in page.url and "channel%2Fch1" in page.url
+    assert "session has ended" in (page.text_content("#login-form") or "")
+    assert page.locator("#top").is_hidden()
     screenshot(page, "login-session-expired")
     page.fill("#login-user", "operator")
     page.fill("#login-password", "operator-pw")

@@ -9,7 +9,7 @@ export async function render({ root, app, query }) {
   root.innerHTML = `
     <form class="login panel" id="login-form" autocomplete="on">
       <h1>Bench supervisor</h1>
-      <p class="muted">${app.session === null && query.get("next") ? "Your session has ended. Log in to go back to the page you were on." : "Log in to operate the bench."}</p>
+      <p class="muted">${query.get("expired") ? "Your session has ended. Log in to go back to the page you were on." : "Log in to operate the bench."}</p>
       <label for="login-user">User</label>
       <input id="login-user" name="user" autocomplete="username" required autofocus>
       <label for="login-password">Password</label>
