@@ -424,6 +424,7 @@ def restartable(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, 
         stop_supervisor(held["sup"])
 
 
+@pytest.mark.timeout(300)  # a stop and a start of the supervisor, on a loaded machine
 def test_the_page_reconnects_by_itself_after_a_supervisor_restart(
     page: Any, restartable: dict[str, Any]
 ) -> None:
@@ -439,11 +440,11 @@ def test_the_page_reconnects_by_itself_after_a_supervisor_restart(
     if sup.login:
         # A restart forgets every session: the page reconnects by itself, finds its
         # session gone and asks for a login, keeping its place.
-        page.wait_for_selector("#login-form", timeout=30_000)
+        page.wait_for_selector("#login-form", timeout=60_000)
         assert "channel%2Fch2" in page.url
         page.fill("#login-user", "operator")
         page.fill("#login-password", USERS["operator"])
         page.click("#login-submit")
-    page.wait_for_function(f"{link} === 'live'", timeout=30_000)
+    page.wait_for_function(f"{link} === 'live'", timeout=60_000)
     assert page.url.endswith("#/channel/ch2")
     assert not page.evaluate("() => document.body.classList.contains('stale')")
