@@ -59,6 +59,7 @@ export class Live {
 
   start() {
     this._stopped = false;
+    this._lost = false; // a connection of this start was lost (then: onReconnect)
     this._connect();
   }
 
@@ -68,6 +69,7 @@ export class Live {
     clearInterval(this._pollTimer);
     this._pollTimer = null;
     if (this._ws) this._ws.close();
+    this._setState("connecting");
   }
 
   _connect() {
@@ -94,6 +96,7 @@ export class Live {
       this._ws = null;
       if (this._stopped) return;
       this.stats.reconnects += 1;
+      this._lost = true;
       this._setState(this._pollTimer ? "polling" : "down");
       if (this.onDisconnect) this.onDisconnect(opened);
       this._retry();
@@ -123,7 +126,8 @@ export class Live {
       this.version = msg.version || 0;
       this._setState("live");
       this._emit({ kind: "tags", names: null });
-      if (this.stats.reconnects > 0 && this.onReconnect) this.onReconnect();
+      if (this._lost && this.onReconnect) this.onReconnect();
+      this._lost = false;
     } else if (msg.type === "delta") {
       const names = Object.keys(msg.tags || {});
       for (const name of names) this.tags.set(name, msg.tags[name]);
