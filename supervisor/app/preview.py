@@ -6,7 +6,7 @@ event loop, which gives the lock up at every socket read and waits up to a slice
 back. Measured on the simulated bench (io_maps/sim.yaml, 0.1 s scan): during a dry run of
 the 25 h NiMH recipe in a worker thread the scan skipped 12 deadlines and the e-stop sense
 went stale (tests/integration/test_hmi_recipes_api.py). A child process has its own lock
-and, niced, gives the CPU to the scan on a machine with one core.
+and, in the idle scheduling class, gives way to the scan at once on a busy machine.
 
 The child (``python -m supervisor.app.preview``) reads one JSON job on stdin and writes one
 JSON answer on stdout: the dry run's end, its summary and a trace of at most
@@ -38,9 +38,8 @@ __all__ = ["PreviewFailed", "preview_in_child"]
 GRACE_S: Final = 15.0
 """How long after its time limit the parent waits for the child's answer (it stops at the
 end of the chunk under way, then shuts its bench down) before killing it."""
-NICENESS: Final = 10
-"""The child's scheduling priority below the supervisor's (``nice``): on one core the
-scan comes first."""
+NICENESS: Final = 19
+"""Where there is no idle scheduling class: the lowest priority (``nice``)."""
 
 
 class PreviewFailed(Exception):
@@ -79,11 +78,23 @@ async def _run(job: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+def _lowest_priority() -> None:
+    """Run only on CPU time nothing else wants (Linux ``SCHED_IDLE``: a waking scan takes
+    the core at once), else at the lowest ``nice``: a preview may be slow, the scan may not
+    be late."""
+    idle = getattr(os, "SCHED_IDLE", None)
+    if idle is not None:
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(0, idle, os.sched_param(0))
+            return
+    with contextlib.suppress(OSError):
+        os.nice(NICENESS)
+
+
 def child_main() -> int:
     """The child's entry: a job on stdin, the answer on stdout."""
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
-    with contextlib.suppress(OSError):
-        os.nice(NICENESS)
+    _lowest_priority()
     job = json.loads(sys.stdin.read())
     answer = asyncio.run(_run(job))
     sys.stdout.write(json.dumps(answer, allow_nan=False) + "\n")

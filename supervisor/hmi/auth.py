@@ -34,7 +34,7 @@ from typing import Any, Final
 
 from aiohttp import web
 
-from supervisor.commands import Command
+from supervisor.commands import Command, Verb
 from supervisor.commands.roles import Roles
 from supervisor.config.users import ANONYMOUS, ROLE_ACCESS, ROLES, Role, User, UserStore
 from supervisor.hmi.server import ACTOR_KEY, json_dumps
@@ -50,6 +50,8 @@ MAX_SESSIONS: Final = 1000
 """Open sessions kept at most; past it the least recently used goes (a script logging in
 in a loop must not grow the process)."""
 MAX_CREDENTIAL_CHARS: Final = 1024
+LOGIN_CHECKS: Final = 2
+"""Password checks (scrypt, ~50 ms of one core each) running at once at most."""
 WRONG_CREDENTIALS: Final = "wrong user name or password"
 OPEN_PATHS: Final = frozenset({"/api/login", "/api/logout", "/api/session"})
 """API paths answered without a session (they are how one gets or sees one)."""
@@ -157,9 +159,11 @@ class HmiRoles:
         if self.role(actor) != "viewer":
             return ""
         who = "not logged in" if actor.endswith(":" + ANONYMOUS) else f"{actor} is a viewer"
-        return (
-            f"viewer may not {command.verb.value} {command.target} ({who}): log in as an operator"
-        )
+        if command.verb is Verb.WRITE:
+            what = f"write {command.args.get('tag')}"
+        else:
+            what = f"{command.verb.value} {command.target}"
+        return f"viewer may not {what} ({who}): log in as an operator"
 
 
 def principal(request: web.Request) -> Principal:
@@ -210,6 +214,7 @@ class HmiAccess:
         self.sessions = sessions
         self.login = login
         self.anonymous_read = anonymous_read
+        self._checks = asyncio.Semaphore(LOGIN_CHECKS)
 
     def install(self, app: web.Application) -> None:
         app.middlewares.append(self._middleware)
@@ -293,8 +298,10 @@ class HmiAccess:
                 400,
             )
         assert self.users is not None
-        # scrypt: about 50 ms of CPU, never on the scan's event loop.
-        user = await asyncio.to_thread(self.users.authenticate, body["user"], body["password"])
+        # scrypt: about 50 ms of CPU, never on the scan's event loop, and at most
+        # LOGIN_CHECKS at a time (a burst of logins must not take every core).
+        async with self._checks:
+            user = await asyncio.to_thread(self.users.authenticate, body["user"], body["password"])
         if user is None:
             log.warning("hmi: failed login for %r from %s", body["user"][:64], request.remote)
             return _answer({"error": "login failed", "reason": WRONG_CREDENTIALS}, 401)

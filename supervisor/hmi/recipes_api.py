@@ -63,13 +63,17 @@ log = logging.getLogger(__name__)
 __all__ = [
     "MAX_TRACE_POINTS",
     "NAME_PATTERN",
+    "Checked",
     "DryRunner",
     "RecipesApi",
     "RecipesConfig",
     "Trace",
     "add_recipe_routes",
     "check_recipe_text",
+    "cycle_json",
     "error_json",
+    "timeline_json",
+    "valid_name",
 ]
 
 NAME_PATTERN: Final = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,79}$")
@@ -245,6 +249,17 @@ def cycle_json(c: Mapping[str, Any]) -> dict[str, Any]:
         "discharge_wh": c.get("discharge_energy_wh"),
         "complete": c.get("complete"),
         "note": c.get("efficiency_note"),
+    }
+
+
+def timeline_json(e: Mapping[str, Any]) -> dict[str, Any]:
+    """A summary.json timeline event as the screens draw it."""
+    return {
+        "t_s": e.get("test_time_s"),
+        "kind": e.get("kind"),
+        "step": e.get("step"),
+        "cycle": e.get("cycle"),
+        "text": e.get("text"),
     }
 
 
@@ -600,16 +615,7 @@ class RecipesApi:
                 "end_reason": end_reason,
                 "cycles": [cycle_json(c) for c in summary.get("cycles", [])],
                 "cycles_omitted": summary.get("cycles_omitted", 0),
-                "timeline": [
-                    {
-                        "t_s": e["test_time_s"],
-                        "kind": e["kind"],
-                        "step": e["step"],
-                        "cycle": e["cycle"],
-                        "text": e["text"],
-                    }
-                    for e in summary.get("timeline", [])
-                ],
+                "timeline": [timeline_json(e) for e in summary.get("timeline", [])],
                 "timeline_omitted": summary.get("timeline_omitted", 0),
                 "trace": res["trace"],
             }

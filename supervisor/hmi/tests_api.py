@@ -37,7 +37,7 @@ from aiohttp import web
 from supervisor.chains.engine import ChainRunner
 from supervisor.chains.states import ACTIVE
 from supervisor.core.clock import Clock
-from supervisor.hmi.recipes_api import _dumps, cycle_json
+from supervisor.hmi.recipes_api import _dumps, cycle_json, timeline_json
 from supervisor.publish.results import SUMMARY_NAME, ResultCollector
 
 log = logging.getLogger(__name__)
@@ -192,7 +192,7 @@ class TestsApi:
             entry["records"] = summary.get("records")
             entry["cycles"] = [cycle_json(c) for c in summary.get("cycles", [])]
             entry["cycles_omitted"] = summary.get("cycles_omitted", 0)
-            entry["timeline"] = summary.get("timeline", [])
+            entry["timeline"] = [timeline_json(e) for e in summary.get("timeline", [])]
         return entry
 
     def _listing(self, live: Mapping[str, _Live]) -> list[dict[str, Any]]:

@@ -40,6 +40,8 @@ ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.integration
 
 SLOW = "nimh-25h-slow-cycle"
+CONTROL_SCANS = 100
+"""Scans (10 s at sim.yaml's 0.1 s, about the dry run's time) watched with no dry run."""
 ANSWER_LIMIT_S = 120.0
 """Upper bound for an answer on a slow machine (not a timing claim)."""
 
@@ -365,9 +367,19 @@ async def test_a_dry_run_of_the_25_h_recipe_never_costs_the_scan_a_deadline(
 ) -> None:
     config = RecipesConfig(ROOT / "recipes", preview_in_child)
     api = HttpApi(real_bench.db, real_bench.clock, "127.0.0.1", 0, recipes=config)
+    stats = real_bench.engine.stats
+    # The control: the same bench without a dry run. A machine that makes the scan miss
+    # deadlines on its own (other processes on every core) cannot tell whether the dry run
+    # costs one; the test then says so instead of passing or failing by chance.
+    skipped, stalls, scans = stats.skipped, stats.stalls, stats.count
+    await wait_until(lambda: stats.count >= scans + CONTROL_SCANS, "the control scans", 60.0)
+    if stats.skipped > skipped or stats.stalls > stalls:
+        pytest.skip(
+            f"this machine is too busy to measure: the scan missed {stats.skipped - skipped}"
+            f" deadlines in {CONTROL_SCANS} scans with no dry run"
+        )
     await api.start()
     try:
-        stats = real_bench.engine.stats
         skipped, overruns, scans = stats.skipped, stats.overruns, stats.count
         text = (ROOT / "recipes" / f"{SLOW}.yaml").read_text(encoding="utf-8")
         timeout = aiohttp.ClientTimeout(total=ANSWER_LIMIT_S)
@@ -382,4 +394,4 @@ async def test_a_dry_run_of_the_25_h_recipe_never_costs_the_scan_a_deadline(
     assert stats.count > scans  # the scan ran meanwhile...
     assert stats.skipped == skipped  # ...and missed no deadline
     assert stats.overruns == overruns
-    assert stats.stalls == 0, f"worst stall {stats.stall_max_s} s"
+    assert stats.stalls == stalls, f"worst stall {stats.stall_max_s} s"

@@ -133,7 +133,9 @@ async def test_a_finished_test_has_its_files_and_capacity_and_efficiency_per_cyc
         assert c["charge_ah"] == pytest.approx(0.005, rel=0.05)
         assert c["discharge_ah"] == pytest.approx(0.005, rel=0.05)
         assert c["efficiency"] == pytest.approx(1.0, abs=0.05)
-    assert any(e["text"].startswith("starting step") for e in detail["timeline"])
+    starts = [e for e in detail["timeline"] if e["text"].startswith("starting step")]
+    assert [(e["cycle"], e["step"]) for e in starts] == [(1, "c"), (1, "d"), (2, "c"), (2, "d")]
+    assert [e["t_s"] for e in starts] == sorted(e["t_s"] for e in starts)
 
 
 async def test_a_result_file_downloads_as_an_attachment(client: Client, tmp_path: Path) -> None:

@@ -97,6 +97,10 @@ def test_the_role_hook_answers_hmi_actors_from_the_users_file(users: UserStore) 
     assert roles.access_of("hmi:erin") is Access.ENGINEER
     anonymous = roles.refuses(Command.channel("ch0", Verb.RESET, "hmi:anonymous"))
     assert anonymous.startswith("viewer may not reset ch0 (not logged in)")
+    write = Command.write("lab.setpoint", 1.0, "hmi:vera")
+    assert roles.refuses(write) == (
+        "viewer may not write lab.setpoint (hmi:vera is a viewer): log in as an operator"
+    )
     # A user removed since they logged in is a viewer from then on.
     assert roles.access_of("hmi:gone") is Access.READ_ONLY
 
