@@ -74,3 +74,27 @@ export function timeAxis(durationS) {
   if (durationS < 36000) return { unit: "min", scale: 60 };
   return { unit: "h", scale: 3600 };
 }
+
+/**
+ * A run's timeline ({t_s, step, ...} events, as the dry run and a test's summary give
+ * it) as a stepped plot of the step over time, ending at `durationS`.
+ */
+export function timelinePlot(el, timeline, durationS, title = "Timeline: step over time") {
+  const tl = (timeline || []).filter((e) => e.step && typeof e.t_s === "number");
+  if (!tl.length) return null;
+  const stepNames = [];
+  for (const e of tl) if (!stepNames.includes(e.step)) stepNames.push(e.step);
+  const end = Math.max(durationS || 0, tl[tl.length - 1].t_s);
+  const ax = timeAxis(end);
+  return simplePlot(el, {
+    title,
+    xLabel: ax.unit,
+    yLabel: "step",
+    series: [{ label: "step" }],
+    x: [...tl.map((e) => e.t_s / ax.scale), end / ax.scale],
+    ys: [[...tl.map((e) => stepNames.indexOf(e.step)), stepNames.indexOf(tl[tl.length - 1].step)]],
+    height: 200,
+    stepped: true,
+    yValues: (u, vals) => vals.map((v) => (Number.isInteger(v) ? stepNames[v] ?? "" : "")),
+  });
+}

@@ -3,7 +3,7 @@
 // (timeline, duration, capacity per cycle) before anything is saved or started.
 import { get, post, put } from "../api.js";
 import { esc, fmtDuration, fmtTime, showResult, $ } from "../dom.js";
-import { simplePlot, timeAxis } from "../chart.js";
+import { simplePlot, timeAxis, timelinePlot } from "../chart.js";
 
 export async function render({ root, app, params }) {
   root.dataset.title = "Recipes";
@@ -141,28 +141,9 @@ export async function render({ root, app, params }) {
       pl.stop();
       pl.chart.destroy();
     }
-    const tl = (d.timeline || []).filter((e) => e.step);
-    const stepNames = [];
-    for (const e of tl) if (!stepNames.includes(e.step)) stepNames.push(e.step);
     const ax = timeAxis(d.duration_s || 0);
-    if (tl.length) {
-      // The timeline ends where the run ends: the last step lasts until duration_s.
-      const x = [...tl.map((e) => e.t_s / ax.scale), (d.duration_s || 0) / ax.scale];
-      const y = [...tl.map((e) => stepNames.indexOf(e.step)), stepNames.indexOf(tl[tl.length - 1].step)];
-      plots.push(
-        simplePlot($("#dry-timeline", root), {
-          title: "Timeline: step over time",
-          xLabel: ax.unit,
-          yLabel: "step",
-          series: [{ label: "step" }],
-          x,
-          ys: [y],
-          height: 200,
-          stepped: true,
-          yValues: (u, vals) => vals.map((v) => (Number.isInteger(v) ? stepNames[v] ?? "" : "")),
-        }),
-      );
-    }
+    const timeline = timelinePlot($("#dry-timeline", root), d.timeline, d.duration_s);
+    if (timeline) plots.push(timeline);
     const cycles = d.cycles || [];
     if (cycles.length) {
       const big = cycles.some((c) => Math.abs(c.charge_ah || 0) >= 1 || Math.abs(c.discharge_ah || 0) >= 1);

@@ -1,8 +1,8 @@
 // Tests: past and running tests, one test's capacity and efficiency per cycle as plots,
 // and the download of its result files (BDF CSV, Chadèche CSV, summary).
 import { get } from "../api.js";
-import { esc, fmtTime, $ } from "../dom.js";
-import { simplePlot } from "../chart.js";
+import { esc, fmtDuration, fmtTime, $ } from "../dom.js";
+import { simplePlot, timelinePlot } from "../chart.js";
 
 const TIMES = new Set(["started", "ended", "start", "end", "updated"]);
 
@@ -61,6 +61,14 @@ export async function render({ root, app, params }) {
         <h3>Files</h3><ul class="links" id="test-files">${files
           .map((f) => `<li><a href="${fileUrl(id, f.name)}" download="${esc(f.name)}" class="dl">${esc(f.name)}</a> <small class="muted">${esc(f.kind || "")} ${fmtBytes(f.bytes)}</small></li>`)
           .join("")}</ul>
+        <h3>Timeline</h3><div id="test-timeline" class="plot"></div>
+        ${
+          (t.timeline || []).length
+            ? `<details><summary>${t.timeline.length} events</summary><table class="grid" id="test-events"><thead><tr><th>time</th><th>cycle</th><th>step</th><th>event</th></tr></thead><tbody>${t.timeline
+                .map((e) => `<tr><td>${esc(fmtDuration(e.t_s))}</td><td>${esc(e.cycle ?? "")}</td><td>${esc(e.step ?? "")}</td><td class="wrap">${esc(e.text ?? e.kind ?? "")}</td></tr>`)
+                .join("")}</tbody></table></details>`
+            : ""
+        }
         <h3>Per cycle</h3>
         ${
           cycles.length
@@ -70,6 +78,8 @@ export async function render({ root, app, params }) {
           <div id="test-capacity" class="plot"></div><div id="test-efficiency" class="plot"></div>`
             : '<p class="muted">No complete cycle.</p>'
         }`;
+      const timeline = timelinePlot($("#test-timeline", el), t.timeline, t.duration_s);
+      if (timeline) plots.push(timeline);
       if (cycles.length) {
         const x = cycles.map((c) => c.cycle);
         const big = cycles.some((c) => Math.abs(c.charge_ah || 0) >= 1 || Math.abs(c.discharge_ah || 0) >= 1);
