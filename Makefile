@@ -16,7 +16,15 @@ INFLUXD         := $(INFLUXD_CACHE)/influxd
 INTEROP     := tests/interop
 NODE_STAMP  := $(INTEROP)/node_modules/.installed
 
-.PHONY: run demo-users test lint typecheck unit bench mutation schema check clean influxd node_modules
+# The HMI's front-end libraries (uPlot), installed by npm from hmi/package-lock.json into
+# the git-ignored hmi/node_modules: the supervisor serves them at /vendor/, never a CDN.
+HMI_STAMP   := hmi/node_modules/.installed
+
+# The browser the HMI's browser tests drive (tests/browser/): Debian's Chromium, never a
+# browser downloaded by Playwright.
+CHROMIUM    := /usr/bin/chromium
+
+.PHONY: run demo-users test lint typecheck unit bench mutation schema check clean influxd node_modules hmi chromium
 
 influxd: $(INFLUXD)
 
@@ -27,6 +35,19 @@ $(NODE_STAMP): $(INTEROP)/package.json $(INTEROP)/package-lock.json
 	cd $(INTEROP) && npm ci --no-audit --no-fund --loglevel=error
 	touch $@
 
+hmi: $(HMI_STAMP)
+
+$(HMI_STAMP): hmi/package.json hmi/package-lock.json
+	@command -v npm >/dev/null || { echo "npm is required to install the HMI's chart library (uPlot)"; exit 2; }
+	cd hmi && npm ci --no-audit --no-fund --loglevel=error
+	touch $@
+
+chromium: $(CHROMIUM)
+
+$(CHROMIUM):
+	@echo "installing Debian's chromium for the HMI's browser tests"
+	apt-get install -y chromium || { echo "install the Debian package chromium (apt-get install chromium) for tests/browser/"; exit 2; }
+
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "Python 3.11+ is required")'
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -36,7 +57,7 @@ $(STAMP): pyproject.toml
 
 ## The simulated bench (io_maps/sim.yaml); Ctrl-C stops it with every output safe.
 ## First run: demo users viewer/viewer, operator/operator, engineer/engineer (DEMO ONLY).
-run: $(STAMP) demo-users
+run: $(STAMP) $(HMI_STAMP) demo-users
 	$(BIN)/supervisor run io_maps/sim.yaml
 
 demo-users: $(STAMP)
@@ -58,7 +79,7 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-unit: $(STAMP) $(INFLUXD) $(NODE_STAMP)
+unit: $(STAMP) $(INFLUXD) $(NODE_STAMP) $(HMI_STAMP) $(CHROMIUM)
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/pytest -q
 
 $(INFLUXD):
@@ -67,7 +88,7 @@ $(INFLUXD):
 	GOBIN=$(INFLUXD_CACHE) GOFLAGS=-buildvcs=false go install github.com/influxdata/influxdb/cmd/influxd@v$(INFLUXD_VERSION)
 
 ## Benchmarks: figures are printed, never asserted.
-bench: $(STAMP) $(INFLUXD)
+bench: $(STAMP) $(INFLUXD) $(HMI_STAMP) $(CHROMIUM)
 	$(BIN)/supervisor bench scan --tags 1000 --period-ms 10 --seconds 10
 	$(BIN)/supervisor bench manual --hours 10
 	$(BIN)/supervisor bench dry-run --recipe recipes/nimh-25h-slow-cycle.yaml
@@ -78,6 +99,9 @@ bench: $(STAMP) $(INFLUXD)
 	$(BIN)/supervisor bench historian --tags 1000 --period-ms 10 --seconds 10
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/supervisor bench influx --points 200000 --rounds 3
 	$(BIN)/supervisor bench opcua --clients 10 --seconds 10 --opcua-tags 50 --period-ms 50
+	# The HMI in Chromium: update latency tag change -> page (p50/p99) and the page's weight
+	# (tests/artifacts/hmi-figures.json).
+	$(BIN)/pytest -q -s -p no:cacheprovider tests/browser -k "logs_in or update_latency"
 
 ## The mutation corpus (tests/mutation.py) through the real commands, one process each,
 ## one at a time per CPU: counts per class printed, every failure in var/mutation/report.md;
@@ -94,4 +118,4 @@ check: $(STAMP)
 	$(BIN)/supervisor check io_maps/*.yaml recipes/*.yaml
 
 clean:
-	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache $(INTEROP)/node_modules
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache $(INTEROP)/node_modules hmi/node_modules

@@ -1,0 +1,280 @@
+// The HMI's single page: hash routes (#/, #/channel/ch0, #/alarms, #/recipes,
+// #/recipes/NAME, #/tests, #/tests/ID, #/diagnostics, #/login?next=...), one live data
+// connection shared by every screen, and the session (a 401 anywhere -> login, then back
+// to the same hash).
+import { get, post, onUnauthorized } from "./api.js";
+import { Live } from "./live.js";
+import { $, esc } from "./dom.js";
+import { Sound } from "./sound.js";
+import * as login from "./screens/login.js";
+import * as overview from "./screens/overview.js";
+import * as channel from "./screens/channel.js";
+import * as alarms from "./screens/alarms.js";
+import * as recipes from "./screens/recipes.js";
+import * as tests from "./screens/tests.js";
+import * as diagnostics from "./screens/diagnostics.js";
+
+const ROUTES = [
+  [/^\/login$/, login, "login"],
+  [/^\/?$/, overview, "overview"],
+  [/^\/channel\/([^/]+)$/, channel, "overview"],
+  [/^\/alarms$/, alarms, "alarms"],
+  [/^\/recipes(?:\/(.+))?$/, recipes, "recipes"],
+  [/^\/tests(?:\/(.+))?$/, tests, "tests"],
+  [/^\/diagnostics$/, diagnostics, "diagnostics"],
+];
+
+// How long after its announced expiry the page checks its session.
+const SESSION_SLACK_S = 0.5;
+
+const app = {
+  live: new Live(),
+  session: null, // {user, role, login}
+  bench: null,
+  tagNames: new Set(), // every tag of the bench (from /api/tags at start)
+  anonymousRead: false, // the supervisor lets a visitor see without logging in
+  screen: null,
+  sound: new Sound(),
+  goLogin,
+};
+window.hmi = app; // for the browser tests and for a curious engineer's console
+
+function parseHash() {
+  const raw = location.hash.replace(/^#/, "") || "/";
+  const [path, query = ""] = raw.split("?");
+  return { path, query: new URLSearchParams(query), raw };
+}
+
+/** The login screen, remembering where the page was (its hash) to come back after. */
+function goLogin() {
+  const here = parseHash();
+  if (here.path === "/login") return;
+  const had = app.session && app.session.login !== false && !app.session.anonymous;
+  app.session = null;
+  location.hash = `#/login?next=${encodeURIComponent("#" + here.raw)}${had ? "&expired=1" : ""}`;
+}
+
+onUnauthorized(() => {
+  // With login off there is no session to lose: a 401 cannot come from it.
+  if (!app.session || app.session.login !== false) goLogin();
+});
+
+async function loadSession() {
+  const answer = await get("/api/session", { no401: true });
+  if (answer.ok) {
+    app.session = answer.data;
+    scheduleSessionCheck();
+    return true;
+  }
+  if (answer.status === 401) app.anonymousRead = answer.data?.anonymous_read === true;
+  if (answer.status === 404) {
+    // A supervisor without sessions: everyone on the loopback API operates.
+    app.session = { user: "anonymous", role: "operator", login: false };
+    return true;
+  }
+  app.session = null;
+  return false;
+}
+
+/** The bench's layout: /api/bench, or (older supervisors) guessed from the tag names. */
+async function loadBench() {
+  const [answer, tags] = await Promise.all([get("/api/bench"), get("/api/tags")]);
+  const names = tags.ok && Array.isArray(tags.data) ? tags.data.map((t) => t.name) : [];
+  app.tagNames = new Set(names);
+  if (answer.ok && Array.isArray(answer.data.channels)) return normaliseBench(answer.data);
+  const channels = names
+    .filter((n) => /^ch\d+\.voltage$/.test(n))
+    .map((n) => n.split(".")[0])
+    .map((ch) => ({ name: ch, tags: {} }));
+  const has = (n) => (names.includes(n) ? n : null);
+  const devices = names
+    .filter((n) => n.endsWith(".connected"))
+    .map((n) => ({ name: n.split(".")[0], health_tag: n }));
+  return normaliseBench({
+    bench: "bench",
+    channels,
+    devices,
+    mimic: {
+      estop: has("estop.ok"),
+      supply: has("ea.output_on"),
+      contactor: has("contactor.closed"),
+      bms: has("bms.voltage"),
+    },
+  });
+}
+
+function normaliseBench(b) {
+  const tagNames = (ch, given) => ({
+    voltage: `${ch}.voltage`,
+    current: `${ch}.current`,
+    temperature: `${ch}.temperature`,
+    charge: `${ch}.charge_ah`,
+    state: `${ch}.chain.state`,
+    mode: `${ch}.mode`,
+    step: `${ch}.chain.step`,
+    progress: `${ch}.chain.progress`,
+    eta: `${ch}.chain.eta_s`,
+    fault: `${ch}.fault`,
+    // /api/bench names every tag (null where the channel has none): keep its answer.
+    ...(given || {}),
+  });
+  return {
+    ...b,
+    channels: (b.channels || []).map((c) => ({ ...c, tags: tagNames(c.name, c.tags) })),
+    devices: b.devices || [],
+    mimic: b.mimic || {},
+  };
+}
+
+function paintHeader() {
+  const top = $("#top");
+  const s = app.session;
+  top.hidden = !s;
+  if (!s) return;
+  $("#bench-name").textContent = app.bench?.bench || "bench";
+  $("#who").textContent = s.login === false ? "login off (operator)" : `${s.user} (${s.role})`;
+  $("#logout").hidden = s.login === false;
+  const { path } = parseHash();
+  const current = ROUTES.find(([re]) => re.test(path))?.[2];
+  for (const a of document.querySelectorAll("[data-nav]")) {
+    if (a.dataset.nav === current) a.setAttribute("aria-current", "page");
+    else a.removeAttribute("aria-current");
+  }
+}
+
+function paintLink() {
+  const el = $("#link");
+  const labels = { live: "live", polling: "polling", down: "disconnected", connecting: "connecting" };
+  el.textContent = labels[app.live.state] || app.live.state;
+  el.classList.toggle("abn", app.live.state === "down");
+  document.body.classList.toggle("stale", app.live.state === "down");
+}
+
+let knownAlarms = new Set();
+function paintAlarmCount() {
+  const active = app.live.alarms.filter((a) => a.state !== "normal" && !a.shelved);
+  const unacked = active.filter((a) => a.state.includes("unacknowledged"));
+  const el = $("#alarm-count");
+  el.textContent = active.length ? String(active.length) : "";
+  el.classList.toggle("abn", unacked.length > 0);
+  // A new alarm (an id not annunciated before): the optional audible alert.
+  const ids = new Set(active.map((a) => a.id));
+  for (const id of ids) if (!knownAlarms.has(id) && unacked.some((a) => a.id === id)) app.sound.alarm();
+  knownAlarms = ids;
+  const banner = $("#banner");
+  const first = unacked[0];
+  banner.hidden = !first || parseHash().path === "/login";
+  if (first) {
+    banner.innerHTML = `<a href="#/alarms">${esc(first.first_out ? "FIRST OUT " : "")}${esc(first.id)}: ${esc(first.message)}</a>${unacked.length > 1 ? ` (+${unacked.length - 1} more)` : ""}`;
+  }
+}
+
+// End of test: a channel's chain reaching Complete plays the end-of-test sound (seed 001).
+const lastState = new Map();
+function watchEnds(names) {
+  for (const ch of app.bench?.channels || []) {
+    const name = ch.tags.state;
+    if (names && !names.includes(name)) continue;
+    const v = app.live.value(name);
+    const before = lastState.get(name);
+    if (before !== undefined && before !== v && v === "Complete") app.sound.endOfTest();
+    lastState.set(name, v);
+  }
+}
+
+app.live.subscribe((change) => {
+  if (change.kind === "state") paintLink();
+  if (change.kind === "alarms") paintAlarmCount();
+  if (change.kind === "tags") watchEnds(change.names);
+  if (app.screen?.update) app.screen.update(change);
+});
+
+// A restarted supervisor has forgotten every session: back to login, then to this page.
+app.live.onReconnect = async () => {
+  if (app.session && app.session.login !== false && !app.session.anonymous) {
+    const answer = await get("/api/session", { no401: true });
+    if (answer.status === 401) goLogin();
+  }
+};
+
+app.live.onDisconnect = async () => {
+  // A WebSocket refused before its upgrade (401) looks like any lost connection: ask.
+  if (app.session && app.session.login !== false && !app.session.anonymous) {
+    const answer = await get("/api/session", { no401: true });
+    if (answer.status === 401) goLogin();
+  }
+};
+
+// Routes can overlap (a hash change while the previous screen still loads): only the
+// latest one renders.
+let routeGen = 0;
+
+async function route() {
+  const gen = ++routeGen;
+  const here = parseHash();
+  const found = ROUTES.find(([re]) => re.test(here.path)) || ROUTES[1];
+  const [re, mod] = found;
+  if (mod !== login && !app.session && !(await loadSession())) {
+    if (gen === routeGen) goLogin();
+    return;
+  }
+  if (mod !== login && !app.bench) app.bench = await loadBench();
+  if (gen !== routeGen) return;
+  if (mod !== login && !app.live._started) {
+    app.live._started = true;
+    app.live.start();
+  }
+  if (app.screen?.destroy) app.screen.destroy();
+  app.screen = null;
+  const root = $("#main");
+  root.innerHTML = "";
+  root.className = `screen-${found[2]}`;
+  paintHeader();
+  paintAlarmCount();
+  const params = here.path.match(re).slice(1);
+  const screen = (await mod.render({ root, app, params, query: here.query })) || null;
+  if (gen !== routeGen) {
+    if (screen?.destroy) screen.destroy();
+    return;
+  }
+  app.screen = screen;
+  document.title = `${root.dataset.title || found[2]} — bench supervisor`;
+}
+
+$("#logout").addEventListener("click", async () => {
+  await post("/api/logout", {}, { no401: true });
+  app.session = null;
+  app.live.stop();
+  app.live._started = false;
+  location.hash = "#/login";
+});
+
+const sound = $("#sound");
+sound.checked = app.sound.enabled;
+sound.addEventListener("change", () => app.sound.setEnabled(sound.checked));
+
+// The session expires after hmi.session_timeout_s without a request (the WebSocket's
+// messages do not count). The page asks again just after the time the supervisor gave:
+// still open (another request used it) -> ask again later; expired -> the login screen,
+// keeping the page's place. No periodic polling: it would keep an unattended panel's
+// session open for ever.
+let sessionTimer = null;
+function scheduleSessionCheck() {
+  clearTimeout(sessionTimer);
+  const s = app.session;
+  if (!s || s.login === false || typeof s.expires_s !== "number") return;
+  sessionTimer = setTimeout(async () => {
+    if (parseHash().path === "/login") return;
+    const answer = await get("/api/session", { no401: true });
+    if (answer.status === 401) goLogin();
+    else if (answer.ok) {
+      app.session = { ...app.session, ...answer.data };
+      scheduleSessionCheck();
+    }
+  }, (s.expires_s + SESSION_SLACK_S) * 1000);
+}
+app.scheduleSessionCheck = scheduleSessionCheck;
+
+window.addEventListener("hashchange", route);
+paintLink();
+route();

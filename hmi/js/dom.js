@@ -1,0 +1,136 @@
+// Small DOM helpers: escaping, value formatting, and the binding of elements to tags
+// (<span data-tag="ch0.voltage" data-fmt="n3">), refreshed on each live delta.
+
+export function esc(s) {
+  return String(s ?? "")
+    .replaceAll("&", "&amp;")
+    .replaceAll("<", "&lt;")
+    .replaceAll(">", "&gt;")
+    .replaceAll('"', "&quot;")
+    .replaceAll("'", "&#39;");
+}
+
+export const $ = (sel, root = document) => root.querySelector(sel);
+export const $$ = (sel, root = document) => Array.from(root.querySelectorAll(sel));
+
+/** Seconds as h:mm:ss (or d h:mm:ss), "—" when not known. */
+export function fmtDuration(s) {
+  if (s === null || s === undefined || !Number.isFinite(Number(s))) return "—";
+  let t = Math.max(0, Math.round(Number(s)));
+  const d = Math.floor(t / 86400);
+  t -= d * 86400;
+  const h = Math.floor(t / 3600);
+  const m = Math.floor((t % 3600) / 60);
+  const sec = t % 60;
+  const hms = `${h}:${String(m).padStart(2, "0")}:${String(sec).padStart(2, "0")}`;
+  return d ? `${d} d ${hms}` : hms;
+}
+
+export function fmtTime(unixS) {
+  if (!unixS) return "—";
+  const d = new Date(unixS * 1000);
+  return d.toLocaleString(undefined, { hour12: false });
+}
+
+/** A tag's value as text by a format: n<digits>, dur, pct, bool, text (default). */
+export function fmtValue(value, fmt, el) {
+  if (value === null || value === undefined) return "—";
+  if (fmt === "dur") return fmtDuration(value);
+  if (fmt === "pct") return Number.isFinite(value) ? `${Math.round(value * 100)} %` : "—";
+  if (fmt === "bool" || typeof value === "boolean") {
+    const on = el?.dataset.true ?? "on";
+    const off = el?.dataset.false ?? "off";
+    return value ? on : off;
+  }
+  if (typeof value === "number" && fmt && fmt.startsWith("n")) {
+    return value.toFixed(Number(fmt.slice(1)) || 0);
+  }
+  if (typeof value === "number" && !Number.isInteger(value)) return value.toFixed(3);
+  if (value === "") return el?.dataset.empty ?? "—";
+  return String(value);
+}
+
+/** Is this value abnormal for the element's rule (data-abn: false|true|nonempty|nonzero)? */
+function abnormal(rule, value) {
+  switch (rule) {
+    case "false":
+      return value === false;
+    case "true":
+      return value === true;
+    case "nonempty":
+      return typeof value === "string" && value !== "";
+    case "nonzero":
+      return typeof value === "number" && value !== 0;
+    default:
+      return false;
+  }
+}
+
+/** Write one tag into one element (text, quality class, abnormal class, source time). */
+export function paint(el, tag) {
+  if (!tag) {
+    delete el.dataset.shown;
+    el.textContent = "—";
+    el.classList.add("q-bad");
+    el.title = "no such tag on this bench";
+    return;
+  }
+  const text = fmtValue(tag.value, el.dataset.fmt, el);
+  const unit = el.dataset.unit === "none" || !tag.unit || tag.unit === "1" ? "" : tag.unit;
+  const withUnit = unit && text !== "—" && el.dataset.fmt !== "dur";
+  const shown = withUnit ? `${text} ${unit}` : text;
+  if (el.dataset.shown !== shown) {
+    el.dataset.shown = shown;
+    if (withUnit && el.classList.contains("big")) {
+      // Large numerals, the unit small beside them (it does not change, the number does).
+      el.textContent = text;
+      const u = document.createElement("small");
+      u.className = "unit";
+      u.textContent = ` ${unit}`;
+      el.append(u);
+    } else {
+      el.textContent = shown;
+    }
+  }
+  el.classList.toggle("q-bad", tag.quality === "BAD");
+  el.classList.toggle("q-uncertain", tag.quality === "UNCERTAIN");
+  el.classList.toggle("abn", abnormal(el.dataset.abn, tag.value));
+  el.title = tag.quality === "GOOD" ? "" : `${tag.quality}: ${tag.reason}`;
+  // For the browser test's latency probe: when the value was changed on the server.
+  if (tag.source_time) el.dataset.sourceTime = String(tag.source_time);
+  el.dataset.version = String(tag.version ?? "");
+}
+
+/** Elements of `root` bound to tags; refresh(names|null) repaints those of the names. */
+export function bindTags(root, live) {
+  const index = new Map();
+  for (const el of root.querySelectorAll("[data-tag]")) {
+    const name = el.dataset.tag;
+    if (!index.has(name)) index.set(name, []);
+    index.get(name).push(el);
+  }
+  const refresh = (names) => {
+    const list = names ?? Array.from(index.keys());
+    for (const name of list) {
+      const els = index.get(name);
+      if (!els) continue;
+      const tag = live.tags.get(name);
+      for (const el of els) paint(el, tag);
+    }
+  };
+  refresh(null);
+  return refresh;
+}
+
+/** Show a command's outcome in `el` (role=status): the reason of a refusal, in colour. */
+export function showResult(el, answer, okText) {
+  if (!el) return;
+  const d = answer.data || {};
+  el.hidden = false;
+  el.classList.toggle("refused", !answer.ok);
+  el.classList.toggle("accepted", answer.ok);
+  let reason = d.reason || d.error || "";
+  if (Array.isArray(d.details) && d.details.length) reason += ` — ${d.details.join("; ")}`;
+  if (!reason) reason = answer.ok ? okText || "done" : `HTTP ${answer.status}`;
+  el.textContent = answer.ok ? reason : `Refused (${answer.status}): ${reason}`;
+}

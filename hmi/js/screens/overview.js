@@ -1,0 +1,112 @@
+// Overview: the bench mimic (e-stop, supply, contactor, BMS) and one tile per channel.
+// High-performance HMI: grey when normal; colour only for what is abnormal.
+import { bindTags, esc, fmtDuration, $, $$ } from "../dom.js";
+
+/** The tag of a mimic element: /api/bench gives a tag name or {tag: name, ...}. */
+const mimicTag = (m) => (m && typeof m === "object" ? m.tag : m) || null;
+
+function mimicBox(id, title, rows) {
+  return `<section class="mimic-box" id="mimic-${id}" aria-label="${esc(title)}">
+    <h3>${esc(title)}</h3>${rows.join("")}</section>`;
+}
+
+const row = (label, tag, attrs = "") =>
+  tag
+    ? `<div class="kv"><span>${esc(label)}</span><b data-tag="${esc(tag)}" ${attrs}></b></div>`
+    : "";
+
+export function channelTile(ch) {
+  const t = ch.tags;
+  return `<a class="tile" href="#/channel/${esc(ch.name)}" id="tile-${esc(ch.name)}" data-channel="${esc(ch.name)}">
+    <div class="tile-head"><span class="tile-name">${esc(ch.name)}</span>
+      <span class="state" data-tag="${esc(t.state)}"></span>
+      <span class="mode" data-tag="${esc(t.mode)}"></span></div>
+    <div class="tile-desc muted">${esc(ch.description || "")}</div>
+    <div class="step">step <span data-tag="${esc(t.step)}" data-empty="none"></span></div>
+    <div class="nums">
+      <div><span class="big" data-tag="${esc(t.voltage)}" data-fmt="n3"></span><small>voltage</small></div>
+      <div><span class="big" data-tag="${esc(t.current)}" data-fmt="n3"></span><small>current</small></div>
+      <div><span class="big" data-tag="${esc(t.temperature)}" data-fmt="n1"></span><small>temperature</small></div>
+      <div><span class="big" data-tag="${esc(t.charge)}" data-fmt="n3"></span><small>charge</small></div>
+    </div>
+    <div class="progress"><div class="bar" role="progressbar" aria-label="${esc(ch.name)} progress" aria-valuemin="0" aria-valuemax="100"><div class="fill"></div></div>
+      <span class="eta">ETA <span class="eta-text">—</span></span></div>
+    <div class="tile-alarm" aria-live="polite"></div>
+  </a>`;
+}
+
+/** Repaint what is not a single tag: the progress bar, ETA and the alarm colour. */
+export function paintTile(el, ch, live) {
+  const t = ch.tags;
+  const progress = Number(live.value(t.progress)) || 0;
+  const pct = Math.max(0, Math.min(100, progress * 100));
+  const bar = $(".bar", el);
+  $(".fill", el).style.width = `${pct}%`;
+  bar.setAttribute("aria-valuenow", String(Math.round(pct)));
+  $(".eta-text", el).textContent = fmtDuration(live.value(t.eta));
+  const alarms = live.alarms.filter((a) => a.group === ch.name && a.state !== "normal" && !a.shelved);
+  const fault = live.value(t.fault);
+  const state = String(live.value(t.state) || "");
+  const abnormal = alarms.length > 0 || (typeof fault === "string" && fault !== "");
+  el.classList.toggle("abn", abnormal);
+  el.classList.toggle("warn", !abnormal && /^(Held|Holding|Aborted|Stopped)$/.test(state));
+  $(".tile-alarm", el).textContent = abnormal ? (alarms[0]?.message || fault) : "";
+}
+
+export async function render({ root, app }) {
+  root.dataset.title = "Overview";
+  const b = app.bench;
+  const m = b.mimic;
+  const estop = mimicTag(m.estop);
+  const supply = mimicTag(m.supply);
+  const contactor = mimicTag(m.contactor);
+  const bms = mimicTag(m.bms);
+  const has = (n) => app.tagNames.has(n);
+  const opt = (label, tag, attrs) => (has(tag) ? row(label, tag, attrs) : "");
+  const link = 'data-true="ok" data-false="LOST" data-abn="false"';
+  const mimic = [];
+  if (estop)
+    mimic.push(mimicBox("estop", "E-stop", [row("circuit", estop, 'data-true="closed" data-false="PRESSED" data-abn="false" class="big"')]));
+  if (supply)
+    mimic.push(
+      mimicBox("supply", "Supply", [
+        row("output", supply, 'data-true="on" data-false="off"'),
+        opt("voltage", "ea.voltage", 'data-fmt="n2"'),
+        opt("link", "ea.connected", link),
+      ]),
+    );
+  if (contactor)
+    mimic.push(
+      mimicBox("contactor", "Contactor", [
+        row("contacts", contactor, 'data-true="closed" data-false="open" class="big"'),
+        contactor !== "contactor.cmd" ? opt("coil", "contactor.cmd", 'data-true="on" data-false="off"') : "",
+      ]),
+    );
+  if (bms) {
+    // /api/bench names the BMS's link tag; older supervisors its pack voltage.
+    const isLink = bms.endsWith(".connected");
+    mimic.push(
+      mimicBox("bms", "BMS", [
+        isLink ? row("link", bms, link) : row("pack", bms, 'data-fmt="n2"'),
+        isLink ? opt("pack", "bms.voltage", 'data-fmt="n2"') : opt("link", "bms.connected", link),
+        opt("cell min", "bms.cell_min", 'data-fmt="n3"'),
+        opt("cell max", "bms.cell_max", 'data-fmt="n3"'),
+        opt("temp max", "bms.temp_max", 'data-fmt="n1"'),
+      ]),
+    );
+  }
+  root.innerHTML = `
+    <h1 class="sr-only">Overview</h1>
+    ${mimic.length ? `<div class="mimic" aria-label="Bench mimic">${mimic.join('<span class="wire" aria-hidden="true"></span>')}</div>` : ""}
+    <div class="tiles">${b.channels.map(channelTile).join("")}</div>`;
+  const refresh = bindTags(root, app.live);
+  const tiles = b.channels.map((ch) => [ch, $(`#tile-${CSS.escape(ch.name)}`, root)]);
+  const paintAll = () => tiles.forEach(([ch, el]) => paintTile(el, ch, app.live));
+  paintAll();
+  return {
+    update(change) {
+      if (change.kind === "tags") refresh(change.names);
+      paintAll();
+    },
+  };
+}
