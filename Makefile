@@ -23,6 +23,7 @@ HMI_STAMP   := hmi/node_modules/.installed
 # The browser the HMI's browser tests drive (tests/browser/): Debian's Chromium, never a
 # browser downloaded by Playwright.
 CHROMIUM    := /usr/bin/chromium
+SUDO        := $(if $(filter 0,$(shell id -u)),,sudo)
 
 .PHONY: run demo-users test lint typecheck unit bench mutation schema check clean influxd node_modules hmi chromium
 
@@ -46,7 +47,9 @@ chromium: $(CHROMIUM)
 
 $(CHROMIUM):
 	@echo "installing Debian's chromium for the HMI's browser tests"
-	apt-get install -y chromium || { echo "install the Debian package chromium (apt-get install chromium) for tests/browser/"; exit 2; }
+	$(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y chromium \
+	  || { $(SUDO) apt-get update && $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y chromium; } \
+	  || { echo "install the Debian package chromium (apt-get install chromium) for tests/browser/"; exit 2; }
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "Python 3.11+ is required")'

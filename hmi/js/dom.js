@@ -66,6 +66,9 @@ function abnormal(rule, value) {
   }
 }
 
+/** The reason of a tag whose sensor the bench does not have (core/quality.py Reason.NOT_FITTED). */
+export const NOT_FITTED = "not fitted";
+
 /** Write one tag into one element (text, quality class, abnormal class, source time). */
 export function paint(el, tag) {
   if (!tag) {
@@ -75,6 +78,18 @@ export function paint(el, tag) {
     el.title = "no such tag on this bench";
     return;
   }
+  if (tag.quality === "BAD" && tag.reason === NOT_FITTED) {
+    // No sensor on this bench (a Chadèche board has no thermometer): nothing is wrong,
+    // so grey "n/a", never the colour of a fault.
+    delete el.dataset.shown;
+    el.textContent = "n/a";
+    el.classList.remove("q-bad", "q-uncertain", "abn");
+    el.classList.add("q-na");
+    el.title = "no sensor fitted on this bench";
+    el.dataset.version = String(tag.version ?? "");
+    return;
+  }
+  el.classList.remove("q-na");
   const text = fmtValue(tag.value, el.dataset.fmt, el);
   const unit = el.dataset.unit === "none" || !tag.unit || tag.unit === "1" ? "" : tag.unit;
   const withUnit = unit && text !== "—" && el.dataset.fmt !== "dur";

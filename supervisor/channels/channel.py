@@ -75,6 +75,10 @@ class Channel:
             _spec(f"{n}.current", unit="A", range=(lo, hi), description="+ charges the cell")
         )
         self.temperature = add(_spec(f"{n}.temperature", unit="degC", description="Cell temp."))
+        if temperature_tag is None:
+            # Only a tag read elsewhere gives a channel its temperature: without one there
+            # is no sensor, which is not a fault (readers see BAD "not fitted", not "initial").
+            db.update(self.temperature, None, Quality.BAD, Reason.NOT_FITTED)
         # Measurements taken from other tags (e.g. LEM sensor, voltage board on the ADAM).
         self._copies = [
             (self.voltage, voltage_tag),

@@ -33,3 +33,7 @@ class Reason(StrEnum):
     DEVICE_ERROR = "device error"
     LAST_KNOWN = "last known value"
     DERIVED_FROM_BAD = "derived from bad input"
+    NOT_FITTED = "not fitted"
+    """The bench has no sensor for it (a Chadèche board measures no temperature unless the
+    I/O map names a tag read elsewhere): BAD for every reader, but nothing is wrong —
+    OPC UA Bad_OutOfService, shown grey as "n/a" by the screens, never an alarm colour."""

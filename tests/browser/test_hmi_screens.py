@@ -87,6 +87,11 @@ def test_an_operator_logs_in_and_sees_the_bench_mimic_and_a_tile_per_channel(
             tile = page.locator(f"#tile-{ch}")
             assert tile.is_visible()
             assert "Idle" in tile.text_content() or "Complete" in tile.text_content()
+        # Grey when normal: a bench at rest shows no fault colour anywhere. A Chadèche board
+        # has no thermometer: n/a, not a bad value.
+        temperature = page.locator('#tile-ch0 [data-tag="ch0.temperature"]')
+        assert temperature.text_content() == "n/a"
+        assert page.locator(".tiles .q-bad, .tiles .abn, .mimic .q-bad, .mimic .abn").count() == 0
         screenshot(page, "overview")
         page.set_viewport_size(TABLET)
         screenshot(page, "overview-tablet")

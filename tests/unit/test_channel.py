@@ -6,7 +6,7 @@ import pytest
 
 from supervisor.channels import Channel, ChannelLimits
 from supervisor.core.quality import Quality, Reason
-from supervisor.tags import TagDB
+from supervisor.tags import TagDB, TagSpec
 
 
 def make(v: float = 1.3, i: float = 0.0) -> tuple[TagDB, Channel]:
@@ -90,3 +90,21 @@ def test_a_value_of_the_wrong_type_from_the_process_is_stored_as_bad() -> None:
     db, ch = make()
     db.update(ch.voltage, "garbage")
     assert ch.voltage.value is None and ch.voltage.quality is Quality.BAD
+
+
+def test_a_channel_without_a_temperature_sensor_says_not_fitted_not_waiting() -> None:
+    # A Chadèche board measures no temperature: BAD for every reader (a guard with limits
+    # would trip), but "not fitted" — the screens show n/a in grey, OPC UA Bad_OutOfService.
+    _db, ch = make()
+    scan(ch, 3)
+    assert (ch.temperature.quality, ch.temperature.reason) == (Quality.BAD, Reason.NOT_FITTED)
+
+
+def test_a_channel_with_a_temperature_tag_takes_its_value() -> None:
+    db = TagDB()
+    src = db.add(TagSpec("pack.temp", unit="degC"))
+    limits = ChannelLimits((-1.0, 1.0), (0.8, 1.9))
+    ch = Channel("ch0", db, limits, capacity_ah=2.0, temperature_tag="pack.temp")
+    db.update(src, 24.5)
+    scan(ch, 1)
+    assert (ch.temperature.value, ch.temperature.quality) == (24.5, Quality.GOOD)

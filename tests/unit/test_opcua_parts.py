@@ -61,6 +61,7 @@ def test_every_quality_and_reason_has_a_status_code_of_the_same_severity(
         (Quality.BAD, Reason.SENSOR_FAILURE, "BadSensorFailure"),
         (Quality.BAD, Reason.STALE, "Bad"),
         (Quality.BAD, Reason.INITIAL, "BadWaitingForInitialData"),
+        (Quality.BAD, Reason.NOT_FITTED, "BadOutOfService"),
     ],
 )
 def test_the_quality_table_of_adr_0014(quality: Quality, reason: Reason, name: str) -> None:

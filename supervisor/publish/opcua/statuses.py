@@ -46,11 +46,12 @@ QUALITY_STATUS: Final[Mapping[tuple[Quality, Reason], int]] = {
     (Quality.BAD, Reason.OUT_OF_RANGE): S.BadOutOfRange,
     (Quality.BAD, Reason.LAST_KNOWN): S.BadNoCommunication,
     (Quality.BAD, Reason.DERIVED_FROM_BAD): S.Bad,
+    (Quality.BAD, Reason.NOT_FITTED): S.BadOutOfService,
 }
 
 OUT_OF_SERVICE_REASONS: Final = frozenset({"disabled", "out of service"})
 """Reasons (by their text) that mean the source is switched off on purpose: Part 8
-Bad_OutOfService. None is a ``Reason`` yet; a disabled device or channel will be one."""
+Bad_OutOfService, beside ``Reason.NOT_FITTED`` (no sensor on this bench) in the table."""
 
 GENERIC: Final[Mapping[Quality, int]] = {
     Quality.GOOD: S.Good,
