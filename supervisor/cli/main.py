@@ -608,6 +608,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from supervisor.app.influxbench import influx_benchmark
 
         return influx_benchmark(args.points, args.rounds)
+    if args.what == "http":
+        from supervisor.app.httpbench import http_benchmark
+
+        return asyncio.run(
+            http_benchmark(
+                args.tags, args.period_ms / 1000, args.seconds, args.http_clients, args.ws_clients
+            )
+        )
     if args.what == "opcua":
         return asyncio.run(
             benchmarks.opcua_benchmark(
@@ -796,6 +804,7 @@ def build_parser() -> argparse.ArgumentParser:
             "historian",
             "influx",
             "opcua",
+            "http",
         ],
     )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
@@ -814,6 +823,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--rounds", type=int, default=3, help="influx: rounds of each writer")
     b.add_argument("--clients", type=int, default=10, help="opcua: subscribed clients")
     b.add_argument("--opcua-tags", type=int, default=100, help="opcua: analog tags changing")
+    b.add_argument("--http-clients", type=int, default=4, help="http: GET /api/tags loops")
+    b.add_argument("--ws-clients", type=int, default=3, help="http: WebSocket pages")
     b.set_defaults(func=cmd_bench)
     return p
 
