@@ -14,6 +14,7 @@ with them, and the snapshot latency the clients saw.
 from __future__ import annotations
 
 import asyncio
+import gc
 import json
 import subprocess
 import sys
@@ -97,6 +98,9 @@ async def http_benchmark(
     await api.start()
     for drv in engine.drivers:  # first images in place, so no channel trips
         await drv.poll()
+    # As `supervisor run` does before its scan (cli/main.py::freeze_start_up_heap).
+    gc.collect()
+    gc.freeze()
     stop = asyncio.Event()
     scan = asyncio.get_running_loop().create_task(engine.run(stop))
     try:

@@ -1,0 +1,91 @@
+"""The tag snapshots of ``GET /api/tags`` and the WebSocket (``supervisor.hmi.server``,
+docs/adr/0019-http-off-the-scan.md): the same JSON text as encoding the whole list at once,
+one consistent image even when the tags change between two slices, and one image per
+version shared by every request."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+
+from supervisor.core.clock import VirtualClock
+from supervisor.core.quality import Quality
+from supervisor.hmi.server import (
+    SLICE_TAGS,
+    TagSnapshots,
+    encode_rows,
+    json_dumps,
+    tag_json,
+    tag_row,
+)
+from supervisor.tags import TagDB, TagSpec
+
+
+def _db(n: int) -> TagDB:
+    db = TagDB()
+    for k in range(n):
+        tag = db.add(TagSpec(f"t{k:04d}", unit="V"))
+        db.update(tag, k * 0.5)
+    db.add(TagSpec("text", dtype="str"))
+    db.update(db["text"], 'a "quoted" text, with ü')
+    db.update(db["t0001"], math.nan)  # BAD, sent as null
+    db.force("t0002", 7.0)
+    return db
+
+
+def test_the_sliced_text_is_the_text_of_the_whole_list_encoded_at_once(
+    virtual_clock: VirtualClock,
+) -> None:
+    db = _db(3 * SLICE_TAGS + 7)
+    rows = [tag_row(t) for t in db]
+    whole = json_dumps([tag_json(t, virtual_clock) for t in db])
+    assert asyncio.run(encode_rows(rows, virtual_clock, as_map=False)) == whole
+    by_name = {
+        t.name: {k: v for k, v in tag_json(t, virtual_clock).items() if k != "name"} for t in db
+    }
+    assert asyncio.run(encode_rows(rows, virtual_clock, as_map=True)) == json_dumps(by_name)
+    assert asyncio.run(encode_rows([], virtual_clock, as_map=False)) == "[]"
+    assert asyncio.run(encode_rows([], virtual_clock, as_map=True)) == "{}"
+
+
+def test_an_image_is_the_tags_at_its_version_even_when_they_change_between_two_slices(
+    virtual_clock: VirtualClock,
+) -> None:
+    db = _db(4 * SLICE_TAGS)
+    snapshots = TagSnapshots(db, virtual_clock)
+    expected = json_dumps([tag_json(t, virtual_clock) for t in db])
+
+    async def scans_meanwhile() -> tuple[int, str]:
+        task = asyncio.get_running_loop().create_task(snapshots.image())
+        for _ in range(10):  # a "scan" in every yield of the encoder
+            await asyncio.sleep(0)
+            for t in db:
+                db.update(t, -1.0, Quality.UNCERTAIN)
+        return await task
+
+    version_before = db.version
+    version, text = asyncio.run(scans_meanwhile())
+    assert version == version_before
+    assert text == expected
+    assert db.version > version_before
+
+
+def test_requests_at_one_version_share_one_image_and_a_change_makes_a_new_one(
+    virtual_clock: VirtualClock,
+) -> None:
+    db = _db(2 * SLICE_TAGS)
+    snapshots = TagSnapshots(db, virtual_clock)
+
+    async def requests() -> list[tuple[int, str]]:
+        first = await asyncio.gather(*(snapshots.image() for _ in range(5)))
+        again = await snapshots.image()
+        db.update(db["t0000"], 123.0)
+        changed = await snapshots.image()
+        return [*first, again, changed]
+
+    images = asyncio.run(requests())
+    assert len({v for v, _ in images[:6]}) == 1
+    assert snapshots.built == 2
+    assert json.loads(images[6][1])[0]["value"] == 123.0
+    assert images[6][0] == db.version
