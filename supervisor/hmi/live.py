@@ -187,7 +187,7 @@ class LiveHub:
         alarms_changed, self._alarms_changed = self._alarms_changed, False
         if now_version != base:
             self._version = now_version
-            rows = [tag_row(t) for t in db.changed_since(base)]
+            rows = [tag_row(t) for t in _changed(db, base)]
             # Every client's rows are chosen now, before the first yield (one version).
             wanted: dict[int, list[TagRow]] = {}  # since → the rows newer than it
             todo: list[tuple[LiveClient, int]] = []
@@ -201,7 +201,7 @@ class LiveHub:
                     elif since > base:  # joined since the last delta
                         wanted[since] = [r for r in rows if r[6] > since]
                     else:  # its snapshot was encoded while a delta left: catch up
-                        wanted[since] = [tag_row(t) for t in db.changed_since(since)]
+                        wanted[since] = [tag_row(t) for t in _changed(db, since)]
                 c.version = now_version
                 todo.append((c, since))
             texts = {
@@ -301,6 +301,21 @@ class LiveHub:
                 with contextlib.suppress(asyncio.CancelledError):
                     await client.closer
         return ws
+
+
+def _changed(db: TagDB, since: int) -> list[Tag]:
+    """``db.changed_since(since)``, the same tags in the same order (of their last change);
+    when more changes were logged than there are tags (every tag changing every scan: 20
+    scans of 1000 changes between two publications at 0.2 s), a pass over the tags is
+    cheaper than the walk back through the log (0.08 ms against 0.5 ms on the bench's
+    machine), and it is all on the scan's loop."""
+    if db.version - since <= len(db):
+        return db.changed_since(since)
+    return sorted((t for t in db if t.version > since), key=_version_of)
+
+
+def _version_of(tag: Tag) -> int:
+    return tag.version
 
 
 async def _delta(version: int, rows: list[TagRow], clock: Clock) -> str:

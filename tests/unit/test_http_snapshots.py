@@ -89,3 +89,20 @@ def test_requests_at_one_version_share_one_image_and_a_change_makes_a_new_one(
     assert snapshots.built == 2
     assert json.loads(images[6][1])[0]["value"] == 123.0
     assert images[6][0] == db.version
+
+
+def test_a_delta_after_many_changes_names_the_tags_of_the_change_log_in_its_order() -> None:
+    from supervisor.hmi.live import _changed
+
+    db = _db(50)
+    tags = list(db)
+    for since in (db.version, 0):
+        for scan in range(30):  # more changes than tags: the pass over the tags
+            for t in tags[scan % 7 :: 3]:
+                db.update(t, float(scan))
+        assert db.version - since > len(db) or since == db.version
+        assert _changed(db, since) == db.changed_since(since)
+    few = db.version
+    db.update(tags[3], -5.0)
+    db.update(tags[1], -5.0)
+    assert _changed(db, few) == db.changed_since(few) == [tags[3], tags[1]]
