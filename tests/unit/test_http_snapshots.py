@@ -106,3 +106,28 @@ def test_a_delta_after_many_changes_names_the_tags_of_the_change_log_in_its_orde
     db.update(tags[3], -5.0)
     db.update(tags[1], -5.0)
     assert _changed(db, few) == db.changed_since(few) == [tags[3], tags[1]]
+
+
+def test_every_kind_of_value_is_written_as_json_dumps_writes_it(
+    virtual_clock: VirtualClock,
+) -> None:
+    db = TagDB()
+    values = [0.1, -0.0, 1e16, 1e-7, 123456789.123, 3, -(2**70), True, False, "", '°C ü \n"']
+    for k, v in enumerate(values):
+        dtype = {float: "float", int: "int", bool: "bool", str: "str"}[type(v)]
+        tag = db.add(TagSpec(f"v{k}", dtype=dtype, unit="°C" if k % 2 else ""))
+        db.update(tag, v)
+    db.add(TagSpec("never", dtype="int"))  # no value yet: null, no source time
+    for bad in (math.inf, -math.inf):
+        db.update(db.add(TagSpec(f"bad{bad}")), bad)
+    virtual_clock.advance(12.345)
+    db.set_scan_time(virtual_clock.now())
+    db.update(db["v0"], 0.2)
+    db.force("v1", 2.5)
+    rows = [tag_row(t) for t in db]
+    whole = json_dumps([tag_json(t, virtual_clock) for t in db])
+    assert asyncio.run(encode_rows(rows, virtual_clock, as_map=False)) == whole
+    by_name = {
+        t.name: {k: v for k, v in tag_json(t, virtual_clock).items() if k != "name"} for t in db
+    }
+    assert asyncio.run(encode_rows(rows, virtual_clock, as_map=True)) == json_dumps(by_name)
