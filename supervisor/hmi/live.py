@@ -39,7 +39,15 @@ from aiohttp import WSCloseCode, WSMsgType, web
 from supervisor.core.clock import Clock
 from supervisor.core.records import BenchEvent
 from supervisor.hmi.auth import VALID_KEY
-from supervisor.hmi.server import alarm_json, json_dumps, tag_json
+from supervisor.hmi.server import (
+    TagRow,
+    TagSnapshots,
+    alarm_json,
+    encode_rows,
+    json_dumps,
+    tag_json,
+    tag_row,
+)
 from supervisor.safety import AlarmEvent, AlarmManager
 from supervisor.tags import Tag, TagDB, TagSpec
 
@@ -116,6 +124,7 @@ class LiveHub:
         self._due = asyncio.Event()
         self._alarms_changed = False
         self._task: asyncio.Task[None] | None = None
+        self.snapshots = TagSnapshots(db, clock)
         self._clients_tag = _declare(db, "hmi.ws_clients", "WebSocket clients (screens) connected")
         self._dropped_tag = _declare(
             db, "hmi.ws_dropped", "WebSocket clients closed because they did not read"
@@ -158,13 +167,15 @@ class LiveHub:
             await self._due.wait()
             self._due.clear()
             try:
-                self.publish()
+                await self.publish()
             except Exception:  # a bug here must not end live data for good
                 log.exception("hmi: live publication failed")
 
-    def publish(self) -> None:
+    async def publish(self) -> None:
         """Send every client what changed since the version it has (and the alarms if any
-        changed); drop the clients that went invalid (an expired session)."""
+        changed); drop the clients that went invalid (an expired session). The changed
+        tags are copied at once, then encoded in slices (``encode_rows``): scans may run
+        in between, and the delta still describes one version."""
         db = self.db
         base, now_version = self._version, db.version
         for c in list(self.clients):
@@ -173,22 +184,35 @@ class LiveHub:
         if not self.clients:
             self._version, self._alarms_changed = now_version, False
             return
+        alarms_changed, self._alarms_changed = self._alarms_changed, False
         if now_version != base:
-            changed = db.changed_since(base)
-            entries = [(t.version, t.name, tag_entry(t, self.clock)) for t in changed]
-            shared: str | None = None
+            self._version = now_version
+            rows = [tag_row(t) for t in _changed(db, base)]
+            # Every client's rows are chosen now, before the first yield (one version).
+            wanted: dict[int, list[TagRow]] = {}  # since → the rows newer than it
+            todo: list[tuple[LiveClient, int]] = []
             for c in list(self.clients):
-                if c.version <= base:  # has everything up to base: the shared delta
-                    if shared is None:
-                        shared = _delta(now_version, entries, base)
-                    self._put(c, shared)
-                elif c.version < now_version:  # joined since the last delta
-                    self._put(c, _delta(now_version, entries, c.version))
+                since = c.version
+                if since >= now_version:
+                    continue
+                if since not in wanted:
+                    if since == base:  # has everything up to base: the shared delta
+                        wanted[since] = rows
+                    elif since > base:  # joined since the last delta
+                        wanted[since] = [r for r in rows if r[6] > since]
+                    else:  # its snapshot was encoded while a delta left: catch up
+                        wanted[since] = [tag_row(t) for t in _changed(db, since)]
                 c.version = now_version
+                todo.append((c, since))
+            texts = {
+                since: await _delta(now_version, rs, self.clock) for since, rs in wanted.items()
+            }
+            for c, since in todo:
+                if c in self.clients:
+                    self._put(c, texts[since])
             self.published += 1
         self._version = now_version
-        if self._alarms_changed:
-            self._alarms_changed = False
+        if alarms_changed:
             self._broadcast(self._alarms_text())
 
     def _alarms_text(self) -> str:
@@ -254,15 +278,12 @@ class LiveHub:
         await ws.prepare(request)
         found: Callable[[], bool] = request.get(VALID_KEY, _always)
         check = valid or found
-        db = self.db
-        # Between two scans: the snapshot is one consistent image at db.version.
-        snapshot = {
-            "type": "snapshot",
-            "version": db.version,
-            "tags": {t.name: tag_entry(t, self.clock) for t in db},
-        }
-        client = LiveClient(ws, db.version, self.queue_size, check, request.transport)
-        client.queue.put_nowait(json_dumps(snapshot))
+        # One consistent image at one version, copied between two scans, encoded in
+        # slices and shared by the pages that connect at that version.
+        version, tags = await self.snapshots.image(as_map=True)
+        snapshot = f'{{"type": "snapshot", "version": {version}, "tags": {tags}}}'
+        client = LiveClient(ws, version, self.queue_size, check, request.transport)
+        client.queue.put_nowait(snapshot)
         client.queue.put_nowait(self._alarms_text())
         self.clients.add(client)
         client.sender = asyncio.get_running_loop().create_task(client.send_loop())
@@ -282,10 +303,24 @@ class LiveHub:
         return ws
 
 
-def _delta(version: int, entries: list[tuple[int, str, dict[str, Any]]], since: int) -> str:
-    return json_dumps(
-        {"type": "delta", "version": version, "tags": {n: e for v, n, e in entries if v > since}}
-    )
+def _changed(db: TagDB, since: int) -> list[Tag]:
+    """``db.changed_since(since)``, the same tags in the same order (of their last change);
+    when more changes were logged than there are tags (every tag changing every scan: 20
+    scans of 1000 changes between two publications at 0.2 s), a pass over the tags is
+    cheaper than the walk back through the log (0.08 ms against 0.5 ms on the bench's
+    machine), and it is all on the scan's loop."""
+    if db.version - since <= len(db):
+        return db.changed_since(since)
+    return sorted((t for t in db if t.version > since), key=_version_of)
+
+
+def _version_of(tag: Tag) -> int:
+    return tag.version
+
+
+async def _delta(version: int, rows: list[TagRow], clock: Clock) -> str:
+    tags = await encode_rows(rows, clock, as_map=True)
+    return f'{{"type": "delta", "version": {version}, "tags": {tags}}}'
 
 
 async def _close(c: LiveClient, code: int, reason: str) -> None:

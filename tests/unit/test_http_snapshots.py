@@ -1,0 +1,133 @@
+"""The tag snapshots of ``GET /api/tags`` and the WebSocket (``supervisor.hmi.server``,
+docs/adr/0019-http-off-the-scan.md): the same JSON text as encoding the whole list at once,
+one consistent image even when the tags change between two slices, and one image per
+version shared by every request."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+
+from supervisor.core.clock import VirtualClock
+from supervisor.core.quality import Quality
+from supervisor.hmi.server import (
+    SLICE_TAGS,
+    TagSnapshots,
+    encode_rows,
+    json_dumps,
+    tag_json,
+    tag_row,
+)
+from supervisor.tags import TagDB, TagSpec
+
+
+def _db(n: int) -> TagDB:
+    db = TagDB()
+    for k in range(n):
+        tag = db.add(TagSpec(f"t{k:04d}", unit="V"))
+        db.update(tag, k * 0.5)
+    db.add(TagSpec("text", dtype="str"))
+    db.update(db["text"], 'a "quoted" text, with ü')
+    db.update(db["t0001"], math.nan)  # BAD, sent as null
+    db.force("t0002", 7.0)
+    return db
+
+
+def test_the_sliced_text_is_the_text_of_the_whole_list_encoded_at_once(
+    virtual_clock: VirtualClock,
+) -> None:
+    db = _db(3 * SLICE_TAGS + 7)
+    rows = [tag_row(t) for t in db]
+    whole = json_dumps([tag_json(t, virtual_clock) for t in db])
+    assert asyncio.run(encode_rows(rows, virtual_clock, as_map=False)) == whole
+    by_name = {
+        t.name: {k: v for k, v in tag_json(t, virtual_clock).items() if k != "name"} for t in db
+    }
+    assert asyncio.run(encode_rows(rows, virtual_clock, as_map=True)) == json_dumps(by_name)
+    assert asyncio.run(encode_rows([], virtual_clock, as_map=False)) == "[]"
+    assert asyncio.run(encode_rows([], virtual_clock, as_map=True)) == "{}"
+
+
+def test_an_image_is_the_tags_at_its_version_even_when_they_change_between_two_slices(
+    virtual_clock: VirtualClock,
+) -> None:
+    db = _db(4 * SLICE_TAGS)
+    snapshots = TagSnapshots(db, virtual_clock)
+    expected = json_dumps([tag_json(t, virtual_clock) for t in db])
+
+    async def scans_meanwhile() -> tuple[int, str]:
+        task = asyncio.get_running_loop().create_task(snapshots.image())
+        for _ in range(10):  # a "scan" in every yield of the encoder
+            await asyncio.sleep(0)
+            for t in db:
+                db.update(t, -1.0, Quality.UNCERTAIN)
+        return await task
+
+    version_before = db.version
+    version, text = asyncio.run(scans_meanwhile())
+    assert version == version_before
+    assert text == expected
+    assert db.version > version_before
+
+
+def test_requests_at_one_version_share_one_image_and_a_change_makes_a_new_one(
+    virtual_clock: VirtualClock,
+) -> None:
+    db = _db(2 * SLICE_TAGS)
+    snapshots = TagSnapshots(db, virtual_clock)
+
+    async def requests() -> list[tuple[int, str]]:
+        first = await asyncio.gather(*(snapshots.image() for _ in range(5)))
+        again = await snapshots.image()
+        db.update(db["t0000"], 123.0)
+        changed = await snapshots.image()
+        return [*first, again, changed]
+
+    images = asyncio.run(requests())
+    assert len({v for v, _ in images[:6]}) == 1
+    assert snapshots.built == 2
+    assert json.loads(images[6][1])[0]["value"] == 123.0
+    assert images[6][0] == db.version
+
+
+def test_a_delta_after_many_changes_names_the_tags_of_the_change_log_in_its_order() -> None:
+    from supervisor.hmi.live import _changed
+
+    db = _db(50)
+    tags = list(db)
+    for since in (db.version, 0):
+        for scan in range(30):  # more changes than tags: the pass over the tags
+            for t in tags[scan % 7 :: 3]:
+                db.update(t, float(scan))
+        assert db.version - since > len(db) or since == db.version
+        assert _changed(db, since) == db.changed_since(since)
+    few = db.version
+    db.update(tags[3], -5.0)
+    db.update(tags[1], -5.0)
+    assert _changed(db, few) == db.changed_since(few) == [tags[3], tags[1]]
+
+
+def test_every_kind_of_value_is_written_as_json_dumps_writes_it(
+    virtual_clock: VirtualClock,
+) -> None:
+    db = TagDB()
+    values = [0.1, -0.0, 1e16, 1e-7, 123456789.123, 3, -(2**70), True, False, "", '°C ü \n"']
+    for k, v in enumerate(values):
+        dtype = {float: "float", int: "int", bool: "bool", str: "str"}[type(v)]
+        tag = db.add(TagSpec(f"v{k}", dtype=dtype, unit="°C" if k % 2 else ""))
+        db.update(tag, v)
+    db.add(TagSpec("never", dtype="int"))  # no value yet: null, no source time
+    for bad in (math.inf, -math.inf):
+        db.update(db.add(TagSpec(f"bad{bad}")), bad)
+    virtual_clock.advance(12.345)
+    db.set_scan_time(virtual_clock.now())
+    db.update(db["v0"], 0.2)
+    db.force("v1", 2.5)
+    rows = [tag_row(t) for t in db]
+    whole = json_dumps([tag_json(t, virtual_clock) for t in db])
+    assert asyncio.run(encode_rows(rows, virtual_clock, as_map=False)) == whole
+    by_name = {
+        t.name: {k: v for k, v in tag_json(t, virtual_clock).items() if k != "name"} for t in db
+    }
+    assert asyncio.run(encode_rows(rows, virtual_clock, as_map=True)) == json_dumps(by_name)
