@@ -614,6 +614,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 args.clients, args.seconds, args.opcua_tags, args.period_ms / 1000
             )
         )
+    if args.what in ("load", "memory", "report"):
+        from supervisor.app import benchsuite
+
+        return benchsuite.run(args)
     if args.what == "dry-run":
         from supervisor.app.dryrun import dry_run, format_report
 
@@ -796,6 +800,9 @@ def build_parser() -> argparse.ArgumentParser:
             "historian",
             "influx",
             "opcua",
+            "load",
+            "memory",
+            "report",
         ],
     )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
@@ -814,6 +821,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--rounds", type=int, default=3, help="influx: rounds of each writer")
     b.add_argument("--clients", type=int, default=10, help="opcua: subscribed clients")
     b.add_argument("--opcua-tags", type=int, default=100, help="opcua: analog tags changing")
+    b.add_argument("--minutes", type=float, default=30.0, help="memory: minutes to run")
+    b.add_argument("--warmup", type=float, default=None, help="load, memory: warm-up seconds")
+    b.add_argument("--http-rate", type=float, default=10.0, help="load: GET /api/tags per s")
+    b.add_argument("--out", default="var/bench", help="report: folder of results.json|md")
     b.set_defaults(func=cmd_bench)
     return p
 
