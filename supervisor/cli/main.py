@@ -624,6 +624,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
         res = asyncio.run(dry_run(args.recipe, soc=0.0))
         for line in format_report(res)[-3:]:
             _out(line)
+        from supervisor.app import benchreport
+
+        benchreport.record(
+            f"dry run of {args.recipe}",
+            res.ratio,
+            "× real time",
+            ">= 30000",
+            f"{res.simulated_s / 3600:.1f} simulated h in {res.wall_s:.2f} s wall",
+            f"supervisor bench dry-run --recipe {args.recipe}",
+        )
         return EXIT_OK
     return asyncio.run(benchmarks.manual_charge_benchmark(args.hours))
 
