@@ -22,10 +22,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
 import sqlite3
 import sys
 import tempfile
 import time
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -138,6 +140,16 @@ def _scan_samples(history: Path, name: str, t0: float, t1: float) -> list[float]
     return [float(r[0]) for r in rows if r[0] is not None]
 
 
+def _tag_list(answer: Any) -> list[dict[str, Any]]:
+    return list(answer if isinstance(answer, list) else answer.get("tags", []))
+
+
+def _chain_states(answer: Any) -> dict[str, int]:
+    """How many channels' step chains are in each state (all running, under load)."""
+    states = [str(t.get("value")) for t in _tag_list(answer) if t["name"].endswith(".chain.state")]
+    return dict(Counter(states))
+
+
 def _subscribed_tags(tags: list[dict[str, Any]]) -> list[str]:
     names = [str(t["name"]) for t in tags]
     values = [n for n in names if n.startswith("ch") and n.endswith((".voltage", ".current"))]
@@ -153,8 +165,7 @@ async def _measure(
     warmup_s: float,
     http_rate_hz: float,
 ) -> dict[str, Any]:
-    tags = sup.get("/api/tags")
-    tag_list = tags if isinstance(tags, list) else tags.get("tags", [])
+    tag_list = _tag_list(sup.get("/api/tags"))
     n_tags = len(tag_list)
     opcua = await _opcua_clients(endpoint, namespace, _subscribed_tags(tag_list))
     pages, stop = _Pages(), asyncio.Event()
@@ -169,6 +180,7 @@ async def _measure(
         latencies, size = await _snapshots(sup.url, http_rate_hz, half)
         t_c = time.time()
         d1 = await asyncio.to_thread(sup.get, "/api/diagnostics")
+        chains = _chain_states(await asyncio.to_thread(sup.get, "/api/tags"))
         ws_messages, ws_errors = pages.messages, pages.errors
     finally:
         stop.set()
@@ -185,6 +197,7 @@ async def _measure(
         "snapshot_bytes": size,
         "ws_messages": ws_messages,
         "ws_errors": ws_errors,
+        "chains": chains,
     }
 
 
@@ -247,14 +260,17 @@ def load_benchmark(
     lat = res["latencies"]
     lat_p99 = _pct(lat, 99) * 1000
     cmd = f"supervisor bench load --seconds {seconds:g}"
+    load1, load5, _ = os.getloadavg()
     _say(
         f"load benchmark: {io_map} — {len(channels)} channels, {res['tags']} tags, scan"
         f" {period_s * 1000:g} ms, recipes on every channel, historian + InfluxDB spool +"
         f" OPC UA ({OPCUA_CLIENTS} clients × {min(OPCUA_TAGS, res['tags'])} tags) +"
         f" WebSocket ({WS_PAGES} pages, {res['ws_messages']} messages, {res['ws_errors']}"
         f" errors); window {seconds:g} s after {warmup_s:g} s warm-up, {scans} scans"
-        f" ({len(durations)} scan samples in the historian)"
+        f" ({len(durations)} scan samples in the historian); machine load average"
+        f" {load1:.2f} (1 min), {load5:.2f} (5 min) at the end"
     )
+    _say(f"  step chains at the window's end: {res['chains']}")
     _say(
         f"  scan duration p50 {_pct(durations, 50) * 1000:.2f} ms, p99"
         f" {_pct(durations, 99) * 1000:.2f} ms, max {max(durations, default=0) * 1000:.1f} ms;"

@@ -97,8 +97,11 @@ def _cpu_model() -> str:
 
 
 def machine() -> dict[str, Any]:
-    """The machine the figures come from: CPU model, cores, Python, OS."""
+    """The machine the figures come from: CPU model, cores, Python, OS, and its load
+    average when the table was written (a shared machine's other work shows in the scan's
+    timing figures)."""
     return {
+        "load_avg_1_5_15": [round(x, 2) for x in os.getloadavg()],
         "cpu": _cpu_model(),
         "cores": os.cpu_count(),
         "python": sys.version.split()[0],
@@ -118,7 +121,8 @@ def _fmt(x: float) -> str:
 def markdown(figures: list[Figure], host: dict[str, Any], when: str) -> str:
     lines = [
         f"Machine: {host['cpu']}, {host['cores']} cores, {host['implementation']}"
-        f" {host['python']}, {host['os']}; {when}.",
+        f" {host['python']}, {host['os']}; {when}; load average (1, 5, 15 min)"
+        f" {', '.join(str(x) for x in host['load_avg_1_5_15'])} when written.",
         "",
         "| figure | measured | target | reference | met? |",
         "|---|---|---|---|---|",

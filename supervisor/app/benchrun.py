@@ -115,7 +115,8 @@ class Supervisor:
         raise RuntimeError(f"no VmRSS in /proc/{self.pid}/status")
 
     def tail(self, n: int = 15) -> str:
-        self._log.flush()
+        if not self._log.closed:
+            self._log.flush()
         try:
             lines = self.log_path.read_text(encoding="utf-8", errors="replace").splitlines()
         except OSError:
