@@ -120,10 +120,17 @@ async def _opcua_clients(
         stdout=asyncio.subprocess.PIPE,
     )
     assert proc.stdout is not None
-    line = await asyncio.wait_for(proc.stdout.readline(), timeout=120)
-    if line.strip() != b"subscribed":
-        rest = await proc.stdout.read()
-        raise RuntimeError(f"OPC UA clients did not subscribe: {(line + rest).decode()[-500:]}")
+    try:
+        line = await asyncio.wait_for(proc.stdout.readline(), timeout=120)
+        if line.strip() != b"subscribed":
+            rest = await asyncio.wait_for(proc.stdout.read(), timeout=30)
+            text = (line + rest).decode(errors="replace")[-500:]
+            raise RuntimeError(f"OPC UA clients did not subscribe: {text}")
+    except BaseException:
+        if proc.returncode is None:
+            proc.kill()
+        await proc.wait()
+        raise
     return proc
 
 
@@ -138,6 +145,15 @@ def _scan_samples(history: Path, name: str, t0: float, t1: float) -> list[float]
     finally:
         con.close()
     return [float(r[0]) for r in rows if r[0] is not None]
+
+
+def _create_database(url: str, name: str) -> None:
+    import urllib.parse
+    import urllib.request
+
+    data = urllib.parse.urlencode({"q": f'CREATE DATABASE "{name}"'}).encode()
+    with urllib.request.urlopen(f"{url}/query", data=data, timeout=30):
+        pass
 
 
 def _tag_list(answer: Any) -> list[dict[str, Any]]:
@@ -181,6 +197,8 @@ async def _measure(
         t_c = time.time()
         d1 = await asyncio.to_thread(sup.get, "/api/diagnostics")
         chains = _chain_states(await asyncio.to_thread(sup.get, "/api/tags"))
+        answer = await asyncio.to_thread(sup.get, "/api/alarms?limit=0")
+        alarms = [f"{a['id']}: {a['message']}" for a in answer.get("active", [])]
         ws_messages, ws_errors = pages.messages, pages.errors
     finally:
         stop.set()
@@ -198,6 +216,7 @@ async def _measure(
         "ws_messages": ws_messages,
         "ws_errors": ws_errors,
         "chains": chains,
+        "alarms": alarms,
     }
 
 
@@ -227,6 +246,8 @@ def load_benchmark(
         root = Path(tmp)
         influx = _Server(binary, root / "influxd")
         try:
+            if cfg.influxdb is not None:  # the map's bucket (db/rp), or every write is refused
+                _create_database(influx.url, cfg.influxdb.bucket.split("/")[0])
             copy, http_port, opcua_port = prepare(io_map, root, influx.url)
             sup = Supervisor(copy, http_port, recipe_args(channels, recipe), root / "run.log")
             try:
@@ -271,6 +292,10 @@ def load_benchmark(
         f" {load1:.2f} (1 min), {load5:.2f} (5 min) at the end"
     )
     _say(f"  step chains at the window's end: {res['chains']}")
+    if res["alarms"]:  # a chain held by an alarm no longer loads the scan as a running one
+        shown = "; ".join(res["alarms"][:8])
+        more = f" (+{len(res['alarms']) - 8} more)" if len(res["alarms"]) > 8 else ""
+        _say(f"  alarms active at the window's end: {shown}{more}")
     _say(
         f"  scan duration p50 {_pct(durations, 50) * 1000:.2f} ms, p99"
         f" {_pct(durations, 99) * 1000:.2f} ms, max {max(durations, default=0) * 1000:.1f} ms;"
@@ -304,6 +329,15 @@ def load_benchmark(
         "ms",
         "<= 1",
         f"{len(jit_q) + len(jit_s)} scans",
+        cmd,
+    )
+    running = res["chains"].get("Running", 0)
+    rec(
+        "step chains still Running at the load window's end",
+        running,
+        "",
+        f"== {len(channels)}",
+        f"{len(channels)} started; {len(res['alarms'])} alarms active",
         cmd,
     )
     rec(

@@ -111,7 +111,7 @@ def machine() -> dict[str, Any]:
 
 
 def _fmt(x: float) -> str:
-    if x == 0 or abs(x) >= 1000:
+    if x == 0 or abs(x) >= 1000 or (x.is_integer() and abs(x) >= 10):
         return f"{x:,.0f}"
     if abs(x) >= 10:
         return f"{x:.1f}"

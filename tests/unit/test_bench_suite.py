@@ -150,6 +150,6 @@ def test_the_load_benchmark_runs_the_load_case_with_its_clients_and_records_its_
 ) -> None:
     assert load_benchmark(seconds=2.0, warmup_s=1.0, http_rate_hz=5.0) == 0
     names = [f.figure for f in benchreport.read(results)]
-    assert len(names) == 5
+    assert len(names) == 6
     assert any("GET /api/tags" in n for n in names)
     assert any("overruns" in n for n in names)
