@@ -25,6 +25,7 @@ import urllib.parse
 import urllib.request
 from pathlib import Path
 
+from supervisor.app import benchreport
 from supervisor.core.processes import stop_with_parent
 from supervisor.core.quality import Quality
 from supervisor.publish.changes import Sample
@@ -257,4 +258,12 @@ def influx_benchmark(points: int = 200_000, rounds: int = 3) -> int:
         + f"; median {statistics.median(ratios):.2f} (target ≥ 0.9)"
     )
     _say(f"  encoder (samples → lines, scan thread) {_encoder_rate():,.0f} samples/s")
+    benchreport.record(
+        "InfluxDB ingest through the spool vs raw influxdb-client batches",
+        statistics.median(ratios),
+        "",
+        ">= 0.9",
+        f"raw influxdb-client {statistics.median(raw_rates):,.0f} points/s",
+        f"supervisor bench influx --points {points} --rounds {rounds}",
+    )
     return 0

@@ -636,12 +636,26 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 args.clients, args.seconds, args.opcua_tags, args.period_ms / 1000
             )
         )
+    if args.what in ("load", "memory", "report"):
+        from supervisor.app import benchsuite
+
+        return benchsuite.run(args)
     if args.what == "dry-run":
         from supervisor.app.dryrun import dry_run, format_report
 
         res = asyncio.run(dry_run(args.recipe, soc=0.0))
         for line in format_report(res)[-3:]:
             _out(line)
+        from supervisor.app import benchreport
+
+        benchreport.record(
+            f"dry run of {args.recipe}",
+            res.ratio,
+            "× real time",
+            ">= 30000",
+            f"{res.simulated_s / 3600:.1f} simulated h in {res.wall_s:.2f} s wall",
+            f"supervisor bench dry-run --recipe {args.recipe}",
+        )
         return EXIT_OK
     return asyncio.run(benchmarks.manual_charge_benchmark(args.hours))
 
@@ -819,6 +833,9 @@ def build_parser() -> argparse.ArgumentParser:
             "influx",
             "opcua",
             "http",
+            "load",
+            "memory",
+            "report",
         ],
     )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
@@ -839,6 +856,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--opcua-tags", type=int, default=100, help="opcua: analog tags changing")
     b.add_argument("--http-clients", type=int, default=4, help="http: GET /api/tags loops")
     b.add_argument("--ws-clients", type=int, default=3, help="http: WebSocket pages")
+    b.add_argument("--minutes", type=float, default=30.0, help="memory: minutes to run")
+    b.add_argument("--warmup", type=float, default=None, help="load, memory: warm-up seconds")
+    b.add_argument("--http-rate", type=float, default=10.0, help="load: GET /api/tags per s")
+    b.add_argument("--out", default="var/bench", help="report: folder of results.json|md")
     b.set_defaults(func=cmd_bench)
     return p
 

@@ -1,0 +1,145 @@
+"""``supervisor run`` as a benchmark's subject: a copy of an I/O map on free ports in a
+temporary folder, the process started and stopped by its pid, its HTTP API polled.
+
+The benchmarks that measure a whole supervisor (``supervisor bench load``, ``supervisor
+bench memory``) measure the real command in a process of its own, never a bench built in
+the benchmark's process: the clients that load it (OPC UA, WebSocket, HTTP) must not run
+on the loop they measure.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from supervisor.core.processes import stop_with_parent
+
+log = logging.getLogger(__name__)
+
+START_TIMEOUT_S = 90.0
+STOP_TIMEOUT_S = 30.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def prepare(io_map: Path, root: Path, influx_url: str | None = None) -> tuple[Path, int, int]:
+    """Write a copy of ``io_map`` in ``root``: every listening port free (HTTP, OPC UA, the
+    simulated devices), its state in ``root/state``, InfluxDB at ``influx_url`` (the section
+    dropped when None). Returns the copy, its HTTP port and its OPC UA port (0: off)."""
+    data: dict[str, Any] = yaml.safe_load(io_map.read_text(encoding="utf-8"))
+    data["state_dir"] = str(root / "state")
+    http_port = free_port()
+    data.setdefault("hmi", {})["port"] = http_port
+    data["hmi"]["host"] = "127.0.0.1"
+    opcua_port = 0
+    if (data.get("opcua") or {}).get("enabled"):
+        opcua_port = free_port()
+        data["opcua"]["port"] = opcua_port
+        data["opcua"]["host"] = "127.0.0.1"
+    for dev in (data.get("devices") or {}).values():
+        if "port" in dev:
+            dev["port"] = free_port()
+    if "influxdb" in data:
+        if influx_url is None:
+            del data["influxdb"]
+        else:
+            data["influxdb"]["url"] = influx_url
+            token = data["influxdb"].get("token_file")
+            if token is not None and not Path(token).is_absolute():
+                data["influxdb"]["token_file"] = str((Path.cwd() / token).resolve())
+    copy = root / io_map.name
+    copy.write_text(yaml.safe_dump(data, allow_unicode=True, sort_keys=False), encoding="utf-8")
+    return copy, http_port, opcua_port
+
+
+class Supervisor:
+    """``supervisor run COPY`` in a child process (its output in ``log_path``)."""
+
+    def __init__(self, io_map: Path, http_port: int, args: list[str], log_path: Path) -> None:
+        self.url = f"http://127.0.0.1:{http_port}"
+        self.log_path = log_path
+        self._log = log_path.open("ab")
+        cmd = [sys.executable, "-m", "supervisor.cli.main", "run", str(io_map), *args]
+        cmd += ["--log-level", "warning"]
+        self.proc = subprocess.Popen(
+            cmd,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            preexec_fn=stop_with_parent(),  # no supervisor left behind by a killed run
+        )
+        self.pid = self.proc.pid
+
+    def get(self, path: str, timeout_s: float = 10.0) -> Any:
+        with urllib.request.urlopen(self.url + path, timeout=timeout_s) as r:
+            return json.loads(r.read())
+
+    def wait_ready(self, timeout_s: float = START_TIMEOUT_S) -> dict[str, Any]:
+        """Until the scan runs (``/api/diagnostics`` answers with scans counted)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if self.proc.poll() is not None:
+                raise RuntimeError(
+                    f"supervisor run exited with {self.proc.returncode}: {self.tail()}"
+                )
+            try:
+                diag: dict[str, Any] = self.get("/api/diagnostics", timeout_s=2.0)
+                if diag["scan"]["count"] > 0:
+                    return diag
+            except (urllib.error.URLError, OSError, ValueError, KeyError):
+                pass
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"supervisor run did not start in {timeout_s:.0f} s")
+            time.sleep(0.2)
+
+    def rss_kib(self) -> int:
+        """VmRSS of the child (``/proc/<pid>/status``), in KiB."""
+        for line in Path(f"/proc/{self.pid}/status").read_text(encoding="utf-8").splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+        raise RuntimeError(f"no VmRSS in /proc/{self.pid}/status")
+
+    def tail(self, n: int = 15) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        try:
+            lines = self.log_path.read_text(encoding="utf-8", errors="replace").splitlines()
+        except OSError:
+            return ""
+        return "\n".join(lines[-n:])
+
+    def stop(self) -> int:
+        """SIGTERM (every output safe, publishers flushed), SIGKILL if it does not exit."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                log.warning("supervisor run (pid %d) did not stop: killed", self.pid)
+                self.proc.kill()
+                self.proc.wait()
+        self._log.close()
+        return int(self.proc.returncode)
+
+
+def recipe_args(channels: list[str], recipe: Path) -> list[str]:
+    """``--start --recipe CH=FILE`` for every channel."""
+    out = ["--start"]
+    for ch in channels:
+        out += ["--recipe", f"{ch}={recipe.resolve()}"]
+    return out

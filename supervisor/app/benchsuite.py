@@ -1,0 +1,27 @@
+"""``supervisor bench load|memory|report``: the whole-supervisor benchmarks and the table."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from supervisor.app import benchreport
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.what == "load":
+        from supervisor.app.benchload import load_benchmark
+
+        warm = 10.0 if args.warmup is None else args.warmup
+        return load_benchmark(args.seconds, warm, args.http_rate)
+    if args.what == "memory":
+        from supervisor.app.benchmem import memory_benchmark
+
+        return memory_benchmark(args.minutes, args.warmup)
+    lines = Path(os.environ.get(benchreport.ENV) or Path(args.out) / "results.jsonl")
+    js, md = benchreport.write_report(lines, Path(args.out))
+    sys.stdout.write(md.read_text(encoding="utf-8"))
+    sys.stdout.write(f"written: {js}, {md}\n")
+    return 0

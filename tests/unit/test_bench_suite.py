@@ -1,0 +1,155 @@
+"""The benchmark suite of issue 13: the load case I/O map, the figures' table, and the
+whole-supervisor benchmarks running end to end for a few seconds (their figures are
+printed, never asserted: only that they run and write their results)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from supervisor.app import benchreport
+from supervisor.app.benchload import LOAD_MAP, LOAD_RECIPE, load_benchmark
+from supervisor.app.benchmem import memory_benchmark, slope_per_s
+from supervisor.app.benchrun import prepare
+from supervisor.cli.main import main
+from supervisor.config.models import NetworkDevice
+from supervisor.devices.registry import load_bench
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture
+def at_root(monkeypatch: pytest.MonkeyPatch) -> Path:
+    """The benchmarks name the shipped files relative to the checkout, as make runs them."""
+    monkeypatch.chdir(ROOT)
+    return ROOT
+
+
+@pytest.fixture
+def results(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    path = tmp_path / "results.jsonl"
+    monkeypatch.setenv(benchreport.ENV, str(path))
+    return path
+
+
+# --- the load case -----------------------------------------------------------------------
+def test_the_load_case_passes_supervisor_check(at_root: Path) -> None:
+    assert main(["check", str(LOAD_MAP), str(LOAD_RECIPE)]) == 0
+
+
+def test_the_load_case_is_16_channels_at_10_ms_with_every_publisher_on(at_root: Path) -> None:
+    cfg = load_bench(LOAD_MAP)
+    assert len(cfg.channels) == 16
+    assert cfg.scan.period_s == 0.01
+    assert cfg.history.enabled is True
+    assert cfg.influxdb is not None
+    assert cfg.opcua.enabled is True
+    kinds = {d.driver for d in cfg.devices.values()}
+    assert {"chadeche", "ea-psb"} <= kinds
+    assert sum(1 for d in cfg.devices.values() if d.driver == "chadeche") >= 2
+    assert sum(1 for d in cfg.devices.values() if d.driver == "ea-psb") == 1  # one plant
+    assert all(c.source.device in cfg.devices for c in cfg.channels)
+
+
+def test_the_load_case_has_about_1000_tags(at_root: Path) -> None:
+    from supervisor.app import build_bench
+    from supervisor.core.clock import VirtualClock
+
+    bench = build_bench(load_bench(LOAD_MAP), VirtualClock(), simulate=True, in_process=True)
+    assert 950 <= len(bench.db) <= 1100
+
+
+def test_a_benchmark_copy_moves_every_port_and_the_state_away(
+    at_root: Path, tmp_path: Path
+) -> None:
+    copy, http_port, opcua_port = prepare(LOAD_MAP, tmp_path, "http://127.0.0.1:1")
+    cfg = load_bench(copy)
+    shipped = load_bench(LOAD_MAP)
+    assert cfg.state_dir == str(tmp_path / "state")
+    assert cfg.hmi.port == http_port and cfg.opcua.port == opcua_port
+    assert cfg.influxdb is not None and cfg.influxdb.url == "http://127.0.0.1:1"
+    for name, dev in cfg.devices.items():
+        was = shipped.devices[name]
+        if isinstance(dev, NetworkDevice) and isinstance(was, NetworkDevice):
+            assert dev.port != was.port
+
+
+# --- the table ---------------------------------------------------------------------------
+def test_record_writes_nothing_without_the_environment_variable(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv(benchreport.ENV, raising=False)
+    monkeypatch.chdir(tmp_path)
+    benchreport.record("x", 1.0, "ms", "<= 2", "y")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_report_is_a_table_of_figures_targets_references_and_the_machine(
+    results: Path, tmp_path: Path
+) -> None:
+    benchreport.record("scan p99 / period", 0.2, "", "<= 0.3", "period 10 ms", "cmd a")
+    benchreport.record("overruns", 3, "", "== 0", "6000 scans", "cmd b")
+    benchreport.record("scan p99 / period", 0.25, "", "<= 0.3", "period 10 ms", "cmd a")
+    js, md = benchreport.write_report(results, tmp_path / "out")
+    doc = json.loads(js.read_text(encoding="utf-8"))
+    assert {"cpu", "cores", "python"} <= set(doc["machine"])
+    figures = {f["figure"]: f for f in doc["figures"]}
+    assert list(figures) == ["scan p99 / period", "overruns"]  # a re-run keeps the last
+    assert figures["scan p99 / period"]["measured"] == 0.25
+    assert figures["scan p99 / period"]["met"] is True
+    assert figures["overruns"]["met"] is False
+    table = md.read_text(encoding="utf-8")
+    assert "| figure | measured | target | reference | met? |" in table
+    assert "| overruns | 3 | == 0 | 6000 scans | **no** |" in table
+    assert doc["machine"]["cpu"] in table
+
+
+@pytest.mark.parametrize(
+    ("measured", "target", "verdict"),
+    [
+        (0.3, "<= 0.3", True),
+        (0.31, "<= 0.3", False),
+        (30_001, ">= 30000", True),
+        (0, "== 0", True),
+        (1, "unchanged", None),
+    ],
+)
+def test_a_target_is_judged_by_its_operator(
+    measured: float, target: str, verdict: bool | None
+) -> None:
+    assert benchreport.met(measured, target) is verdict
+
+
+def test_the_growth_is_the_least_squares_slope() -> None:
+    assert slope_per_s([(0, 10.0), (10, 11.0), (20, 12.0)]) == pytest.approx(0.1)
+    assert slope_per_s([(0, 10.0)]) == 0.0
+
+
+def test_bench_report_writes_json_and_markdown(results: Path, tmp_path: Path) -> None:
+    benchreport.record("a figure", 1.5, "ms", "<= 2", "a reference")
+    out = tmp_path / "bench"
+    assert main(["bench", "report", "--out", str(out)]) == 0
+    assert (out / "results.json").is_file()
+    assert "a figure" in (out / "results.md").read_text(encoding="utf-8")
+
+
+# --- the whole-supervisor benchmarks, for seconds (wall time: real processes) ------------
+def test_the_memory_benchmark_runs_the_simulated_bench_and_records_its_figures(
+    at_root: Path, results: Path
+) -> None:
+    assert memory_benchmark(minutes=0.1, warmup_s=2.0, sample_s=2.0) == 0
+    figures = benchreport.read(results)
+    assert [f.unit for f in figures] == ["MiB", "MiB"]
+    assert figures[0].measured > 0
+
+
+def test_the_load_benchmark_runs_the_load_case_with_its_clients_and_records_its_figures(
+    at_root: Path, results: Path
+) -> None:
+    assert load_benchmark(seconds=2.0, warmup_s=1.0, http_rate_hz=5.0) == 0
+    names = [f.figure for f in benchreport.read(results)]
+    assert len(names) == 6
+    assert any("GET /api/tags" in n for n in names)
+    assert any("overruns" in n for n in names)
