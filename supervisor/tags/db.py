@@ -17,6 +17,8 @@ from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.tags.spec import Access, TagSpec
 
+_isfinite = math.isfinite
+
 
 class Tag:
     """Live state of one tag. Mutated only through ``TagDB`` so versions stay right."""
@@ -24,6 +26,7 @@ class Tag:
     __slots__ = (
         "forced",
         "index",
+        "is_float",
         "quality",
         "reason",
         "server_t",
@@ -36,6 +39,7 @@ class Tag:
     def __init__(self, spec: TagSpec, index: int) -> None:
         self.spec = spec
         self.index = index
+        self.is_float = spec.dtype == "float"  # read by every update: no spec lookup
         self.value: Value | None = spec.initial
         self.quality = Quality.UNCERTAIN if spec.initial is not None else Quality.BAD
         self.reason = Reason.INITIAL
@@ -128,15 +132,15 @@ class TagDB:
         """
         if tag.forced:
             return False
-        if value is not None and tag.spec.dtype == "float":
-            try:
-                value = float(value)
-            except (TypeError, ValueError):
-                # A driver or logic handing over the wrong type is a fault, not a crash.
-                value, quality, reason = None, Quality.BAD, Reason.CONFIG_ERROR
-            else:
-                if not math.isfinite(value):
-                    quality, reason = Quality.BAD, Reason.OUT_OF_RANGE
+        if value is not None and tag.is_float:
+            if type(value) is not float:
+                try:
+                    value = float(value)
+                except (TypeError, ValueError):
+                    # A driver or logic handing over the wrong type is a fault, not a crash.
+                    value, quality, reason = None, Quality.BAD, Reason.CONFIG_ERROR
+            if value is not None and not _isfinite(value):
+                quality, reason = Quality.BAD, Reason.OUT_OF_RANGE
         changed = value != tag.value or quality is not tag.quality or reason is not tag.reason
         tag.source_t = self._now if source_t is None else source_t
         if changed:
@@ -144,7 +148,9 @@ class TagDB:
             tag.quality = quality
             tag.reason = reason
             tag.server_t = self._now
-            self._bump(tag)
+            self.version = version = self.version + 1
+            tag.version = version
+            self._order.move_to_end(tag.index)
         return changed
 
     def set_quality(self, tag: Tag, quality: Quality, reason: Reason) -> bool:
