@@ -27,24 +27,69 @@ def _ms(x: float) -> str:
     return f"{x * 1000:.3f} ms"
 
 
-async def scan_benchmark(n_tags: int, period_s: float, seconds: float) -> int:
+SCAN_BENCH_RECIPE = """
+recipe: scan-bench
+description: a long charge and discharge whose conditions are read every scan
+chemistry: nimh
+capacity: 2000 mAh
+parameters:
+  v_top: 50 V
+cycles: 1000
+steps:
+  - id: charge
+    charge: 0.1 C
+    duration: 10 h
+    until:
+      - delta_peak >= 3 mV and step_time > 4 min: next
+      - voltage >= v_top: next
+  - {id: rest, rest: 1 h}
+  - id: discharge
+    discharge: 0.2 C
+    duration: 5 h
+    until:
+      - voltage <= -50 V: next
+"""
+"""``bench scan --recipes``: a chain on every channel evaluating its conditions each scan
+(the signal generator's sines never end a step)."""
+
+WARM_UP_S = 0.5
+"""``bench scan``: scans run before the measured ones, then the heap is settled
+(:func:`supervisor.core.heap.settle_after_start`) as ``supervisor run`` does."""
+
+
+async def scan_benchmark(
+    n_tags: int, period_s: float, seconds: float, *, recipes: bool = False, settle: bool = True
+) -> int:
     """A bench of about ``n_tags`` tags on a real clock: p50/p99 scan duration and jitter.
 
     Composition: 16 channels (about 25 tags each, with their integration and protection
-    logic) plus signal-generator inputs for the rest, all changing every scan.
+    logic) plus signal-generator inputs for the rest, all changing every scan. ``recipes``:
+    a step chain runs :data:`SCAN_BENCH_RECIPE` on every channel (between its derive and
+    drive phases, as on a bench). ``settle``: after :data:`WARM_UP_S` of scans, what is
+    alive is collected and frozen (``supervisor run`` does it after start-up).
     """
+    from supervisor.core.heap import settle_after_start
+
     clock = RealClock()
     db = TagDB()
     n_channels = 16
     channels = []
     phases = []
+    runners = []
     for k in range(n_channels):
         ch = Channel(f"ch{k}", db, ChannelLimits((-5.0, 5.0), (0.0, 100.0)), capacity_ah=2.0)
         db.update(ch.mode, "manual")
-        db.update(ch.enable, True)
+        db.update(ch.enable, not recipes)  # a chain is loaded only with enable off
         db.update(ch.manual_current, 1.0)
         channels.append(ch)
-        phases.append(LogicPhase(f"channel:{ch.name}", ch.run))
+        if recipes:
+            runner = _bench_chain(ch, db, clock, period_s)
+            runners.append(runner)
+            phases.append(LogicPhase(f"derive:{ch.name}", ch.derive))
+            phases.append(LogicPhase(f"chain:{ch.name}", runner.run))
+            phases.append(LogicPhase(f"drive:{ch.name}", ch.drive))
+        else:
+            phases.append(LogicPhase(f"channel:{ch.name}", ch.run))
     base = len(db) + 7 + 2 * 2  # scan stats and per-driver tags come later
     n_ai = max(0, n_tags - base)
     gen = SignalGenerator("gen", clock, n_ai, n_out=n_channels, poll_period_s=period_s)
@@ -60,8 +105,16 @@ async def scan_benchmark(n_tags: int, period_s: float, seconds: float) -> int:
     engine = ScanEngine(clock, db, period_s, [gen, src], inputs, outputs, phases)
     for drv in (gen, src):  # first images in place, so no channel trips on "not connected"
         await drv.poll()
-    stop = asyncio.Event()
+    for runner in runners:
+        runner.command("start", "benchmark")
     loop = asyncio.get_running_loop()
+    if settle:
+        warm = asyncio.Event()
+        loop.call_later(WARM_UP_S, warm.set)
+        await engine.run(warm)
+        settle_after_start()
+        engine.stats = ScanStats()  # only the scans after start-up are measured
+    stop = asyncio.Event()
     loop.call_later(seconds, stop.set)
     t0 = time.perf_counter()
     await engine.run(stop)
@@ -83,6 +136,27 @@ async def scan_benchmark(n_tags: int, period_s: float, seconds: float) -> int:
         f"supervisor bench scan --tags {n_tags} --seconds {seconds:g}",
     )
     return 0
+
+
+def _bench_chain(ch: Channel, db: TagDB, clock: RealClock, period_s: float) -> Any:
+    """A chain on ``ch`` with :data:`SCAN_BENCH_RECIPE` loaded (started by the caller)."""
+    from supervisor.chains.compiler import Target, compile_recipe
+    from supervisor.chains.engine import ChainRunner
+    from supervisor.chains.port import ChannelPort
+    from supervisor.config.recipe import load_recipe_text
+
+    recipe, pos = load_recipe_text(SCAN_BENCH_RECIPE, "scan-bench.yaml")
+    target = Target(
+        channel=ch.name,
+        capacity_ah=ch.capacity_ah,
+        current_limits_a=ch.limits.current_a,
+        voltage_limits_v=ch.limits.voltage_v,
+        scan_period_s=period_s,
+    )
+    program = compile_recipe(recipe, pos, "scan-bench.yaml", target)
+    runner = ChainRunner(ChannelPort.from_tags(db, ch.name, "auto", "manual"), db, clock)
+    runner.load(program, test_id=f"bench-{ch.name}")
+    return runner
 
 
 async def manual_charge_benchmark(hours: float) -> int:

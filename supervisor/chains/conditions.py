@@ -14,7 +14,8 @@ from supervisor.chains.compiler import CHANNEL_VARIABLES
 from supervisor.chains.port import ChannelPort
 from supervisor.chains.program import Program
 from supervisor.chains.run import RunState
-from supervisor.tags import TagDB
+from supervisor.core.quality import Quality
+from supervisor.tags import Tag, TagDB
 
 # dV/dt over the last minute, once it spans at least 10 s (shorter spans are noise).
 DV_DT_WINDOW_S = 60.0
@@ -44,28 +45,43 @@ class ConditionValues:
         self._tag_names = sorted(
             names_read(program) - set(CHANNEL_VARIABLES) - set(program.parameters)
         )
-        self._dv: deque[tuple[float, float]] = deque()
+        # The dV/dt window as two deques of floats, not one of (t, V) tuples: a minute of a
+        # 10 ms scan is 6000 readings per chain, and tuples are objects the garbage
+        # collector walks at every full pass, floats are not (issue 13).
+        self._dv_t: deque[float] = deque()
+        self._dv_v: deque[float] = deque()
         self.peak_v: float | None = None
+        # The values handed to the conditions: one dict per chain, filled in place each
+        # scan (it never leaves the scan). Parameters are constants: set once, and again
+        # each scan only where one has the name of a channel variable (it wins, as it did).
+        self._values: Values = {}
+        self._parameters_over = {
+            k: v for k, v in self._parameters.items() if k in CHANNEL_VALUE_NAMES
+        }
 
     def restart(self) -> None:
         """A step starts: its peak and its dV/dt window start again."""
         self.peak_v = None
-        self._dv.clear()
+        self._dv_t.clear()
+        self._dv_v.clear()
 
     def observe(self, now: float, voltage_v: float) -> None:
         """A GOOD voltage reading of this scan."""
-        dv = self._dv
-        dv.append((now, voltage_v))
-        while dv and now - dv[0][0] > DV_DT_WINDOW_S:
-            dv.popleft()
-        self.peak_v = voltage_v if self.peak_v is None else max(self.peak_v, voltage_v)
+        ts, vs = self._dv_t, self._dv_v
+        ts.append(now)
+        vs.append(voltage_v)
+        while ts and now - ts[0] > DV_DT_WINDOW_S:
+            ts.popleft()
+            vs.popleft()
+        peak = self.peak_v
+        self.peak_v = voltage_v if peak is None else max(peak, voltage_v)
 
     def dv_dt(self) -> float | None:
         """V/s over the window, None until it spans ``DV_DT_MIN_SPAN_S``."""
-        dv = self._dv
-        if len(dv) >= 2 and dv[-1][0] - dv[0][0] >= DV_DT_MIN_SPAN_S:
-            (t0, v0), (t1, v1) = dv[0], dv[-1]
-            return (v1 - v0) / (t1 - t0)
+        ts = self._dv_t
+        if len(ts) >= 2 and ts[-1] - ts[0] >= DV_DT_MIN_SPAN_S:
+            vs = self._dv_v
+            return (vs[-1] - vs[0]) / (ts[-1] - ts[0])
         return None
 
     def charge_ah(self, run: RunState) -> float:
@@ -73,35 +89,72 @@ class ConditionValues:
         return self._initial_charge_ah + self._port.charge_ah.as_float() - run.q0_ah
 
     def values(self, now: float, run: RunState) -> Values:
+        """This scan's values (the same dict every scan, filled again: read it before the
+        next scan, never keep it)."""
         port = self._port
-        q = port.charge_ah.as_float()
-        energy = port.energy_wh.as_float()
-        v = port.voltage.as_float() if port.voltage.good else None
-        i, t, p = port.current, port.temperature, port.power
+        good = Quality.GOOD
+        q = _as_float(port.charge_ah)
+        energy = _as_float(port.energy_wh)
+        vt, i, t, p = port.voltage, port.current, port.temperature, port.power
+        v = _as_float(vt) if vt.quality is good else None
         peak = self.peak_v
-        values: Values = {
-            "voltage": v,
-            "current": i.as_float() if i.good else None,
-            "temperature": t.as_float() if t.good else None,
-            "power": p.as_float() if p.good else None,
-            "charge": self._initial_charge_ah + q - run.q0_ah,
-            "energy": energy,
-            "step_charge": q - run.step_q0,
-            "step_energy": energy - run.step_e0,
-            "step_time": now - run.t_step0,
-            "cycle_time": now - run.t_cycle0,
-            "test_time": now - run.t_test0,
-            "cycle": float(run.cycle),
-            "dv_dt": self.dv_dt(),
-            "delta_peak": (peak - v) if (peak is not None and v is not None) else None,
-            "peak_voltage": peak,
-        }
-        values.update(self._parameters)
-        db = self._db
-        for name in self._tag_names:
-            tag = db.get(name)
-            tv = tag.value if tag is not None and tag.good else None
-            values[name] = (
-                tv if isinstance(tv, bool | float) else float(tv) if isinstance(tv, int) else None
-            )
+        values = self._values
+        if not values:
+            values.update(dict.fromkeys(CHANNEL_VALUE_NAMES))
+            values.update(self._parameters)
+        values["voltage"] = v
+        values["current"] = _as_float(i) if i.quality is good else None
+        values["temperature"] = _as_float(t) if t.quality is good else None
+        values["power"] = _as_float(p) if p.quality is good else None
+        values["charge"] = self._initial_charge_ah + q - run.q0_ah
+        values["energy"] = energy
+        values["step_charge"] = q - run.step_q0
+        values["step_energy"] = energy - run.step_e0
+        values["step_time"] = now - run.t_step0
+        values["cycle_time"] = now - run.t_cycle0
+        values["test_time"] = now - run.t_test0
+        values["cycle"] = float(run.cycle)
+        values["dv_dt"] = self.dv_dt()
+        values["delta_peak"] = (peak - v) if (peak is not None and v is not None) else None
+        values["peak_voltage"] = peak
+        if self._parameters_over:
+            values.update(self._parameters_over)
+        if self._tag_names:
+            db = self._db
+            for name in self._tag_names:
+                tag = db.get(name)
+                tv = tag.value if tag is not None and tag.good else None
+                values[name] = (
+                    tv
+                    if isinstance(tv, bool | float)
+                    else float(tv)
+                    if isinstance(tv, int)
+                    else None
+                )
         return values
+
+
+CHANNEL_VALUE_NAMES = (
+    "voltage",
+    "current",
+    "temperature",
+    "power",
+    "charge",
+    "energy",
+    "step_charge",
+    "step_energy",
+    "step_time",
+    "cycle_time",
+    "test_time",
+    "cycle",
+    "dv_dt",
+    "delta_peak",
+    "peak_voltage",
+)
+"""The keys ``ConditionValues.values`` fills from the channel and the run, in order."""
+
+
+def _as_float(tag: Tag) -> float:
+    """``tag.as_float()``, without the call when the value is a float already."""
+    v = tag.value
+    return v if type(v) is float else tag.as_float()

@@ -151,6 +151,14 @@ class ChainRunner:
                 db.update(t, t.spec.initial)
         self._cmd = db[f"{n}.command"]
         self._tags: dict[str, Tag] = {f: db[f"{n}.chain.{f}"] for f in CHAIN_FIELDS}
+        tags = self._tags
+        self._publish_tags = (
+            tags["step"],
+            tags["step_index"],
+            tags["cycle"],
+            tags["step_time"],
+            tags["test_time"],
+        )
 
     @property
     def estimated_duration_s(self) -> float | None:
@@ -686,12 +694,15 @@ class ChainRunner:
         state = self.state
         active = state in ACTIVE
         step = program.steps[r.step] if (program and r.step_count) else None
-        self._set("step", step.id if step else "")
-        self._set("step_index", (step.index + 1) if step else 0)
-        self._set("cycle", r.cycle if r.step_count else 0)
+        # Every scan: the tags straight, not by field name (issue 13: the chains' share).
+        update = self.db.update
+        t_step, t_index, t_cycle, t_step_time, t_test_time = self._publish_tags
+        update(t_step, step.id if step else "")
+        update(t_index, (step.index + 1) if step else 0)
+        update(t_cycle, r.cycle if r.step_count else 0)
         if active and state is State.RUNNING:
-            self._set("step_time", now - r.t_step0)
-            self._set("test_time", now - r.t_test0)
+            update(t_step_time, now - r.t_step0)
+            update(t_test_time, now - r.t_test0)
         shown = self.progress.update(
             active=active,
             complete=state is State.COMPLETE,

@@ -26,6 +26,17 @@ class Mode(StrEnum):
     AUTO = "auto"
 
 
+_MANUAL = Mode.MANUAL.value
+_AUTO = Mode.AUTO.value
+"""The mode values as plain texts: an enum member's ``.value`` is a lookup every scan."""
+
+
+def _as_float(tag: Tag) -> float:
+    """``tag.as_float()``, without the call when the value is a float already."""
+    v = tag.value
+    return v if type(v) is float else tag.as_float()
+
+
 @dataclass(frozen=True, slots=True)
 class ChannelLimits:
     """Hard limits: requests are clamped to the current ones; crossings trip the channel."""
@@ -204,6 +215,7 @@ class Channel:
             self.logic_error,
         ):
             db.update(t, t.value)
+        self._sources: list[tuple[Tag, Tag]] | None = None
         self._prev_i: float | None = None
         self._prev_p: float | None = None
         self._last_clamp_req: float | None = None
@@ -214,18 +226,20 @@ class Channel:
     # request is clamped and protected before it reaches the outputs.
     def derive(self, now: float, dt: float) -> None:
         """Derived values: measurements copied from other tags, Ah/Wh, power."""
-        self._guarded(self._derive, dt)
+        self._guarded(self._derive, dt, False)
 
     def drive(self, now: float, dt: float) -> None:
         """Setpoint selection, clamping to what safety allows, the output commands."""
-        self._guarded(self._drive, dt)
+        self._guarded(self._drive, dt, True)
 
     def run(self, now: float, dt: float) -> None:
         """Both phases back to back: a channel with nothing between them (no step chain)."""
         self.derive(now, dt)
         self.drive(now, dt)
 
-    def _guarded(self, phase: Callable[[float], None], dt: float) -> None:
+    def _guarded(self, phase: Callable[[float], None], dt: float, clears_error: bool) -> None:
+        """``phase(dt)``; an exception makes the channel safe. ``clears_error``: a drive
+        that ran through clears the logic error (no bound-method comparison per scan)."""
         try:
             phase(dt)
         except Exception as exc:  # logic error: this channel goes safe, the scan goes on
@@ -234,24 +248,33 @@ class Channel:
             # The safety phase trips the channel on it (latched, until reset).
             self.db.update(self.logic_error, f"{type(exc).__name__}: {exc}")
         else:
-            if phase == self._drive and self.logic_error.value:
+            if clears_error and self.logic_error.value:
                 self.db.update(self.logic_error, "")
 
     def _derive(self, dt: float) -> None:
         db = self.db
+        update = db.update
         v, i = self.voltage, self.current
-        for dst, name in self._copies:
-            if name is not None:
-                src = db[name]
-                db.update(dst, src.value, src.quality, src.reason, src.source_t)
+        sources = self._sources
+        if sources is None:
+            for dst, name in self._copies:
+                if name is not None:
+                    src = db[name]  # a missing tag: a logic error, the channel safe
+                    update(dst, src.value, src.quality, src.reason, src.source_t)
+            # Every source tag exists: looked up by name once, not every scan.
+            self._sources = [(dst, db[name]) for dst, name in self._copies if name is not None]
+        else:
+            for dst, src in sources:
+                update(dst, src.value, src.quality, src.reason, src.source_t)
         self._integrate(dt)
         # Power: a value computed from a Bad input is Bad.
-        if v.good and i.good:
-            p = v.as_float() * i.as_float()
-            db.update(self.power, p)
+        good = Quality.GOOD
+        if v.quality is good and i.quality is good:
+            p = _as_float(v) * _as_float(i)
+            update(self.power, p)
             self._prev_p = p
         else:
-            db.update(self.power, self.power.value, Quality.BAD, Reason.DERIVED_FROM_BAD)
+            update(self.power, self.power.value, Quality.BAD, Reason.DERIVED_FROM_BAD)
             self._prev_p = None
 
     def _drive(self, dt: float) -> None:
@@ -262,7 +285,7 @@ class Channel:
         db.update(self.current_cmd, self._clamp(request))
         if self.voltage_cmd is not None:
             vlo, vhi = self.limits.voltage_v
-            target = self.auto_voltage.as_float() if self.mode.value == Mode.AUTO.value else 0.0
+            target = _as_float(self.auto_voltage) if self.mode.value == _AUTO else 0.0
             db.update(self.voltage_cmd, min(max(target, vlo), vhi) if target > 0 else vhi)
         # Power stage: output and contactor follow "active"; current is already 0 when not.
         if self.output_cmd is not None:
@@ -273,33 +296,35 @@ class Channel:
 
     def _integrate(self, dt: float) -> None:
         """Ah/Wh with a zero-order hold: the current read last scan flowed during ``dt``."""
-        db = self.db
+        update = self.db.update
         i_prev, p_prev = self._prev_i, self._prev_p
         if dt > 0 and i_prev is not None:
             dq = i_prev * dt / 3600.0
-            db.update(self.charge_ah, self.charge_ah.as_float() + dq)
+            update(self.charge_ah, _as_float(self.charge_ah) + dq)
             side = self.charged_ah if dq >= 0 else self.discharged_ah
-            db.update(side, side.as_float() + abs(dq))
+            update(side, _as_float(side) + abs(dq))
             if p_prev is not None:
                 de = p_prev * dt / 3600.0
-                db.update(self.energy_wh, self.energy_wh.as_float() + de)
+                update(self.energy_wh, _as_float(self.energy_wh) + de)
                 eside = self.charged_wh if de >= 0 else self.discharged_wh
-                db.update(eside, eside.as_float() + abs(de))
-        self._prev_i = self.current.as_float() if self.current.good else None
+                update(eside, _as_float(eside) + abs(de))
+        current = self.current
+        self._prev_i = _as_float(current) if current.quality is Quality.GOOD else None
 
     def _active(self) -> bool:
         """Whether the channel's power stage should be energised (before trips)."""
-        if self.mode.value == Mode.MANUAL.value:
+        if self.mode.value == _MANUAL:
             return bool(self.enable.value)
         return bool(self.auto_active.value)
 
     def _request(self) -> float:
-        if self.mode.value == Mode.MANUAL.value:
+        mode = self.mode.value
+        if mode == _MANUAL:
             if not self.enable.value:
                 return 0.0
-            return self.manual_current.as_float()
-        if self.mode.value == Mode.AUTO.value and self.auto_active.value:
-            return self.auto_current.as_float()
+            return _as_float(self.manual_current)
+        if mode == _AUTO and self.auto_active.value:
+            return _as_float(self.auto_current)
         return 0.0
 
     def _clamp(self, request: float) -> float:
@@ -326,7 +351,7 @@ class Channel:
     def _state_name(self) -> str:
         if self.fault.value:
             return "faulted"
-        cmd = self.current_cmd.as_float()
+        cmd = _as_float(self.current_cmd)
         if cmd == 0.0:
             return "idle"
         return "charging" if cmd > 0 else "discharging"

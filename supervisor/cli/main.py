@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Final, NoReturn
 from supervisor.cli import ctl
 from supervisor.config.models import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
+from supervisor.core.heap import settle_after_start
 
 if TYPE_CHECKING:
     from supervisor.app import Bench
@@ -195,6 +196,8 @@ async def _serve(
     _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
     freeze_start_up_heap()
     unconfirmed: dict[str, str] = {}
+    # Start-up is over: what it built lives as long as the process (ADR 0018).
+    settle_after_start()
     try:
         await bench.run(stop)
     finally:
@@ -595,7 +598,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
     _setup_logging("warning")
     if args.what == "scan":
         return asyncio.run(
-            benchmarks.scan_benchmark(args.tags, args.period_ms / 1000, args.seconds)
+            benchmarks.scan_benchmark(
+                args.tags,
+                args.period_ms / 1000,
+                args.seconds,
+                recipes=args.recipes,
+                settle=not args.no_settle,
+            )
         )
     if args.what == "historian":
         return asyncio.run(
@@ -846,6 +855,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--presses", type=int, default=100, help="estop: e-stop presses")
     b.add_argument(
         "--seconds", type=float, default=10.0, help="scan, historian: wall seconds to run"
+    )
+    b.add_argument("--recipes", action="store_true", help="scan: a step chain on every channel")
+    b.add_argument(
+        "--no-settle", action="store_true", help="scan: no gc collect+freeze after warm-up"
     )
     b.add_argument("--hours", type=float, default=10.0, help="manual: simulated hours")
     b.add_argument("--iterations", type=int, default=20, help="kill-restart: kills")

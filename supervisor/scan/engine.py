@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from supervisor.core.clock import Clock
-from supervisor.core.driver import Driver, Value
+from supervisor.core.driver import Driver, Sample, Value
 from supervisor.core.quality import Quality, Reason
 from supervisor.tags.db import Tag, TagDB
 from supervisor.tags.spec import Scaling, TagSpec
@@ -59,6 +59,11 @@ shortest stale limit (1 s) and an eighth of their device watchdogs (2 s): short 
 counted and alarmed long before one is long enough to lose an input or a device."""
 
 
+WAKE_EARLY_S = 0.001
+"""On a real clock the scan's event loop wakes this long before a deadline (the selector's
+millisecond rounding) and sleeps the rest on the thread (:meth:`ScanEngine._wait_for_deadline`)."""
+
+
 def stall_after_s(period_s: float) -> float:
     """How late a scan may start before it counts as a stall."""
     return max(STALL_PERIODS * period_s, STALL_MIN_S)
@@ -72,6 +77,12 @@ class InputBinding:
     scaling: Scaling | None = None
     stale_after_s: float | None = None
     threshold: float | None = None  # analog → boolean (e.g. the e-stop sense voltage)
+    # What the last copy saw (``ScanEngine._copy_inputs``): the driver's sample object,
+    # whether it was stale, and the tag's version right after. A driver polls every 100 or
+    # 200 ms and a 10 ms scan would copy the same sample ten or twenty times (issue 13).
+    _sample: Sample | None = field(default=None, init=False, repr=False, compare=False)
+    _stale: bool = field(default=False, init=False, repr=False, compare=False)
+    _version: int = field(default=-1, init=False, repr=False, compare=False)
 
 
 @dataclass(slots=True)
@@ -146,6 +157,9 @@ class ScanEngine:
         self._last_t: float | None = None
         self._next_t: float | None = None
         self._next_poll: dict[int, float] = {}
+        self._plan: list[tuple[InputBinding, int]] = []
+        self._input_drivers: list[Driver] = []
+        self._plan_of: list[InputBinding] | None = None
         self._stats_tags = self._declare_stats_tags()
         self._conn_tags = self._declare_driver_tags()
 
@@ -270,13 +284,30 @@ class ScanEngine:
 
     def _copy_inputs(self, now: float) -> None:
         db = self.db
+        update = db.update
         for d, ctag, ftag in self._conn_tags:
-            db.update(ctag, d.connected)
-            db.update(ftag, getattr(d, "failures", 0))
-        for b in self.inputs:
-            s = b.driver.image().get(b.point)
+            update(ctag, d.connected)
+            update(ftag, getattr(d, "failures", 0))
+        bad = Quality.BAD
+        plan = self._input_plan()
+        images = [d.image() for d in self._input_drivers]  # once per driver, not per input
+        for b, slot in plan:
+            s = images[slot].get(b.point)
+            tag = b.tag
             if s is None:
-                db.update(b.tag, None, Quality.BAD, Reason.NOT_CONNECTED)
+                update(tag, None, bad, Reason.NOT_CONNECTED)
+                b._sample = None
+                continue
+            stale_after_s = b.stale_after_s
+            stale = stale_after_s is not None and s.quality is not bad and now - s.t > stale_after_s
+            if (
+                s is b._sample
+                and stale is b._stale
+                and tag.version == b._version
+                and tag.source_t == s.t
+            ):
+                # The same sample, as fresh as last scan, and nobody touched the tag since:
+                # the update would compute what it did then and change nothing.
                 continue
             value: Value | None = s.value
             quality, reason = s.quality, s.reason
@@ -284,13 +315,30 @@ class ScanEngine:
                 value = b.scaling.to_eu(float(value))
             if b.threshold is not None and isinstance(value, int | float):
                 value = value >= b.threshold
-            if (
-                b.stale_after_s is not None
-                and quality is not Quality.BAD
-                and now - s.t > b.stale_after_s
-            ):
-                quality, reason = Quality.BAD, Reason.STALE
-            db.update(b.tag, value, quality, reason, s.t)
+            if stale:
+                quality, reason = bad, Reason.STALE
+            update(tag, value, quality, reason, s.t)
+            # A NaN never equals itself: every copy of it is a change, as update says.
+            b._sample = s if tag.value == tag.value else None
+            b._stale = stale
+            b._version = tag.version
+
+    def _input_plan(self) -> list[tuple[InputBinding, int]]:
+        """Each input binding with the index of its driver in ``_input_drivers`` (built
+        again if someone replaced ``inputs``)."""
+        inputs = self.inputs
+        if self._plan_of is not inputs or len(self._plan) != len(inputs):
+            slots: dict[int, int] = {}
+            drivers: list[Driver] = []
+            plan = []
+            for b in inputs:
+                slot = slots.get(id(b.driver))
+                if slot is None:
+                    slot = slots[id(b.driver)] = len(drivers)
+                    drivers.append(b.driver)
+                plan.append((b, slot))
+            self._plan, self._input_drivers, self._plan_of = plan, drivers, inputs
+        return self._plan
 
     def _queue_outputs(self) -> None:
         for b in self.outputs:
@@ -381,7 +429,22 @@ class ScanEngine:
             self._next_t = nxt
             if max_scans is not None and done >= max_scans:
                 return
-            await clock.sleep_until(nxt)
+            if clock.virtual:
+                await clock.sleep_until(nxt)
+            else:
+                await self._wait_for_deadline(nxt)
+
+    async def _wait_for_deadline(self, t: float) -> None:
+        """Real clock: until ``t``, on time. The event loop's selector (epoll) rounds its
+        timeout up to a whole millisecond, so an ``asyncio.sleep`` to the deadline wakes
+        0–1 ms late, the start jitter issue 13 measured. The loop is asked to wake
+        ``WAKE_EARLY_S`` before the deadline (everything else on it runs meanwhile); the
+        last fraction of a millisecond is slept on the thread."""
+        clock = self.clock
+        await clock.sleep_until(t - WAKE_EARLY_S)
+        rest_s = t - clock.now()
+        if rest_s > 0:
+            time.sleep(rest_s)  # noqa: ASYNC251 - under WAKE_EARLY_S, on purpose
 
     async def run_for(self, duration_s: float) -> None:
         """Run the scans due in ``[now, now + duration_s)`` (virtual: as fast as the CPU allows).

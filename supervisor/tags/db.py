@@ -1,13 +1,15 @@
 """The tag database: values with quality, timestamps and a cheap change feed.
 
-Every change bumps a global version and records (version, tag) in a bounded change
-log, so a publisher asks "what changed since version N" each scan in O(changes).
+Every change bumps a global version, stamps it on the tag and moves the tag to the end of
+an order of last changes (one entry per tag, docs/adr/0018-scan-performance.md), so a
+publisher asks "what changed since version N" each scan in O(changes), however far back
+N is, and the database keeps no log that grows with the number of changes.
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
+from collections import OrderedDict
 from collections.abc import Iterable, Iterator
 
 from supervisor.core.driver import Value
@@ -15,7 +17,7 @@ from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.tags.spec import Access, TagSpec
 
-CHANGE_LOG_LEN = 65_536
+_isfinite = math.isfinite
 
 
 class Tag:
@@ -24,6 +26,7 @@ class Tag:
     __slots__ = (
         "forced",
         "index",
+        "is_float",
         "quality",
         "reason",
         "server_t",
@@ -36,6 +39,7 @@ class Tag:
     def __init__(self, spec: TagSpec, index: int) -> None:
         self.spec = spec
         self.index = index
+        self.is_float = spec.dtype == "float"  # read by every update: no spec lookup
         self.value: Value | None = spec.initial
         self.quality = Quality.UNCERTAIN if spec.initial is not None else Quality.BAD
         self.reason = Reason.INITIAL
@@ -69,7 +73,10 @@ class TagDB:
         self._tags: dict[str, Tag] = {}
         self._list: list[Tag] = []
         self.version = 0
-        self._log: deque[tuple[int, Tag]] = deque(maxlen=CHANGE_LOG_LEN)
+        # Every tag once, in the order of their last change (the last changed at the end):
+        # ``move_to_end`` is O(1) and allocates nothing, where a log of (version, tag)
+        # tuples kept 65 536 small objects alive for the collector to walk (issue 13).
+        self._order: OrderedDict[int, Tag] = OrderedDict()
         self._now = 0.0
 
     # --- declaration -----------------------------------------------------------
@@ -79,6 +86,7 @@ class TagDB:
         tag = Tag(spec, len(self._list))
         self._tags[spec.name] = tag
         self._list.append(tag)
+        self._order[tag.index] = tag
         self._bump(tag)
         return tag
 
@@ -124,15 +132,15 @@ class TagDB:
         """
         if tag.forced:
             return False
-        if value is not None and tag.spec.dtype == "float":
-            try:
-                value = float(value)
-            except (TypeError, ValueError):
-                # A driver or logic handing over the wrong type is a fault, not a crash.
-                value, quality, reason = None, Quality.BAD, Reason.CONFIG_ERROR
-            else:
-                if not math.isfinite(value):
-                    quality, reason = Quality.BAD, Reason.OUT_OF_RANGE
+        if value is not None and tag.is_float:
+            if type(value) is not float:
+                try:
+                    value = float(value)
+                except (TypeError, ValueError):
+                    # A driver or logic handing over the wrong type is a fault, not a crash.
+                    value, quality, reason = None, Quality.BAD, Reason.CONFIG_ERROR
+            if value is not None and not _isfinite(value):
+                quality, reason = Quality.BAD, Reason.OUT_OF_RANGE
         changed = value != tag.value or quality is not tag.quality or reason is not tag.reason
         tag.source_t = self._now if source_t is None else source_t
         if changed:
@@ -140,7 +148,9 @@ class TagDB:
             tag.quality = quality
             tag.reason = reason
             tag.server_t = self._now
-            self._bump(tag)
+            self.version = version = self.version + 1
+            tag.version = version
+            self._order.move_to_end(tag.index)
         return changed
 
     def set_quality(self, tag: Tag, quality: Quality, reason: Reason) -> bool:
@@ -192,18 +202,14 @@ class TagDB:
         """Tags changed after ``version`` (each once), oldest change first."""
         if version >= self.version:
             return []
-        if not self._log or self._log[0][0] > version + 1:
-            # The log no longer reaches back that far: resend everything.
-            return list(self._list)
-        # A tag's last change is the log entry whose version is the tag's own: keeping
-        # only those gives each tag once, in the order of their last change, with no set.
+        # Walk back from the last change until a tag last changed at or before
+        # ``version``: every tag before it in the order changed earlier still.
         out: list[Tag] = []
         append = out.append
-        for v, tag in reversed(self._log):
-            if v <= version:
+        for tag in reversed(self._order.values()):
+            if tag.version <= version:
                 break
-            if tag.version == v:
-                append(tag)
+            append(tag)
         out.reverse()
         return out
 
@@ -214,4 +220,4 @@ class TagDB:
     def _bump(self, tag: Tag) -> None:
         self.version += 1
         tag.version = self.version
-        self._log.append((self.version, tag))
+        self._order.move_to_end(tag.index)

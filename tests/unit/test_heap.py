@@ -1,0 +1,45 @@
+"""The collector's policy after start-up (docs/adr/0018-scan-performance.md): what start-up
+built is frozen, so later full collections do not walk it, and the thresholds are those of
+a long-running process."""
+
+from __future__ import annotations
+
+import gc
+from collections.abc import Iterator
+
+import pytest
+
+from supervisor.core.heap import (
+    MIDDLE_THRESHOLD,
+    OLD_THRESHOLD,
+    YOUNG_THRESHOLD,
+    settle_after_start,
+)
+
+
+@pytest.fixture
+def collector() -> Iterator[None]:
+    """The test process's collector as it was, afterwards."""
+    saved = gc.get_threshold()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+        gc.set_threshold(*saved)
+
+
+@pytest.mark.usefixtures("collector")
+def test_what_is_alive_at_start_up_is_frozen_out_of_later_full_collections() -> None:
+    built_at_start = [{"tag": k} for k in range(1000)]
+    frozen = settle_after_start()
+    assert frozen == gc.get_freeze_count() >= len(built_at_start)
+    assert not any(obj is built_at_start for obj in gc.get_objects())
+    made_later = [{"sample": k} for k in range(10)]
+    assert any(obj is made_later for obj in gc.get_objects())
+
+
+@pytest.mark.usefixtures("collector")
+def test_the_thresholds_are_those_of_a_long_running_process() -> None:
+    settle_after_start()
+    assert gc.get_threshold() == (YOUNG_THRESHOLD, MIDDLE_THRESHOLD, OLD_THRESHOLD)
+    assert YOUNG_THRESHOLD > 700  # CPython's default young threshold
