@@ -14,7 +14,6 @@ with them, and the snapshot latency the clients saw.
 from __future__ import annotations
 
 import asyncio
-import gc
 import json
 import subprocess
 import sys
@@ -24,6 +23,7 @@ from typing import Any
 from supervisor.app.loadgen import SignalGenerator
 from supervisor.channels import Channel, ChannelLimits
 from supervisor.core.clock import RealClock
+from supervisor.core.heap import settle_after_start
 from supervisor.scan import InputBinding, LogicPhase, OutputBinding, ScanEngine, ScanStats
 from supervisor.tags import TagDB, TagSpec
 
@@ -98,9 +98,7 @@ async def http_benchmark(
     await api.start()
     for drv in engine.drivers:  # first images in place, so no channel trips
         await drv.poll()
-    # As `supervisor run` does before its scan (cli/main.py::freeze_start_up_heap).
-    gc.collect()
-    gc.freeze()
+    settle_after_start()  # as `supervisor run` does before its scan (ADR 0018)
     stop = asyncio.Event()
     scan = asyncio.get_running_loop().create_task(engine.run(stop))
     try:

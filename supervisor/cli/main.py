@@ -10,7 +10,6 @@ import argparse
 import asyncio
 import contextlib
 import faulthandler
-import gc
 import io
 import logging
 import math
@@ -194,9 +193,11 @@ async def _serve(
             f" ({waiting} points waiting)"
         )
     _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
-    freeze_start_up_heap()
     unconfirmed: dict[str, str] = {}
-    # Start-up is over: what it built lives as long as the process (ADR 0018).
+    # Start-up is over: what it built lives as long as the process (ADR 0018). Left in the
+    # collector's generations, the first full collections after start-up — set off by the
+    # first page's allocations — walked it all on the scan's thread (60–130 ms; the
+    # 0.46 s scan.stall of the browser tests on a busy machine; ADR 0019).
     settle_after_start()
     try:
         await bench.run(stop)
@@ -214,18 +215,6 @@ async def _serve(
         return EXIT_FAIL
     _out("stopped: all outputs safe")
     return EXIT_OK
-
-
-def freeze_start_up_heap() -> None:
-    """Collect once, then move every object built so far (imports, the bench, its
-    servers: about 100 000) out of the collector's generations (``gc.freeze``), before
-    the scan starts. They live as long as the process; left in, the first full
-    collections after start-up, set off by the first page's allocations (login, the
-    snapshot), walked them all for 60-130 ms on the scan's thread (0.3-0.46 s on a busy
-    machine: the ``scan.stall`` of the browser tests); frozen, such a pass takes < 1 ms
-    (docs/adr/0019-http-off-the-scan.md)."""
-    gc.collect()
-    gc.freeze()
 
 
 def _recipes_config(cfg: BenchConfig, bench: Bench) -> RecipesConfig:
