@@ -36,7 +36,7 @@ from supervisor.devices.registry import REGISTRY, Registry
 from supervisor.publish.display import ChadecheDisplay
 from supervisor.publish.historian import Historian
 from supervisor.publish.influx import InfluxWriter
-from supervisor.publish.results import TIMELINE_KINDS, ResultCollector
+from supervisor.publish.results import TIMELINE_KINDS, ResultCollector, SummaryWriter
 from supervisor.safety import AlarmManager, SafetyPhase, build_safety
 from supervisor.scan import (
     InputBinding,
@@ -78,10 +78,15 @@ class Bench:
     events: EventFeed = field(default_factory=EventFeed)
     """Chain steps, alarms and operator commands for the publishers that record events."""
     _started: bool = False
+    summaries: SummaryWriter | None = field(init=False, default=None)
+    """Test summaries rewritten off the scan's thread (real clock; None on a virtual
+    clock, where they are written at once, in the order of the simulated events)."""
     commands: CommandPath = field(init=False)
     """The one path of operator commands (HTTP, command line, the ``chN.command`` tags)."""
 
     def __post_init__(self) -> None:
+        if not self.clock.virtual:
+            self.summaries = SummaryWriter(f"bench {self.cfg.bench}")
         self.commands = CommandPath(
             self.db,
             self.clock,
@@ -154,7 +159,12 @@ class Bench:
         c = self.cfg.channels[[c.name for c in self.cfg.channels].index(channel)]
         # No file yet: the collector creates them when the test starts.
         collector = ResultCollector(
-            channel, program.name, runner.test_id, folder, dba=c.source.board or 0
+            channel,
+            program.name,
+            runner.test_id,
+            folder,
+            dba=c.source.board or 0,
+            writer=self.summaries,
         )
         self.attach_results(channel, collector)
         # Compiled from the text read then, which is what the retained state keeps: a
@@ -278,6 +288,8 @@ class Bench:
                 collector.close("supervisor stopped", runner.state.value, complete=False, now=now)
             elif runner.state not in FINAL:
                 collector.close("supervisor stopped", runner.state.value, now=now)
+        if self.summaries is not None:
+            await asyncio.to_thread(self.summaries.flush)  # every checkpoint on disk
         if self.historian is not None:
             await self.historian.stop()  # everything queued written: a clean stop loses none
         if self.retention is not None:

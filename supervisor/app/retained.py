@@ -370,7 +370,12 @@ class Retention:
     ) -> ResultCollector:
         c = next(c for c in self.bench.cfg.channels if c.name == channel)
         collector = ResultCollector(
-            channel, snap.recipe, snap.test_id, folder, dba=c.source.board or 0
+            channel,
+            snap.recipe,
+            snap.test_id,
+            folder,
+            dba=c.source.board or 0,
+            writer=self.bench.summaries,
         )
         # Test time 0 on this process's clock axis: the time away counts as test time.
         collector.resume(self.bench.clock.now() - (snap.test_time_s + away_s))

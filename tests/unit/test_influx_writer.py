@@ -21,6 +21,8 @@ from supervisor.core.clock import VirtualClock
 from supervisor.core.records import BenchEvent
 from supervisor.devices.registry import bench_from_data, load_bench
 from supervisor.publish.influx import InfluxSettings, InfluxWriter
+from supervisor.publish.influx.spool import Spool
+from supervisor.publish.influx.writer import SpoolWriter
 from supervisor.safety.alarms import AlarmState
 from supervisor.tags import TagDB, TagSpec
 from supervisor.testing import wait_until
@@ -164,6 +166,23 @@ async def test_an_unreachable_server_alarms_after_alarm_after_s_and_a_dead_lette
         w.close()
 
 
+async def test_the_scan_only_hands_its_samples_over_the_spool_writer_encodes_them(
+    tmp_path: Path, server: ScriptedInflux, db: TagDB, virtual_clock: VirtualClock
+) -> None:
+    w = writer_for(tmp_path, server.url, db, virtual_clock, Alarms())
+    scan(w, db, virtual_clock, ch0__voltage=1.2, pack__temp=25.0)
+    assert w.encoder._routes == {}  # no line made on the scan's thread (issue 13)
+    assert w.writer.queued >= 2
+    w.start()
+    try:
+        await wait_until(lambda: w.status().spool.sent >= 2, "delivery", LIMIT_S)
+        text = b"\n".join(server.accepted).decode()
+        assert "channel,bench=b1,channel=ch0 voltage=1.2" in text
+        assert "device,bench=b1,device=pack temp=25.0" in text
+    finally:
+        w.close()
+
+
 async def test_a_full_queue_drops_its_oldest_points_counted_and_alarmed(
     tmp_path: Path, db: TagDB, virtual_clock: VirtualClock
 ) -> None:
@@ -215,6 +234,10 @@ def test_a_new_test_writes_every_current_field_of_its_channel_once_with_the_new_
     w = writer_for(tmp_path, "http://127.0.0.1:9", db, virtual_clock, Alarms())
     lines: list[str] = []
     w.writer.put = lambda measurement, batch: lines.extend(batch)  # type: ignore[method-assign]
+    # Encoded on the spool writer's thread in the bench; here at once, to look at the lines.
+    w.writer.put_deferred = lambda points, encode: [  # type: ignore[method-assign]
+        lines.extend(batch) for batch in encode().values()
+    ]
     scan(w, db, virtual_clock, ch0__voltage=3.5, ch1__voltage=3.6)
     virtual_clock.advance(0.1)
     scan(w, db, virtual_clock, ch0__voltage=3.6)
@@ -385,3 +408,29 @@ def test_influx_is_a_namespace_the_supervisor_generates(
     assert "tag name 'influx.sent' is in a namespace the supervisor generates" in (
         capsys.readouterr().err
     )
+
+
+async def test_a_put_wakes_the_spool_writer_only_when_it_waits_for_work(tmp_path: Path) -> None:
+    # A wake-up per scan would cost the scan's thread a system call and a turn of the
+    # interpreter lock 100 times a second (issue 13): while the writer sleeps out its
+    # commit interval, what is put waits for it.
+    spool = Spool(tmp_path / "spool.sqlite", 10_000_000)
+    writer = SpoolWriter(spool, commit_interval_s=3600.0, chunk_points=100, max_queue_points=10_000)
+    writer.start()
+    try:
+        writer.put("channel", ["channel,bench=b1 v=1 1"])  # idle: woken, committed at once
+        await wait_until(lambda: writer.commits == 1, "the first commit", LIMIT_S)
+        notified: list[int] = []
+        original = writer._cond.notify_all
+
+        def counting() -> None:
+            notified.append(1)
+            original()
+
+        writer._cond.notify_all = counting  # type: ignore[method-assign]
+        for k in range(100):  # a second of 10 ms scans
+            writer.put_deferred(1, lambda k=k: {"channel": [f"channel,bench=b1 v={k} {k + 2}"]})
+        assert notified == [] and writer.queued == 100
+    finally:
+        writer.stop()  # wakes it: what was queued is committed at the stop
+    assert writer.commits == 2 and spool.counts().produced == 101

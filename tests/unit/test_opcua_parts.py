@@ -26,6 +26,7 @@ from supervisor.publish.opcua.methods import (
     request,
     resolve_recipe,
 )
+from supervisor.publish.opcua.server import sampling_interval_s
 from supervisor.publish.opcua.statuses import REFUSAL_STATUS, quality_status
 from supervisor.publish.opcua.units import eu_information, unit_id
 from supervisor.tags import Access, TagDB, TagSpec
@@ -244,6 +245,59 @@ def test_the_feed_keeps_one_update_per_tag_and_counts_the_replaced_ones() -> Non
     db.update(a, 9.0)
     feed.on_scan(db, 5.0)
     assert db["opcua.dropped"].value == feed.dropped and woken
+
+
+def test_at_a_sampling_interval_the_feed_hands_over_the_latest_values_once_per_interval() -> None:
+    db = TagDB()
+    a, b = db.add(TagSpec("a")), db.add(TagSpec("b"))
+    feed = OpcUaFeed(db)
+    feed.sampling_interval_s = 0.05  # a 10 ms scan, a 50 ms sampling interval
+    woken: list[float] = []
+    feed.start(db, lambda: woken.append(0.0))
+    handed: list[tuple[float, dict[str, object]]] = []
+    for k in range(20):  # 0.2 s of scans
+        t = k * 0.01
+        db.update(a, float(k))
+        if k == 3:
+            db.update(b, 42.0)  # changed once, between two hand-overs
+        feed.on_scan(db, t)
+        got = {u.name: u.value for u in feed.take() if u.name in ("a", "b")}
+        if got:
+            handed.append((round(t, 3), got))
+    assert [t for t, _ in handed] == [0.0, 0.05, 0.1, 0.15]
+    assert [got["a"] for _, got in handed] == [0.0, 5.0, 10.0, 15.0]  # the latest value
+    assert handed[1][1]["b"] == 42.0  # changed between two hand-overs: not lost
+    assert "b" not in handed[2][1]
+    assert len(woken) == 4  # the server is woken once per interval, not once per scan
+    assert feed.dropped == 0  # what waits in the tag database is not a dropped update
+
+
+def test_events_are_not_sampled_they_wake_the_server_at_once() -> None:
+    db = TagDB()
+    feed = OpcUaFeed(db)
+    feed.sampling_interval_s = 1.0
+    woken: list[int] = []
+    feed.start(db, lambda: woken.append(1))
+    feed.on_scan(db, 0.0)
+    feed.on_scan(db, 0.01)
+    before = len(woken)
+    feed.on_event(BenchEvent(0.01, 0.0, "step", "ch0", "d", "starting step 1 d"))
+    assert len(woken) == before + 1 and len(feed.take_events()) == 1
+
+
+@pytest.mark.parametrize(
+    ("period_s", "configured_s", "expected_s"),
+    [
+        (0.1, None, 0.1),  # the shipped benches: every scan, as before
+        (0.01, None, 0.05),  # a 10 ms scan: 20 samples a second by default
+        (0.01, 0.02, 0.02),  # or what the I/O map says
+        (0.1, 0.02, 0.1),  # never faster than the tags change
+    ],
+)
+def test_the_sampling_interval_is_the_scan_period_but_not_under_50_ms_by_default(
+    period_s: float, configured_s: float | None, expected_s: float
+) -> None:
+    assert sampling_interval_s(period_s, configured_s) == pytest.approx(expected_s)
 
 
 def test_events_wait_in_a_bounded_queue_and_the_excess_is_counted() -> None:

@@ -3,10 +3,12 @@
 Three parts, so that the scan never waits (DESIGN.md "Publishing"):
 
 1. the scan's side (``InfluxWriter.on_scan``, ``on_event``): the change feed's samples and
-   the bench events become line protocol (``lineproto``) and go to a bounded in-memory
-   queue; the influx.* status tags and alarms are updated from the other two parts;
-2. the spool writer thread (``SpoolWriter``): every ``commit_interval_s`` it appends what
-   the queue holds to the spool on disk (``spool``) in one transaction, BEFORE anything is
+   the bench events go to a bounded in-memory queue; the influx.* status tags and alarms
+   are updated from the other two parts;
+2. the spool writer thread (``SpoolWriter``): every ``commit_interval_s`` it turns what the
+   queue holds into line protocol (``lineproto``; on this thread, not the scan's: at a
+   10 ms scan with every change stored the encoding was the scan's largest cost, issue 13)
+   and appends it to the spool on disk (``spool``) in one transaction, BEFORE anything is
    sent. A SIGKILL loses at most the points of the last commit interval (still in memory);
 3. the forwarder thread (``forward``): sends the spool's oldest chunks, deletes them after
    a 2xx.
@@ -127,6 +129,21 @@ class InfluxStatus:
     spool_error: str  # why the spool cannot be written ("" when it can)
 
 
+Encode = Callable[[], dict[str, list[str]]]
+"""Lines by measurement, made when the spool writer gets to them (``put_deferred``)."""
+
+ENCODE_YIELD_S = 0.0001
+"""After encoding one queued scan's samples the spool writer sleeps this long: a sleep
+releases the interpreter lock, so a scan waiting for it gets it between two scans' worth
+of encoding instead of after the interpreter's switch interval (5 ms)."""
+
+
+@dataclass(frozen=True, slots=True)
+class _Deferred:
+    points: int
+    encode: Encode
+
+
 class SpoolWriter:
     """The thread that moves queued lines into the spool, one transaction per interval."""
 
@@ -145,10 +162,15 @@ class SpoolWriter:
         self.max_queue_points = max_queue_points
         self.on_commit = on_commit
         self._cond = threading.Condition()
-        self._items: deque[tuple[str, list[str]]] = deque()
+        # (measurement, lines), or (points, encode) to be encoded on this thread.
+        self._items: deque[tuple[str, list[str]] | _Deferred] = deque()
         self._queued = 0
         self._unspooled_drops = 0  # dropped from the queue, not yet counted in the spool
         self._stopping = False
+        # The thread waits for a first item (idle) or for the commit interval to pass: only
+        # an idle thread is woken by a put. A wake-up per scan costs the scan's thread a
+        # system call and an exchange of the interpreter lock, 100 times a second (issue 13).
+        self._idle = False
         self._thread: threading.Thread | None = None
         self.error: str | None = None
         self.commits = 0
@@ -170,14 +192,32 @@ class SpoolWriter:
             self._queued += len(lines)
             if self._queued > self.max_queue_points:
                 self._shed()
-            self._cond.notify_all()
+            if self._idle:
+                self._cond.notify_all()
+
+    def put_deferred(self, points: int, encode: Encode) -> None:
+        """Queue ``points`` points that ``encode()`` will make, on the writer's thread, in
+        the order queued; returns at once. ``encode`` must only read what the caller will
+        not change (this scan's samples)."""
+        if points <= 0:
+            return
+        with self._cond:
+            self._items.append(_Deferred(points, encode))
+            self._queued += points
+            if self._queued > self.max_queue_points:
+                self._shed()
+            if self._idle:
+                self._cond.notify_all()
 
     def _shed(self) -> None:
         dropped = 0
-        while self._queued > self.max_queue_points and len(self._items) > 1:
-            _, lines = self._items.popleft()
-            self._queued -= len(lines)
-            dropped += len(lines)
+        # Points, or samples for those not encoded yet (a line carries one or more: an
+        # upper bound). Oldest first; a single scan larger than the bound goes too.
+        while self._queued > self.max_queue_points and self._items:
+            item = self._items.popleft()
+            n = item.points if isinstance(item, _Deferred) else len(item[1])
+            self._queued -= n
+            dropped += n
         if dropped:
             first = self._unspooled_drops == 0
             self._unspooled_drops += dropped
@@ -234,15 +274,18 @@ class SpoolWriter:
         while True:
             with self._cond:
                 while not self._items and not self._unspooled_drops and not self._stopping:
+                    self._idle = True
                     self._cond.wait()
+                self._idle = False
                 if not self._items and not self._unspooled_drops and self._stopping:
                     return
-                items = list(self._items)
+                queued = list(self._items)
                 self._items.clear()
-                n = self._queued
                 self._queued = 0
                 extra = self._unspooled_drops
                 stopping = self._stopping
+            items = self._encode(queued)
+            n = sum(len(lines) for _, lines in items)
             try:
                 if not self.spool.is_open:
                     self.spool.open()
@@ -276,6 +319,22 @@ class SpoolWriter:
             self.on_commit()
             if not stopping:
                 self._sleep(self.commit_interval_s)
+
+    @staticmethod
+    def _encode(queued: list[tuple[str, list[str]] | _Deferred]) -> list[tuple[str, list[str]]]:
+        items: list[tuple[str, list[str]]] = []
+        for item in queued:
+            if not isinstance(item, _Deferred):
+                items.append(item)
+                continue
+            try:
+                lines_by = item.encode()
+            except Exception:  # a bug in one scan's encoding must not stop the spool
+                log.exception("InfluxDB spool: %d points could not be encoded", item.points)
+                continue
+            items.extend(lines_by.items())
+            time.sleep(ENCODE_YIELD_S)
+        return items
 
     def _sleep(self, delay_s: float) -> None:
         end = time.monotonic() + delay_s
@@ -433,9 +492,8 @@ class InfluxWriter:
             samples = samples + self._new_test_samples(db, tests, samples, t)
             self._tagged = tests
         if samples:
-            put = self.writer.put
-            for measurement, lines in self.encoder.encode(samples, tests).items():
-                put(measurement, lines)
+            encode = self.encoder.encode
+            self.writer.put_deferred(len(samples), lambda: encode(samples, tests))
         self._publish_status(db)
 
     def _current_tests(self) -> dict[str, tuple[str, str]]:
@@ -472,7 +530,10 @@ class InfluxWriter:
 
     def on_event(self, event: BenchEvent) -> None:
         """A bench event → one ``event`` line (Grafana annotations); returns at once."""
-        self.writer.put(EVENT, [self.encoder.event(event)])
+        # Encoded on the spool writer's thread like the samples: the encoder is that
+        # thread's alone (it remembers each series' recent timestamps).
+        event_line = self.encoder.event
+        self.writer.put_deferred(1, lambda: {EVENT: [event_line(event)]})
 
     # --- status -----------------------------------------------------------------------
     def status(self) -> InfluxStatus:

@@ -97,6 +97,8 @@ class OpcUaSettings:
     pki_dir: Path
     recipes_dir: Path
     scan_period_s: float
+    sampling_interval_s: float = 0.0
+    """How often the scan hands changed tags to the server (``OpcUaFeed``); 0: every scan."""
 
     @classmethod
     def of(cls, cfg: BenchConfig) -> OpcUaSettings:
@@ -113,11 +115,27 @@ class OpcUaSettings:
             pki_dir=Path(o.pki_dir) if o.pki_dir else base / "pki",
             recipes_dir=Path(o.recipes_dir),
             scan_period_s=cfg.scan.period_s,
+            sampling_interval_s=sampling_interval_s(cfg.scan.period_s, o.sampling_interval_s),
         )
 
     @property
     def endpoint(self) -> str:
         return f"opc.tcp://{self.host}:{self.port}/{PATH}"
+
+
+MIN_SAMPLING_S: Final = 0.05
+"""The shortest default sampling interval: 20 values a second is what the fastest SCADA
+trends ask; at a 10 ms scan, handing the server every scan's changes cost the scan's
+process about a third of its CPU (issue 13's load case, py-spy) for values no client
+samples that fast."""
+
+
+def sampling_interval_s(scan_period_s: float, configured_s: float | None) -> float:
+    """The interval the server samples the scan at: ``opcua.sampling_interval_s``, else the
+    scan period but at least ``MIN_SAMPLING_S``; never shorter than the scan period (the
+    tags do not change faster)."""
+    wanted = configured_s if configured_s is not None else max(scan_period_s, MIN_SAMPLING_S)
+    return max(wanted, scan_period_s)
 
 
 class OpcUaServer:
@@ -143,6 +161,7 @@ class OpcUaServer:
         self.clock = clock
         self.layout = layout
         self.feed = feed
+        feed.sampling_interval_s = settings.sampling_interval_s
         self.operate = operate
         self.users = users
         self.alarms = alarms
@@ -340,7 +359,9 @@ class OpcUaServer:
         elif len(self.users):
             log.warning("OPC UA: no secure endpoint, passwords travel in clear (security: [none])")
         idx = await server.register_namespace(self.namespace)
-        built = await build_space(server, idx, self.layout, s.scan_period_s, self._historised())
+        built = await build_space(
+            server, idx, self.layout, s.sampling_interval_s or s.scan_period_s, self._historised()
+        )
         self._built = built
         self._serve_history(server, built, self.history)
         for nid, (channel, m) in built.methods.items():
