@@ -33,6 +33,7 @@ from supervisor.core.records import ChainEvent, Record
 from supervisor.core.units import UNITS, Dim
 from supervisor.devices.kind import DriverWiring
 from supervisor.devices.registry import REGISTRY, Registry
+from supervisor.publish.changes import ChangeReader, SharedChanges
 from supervisor.publish.display import ChadecheDisplay
 from supervisor.publish.historian import Historian
 from supervisor.publish.influx import InfluxWriter
@@ -78,6 +79,8 @@ class Bench:
     events: EventFeed = field(default_factory=EventFeed)
     """Chain steps, alarms and operator commands for the publishers that record events."""
     _started: bool = False
+    changes: SharedChanges | None = None
+    """The change feed the historian and the InfluxDB writer share (``change_reader``)."""
     summaries: SummaryWriter | None = field(init=False, default=None)
     """Test summaries rewritten off the scan's thread (real clock; None on a virtual
     clock, where they are written at once, in the order of the simulated events)."""
@@ -98,6 +101,14 @@ class Bench:
         )
         for name, runner in self.runners.items():
             runner.command_handler = self._command_tag(name)
+
+    def change_reader(self) -> ChangeReader | None:
+        """A reader of the shared change feed for a publisher attached before the first
+        scan (None after it: that publisher needs a feed of its own, whose first batch is
+        every tag)."""
+        if self.changes is None or self.engine.stats.count:
+            return None
+        return self.changes.reader()
 
     def _command_tag(self, channel: str) -> Callable[[str], None]:
         """What a write of ``chN.command`` by an older client does: the same command path,
@@ -441,7 +452,10 @@ def build_bench(
         runners[c.name].samplers.append(displays[c.name])
     alarms = AlarmManager(clock)
     safety = build_safety(cfg, db, alarms)
-    influx = build_influx(cfg, db, clock, alarms)
+    # The historian (attach_historian) and the InfluxDB writer store the same changes by
+    # the same rule: one feed, filtered once per scan.
+    changes = SharedChanges(db, clock)
+    influx = build_influx(cfg, db, clock, alarms, changes)
     phases = ScanPhases(
         derived=[LogicPhase(f"derive:{n}", ch.derive) for n, ch in channels.items()],
         safety=[LogicPhase("safety", safety.run)],
@@ -473,6 +487,7 @@ def build_bench(
         displays=displays,
         influx=influx,
     )
+    bench.changes = changes
     if influx is not None:
         bench.events.sinks.append(influx)
         bench.events.attach(bench)

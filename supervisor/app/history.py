@@ -52,7 +52,12 @@ def attach_historian(bench: Bench) -> Historian | None:
         alarms.set(declared[alarm_id], active, message)
 
     historian = Historian(
-        bench.db, bench.clock, history_path(cfg), writer_settings(cfg.history), alarm=hook
+        bench.db,
+        bench.clock,
+        history_path(cfg),
+        writer_settings(cfg.history),
+        alarm=hook,
+        changes=bench.change_reader(),
     )
     feed = EventFeed()
     feed.sinks.append(historian)

@@ -10,6 +10,7 @@ from pathlib import Path
 from supervisor.config.models import BenchConfig, InfluxConfig
 from supervisor.core.clock import Clock
 from supervisor.core.errors import ConfigError
+from supervisor.publish.changes import SharedChanges
 from supervisor.publish.influx import (
     ALARMS,
     SPOOL_NAME,
@@ -61,9 +62,14 @@ def _alarm_hook(alarms: AlarmManager) -> AlarmHook:
 
 
 def build_influx(
-    cfg: BenchConfig, db: TagDB, clock: Clock, alarms: AlarmManager | None
+    cfg: BenchConfig,
+    db: TagDB,
+    clock: Clock,
+    alarms: AlarmManager | None,
+    changes: SharedChanges | None = None,
 ) -> InfluxWriter | None:
-    """The writer for ``cfg.influxdb`` (None when the I/O map has none); not started."""
+    """The writer for ``cfg.influxdb`` (None when the I/O map has none); not started.
+    ``changes``: the change feed it shares with the historian (else one of its own)."""
     if cfg.influxdb is None:
         return None
     settings = influx_settings(cfg.influxdb, cfg.state_dir)
@@ -74,4 +80,5 @@ def build_influx(
         bench=cfg.bench,
         channels=[c.name for c in cfg.channels],
         alarm=_alarm_hook(alarms) if alarms is not None else None,
+        changes=changes.reader() if changes is not None else None,
     )

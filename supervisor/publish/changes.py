@@ -14,14 +14,15 @@ points.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from collections import deque
+from typing import NamedTuple, Protocol
 
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Value
 from supervisor.core.quality import Quality
 from supervisor.tags import Tag, TagDB
 
-__all__ = ["ChangeFeed", "Sample"]
+__all__ = ["ChangeFeed", "ChangeReader", "Changes", "Sample", "SharedChanges"]
 
 
 class Sample(NamedTuple):
@@ -106,3 +107,73 @@ class ChangeFeed:
 
 
 _NUMBERS = (int, float)
+
+
+class Changes(Protocol):
+    """What a publisher reads its changes from: a ``ChangeFeed`` of its own, or its
+    ``ChangeReader`` of a ``SharedChanges``."""
+
+    def take(self) -> list[Sample]: ...
+
+
+class SharedChanges:
+    """One change feed read by several publishers, each getting every batch once.
+
+    The historian and the InfluxDB writer store the same changes by the same rule; at a
+    10 ms scan with a thousand tags, filtering them twice was a tenth of the scan (issue
+    13). The first reader to ask in a scan takes a batch from the feed; the others get
+    that same batch (a list nobody may change). A batch is kept until every reader had it,
+    so a reader that asks twice (a stop) or misses a scan loses nothing; a reader that
+    stops reading must ``close()``, or the batches would pile up for it.
+    """
+
+    def __init__(self, db: TagDB, clock: Clock) -> None:
+        self._feed = ChangeFeed(db, clock)
+        self._batches: deque[tuple[int, list[Sample]]] = deque()
+        self._seq = 0
+        self._readers: list[ChangeReader] = []
+
+    def reader(self) -> ChangeReader:
+        """A reader from now on (the feed's first batch is every tag: readers made before
+        the first take get it)."""
+        r = ChangeReader(self, self._seq)
+        self._readers.append(r)
+        return r
+
+    def _take(self, reader: ChangeReader) -> list[Sample]:
+        if reader.seen == self._seq:  # it had every batch: the next one, for everyone
+            self._seq += 1
+            self._batches.append((self._seq, self._feed.take()))
+        pending = [b for seq, b in self._batches if seq > reader.seen]
+        reader.seen = self._seq
+        oldest = min(r.seen for r in self._readers)
+        while self._batches and self._batches[0][0] <= oldest:
+            self._batches.popleft()
+        if len(pending) == 1:
+            return pending[0]
+        return [s for b in pending for s in b]
+
+    def _close(self, reader: ChangeReader) -> None:
+        if reader in self._readers:
+            self._readers.remove(reader)
+        if self._readers:
+            oldest = min(r.seen for r in self._readers)
+            while self._batches and self._batches[0][0] <= oldest:
+                self._batches.popleft()
+        else:
+            self._batches.clear()
+
+
+class ChangeReader:
+    """One publisher's view of a ``SharedChanges``: ``take()`` as a ``ChangeFeed``'s."""
+
+    def __init__(self, shared: SharedChanges, seen: int) -> None:
+        self._shared = shared
+        self.seen = seen
+
+    def take(self) -> list[Sample]:
+        """The samples since this reader's last take, oldest first (do not change it)."""
+        return self._shared._take(self)
+
+    def close(self) -> None:
+        self._shared._close(self)

@@ -20,7 +20,7 @@ from typing import Final
 from supervisor.config.models import HistorianConfig
 from supervisor.core.clock import Clock
 from supervisor.core.records import BenchEvent
-from supervisor.publish.changes import ChangeFeed
+from supervisor.publish.changes import ChangeFeed, ChangeReader, Changes
 from supervisor.publish.historian.query import HistoryQuery
 from supervisor.publish.historian.store import TagInfo
 from supervisor.publish.historian.writer import (
@@ -90,13 +90,15 @@ class Historian:
         *,
         alarm: AlarmHook | None = None,
         connect_hook: ConnectHook | None = None,
+        changes: ChangeReader | None = None,
     ) -> None:
         self.db = db
         self.clock = clock
         self.path = Path(path)
         self.settings = settings or WriterSettings()
         self._alarm = alarm
-        self.feed = ChangeFeed(db, clock)
+        # Its own feed, or its reader of the one it shares with the InfluxDB writer.
+        self.feed: Changes = changes if changes is not None else ChangeFeed(db, clock)
         self.writer = HistoryWriter(
             self.path,
             self.settings,
@@ -184,6 +186,8 @@ class Historian:
             # Room again after an overflow: a fresh feed sends every tag's current value
             # once (its first take() is every tag), which closes the gap in each trend.
             self._resync = False
+            if isinstance(self.feed, ChangeReader):
+                self.feed.close()  # a shared feed's batches must not wait for this reader
             self.feed = ChangeFeed(self.db, self.clock)
             log.warning("history %s: queue has room again; every tag's value sent", self.path)
         samples = self.feed.take()

@@ -33,7 +33,7 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import Value
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
-from supervisor.publish.changes import ChangeFeed, Sample
+from supervisor.publish.changes import ChangeFeed, ChangeReader, Changes, Sample
 from supervisor.publish.influx.client import CONFIGURATION, TRANSIENT, WriteClient
 from supervisor.publish.influx.forward import Forwarder, ForwarderStatus
 from supervisor.publish.influx.lineproto import EVENT, LineEncoder
@@ -386,12 +386,14 @@ class InfluxWriter:
         channels: Sequence[str],
         alarm: AlarmHook | None = None,
         client: WriteClient | None = None,
+        changes: ChangeReader | None = None,
     ) -> None:
         self.settings = settings
         self.db = db
         self.clock = clock
         self.alarm = alarm
-        self.feed = ChangeFeed(db, clock)
+        # Its own feed, or its reader of the one it shares with the historian.
+        self.feed: Changes = changes if changes is not None else ChangeFeed(db, clock)
         self.encoder = LineEncoder(bench, channels, dtype_of=self._dtype_of)
         self.spool = Spool(settings.spool_path, settings.spool_max_bytes)
         self.client = client or WriteClient(
