@@ -861,6 +861,14 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--minutes", type=float, default=30.0, help="memory: minutes to run")
     b.add_argument("--warmup", type=float, default=None, help="load, memory: warm-up seconds")
     b.add_argument("--http-rate", type=float, default=10.0, help="load: GET /api/tags per s")
+    b.add_argument(
+        "--clients-nice",
+        type=int,
+        default=10,
+        choices=range(20),
+        metavar="0..19",
+        help="load: niceness of the clients and influxd (they stand for other machines)",
+    )
     b.add_argument("--out", default="var/bench", help="report: folder of results.json|md")
     b.set_defaults(func=cmd_bench)
     return p

@@ -24,6 +24,7 @@ from supervisor.commands import Command
 from supervisor.core.clock import RealClock
 from supervisor.devices.registry import load_bench
 from supervisor.publish.influx import Delivery, Failure
+from supervisor.publish.influx.writer import Encode
 from supervisor.testing import wait_until
 
 OUTAGE_S = 30.0
@@ -61,6 +62,19 @@ def tap(bench: Bench, produced: list[str], deliveries: list[Delivery]) -> None:
         put(measurement, lines)
 
     writer.put = recording_put  # type: ignore[method-assign]
+    put_deferred = writer.put_deferred
+
+    def recording_deferred(points: int, encode: Encode) -> None:
+        # The scan's samples become lines on the spool writer's thread (ADR 0021).
+        def recorded() -> dict[str, list[str]]:
+            lines_by = encode()
+            for lines in lines_by.values():
+                produced.extend(lines)
+            return lines_by
+
+        put_deferred(points, recorded)
+
+    writer.put_deferred = recording_deferred  # type: ignore[method-assign]
     bench.influx.forwarder.listeners.append(deliveries.append)
 
 

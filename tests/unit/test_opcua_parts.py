@@ -272,7 +272,7 @@ def test_at_a_sampling_interval_the_feed_hands_over_the_latest_values_once_per_i
     assert feed.dropped == 0  # what waits in the tag database is not a dropped update
 
 
-def test_events_are_not_sampled_they_wake_the_server_at_once() -> None:
+def test_events_are_not_sampled_the_first_one_the_server_has_not_taken_wakes_it() -> None:
     db = TagDB()
     feed = OpcUaFeed(db)
     feed.sampling_interval_s = 1.0
@@ -281,8 +281,14 @@ def test_events_are_not_sampled_they_wake_the_server_at_once() -> None:
     feed.on_scan(db, 0.0)
     feed.on_scan(db, 0.01)
     before = len(woken)
-    feed.on_event(BenchEvent(0.01, 0.0, "step", "ch0", "d", "starting step 1 d"))
-    assert len(woken) == before + 1 and len(feed.take_events()) == 1
+    for ch in range(16):  # every channel changes step in the same scan
+        feed.on_event(BenchEvent(0.02, 0.0, "step", f"ch{ch}", "d", "starting step 1 d"))
+    assert len(woken) == before + 1  # at once (not at a sampling instant), and once
+    assert len(feed.take_events()) == 16
+    feed.on_scan(db, 0.02)
+    assert len(woken) == before + 1  # nothing new: no wake-up
+    feed.on_event(BenchEvent(0.03, 0.0, "step", "ch0", "d", "starting step 2 d"))
+    assert len(woken) == before + 2  # taken meanwhile: the next one wakes it again
 
 
 @pytest.mark.parametrize(

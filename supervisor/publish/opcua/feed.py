@@ -19,7 +19,7 @@ hand-over are copied once, at their latest value, and the server is woken once. 
 scan and a 50 ms interval that is a fifth of the copies and of the server's writes, and
 a fifth of the wake-ups of the server's thread (each costs a system call on the scan's
 thread and a turn of the interpreter lock between the two threads, issue 13). Events and
-alarm transitions are not sampled: each wakes the server at once.
+alarm transitions are not sampled: the first event the server has not taken wakes it.
 """
 
 from __future__ import annotations
@@ -148,8 +148,13 @@ class OpcUaFeed:
             if len(self._events) >= EVENT_QUEUE:
                 self.dropped += 1
                 return
+            first = not self._events
             self._events.append(item)
-        wake()
+        if first:
+            # The server is woken by the first event it has not taken: 16 channels changing
+            # step in one scan wake it once or twice, not 16 times (each wake-up is a system
+            # call and a turn of the interpreter lock on the scan's thread).
+            wake()
 
     # --- the server side -------------------------------------------------------------------
     def start(self, db: TagDB, wake: Callable[[], None]) -> list[Update]:
