@@ -31,10 +31,13 @@ _AUTO = Mode.AUTO.value
 """The mode values as plain texts: an enum member's ``.value`` is a lookup every scan."""
 
 
-def _as_float(tag: Tag) -> float:
-    """``tag.as_float()``, without the call when the value is a float already."""
+_isfinite = math.isfinite
+
+
+def _as_float(tag: Tag, default: float = 0.0) -> float:
+    """``tag.as_float(default)``, without the call when the value is a float already."""
     v = tag.value
-    return v if type(v) is float else tag.as_float()
+    return v if type(v) is float else tag.as_float(default)
 
 
 @dataclass(frozen=True, slots=True)
@@ -331,12 +334,12 @@ class Channel:
         """Into the hard current limits, and into what the safety phase allows this scan
         (nothing towards a crossed voltage limit, less near a BMS cell limit)."""
         lo, hi = self.limits.current_a
-        if not math.isfinite(request):
+        if not _isfinite(request):
             raise ValueError(f"non-finite current request {request!r}")
         out = min(max(request, lo), hi)
         hard = out != request
-        allowed = min(out, self.charge_limit.as_float(hi)) if out > 0 else out
-        allowed = max(allowed, -self.discharge_limit.as_float(-lo)) if allowed < 0 else allowed
+        allowed = min(out, _as_float(self.charge_limit, hi)) if out > 0 else out
+        allowed = max(allowed, -_as_float(self.discharge_limit, -lo)) if allowed < 0 else allowed
         clamped = allowed != request
         if clamped and request != self._last_clamp_req:
             why = f"hard limits [{lo}, {hi}] A" if hard and allowed == out else "safety limits"

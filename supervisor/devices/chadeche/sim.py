@@ -106,6 +106,8 @@ class SimBoard:
         # The last ADC reply, kept with the code it encodes: a cell's voltage moves by one
         # ADC step every few minutes of a slow charge, its reply need not be encoded anew.
         self._adc_code = -1
+        self._current_key: tuple[DacWord, bool, float, float] | None = None
+        self._current_value = 0.0
         self._adc_reply = b""
         self.label = "Chadèche board"
         """How the log names it (the bus sets the address)."""
@@ -113,6 +115,15 @@ class SimBoard:
     @property
     def current_a(self) -> float:
         """Current through the cell now, + charging, − discharging."""
+        key = (self.dac_a, self.charging, self.true_current_gain, self.true_current_offset_ma)
+        if key != self._current_key:
+            # Computed again only when the DAC word, the relay or the source's error moved:
+            # it is read twice per transfer, and changes a few times per test.
+            self._current_key = key
+            self._current_value = self._current_now()
+        return self._current_value
+
+    def _current_now(self) -> float:
         word = self.dac_a
         if not word.active or word.code == 0:
             return 0.0
