@@ -132,7 +132,7 @@ class TagDB:
         """
         if tag.forced:
             return False
-        if value is not None and tag.is_float:
+        if tag.is_float and value is not None:
             if type(value) is not float:
                 try:
                     value = float(value)
@@ -141,17 +141,18 @@ class TagDB:
                     value, quality, reason = None, Quality.BAD, Reason.CONFIG_ERROR
             if value is not None and not _isfinite(value):
                 quality, reason = Quality.BAD, Reason.OUT_OF_RANGE
-        changed = value != tag.value or quality is not tag.quality or reason is not tag.reason
-        tag.source_t = self._now if source_t is None else source_t
-        if changed:
+        now = self._now
+        tag.source_t = now if source_t is None else source_t
+        if value != tag.value or quality is not tag.quality or reason is not tag.reason:
             tag.value = value
             tag.quality = quality
             tag.reason = reason
-            tag.server_t = self._now
+            tag.server_t = now
             self.version = version = self.version + 1
             tag.version = version
             self._order.move_to_end(tag.index)
-        return changed
+            return True
+        return False
 
     def set_quality(self, tag: Tag, quality: Quality, reason: Reason) -> bool:
         return self.update(tag, tag.value, quality, reason, tag.source_t)
