@@ -51,6 +51,15 @@ class _Check:
     alarm: Alarm
     delay: OnDelay
     condition: Callable[[], str]  # "" when fine, else why it trips
+    reads: tuple[Tag, ...] | None = None
+    """The tags the condition is a function of (with the request's, ``reads_request``),
+    and of nothing else but the frozen configuration; None: evaluated every scan."""
+    reads_request: bool = False
+    seen: int = -1
+    """The newest version among those tags when the condition was last evaluated."""
+    why: str = ""
+    active: bool = False
+    """The condition and the on-delay's output at that evaluation."""
 
 
 class ChannelGuard:
@@ -96,26 +105,60 @@ class ChannelGuard:
         self._cmd_version = self._cmd.version
         self._checks: list[_Check] = []
         self._build_checks()
+        self._gated = True
+        """Skip a check whose tags did not change since it settled (``evaluate``); False
+        only in the tests that check it against evaluating every check every scan."""
+        self._request_tags = (
+            self._mode,
+            self._auto,
+            self._auto_active,
+            self._manual,
+            self._enable,
+            self._cmd,
+        )
+        """What ``_intended_a`` reads."""
 
     # --- declaration --------------------------------------------------------------------
-    def _check(self, key: str, condition: Callable[[], str], delay_s: float = 0.0) -> Alarm:
+    def _check(
+        self,
+        key: str,
+        condition: Callable[[], str],
+        delay_s: float = 0.0,
+        reads: tuple[Tag, ...] | None = None,
+        reads_request: bool = False,
+    ) -> Alarm:
         alarm = self.alarms.declare(
             f"{self.name}.{key}", group=self.name, severity=Severity.HIGH, latched=True
         )
-        self._checks.append(_Check(alarm, OnDelay(delay_s), condition))
+        self._checks.append(_Check(alarm, OnDelay(delay_s), condition, reads, reads_request))
         return alarm
 
     def _build_checks(self) -> None:
         cfg = self.cfg
         lim = cfg.limits
-        self._check("internal", self._internal)
-        self._check("voltage_input", self._voltage_input)
-        self._check("current_input", self._current_input)
+        v = (self._v,)
+        # The checks that are functions of their tags only say so (``reads``): evaluated
+        # only when one of those moved (issue 13). The others are evaluated every scan.
+        self._check("internal", self._internal, reads=(self._logic_error,))
+        self._check("voltage_input", self._voltage_input, reads=v, reads_request=True)
+        self._check("current_input", self._current_input, reads=(self._i,), reads_request=True)
+        # Its tag is declared after the guard: ``reads`` once found (``_source_lost``).
         self._check("source", self._source_lost)
-        self._check("voltage_high", self._voltage_high, lim.trip_delay_s)
-        self._check("voltage_low", self._voltage_low, lim.trip_delay_s)
+        self._source_check = self._checks[-1]
+        self._check(
+            "voltage_high", self._voltage_high, lim.trip_delay_s, reads=v, reads_request=True
+        )
+        self._check(
+            "voltage_low", self._voltage_low, lim.trip_delay_s, reads=v, reads_request=True
+        )
         if cfg.temperature_tag is not None and lim.temperature_c != (None, None):
-            self._check("temperature", self._temperature, lim.trip_delay_s)
+            self._check(
+                "temperature",
+                self._temperature,
+                lim.trip_delay_s,
+                reads=(self._temp,),
+                reads_request=True,
+            )
         for tag in cfg.permissives:
             self._check(f"permissive.{tag}", self._permissive(self.db[tag], f"permissive.{tag}"))
         delay = cfg.feedback.delay_s
@@ -150,16 +193,42 @@ class ChannelGuard:
         db = self.db
         db.update(self._armed, self._power_path_closed(now))
         set_alarm = self.alarms.set
+        gated = self._gated
+        if gated:
+            m, a, aa, mc, e, c = self._request_tags
+            request = max(m.version, a.version, aa.version, mc.version, e.version, c.version)
+        else:
+            request = 0
         for check in self._checks:
+            alarm = check.alarm
+            reads = check.reads
+            if gated and reads is not None:
+                newest = request if check.reads_request else -1
+                for tag in reads:
+                    if tag.version > newest:
+                        newest = tag.version
+                if (
+                    newest <= check.seen
+                    and (check.active or not check.why)
+                    and alarm.active is check.active
+                    and alarm.shelved_until is None
+                    and (not check.active or alarm.message == check.why)
+                ):
+                    # None of its tags changed since it was last evaluated, and it had
+                    # settled (fine, or tripped past its on-delay): the condition would
+                    # say the same, the on-delay and the alarm would stay as they are.
+                    continue
+                check.seen = newest
             why = check.condition()
             active = check.delay.update(bool(why), now)
-            alarm = check.alarm
+            check.why, check.active = why, active
             was_tripped = alarm.tripped
             set_alarm(alarm, active, why)
             if alarm.tripped and not was_tripped:
                 log.error("%s: tripped: %s", self.name, why)
                 # Never re-energised on its own: the operator must enable again after reset.
                 db.update(self._enable, False)
+                request = max(request, self._enable.version)
         if self._ack.value:
             db.update(self._ack, False)
             try:
@@ -286,6 +355,9 @@ class ChannelGuard:
             # The scan engine declares the device's status tag (after the safety phase is
             # built).
             connected = self._connected = self.db.get(self._connected_name)
+            if connected is not None:
+                check = self._source_check
+                check.reads, check.reads_request = (connected,), True
         if connected is None or connected.value is not False or self._intended_a() == 0.0:
             return ""
         return f"source {self.cfg.source.device} lost ({connected.name} is false)"
