@@ -162,6 +162,7 @@ class ChainRunner:
             tags["test_time"],
         )
         self._interlock_tag = tags["interlock"]
+        self._progress_tags = (tags["progress"], tags["eta_s"])
 
     @property
     def estimated_duration_s(self) -> float | None:
@@ -433,7 +434,7 @@ class ChainRunner:
             ok = step.interlock.evaluate(values)
             self._set("interlock", "" if ok is True else f"interlock: {step.interlock.text}")
         else:
-            self._set("interlock", "")
+            self.db.update(self._interlock_tag, "")  # self._set("interlock", "")
         if self._pending_advance:
             self._pending_advance = False
             if step.advance is None:
@@ -728,8 +729,9 @@ class ChainRunner:
             capacity_ah=program.capacity_ah if program is not None else None,
         )
         if shown is not None:
-            self._set("progress", shown[0])
-            self._set("eta_s", shown[1])
+            t_progress, t_eta = self._progress_tags
+            update(t_progress, shown[0])
+            update(t_eta, shown[1])
         if active and step is not None and self.samplers:
             rec: Record | None = None
             for sampler in self.samplers:

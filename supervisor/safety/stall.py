@@ -33,7 +33,8 @@ class ScanStall:
         if late is None:
             return  # no scan engine on this database (a test of the checks alone)
         self._late = late
-        late_s = late.as_float() if late.value is not None else 0.0
+        v = late.value
+        late_s = (v if type(v) is float else late.as_float()) if v is not None else 0.0
         if late_s > 0.0:
             stalls = self.db.get(STALLS_TAG)
             count = stalls.value if stalls is not None else "?"

@@ -8,7 +8,6 @@ N is, and the database keeps no log that grows with the number of changes.
 
 from __future__ import annotations
 
-import math
 from collections import OrderedDict
 from collections.abc import Iterable, Iterator
 
@@ -16,9 +15,6 @@ from supervisor.core.driver import Value
 from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.tags.spec import Access, TagSpec
-
-_isfinite = math.isfinite
-
 
 class Tag:
     """Live state of one tag. Mutated only through ``TagDB`` so versions stay right."""
@@ -139,7 +135,9 @@ class TagDB:
                 except (TypeError, ValueError):
                     # A driver or logic handing over the wrong type is a fault, not a crash.
                     value, quality, reason = None, Quality.BAD, Reason.CONFIG_ERROR
-            if value is not None and not _isfinite(value):
+            # ``x - x == 0.0`` is ``isfinite(x)`` for a float (inf - inf and NaN - NaN are
+            # NaN), without a call: this runs for every float update of every scan.
+            if value is not None and value - value != 0.0:  # type: ignore[operator]
                 quality, reason = Quality.BAD, Reason.OUT_OF_RANGE
         now = self._now
         tag.source_t = now if source_t is None else source_t

@@ -221,12 +221,13 @@ class SimChadecheBus:
                 raise self.fault
             now = self.clock.now()
             sim = self.boards.get(board)
+            sent = bytes(data)
             if sim is None:
                 reply = bytes([NO_BOARD_BYTE]) * len(data)
             else:
                 sim.advance(now)
-                reply = sim.handle(chip, bytes(data))
-            self.history.append(SimTransfer(now, board, chip, bytes(data), reply))
+                reply = sim.handle(chip, sent)
+            self.history.append(SimTransfer(now, board, chip, sent, reply))
             return reply
 
     def cell_temperature_c(self, board: int) -> float | None:
