@@ -148,9 +148,7 @@ class ChannelGuard:
         self._check(
             "voltage_high", self._voltage_high, lim.trip_delay_s, reads=v, reads_request=True
         )
-        self._check(
-            "voltage_low", self._voltage_low, lim.trip_delay_s, reads=v, reads_request=True
-        )
+        self._check("voltage_low", self._voltage_low, lim.trip_delay_s, reads=v, reads_request=True)
         if cfg.temperature_tag is not None and lim.temperature_c != (None, None):
             self._check(
                 "temperature",

@@ -16,6 +16,7 @@ from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.tags.spec import Access, TagSpec
 
+
 class Tag:
     """Live state of one tag. Mutated only through ``TagDB`` so versions stay right."""
 
@@ -137,7 +138,7 @@ class TagDB:
                     value, quality, reason = None, Quality.BAD, Reason.CONFIG_ERROR
             # ``x - x == 0.0`` is ``isfinite(x)`` for a float (inf - inf and NaN - NaN are
             # NaN), without a call: this runs for every float update of every scan.
-            if value is not None and value - value != 0.0:  # type: ignore[operator]
+            if value is not None and value - value != 0.0:
                 quality, reason = Quality.BAD, Reason.OUT_OF_RANGE
         now = self._now
         tag.source_t = now if source_t is None else source_t

@@ -282,8 +282,7 @@ class ChadecheDriver(PolledDriver):
                     self.raw_log.append(f"b{address} ADC >{ADC_READ.hex()} <{reply.hex()}")
                     raise ProtocolError(
                         self.name,
-                        f"board {address} ADC: {len(reply)} bytes back for {len(ADC_READ)}"
-                        " sent",
+                        f"board {address} ADC: {len(reply)} bytes back for {len(ADC_READ)} sent",
                         reply,
                     )
                 code = decode_adc_reply(reply)
