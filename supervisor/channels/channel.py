@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -229,30 +228,33 @@ class Channel:
     # request is clamped and protected before it reaches the outputs.
     def derive(self, now: float, dt: float) -> None:
         """Derived values: measurements copied from other tags, Ah/Wh, power."""
-        self._guarded(self._derive, dt, False)
+        try:
+            self._derive(dt)
+        except Exception as exc:  # logic error: this channel goes safe, the scan goes on
+            self._failed(exc)
 
     def drive(self, now: float, dt: float) -> None:
         """Setpoint selection, clamping to what safety allows, the output commands."""
-        self._guarded(self._drive, dt, True)
+        try:
+            self._drive(dt)
+        except Exception as exc:
+            self._failed(exc)
+        else:
+            if self.logic_error.value:  # a drive that ran through clears the logic error
+                self.db.update(self.logic_error, "")
 
     def run(self, now: float, dt: float) -> None:
         """Both phases back to back: a channel with nothing between them (no step chain)."""
         self.derive(now, dt)
         self.drive(now, dt)
 
-    def _guarded(self, phase: Callable[[float], None], dt: float, clears_error: bool) -> None:
-        """``phase(dt)``; an exception makes the channel safe. ``clears_error``: a drive
-        that ran through clears the logic error (no bound-method comparison per scan)."""
-        try:
-            phase(dt)
-        except Exception as exc:  # logic error: this channel goes safe, the scan goes on
-            log.exception("%s: channel logic failed", self.name)
-            self.go_safe()
-            # The safety phase trips the channel on it (latched, until reset).
-            self.db.update(self.logic_error, f"{type(exc).__name__}: {exc}")
-        else:
-            if clears_error and self.logic_error.value:
-                self.db.update(self.logic_error, "")
+    def _failed(self, exc: Exception) -> None:
+        """A phase raised (``derive`` and ``drive`` call their phase directly, inside a
+        ``try``: one call less per phase and scan): the channel goes safe."""
+        log.exception("%s: channel logic failed", self.name)
+        self.go_safe()
+        # The safety phase trips the channel on it (latched, until reset).
+        self.db.update(self.logic_error, f"{type(exc).__name__}: {exc}")
 
     def _derive(self, dt: float) -> None:
         db = self.db
