@@ -165,3 +165,22 @@ def test_simulated_board_caches_answer_what_computing_again_would(
             board.true_current_gain, board.true_current_offset_ma = o[1], o[2]
         assert board.current_a == board._current_now()
         assert board.handle(Chip.ADC, b"\x00\x00") == encode_adc_reply(board.adc_code())
+
+
+def test_a_task_waiting_for_the_io_lock_goes_first_as_on_the_awaited_path() -> None:
+    """A safe state waiting for the I/O lock when a poll comes: the poll waits behind it
+    (asyncio.Lock serves its waiters first), on both paths alike."""
+
+    async def run(r: Rig) -> Any:
+        await r.driver.poll()
+        r.driver.write("b0.current_set", 0.3)
+        await r.driver.flush()
+        await r.driver._io_cycle.acquire()
+        safe = asyncio.create_task(r.driver.safe_state())
+        await asyncio.sleep(0)  # it now waits for the lock
+        r.driver._io_cycle.release()  # handed to it; it has not run yet
+        await r.driver.poll()
+        await safe
+        return state(r)
+
+    assert asyncio.run(run(rig(True))) == asyncio.run(run(rig(False)))

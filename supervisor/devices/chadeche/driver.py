@@ -114,6 +114,13 @@ class _Board:
         return self.last_current_a
 
 
+def _free(lock: asyncio.Lock) -> bool:
+    """``lock`` would be acquired without yielding: nobody holds it and no task waits for
+    it (``asyncio.Lock.acquire``'s own test, on its waiters: a waiting task goes first)."""
+    waiters = lock._waiters
+    return not lock.locked() and (waiters is None or all(w.cancelled() for w in waiters))
+
+
 class ChadecheDriver(PolledDriver):
     """Poll the boards' ADCs; apply current and LED commands safely.
 
@@ -191,8 +198,8 @@ class ChadecheDriver(PolledDriver):
 
     async def poll(self) -> None:
         """:meth:`PolledDriver.poll`; on an in-process bus, while connected with nothing to
-        send and nobody holding the I/O locks, the same poll without an await: acquiring a
-        free ``asyncio.Lock`` never yields, there is nothing to write, and the simulated
+        send and nobody holding or awaiting the I/O locks, the same poll without an await:
+        acquiring such a lock never yields, there is nothing to write, and the simulated
         bus answers at once, so the awaited path would do exactly this (issue 13: a dry
         run polls 87 000 times; the equivalence is tested in test_chadeche_direct.py)."""
         if not (
@@ -200,8 +207,8 @@ class ChadecheDriver(PolledDriver):
             and self._connected
             and not self._pending
             and not self._lost_logged
-            and not self._io_cycle.locked()
-            and not self._io_lock.locked()
+            and _free(self._io_cycle)
+            and _free(self._io_lock)
         ):
             await super().poll()
             return
@@ -217,7 +224,7 @@ class ChadecheDriver(PolledDriver):
     async def flush(self) -> None:
         """:meth:`PolledDriver.flush`, which does nothing without a queued write while
         connected; with the I/O lock free that is known without taking it."""
-        if self._direct and not (self._connected and self._pending) and not self._io_cycle.locked():
+        if self._direct and not (self._connected and self._pending) and _free(self._io_cycle):
             return
         await super().flush()
 
