@@ -718,15 +718,13 @@ class ChainRunner:
         if active and state is State.RUNNING:
             update(t_step_time, now - r.t_step0)
             update(t_test_time, now - r.t_test0)
-        shown = self.progress.update(
-            active=active,
-            complete=state is State.COMPLETE,
-            elapsed_s=now - r.t_test0,
-            step_current_a=(
-                self._behaviours[r.step].progress_current_a if step is not None else None
-            ),
-            step_moved_ah=_as_float(self.port.charge_ah) - r.step_q0,
-            capacity_ah=program.capacity_ah if program is not None else None,
+        shown = self.progress.shown(
+            active,
+            state is State.COMPLETE,
+            now - r.t_test0,
+            self._behaviours[r.step].progress_current_a if step is not None else None,
+            _as_float(self.port.charge_ah) - r.step_q0,
+            program.capacity_ah if program is not None else None,
         )
         if shown is not None:
             t_progress, t_eta = self._progress_tags
