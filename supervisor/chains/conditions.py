@@ -74,7 +74,8 @@ class ConditionValues:
             ts.popleft()
             vs.popleft()
         peak = self.peak_v
-        self.peak_v = voltage_v if peak is None else max(peak, voltage_v)
+        # max(peak, voltage_v) without the call: the peak unless the reading is above it.
+        self.peak_v = voltage_v if peak is None or voltage_v > peak else peak
 
     def dv_dt(self) -> float | None:
         """V/s over the window, None until it spans ``DV_DT_MIN_SPAN_S``."""
@@ -96,16 +97,23 @@ class ConditionValues:
         q = _as_float(port.charge_ah)
         energy = _as_float(port.energy_wh)
         vt, i, t, p = port.voltage, port.current, port.temperature, port.power
-        v = _as_float(vt) if vt.quality is good else None
+        # ``_as_float`` inlined for the readings (every scan of every chain).
+        x = vt.value
+        v = (x if type(x) is float else vt.as_float()) if vt.quality is good else None
         peak = self.peak_v
         values = self._values
         if not values:
             values.update(dict.fromkeys(CHANNEL_VALUE_NAMES))
             values.update(self._parameters)
         values["voltage"] = v
-        values["current"] = _as_float(i) if i.quality is good else None
-        values["temperature"] = _as_float(t) if t.quality is good else None
-        values["power"] = _as_float(p) if p.quality is good else None
+        x = i.value
+        values["current"] = (x if type(x) is float else i.as_float()) if i.quality is good else None
+        x = t.value
+        values["temperature"] = (
+            (x if type(x) is float else t.as_float()) if t.quality is good else None
+        )
+        x = p.value
+        values["power"] = (x if type(x) is float else p.as_float()) if p.quality is good else None
         values["charge"] = self._initial_charge_ah + q - run.q0_ah
         values["energy"] = energy
         values["step_charge"] = q - run.step_q0
@@ -114,7 +122,12 @@ class ConditionValues:
         values["cycle_time"] = now - run.t_cycle0
         values["test_time"] = now - run.t_test0
         values["cycle"] = float(run.cycle)
-        values["dv_dt"] = self.dv_dt()
+        ts = self._dv_t  # self.dv_dt(), inlined
+        if len(ts) >= 2 and ts[-1] - ts[0] >= DV_DT_MIN_SPAN_S:
+            vs = self._dv_v
+            values["dv_dt"] = (vs[-1] - vs[0]) / (ts[-1] - ts[0])
+        else:
+            values["dv_dt"] = None
         values["delta_peak"] = (peak - v) if (peak is not None and v is not None) else None
         values["peak_voltage"] = peak
         if self._parameters_over:

@@ -50,6 +50,7 @@ from supervisor.config.limits import MAX_TRANSITIONS_PER_SCAN
 from supervisor.core.clock import Clock
 from supervisor.core.delay import OnDelay
 from supervisor.core.errors import OperatorError
+from supervisor.core.quality import Quality
 from supervisor.core.records import ChainEvent, Record, Sampler
 from supervisor.tags import Access, Tag, TagDB, TagSpec
 
@@ -67,6 +68,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+_GOOD = Quality.GOOD
 EPS_S = 1e-9
 CHAIN_FIELDS = (
     "state",
@@ -159,6 +161,8 @@ class ChainRunner:
             tags["step_time"],
             tags["test_time"],
         )
+        self._interlock_tag = tags["interlock"]
+        self._progress_tags = (tags["progress"], tags["eta_s"])
 
     @property
     def estimated_duration_s(self) -> float | None:
@@ -187,10 +191,15 @@ class ChainRunner:
         self._log_rules = LogRules(program)
         lim = program.limits
         self._limit_delay = OnDelay(lim.delay_s)
-        self._limits = (
-            ("voltage", lim.voltage_v, "V"),
-            ("current", lim.current_a, "A"),
-            ("temperature", lim.temperature_c, "degC"),
+        # Only the limits with a bound: one without either never finds a violation.
+        self._limits = tuple(
+            check
+            for check in (
+                ("voltage", lim.voltage_v, "V"),
+                ("current", lim.current_a, "A"),
+                ("temperature", lim.temperature_c, "degC"),
+            )
+            if check[1] != (None, None)
         )
 
     # --- retained state (DESIGN.md "Safety": a restart brings the test back Held) -------
@@ -340,7 +349,8 @@ class ChainRunner:
                 except OperatorError as exc:
                     log.warning("%s", exc)
                     self._emit("message", str(exc))
-        if self.port.trip_aborts and self.state in ACTIVE:
+        port = self.port
+        if port.fault.value and port.trip_aborts and self.state in ACTIVE:
             # DESIGN.md "Safety": the e-stop aborts the test (a hold would leave it resumable).
             self._set_state(State.ABORTING, f"channel trip: {self.port.fault_text()}")
         state = self.state
@@ -368,15 +378,15 @@ class ChainRunner:
     def _running(self, now: float) -> None:
         port, r, program, conditions = self.port, self._r, self.program, self._conditions
         assert program is not None and conditions is not None
-        fault = port.fault_text()
-        if fault:
-            self._set_state(State.HOLDING, f"channel fault: {fault}")
+        if port.fault.value:
+            self._set_state(State.HOLDING, f"channel fault: {port.fault_text()}")
             return
-        if not port.in_auto:
+        if port.mode.value != port.auto_mode:  # not port.in_auto
             self._set_state(State.HOLDING, "channel switched to manual")
             return
-        if port.voltage.good:
-            conditions.observe(now, port.voltage.as_float())
+        voltage = port.voltage
+        if voltage.quality is _GOOD:
+            conditions.observe(now, _as_float(voltage))
         step = program.steps[r.step]
         behaviour = self._behaviours[r.step]
         if step.instant:
@@ -395,7 +405,11 @@ class ChainRunner:
         assert isinstance(st, float)
         # Recipe limits (and the step's own, e.g. a profile row's): hold, latched alarm;
         # armed once the power path is closed (the battery is what they are about).
-        why = self._limit_violation(values, step, behaviour.limits(st)) if port.limits_armed else ""
+        why = (
+            self._limit_violation(values, step, behaviour.limits(st))
+            if port.armed.value is True  # port.limits_armed
+            else ""
+        )
         if self._limit_delay.update(bool(why), now):
             self._alarm(why)
             self._set_state(State.HOLDING, why)
@@ -420,7 +434,7 @@ class ChainRunner:
             ok = step.interlock.evaluate(values)
             self._set("interlock", "" if ok is True else f"interlock: {step.interlock.text}")
         else:
-            self._set("interlock", "")
+            self.db.update(self._interlock_tag, "")  # self._set("interlock", "")
         if self._pending_advance:
             self._pending_advance = False
             if step.advance is None:
@@ -465,7 +479,7 @@ class ChainRunner:
     def _limit_violation(
         self, values: Values, step: CompiledStep, own: tuple[LimitCheck, ...]
     ) -> str:
-        for name, (lo, hi), unit in (*self._limits, *own):
+        for name, (lo, hi), unit in (*self._limits, *own) if own else self._limits:
             x = values.get(name)
             if not isinstance(x, float):
                 continue
@@ -484,7 +498,7 @@ class ChainRunner:
             return 0.0
         v = self.port.voltage
         return self._behaviours[r.step].setpoint(
-            self.clock.now() - r.t_step0, v.as_float() if v.good else None
+            self.clock.now() - r.t_step0, _as_float(v) if v.quality is _GOOD else None
         )
 
     # --- transitions --------------------------------------------------------------------------
@@ -641,7 +655,7 @@ class ChainRunner:
     # --- outputs, records, tags -----------------------------------------------------------------
     def _outputs(self) -> None:
         running = self.state in ENERGISED and not self._alarm_latched
-        interlocked = bool(self._get("interlock"))
+        interlocked = bool(self._interlock_tag.value)
         amps = self.setpoint() if running and not interlocked else 0.0
         cv = 0.0
         if running and self.program is not None and self._r.sleep_until_t is None:
@@ -653,8 +667,9 @@ class ChainRunner:
             return
         assert self._log_rules is not None
         r, port = self._r, self.port
-        v = port.voltage.as_float() if port.voltage.good else None
-        i = port.current.as_float() if port.current.good else None
+        vt, it = port.voltage, port.current
+        v = _as_float(vt) if vt.quality is _GOOD else None
+        i = _as_float(it) if it.quality is _GOOD else None
         if not reason:
             reason = self._log_rules.reason(step.index, now, r, v, i)
             if not reason:
@@ -703,19 +718,18 @@ class ChainRunner:
         if active and state is State.RUNNING:
             update(t_step_time, now - r.t_step0)
             update(t_test_time, now - r.t_test0)
-        shown = self.progress.update(
-            active=active,
-            complete=state is State.COMPLETE,
-            elapsed_s=now - r.t_test0,
-            step_current_a=(
-                self._behaviours[r.step].progress_current_a if step is not None else None
-            ),
-            step_moved_ah=self.port.charge_ah.as_float() - r.step_q0,
-            capacity_ah=program.capacity_ah if program is not None else None,
+        shown = self.progress.shown(
+            active,
+            state is State.COMPLETE,
+            now - r.t_test0,
+            self._behaviours[r.step].progress_current_a if step is not None else None,
+            _as_float(self.port.charge_ah) - r.step_q0,
+            program.capacity_ah if program is not None else None,
         )
         if shown is not None:
-            self._set("progress", shown[0])
-            self._set("eta_s", shown[1])
+            t_progress, t_eta = self._progress_tags
+            update(t_progress, shown[0])
+            update(t_eta, shown[1])
         if active and step is not None and self.samplers:
             rec: Record | None = None
             for sampler in self.samplers:
@@ -801,6 +815,12 @@ class ChainRunner:
     @property
     def test_id(self) -> str:
         return self._r.test_id
+
+
+def _as_float(tag: Tag) -> float:
+    """``tag.as_float()``, without the call when the value is a float already."""
+    v = tag.value
+    return v if type(v) is float else tag.as_float()
 
 
 def seconds_until(wall_now: float, hh: int, mm: int) -> float:

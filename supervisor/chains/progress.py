@@ -28,6 +28,18 @@ class Progress:
         ``active``: a test is under way; ``complete``: it completed; ``step_current_a``:
         the current of the active CC step (None when the step is not one).
         """
+        return self.shown(active, complete, elapsed_s, step_current_a, step_moved_ah, capacity_ah)
+
+    def shown(
+        self,
+        active: bool,
+        complete: bool,
+        elapsed_s: float,
+        step_current_a: float | None,
+        step_moved_ah: float,
+        capacity_ah: float | None,
+    ) -> tuple[float, float | None] | None:
+        """:meth:`update` with positional arguments (the chain calls it every scan)."""
         est = self.estimated_duration_s
         if active and est:
             return min(1.0, elapsed_s / est), max(0.0, est - elapsed_s)

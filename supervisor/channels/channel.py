@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -31,10 +30,13 @@ _AUTO = Mode.AUTO.value
 """The mode values as plain texts: an enum member's ``.value`` is a lookup every scan."""
 
 
-def _as_float(tag: Tag) -> float:
-    """``tag.as_float()``, without the call when the value is a float already."""
+_isfinite = math.isfinite
+
+
+def _as_float(tag: Tag, default: float = 0.0) -> float:
+    """``tag.as_float(default)``, without the call when the value is a float already."""
     v = tag.value
-    return v if type(v) is float else tag.as_float()
+    return v if type(v) is float else tag.as_float(default)
 
 
 @dataclass(frozen=True, slots=True)
@@ -226,30 +228,33 @@ class Channel:
     # request is clamped and protected before it reaches the outputs.
     def derive(self, now: float, dt: float) -> None:
         """Derived values: measurements copied from other tags, Ah/Wh, power."""
-        self._guarded(self._derive, dt, False)
+        try:
+            self._derive(dt)
+        except Exception as exc:  # logic error: this channel goes safe, the scan goes on
+            self._failed(exc)
 
     def drive(self, now: float, dt: float) -> None:
         """Setpoint selection, clamping to what safety allows, the output commands."""
-        self._guarded(self._drive, dt, True)
+        try:
+            self._drive(dt)
+        except Exception as exc:
+            self._failed(exc)
+        else:
+            if self.logic_error.value:  # a drive that ran through clears the logic error
+                self.db.update(self.logic_error, "")
 
     def run(self, now: float, dt: float) -> None:
         """Both phases back to back: a channel with nothing between them (no step chain)."""
         self.derive(now, dt)
         self.drive(now, dt)
 
-    def _guarded(self, phase: Callable[[float], None], dt: float, clears_error: bool) -> None:
-        """``phase(dt)``; an exception makes the channel safe. ``clears_error``: a drive
-        that ran through clears the logic error (no bound-method comparison per scan)."""
-        try:
-            phase(dt)
-        except Exception as exc:  # logic error: this channel goes safe, the scan goes on
-            log.exception("%s: channel logic failed", self.name)
-            self.go_safe()
-            # The safety phase trips the channel on it (latched, until reset).
-            self.db.update(self.logic_error, f"{type(exc).__name__}: {exc}")
-        else:
-            if clears_error and self.logic_error.value:
-                self.db.update(self.logic_error, "")
+    def _failed(self, exc: Exception) -> None:
+        """A phase raised (``derive`` and ``drive`` call their phase directly, inside a
+        ``try``: one call less per phase and scan): the channel goes safe."""
+        log.exception("%s: channel logic failed", self.name)
+        self.go_safe()
+        # The safety phase trips the channel on it (latched, until reset).
+        self.db.update(self.logic_error, f"{type(exc).__name__}: {exc}")
 
     def _derive(self, dt: float) -> None:
         db = self.db
@@ -331,12 +336,12 @@ class Channel:
         """Into the hard current limits, and into what the safety phase allows this scan
         (nothing towards a crossed voltage limit, less near a BMS cell limit)."""
         lo, hi = self.limits.current_a
-        if not math.isfinite(request):
+        if not _isfinite(request):
             raise ValueError(f"non-finite current request {request!r}")
         out = min(max(request, lo), hi)
         hard = out != request
-        allowed = min(out, self.charge_limit.as_float(hi)) if out > 0 else out
-        allowed = max(allowed, -self.discharge_limit.as_float(-lo)) if allowed < 0 else allowed
+        allowed = min(out, _as_float(self.charge_limit, hi)) if out > 0 else out
+        allowed = max(allowed, -_as_float(self.discharge_limit, -lo)) if allowed < 0 else allowed
         clamped = allowed != request
         if clamped and request != self._last_clamp_req:
             why = f"hard limits [{lo}, {hi}] A" if hard and allowed == out else "safety limits"

@@ -117,6 +117,10 @@ class AlarmManager:
     listeners: list[Callable[[AlarmEvent], None]] = field(default_factory=list)
     history: deque[AlarmEvent] = field(default_factory=lambda: deque(maxlen=LOG_LENGTH))
     _alarms: dict[str, Alarm] = field(default_factory=dict)
+    # Per channel, the alarms that can hold it (its own, the bench-wide ones reaching it),
+    # with the number of alarms declared when the list was made: ``trips`` runs every scan
+    # for every channel, and an alarm's group and reach never change once declared.
+    _reach: dict[str, tuple[int, list[Alarm]]] = field(default_factory=dict)
 
     # --- declaration ------------------------------------------------------------------
     def declare(
@@ -235,17 +239,21 @@ class AlarmManager:
     def trips(self, channel: str) -> list[Alarm]:
         """Trips holding ``channel``: its own and the bench-wide ones that reach it,
         first-out first."""
-        out = [
+        reach = self._reach.get(channel)
+        if reach is None or reach[0] != len(self._alarms):
+            reach = self._reach[channel] = (len(self._alarms), self._reaching(channel))
+        out = [a for a in reach[1] if a.tripped]
+        if len(out) > 1:
+            out.sort(key=lambda a: (not a.first_out, a.activated_t or 0.0))
+        return out
+
+    def _reaching(self, channel: str) -> list[Alarm]:
+        """The alarms that hold ``channel`` when tripped, in declaration order."""
+        return [
             a
             for a in self._alarms.values()
-            if a.tripped
-            and (
-                a.group == channel
-                or (a.group == "" and (a.affects is None or channel in a.affects))
-            )
+            if a.group == channel or (a.group == "" and (a.affects is None or channel in a.affects))
         ]
-        out.sort(key=lambda a: (not a.first_out, a.activated_t or 0.0))
-        return out
 
     def _event(self, alarm: Alarm, transition: Transition, message: str, actor: str = "") -> None:
         now = self.clock.now()

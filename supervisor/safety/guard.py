@@ -30,11 +30,13 @@ from dataclasses import dataclass
 from supervisor.config.models import ChannelConfig
 from supervisor.core.delay import OnDelay
 from supervisor.core.errors import OperatorError
+from supervisor.core.quality import Quality
 from supervisor.safety.alarms import Alarm, AlarmManager, Severity
 from supervisor.tags import Tag, TagDB
 
 log = logging.getLogger(__name__)
 
+_GOOD = Quality.GOOD
 AUTO = "auto"  # the value of chN.mode under a step chain
 REGULATION_MARGIN = 0.02
 """A source holding a voltage (CV, or the supply's own limit) may give less current than
@@ -49,6 +51,15 @@ class _Check:
     alarm: Alarm
     delay: OnDelay
     condition: Callable[[], str]  # "" when fine, else why it trips
+    reads: tuple[Tag, ...] | None = None
+    """The tags the condition is a function of (with the request's, ``reads_request``),
+    and of nothing else but the frozen configuration; None: evaluated every scan."""
+    reads_request: bool = False
+    seen: int = -1
+    """The newest version among those tags when the condition was last evaluated."""
+    why: str = ""
+    active: bool = False
+    """The condition and the on-delay's output at that evaluation."""
 
 
 class ChannelGuard:
@@ -83,30 +94,69 @@ class ChannelGuard:
         self._contactor = db[cfg.contactor_tag] if cfg.contactor_tag else None
         self._contactor_fb = db[cfg.contactor_feedback_tag] if cfg.contactor_feedback_tag else None
         self._current_tol = cfg.feedback.current_tolerance_a
+        # The frozen configuration's limits, read every scan: looked up once.
+        self._current_limits_a = cfg.limits.current_a
+        self._vlo, self._vhi = cfg.limits.voltage_v
+        # The source's status tag (declared by the scan engine after the safety phase is
+        # built): found by name until it exists, then kept (tags are never removed).
+        self._connected_name = f"{cfg.source.device}.connected"
+        self._connected: Tag | None = None
         self._closing = OnDelay(cfg.feedback.delay_s)  # coil on, no feedback: settle time
         self._cmd_version = self._cmd.version
         self._checks: list[_Check] = []
         self._build_checks()
+        self._gated = True
+        """Skip a check whose tags did not change since it settled (``evaluate``); False
+        only in the tests that check it against evaluating every check every scan."""
+        self._request_tags = (
+            self._mode,
+            self._auto,
+            self._auto_active,
+            self._manual,
+            self._enable,
+            self._cmd,
+        )
+        """What ``_intended_a`` reads."""
 
     # --- declaration --------------------------------------------------------------------
-    def _check(self, key: str, condition: Callable[[], str], delay_s: float = 0.0) -> Alarm:
+    def _check(
+        self,
+        key: str,
+        condition: Callable[[], str],
+        delay_s: float = 0.0,
+        reads: tuple[Tag, ...] | None = None,
+        reads_request: bool = False,
+    ) -> Alarm:
         alarm = self.alarms.declare(
             f"{self.name}.{key}", group=self.name, severity=Severity.HIGH, latched=True
         )
-        self._checks.append(_Check(alarm, OnDelay(delay_s), condition))
+        self._checks.append(_Check(alarm, OnDelay(delay_s), condition, reads, reads_request))
         return alarm
 
     def _build_checks(self) -> None:
         cfg = self.cfg
         lim = cfg.limits
-        self._check("internal", self._internal)
-        self._check("voltage_input", self._voltage_input)
-        self._check("current_input", self._current_input)
+        v = (self._v,)
+        # The checks that are functions of their tags only say so (``reads``): evaluated
+        # only when one of those moved (issue 13). The others are evaluated every scan.
+        self._check("internal", self._internal, reads=(self._logic_error,))
+        self._check("voltage_input", self._voltage_input, reads=v, reads_request=True)
+        self._check("current_input", self._current_input, reads=(self._i,), reads_request=True)
+        # Its tag is declared after the guard: ``reads`` once found (``_source_lost``).
         self._check("source", self._source_lost)
-        self._check("voltage_high", self._voltage_high, lim.trip_delay_s)
-        self._check("voltage_low", self._voltage_low, lim.trip_delay_s)
+        self._source_check = self._checks[-1]
+        self._check(
+            "voltage_high", self._voltage_high, lim.trip_delay_s, reads=v, reads_request=True
+        )
+        self._check("voltage_low", self._voltage_low, lim.trip_delay_s, reads=v, reads_request=True)
         if cfg.temperature_tag is not None and lim.temperature_c != (None, None):
-            self._check("temperature", self._temperature, lim.trip_delay_s)
+            self._check(
+                "temperature",
+                self._temperature,
+                lim.trip_delay_s,
+                reads=(self._temp,),
+                reads_request=True,
+            )
         for tag in cfg.permissives:
             self._check(f"permissive.{tag}", self._permissive(self.db[tag], f"permissive.{tag}"))
         delay = cfg.feedback.delay_s
@@ -140,15 +190,43 @@ class ChannelGuard:
     def evaluate(self, now: float, dt: float) -> None:
         db = self.db
         db.update(self._armed, self._power_path_closed(now))
+        set_alarm = self.alarms.set
+        gated = self._gated
+        if gated:
+            m, a, aa, mc, e, c = self._request_tags
+            request = max(m.version, a.version, aa.version, mc.version, e.version, c.version)
+        else:
+            request = 0
         for check in self._checks:
+            alarm = check.alarm
+            reads = check.reads
+            if gated and reads is not None:
+                newest = request if check.reads_request else -1
+                for tag in reads:
+                    if tag.version > newest:
+                        newest = tag.version
+                if (
+                    newest <= check.seen
+                    and (check.active or not check.why)
+                    and alarm.active is check.active
+                    and alarm.shelved_until is None
+                    and (not check.active or alarm.message == check.why)
+                ):
+                    # None of its tags changed since it was last evaluated, and it had
+                    # settled (fine, or tripped past its on-delay): the condition would
+                    # say the same, the on-delay and the alarm would stay as they are.
+                    continue
+                check.seen = newest
             why = check.condition()
             active = check.delay.update(bool(why), now)
-            was_tripped = check.alarm.tripped
-            self.alarms.set(check.alarm, active, why)
-            if check.alarm.tripped and not was_tripped:
+            check.why, check.active = why, active
+            was_tripped = alarm.tripped
+            set_alarm(alarm, active, why)
+            if alarm.tripped and not was_tripped:
                 log.error("%s: tripped: %s", self.name, why)
                 # Never re-energised on its own: the operator must enable again after reset.
                 db.update(self._enable, False)
+                request = max(request, self._enable.version)
         if self._ack.value:
             db.update(self._ack, False)
             try:
@@ -206,15 +284,14 @@ class ChannelGuard:
         """Charge and discharge magnitudes allowed this scan."""
         if self._fault.value:
             return 0.0, 0.0
-        lo, hi = self.cfg.limits.current_a
+        lo, hi = self._current_limits_a
         charge, discharge = hi, -lo
         v = self._v
-        if v.good:
-            vv = v.as_float()
-            vlo, vhi = self.cfg.limits.voltage_v
-            if vv >= vhi:
+        if v.quality is _GOOD:
+            vv = _as_float(v)
+            if vv >= self._vhi:
                 charge = 0.0
-            if vv <= vlo:
+            if vv <= self._vlo:
                 discharge = 0.0
         bms = self.cfg.bms
         if bms is not None:
@@ -231,10 +308,10 @@ class ChannelGuard:
     def _intended_a(self) -> float:
         """The current asked for (Manual setpoint, or the chain's request) — or flowing."""
         if self._mode.value == AUTO:
-            asked = self._auto.as_float() if self._auto_active.value else 0.0
+            asked = _as_float(self._auto) if self._auto_active.value else 0.0
         else:
-            asked = self._manual.as_float() if self._enable.value else 0.0
-        return asked if asked != 0.0 else self._cmd.as_float()
+            asked = _as_float(self._manual) if self._enable.value else 0.0
+        return asked if asked != 0.0 else _as_float(self._cmd)
 
     def _active(self) -> bool:
         if self._mode.value == AUTO:
@@ -260,43 +337,49 @@ class ChannelGuard:
 
     def _voltage_input(self) -> str:
         v = self._v
-        if v.good or self._intended_a() == 0.0:
+        if v.quality is _GOOD or self._intended_a() == 0.0:
             return ""
         return f"voltage input {v.quality.name} ({v.reason})"
 
     def _current_input(self) -> str:
         i = self._i
-        if i.good or self._intended_a() == 0.0:
+        if i.quality is _GOOD or self._intended_a() == 0.0:
             return ""
         return f"current input {i.quality.name} ({i.reason})"
 
     def _source_lost(self) -> str:
-        # The scan engine declares the device's status tag (after the safety phase is built).
-        connected = self.db.get(f"{self.cfg.source.device}.connected")
+        connected = self._connected
+        if connected is None:
+            # The scan engine declares the device's status tag (after the safety phase is
+            # built).
+            connected = self._connected = self.db.get(self._connected_name)
+            if connected is not None:
+                check = self._source_check
+                check.reads, check.reads_request = (connected,), True
         if connected is None or connected.value is not False or self._intended_a() == 0.0:
             return ""
         return f"source {self.cfg.source.device} lost ({connected.name} is false)"
 
     def _voltage_high(self) -> str:
-        v, hi = self._v, self.cfg.limits.voltage_v[1]
-        if v.good and self._intended_a() > 0 and v.as_float() >= hi:
+        v, hi = self._v, self._vhi
+        if v.quality is _GOOD and self._intended_a() > 0 and _as_float(v) >= hi:
             return f"voltage {v.as_float():.3f} V at or above hard limit {hi} V while charging"
         return ""
 
     def _voltage_low(self) -> str:
-        v, lo = self._v, self.cfg.limits.voltage_v[0]
-        if v.good and self._intended_a() < 0 and v.as_float() <= lo:
+        v, lo = self._v, self._vlo
+        if v.quality is _GOOD and self._intended_a() < 0 and _as_float(v) <= lo:
             return f"voltage {v.as_float():.3f} V at or below hard limit {lo} V while discharging"
         return ""
 
     def _temperature(self) -> str:
         tlo, thi = self.cfg.limits.temperature_c
         t = self._temp
-        if not t.good:
+        if t.quality is not _GOOD:
             if self._intended_a() == 0.0:
                 return ""
             return f"temperature input {t.quality.name} ({t.reason})"
-        tv = t.as_float()
+        tv = _as_float(t)
         if thi is not None and tv >= thi:
             return f"temperature {tv:.1f} degC at or above limit {thi} degC"
         if tlo is not None and tv <= tlo:
@@ -405,6 +488,12 @@ class ChannelGuard:
             if key == "temperature" and tmax is not None and x >= tmax:
                 return f"BMS temperature {x:.1f} degC at or above {tmax:g} degC"
         return ""
+
+
+def _as_float(tag: Tag) -> float:
+    """``tag.as_float()``, without the call when the value is a float already."""
+    v = tag.value
+    return v if type(v) is float else tag.as_float()
 
 
 def _derate(tag: Tag, headroom: float, band: float) -> float:

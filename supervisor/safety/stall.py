@@ -33,13 +33,19 @@ class ScanStall:
         if late is None:
             return  # no scan engine on this database (a test of the checks alone)
         self._late = late
-        late_s = late.as_float() if late.value is not None else 0.0
-        stalls = self.db.get(STALLS_TAG)
-        count = stalls.value if stalls is not None else "?"
-        why = (
-            f"scan started {late_s:.2f} s late: its event loop was held between two scans"
-            f" (stall {count} since start; see the log)"
-        )
+        v = late.value
+        late_s = (v if type(v) is float else late.as_float()) if v is not None else 0.0
+        if late_s > 0.0:
+            stalls = self.db.get(STALLS_TAG)
+            count = stalls.value if stalls is not None else "?"
+            why = (
+                f"scan started {late_s:.2f} s late: its event loop was held between two scans"
+                f" (stall {count} since start; see the log)"
+            )
+        else:
+            # An inactive alarm's message is not read (AlarmManager.set keeps the last
+            # active one): nothing to format on the scans that start on time (all but a few).
+            why = ""
         self.alarms.set(self.alarm, late_s > 0.0, why)
 
     def fail_safe(self, why: str) -> None:

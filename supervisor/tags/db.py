@@ -8,7 +8,6 @@ N is, and the database keeps no log that grows with the number of changes.
 
 from __future__ import annotations
 
-import math
 from collections import OrderedDict
 from collections.abc import Iterable, Iterator
 
@@ -16,8 +15,6 @@ from supervisor.core.driver import Value
 from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.tags.spec import Access, TagSpec
-
-_isfinite = math.isfinite
 
 
 class Tag:
@@ -132,26 +129,29 @@ class TagDB:
         """
         if tag.forced:
             return False
-        if value is not None and tag.is_float:
+        if tag.is_float and value is not None:
             if type(value) is not float:
                 try:
                     value = float(value)
                 except (TypeError, ValueError):
                     # A driver or logic handing over the wrong type is a fault, not a crash.
                     value, quality, reason = None, Quality.BAD, Reason.CONFIG_ERROR
-            if value is not None and not _isfinite(value):
+            # ``x - x == 0.0`` is ``isfinite(x)`` for a float (inf - inf and NaN - NaN are
+            # NaN), without a call: this runs for every float update of every scan.
+            if value is not None and value - value != 0.0:
                 quality, reason = Quality.BAD, Reason.OUT_OF_RANGE
-        changed = value != tag.value or quality is not tag.quality or reason is not tag.reason
-        tag.source_t = self._now if source_t is None else source_t
-        if changed:
+        now = self._now
+        tag.source_t = now if source_t is None else source_t
+        if value != tag.value or quality is not tag.quality or reason is not tag.reason:
             tag.value = value
             tag.quality = quality
             tag.reason = reason
-            tag.server_t = self._now
+            tag.server_t = now
             self.version = version = self.version + 1
             tag.version = version
             self._order.move_to_end(tag.index)
-        return changed
+            return True
+        return False
 
     def set_quality(self, tag: Tag, quality: Quality, reason: Reason) -> bool:
         return self.update(tag, tag.value, quality, reason, tag.source_t)

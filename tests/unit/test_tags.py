@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
@@ -136,3 +138,20 @@ def test_a_scaling_with_zero_span_is_refused() -> None:
         Scaling(0.0, 1.0)
     with pytest.raises(ValueError, match="zero"):
         Scaling.from_spans((1.0, 1.0), (0.0, 10.0))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-(10**300), 10**300)))
+def test_a_float_update_is_bad_out_of_range_exactly_when_the_number_is_not_finite(
+    x: float | int,
+) -> None:
+    """The update's finiteness test (``x - x != 0.0``, no call) says what ``isfinite``
+    says, for every float and for integers turned into floats."""
+    db = TagDB()
+    tag = db.add(TagSpec("x"))
+    db.update(tag, x)
+    expected = float(x)
+    if math.isfinite(expected):
+        assert (tag.value, tag.quality, tag.reason) == (expected, Quality.GOOD, Reason.NONE)
+    else:
+        assert tag.quality is Quality.BAD and tag.reason is Reason.OUT_OF_RANGE

@@ -13,8 +13,7 @@ import logging
 import threading
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import NamedTuple, Protocol, runtime_checkable
 
 from supervisor.core.clock import Clock
 from supervisor.core.errors import DeviceIOError, ProtocolError
@@ -61,9 +60,10 @@ class ThermalCell(Cell, Protocol):
     def fault(self) -> str | None: ...
 
 
-@dataclass(frozen=True, slots=True)
-class SimTransfer:
-    """One transfer seen by the simulated bus, for tests and diagnostics."""
+class SimTransfer(NamedTuple):
+    """One transfer seen by the simulated bus, for tests and diagnostics (immutable; a
+    named tuple, not a frozen dataclass: one is made per transfer, and a frozen dataclass
+    takes about five times as long to build — issue 13)."""
 
     t: float
     board: int
@@ -103,12 +103,27 @@ class SimBoard:
         # Checked once: isinstance() on a runtime protocol is too slow for every transfer.
         self._thermal: ThermalCell | None = cell if isinstance(cell, ThermalCell) else None
         self._fault_logged = False
+        # The last ADC reply, kept with the code it encodes: a cell's voltage moves by one
+        # ADC step every few minutes of a slow charge, its reply need not be encoded anew.
+        self._adc_code = -1
+        self._current_key: tuple[DacWord, bool, float, float] | None = None
+        self._current_value = 0.0
+        self._adc_reply = b""
         self.label = "Chadèche board"
         """How the log names it (the bus sets the address)."""
 
     @property
     def current_a(self) -> float:
         """Current through the cell now, + charging, − discharging."""
+        key = (self.dac_a, self.charging, self.true_current_gain, self.true_current_offset_ma)
+        if key != self._current_key:
+            # Computed again only when the DAC word, the relay or the source's error moved:
+            # it is read twice per transfer, and changes a few times per test.
+            self._current_key = key
+            self._current_value = self._current_now()
+        return self._current_value
+
+    def _current_now(self) -> float:
         word = self.dac_a
         if not word.active or word.code == 0:
             return 0.0
@@ -147,6 +162,14 @@ class SimBoard:
         v = self.cell.voltage_at(self.current_a)
         return voltage_to_adc_code(self.adc_gain * v + self.adc_offset_v)
 
+    def adc_reply(self) -> bytes:
+        """``encode_adc_reply(self.adc_code())``, encoded again only when the code moved."""
+        code = self.adc_code()
+        if code != self._adc_code:
+            self._adc_reply = encode_adc_reply(code)
+            self._adc_code = code
+        return self._adc_reply
+
     def handle(self, chip: Chip, data: bytes) -> bytes:
         """Apply one transfer (after :meth:`advance`) and return what MISO carried."""
         self.transfers += 1
@@ -160,7 +183,7 @@ class SimBoard:
         if chip == Chip.ADC:
             if len(data) != 2:  # the driver must clock exactly 16 bits
                 raise ProtocolError("chadeche-sim", "ADC read must be 2 bytes", data)
-            return encode_adc_reply(self.adc_code())
+            return self.adc_reply()
         charging = decode_latch(data)
         if charging != self.charging and self.current_a != 0.0:
             self.hot_switches += 1
@@ -198,12 +221,13 @@ class SimChadecheBus:
                 raise self.fault
             now = self.clock.now()
             sim = self.boards.get(board)
+            sent = bytes(data)
             if sim is None:
                 reply = bytes([NO_BOARD_BYTE]) * len(data)
             else:
                 sim.advance(now)
-                reply = sim.handle(chip, bytes(data))
-            self.history.append(SimTransfer(now, board, chip, bytes(data), reply))
+                reply = sim.handle(chip, sent)
+            self.history.append(SimTransfer(now, board, chip, sent, reply))
             return reply
 
     def cell_temperature_c(self, board: int) -> float | None:
