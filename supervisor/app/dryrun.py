@@ -42,6 +42,8 @@ DRY_RUN_CELL_TEMPERATURE_TAG = "cell0.temperature"
 CHUNK_S = 600.0
 """Virtual time run between two looks at the chain's state (the last chunk stops at the
 cap exactly)."""
+DRY_RUN_YIELD_SCANS = 1000
+"""Scans between two turns of the event loop in a dry run (``ScanEngine.yield_every_scans``)."""
 
 
 @dataclass
@@ -243,6 +245,8 @@ async def dry_run(
     runner.listeners.append(steps)
     await bench.engine.run_for(3 * period_s)  # first images in
     runner.command("start", actor="dry-run")
+    # Nothing else runs on this loop during a chunk (should_stop is asked between chunks).
+    bench.engine.yield_every_scans = DRY_RUN_YIELD_SCANS
     t0 = time.perf_counter()
     sim0 = clock.now()
     limit = sim0 + max_hours * 3600

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import time
 
@@ -145,3 +146,43 @@ async def test_drivers_are_polled_at_their_own_period_in_lockstep() -> None:
     engine = ScanEngine(clock, db, 0.1, [dev], inputs, outputs)
     await engine.run_for(2.0)
     assert dev.polls == 4  # t = 0, 0.5, 1.0, 1.5
+
+
+async def test_a_dry_run_engine_gives_other_tasks_a_turn_less_often_and_computes_the_same() -> None:
+    results = {}
+    for n in (1, 25):
+        clock, db, dev, inputs, outputs = make()
+        seen: list[tuple[float, object, object]] = []
+
+        def logic(
+            now: float,
+            dt: float,
+            db: TagDB = db,
+            dev: RecordingDriver = dev,
+            seen: list[tuple[float, object, object]] = seen,
+        ) -> None:
+            dev.values["ai0"] = now * 2.0  # the device follows time
+            db.update(db["out"], round(now, 6))
+            seen.append((round(now, 6), db["a"].value, db["b"].value))
+
+        engine = ScanEngine(clock, db, 0.1, [dev], inputs, outputs, [LogicPhase("l", logic)])
+        engine.yield_every_scans = n
+        turns = [0]
+        done = asyncio.Event()
+
+        async def other_task(done: asyncio.Event = done, turns: list[int] = turns) -> None:
+            while not done.is_set():
+                turns[0] += 1
+                await asyncio.sleep(0)
+
+        task = asyncio.create_task(other_task())
+        await engine.run_for(10.0)  # 100 scans
+        done.set()
+        await task
+        results[n] = (seen, turns[0], clock.now(), list(dev.writes))
+    (seen_1, turns_1, end_1, writes_1) = results[1]
+    (seen_25, turns_25, end_25, writes_25) = results[25]
+    assert len(seen_1) == 100 and seen_25 == seen_1  # the same scans, the same values
+    assert writes_25 == writes_1 and end_25 == end_1
+    assert turns_1 >= 100  # a turn every scan, as a real sleep gives
+    assert turns_25 <= 10  # a turn every 25 scans
