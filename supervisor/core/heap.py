@@ -6,10 +6,10 @@ the event loop while they do: 30–80 ms on the simulated bench (issue 13), seve
 deadlines of a 10 ms scan. Almost all of those objects are made at start-up (modules,
 the bench, the compiled recipes, the OPC UA address space) and live as long as the
 process, so once the bench is built and its first scans ran, what is alive is collected
-once and frozen (``gc.freeze``): later full passes never walk it again. The young
-generation's threshold is raised so that objects living a few scans (an asyncio handle,
-a driver's image) die young instead of being promoted, which is what makes full passes
-due in the first place.
+once and frozen (``gc.freeze``): later full passes never walk it again. Young collections
+stay short (CPython's default size: each holds the interpreter lock while it runs) and
+middle ones rare, so that objects living a few scans (an asyncio handle, a driver's image)
+die before they are promoted, which is what makes full passes due in the first place.
 
 The scan shares the interpreter lock with the publishers' threads (OPC UA server,
 historian and InfluxDB writers). A thread that wants the lock waits for the holder to
@@ -29,13 +29,18 @@ from typing import Final
 
 log = logging.getLogger(__name__)
 
-YOUNG_THRESHOLD: Final = 5_000
+YOUNG_THRESHOLD: Final = 700
 """Allocations (net of frees) of container objects between two young collections:
-CPython's default is 700. A young collection walks only the young objects still alive,
-a fraction of a millisecond here; seven times fewer of them promote seven times fewer
-short-lived objects to the older generations."""
-MIDDLE_THRESHOLD: Final = 20
-"""Young collections between two middle ones (default 10)."""
+CPython's default. A young collection holds the interpreter lock while it walks the young
+objects still alive, whichever thread runs it: at 5000 (ADR 0018's first choice) each took
+3–6 ms in issue 13's load case and a scan that met one lost that long; at 700 they take
+about 0.4 ms (load case, back to back: scan duration p99 11–16 → 8–12 ms, jitter p99 6–13
+→ 5–9 ms on the loaded machine)."""
+MIDDLE_THRESHOLD: Final = 140
+"""Young collections between two middle ones (default 10): about 100 000 allocations, as
+ADR 0018's 5000 × 20. At 10 the middle collections came every 7000 allocations and took
+3–4 ms each (load case: 67 in 20 s instead of 5), and promoted more to the old
+generation (4 full collections instead of 1)."""
 SWITCH_INTERVAL_S: Final = 0.001
 """How long a thread may hold the interpreter lock while another waits for it (CPython's
 default 5 ms; issue 13's load case, 16 channels at 10 ms with every publisher on: scan
