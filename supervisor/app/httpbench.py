@@ -8,7 +8,9 @@ scan), its ``HttpApi`` and a ``LiveHub`` on the scan's event loop, as ``supervis
 does. The clients run in a process of their own (a browser is one too): ``--http-clients``
 loops of back-to-back ``GET /api/tags`` and ``--ws-clients`` pages reading ``/api/ws``.
 In the same run it prints the scan's start jitter without clients (the reference), then
-with them, and the snapshot latency the clients saw.
+with them, and the snapshot latency the clients saw; first, on a bench of its own that is
+not scanning, the CPU one full image costs by share of the tags changed since the last one
+(``snapshot_cpu``: a wall-clock-free figure, comparable on a busy machine).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import json
 import subprocess
 import sys
 import time
-from typing import Any
+from typing import Any, Final
 
 from supervisor.app.loadgen import SignalGenerator
 from supervisor.channels import Channel, ChannelLimits
@@ -82,12 +84,46 @@ def _engine(n_tags: int, period_s: float) -> ScanEngine:
     return ScanEngine(clock, db, period_s, [gen, src], inputs, outputs, phases)
 
 
+SNAPSHOT_CHANGES: Final = (0.001, 0.1, 0.5, 1.0)
+"""Shares of the tags changed between two images for ``snapshot_cpu`` (one tag at least)."""
+
+
+async def snapshot_cpu(n_tags: int, period_s: float, images: int = 50) -> dict[float, float]:
+    """CPU seconds (this thread's) per full ``GET /api/tags`` image, by share of the tags
+    changed since the last one, on a bench of ``n_tags`` that is not scanning (nothing
+    else runs on the loop meanwhile): before each image every tag's source time moves,
+    as each poll moves it, and the share given gets a new value."""
+    from supervisor.hmi.server import TagSnapshots
+
+    engine = _engine(n_tags, period_s)
+    db, clock = engine.db, engine.clock
+    snapshots = TagSnapshots(db, clock)
+    tags = list(db)
+    await snapshots.image()
+    out: dict[float, float] = {}
+    for share in SNAPSHOT_CHANGES:
+        step = max(1, round(1 / share))
+        cpu_s = 0.0
+        for k in range(images):
+            db.set_scan_time(clock.now())
+            for tag in tags:
+                db.update(tag, tag.value)  # a poll: a new source time, no new version
+            for tag in tags[k % step :: step]:
+                db.update(tag, float(k) + tag.index * 1e-3)
+            t0 = time.thread_time()
+            await snapshots.image()
+            cpu_s += time.thread_time() - t0
+        out[share] = cpu_s / images
+    return out
+
+
 async def http_benchmark(
     n_tags: int, period_s: float, seconds: float, http_clients: int, ws_clients: int
 ) -> int:
     from supervisor.hmi.live import LiveHub
     from supervisor.hmi.server import HttpApi
 
+    cpu = await snapshot_cpu(n_tags, period_s)
     engine = _engine(n_tags, period_s)
     db, clock = engine.db, engine.clock
     api = HttpApi(db, clock, "127.0.0.1", 0)
@@ -129,6 +165,10 @@ async def http_benchmark(
     _say(
         f"http benchmark: {len(db)} tags, period {_ms(period_s)}, {seconds:g} s per phase,"
         f" {http_clients} HTTP clients (GET /api/tags back to back), {ws_clients} WebSocket"
+    )
+    _say(
+        "  snapshot build CPU per image (no scan running): "
+        + ", ".join(f"{share:.1%} changed {_ms(cpu_s)}" for share, cpu_s in cpu.items())
     )
     for phase in ("alone", "clients"):
         j = jit.by_phase.get(phase, [0.0])

@@ -40,13 +40,11 @@ from supervisor.core.clock import Clock
 from supervisor.core.records import BenchEvent
 from supervisor.hmi.auth import VALID_KEY
 from supervisor.hmi.server import (
-    TagRow,
+    Collected,
     TagSnapshots,
     alarm_json,
-    encode_rows,
     json_dumps,
     tag_json,
-    tag_row,
 )
 from supervisor.safety import AlarmEvent, AlarmManager
 from supervisor.tags import Tag, TagDB, TagSpec
@@ -174,8 +172,9 @@ class LiveHub:
     async def publish(self) -> None:
         """Send every client what changed since the version it has (and the alarms if any
         changed); drop the clients that went invalid (an expired session). The changed
-        tags are copied at once, then encoded in slices (``encode_rows``): scans may run
-        in between, and the delta still describes one version."""
+        tags are collected at once from the kept texts of the snapshots
+        (``TagFragments``), what changed encoded in slices: scans may run in between, and
+        the delta still describes one version."""
         db = self.db
         base, now_version = self._version, db.version
         for c in list(self.clients):
@@ -187,9 +186,11 @@ class LiveHub:
         alarms_changed, self._alarms_changed = self._alarms_changed, False
         if now_version != base:
             self._version = now_version
-            rows = [tag_row(t) for t in _changed(db, base)]
-            # Every client's rows are chosen now, before the first yield (one version).
-            wanted: dict[int, list[TagRow]] = {}  # since → the rows newer than it
+            tags = _changed(db, base)
+            # Every client's tags are chosen and collected now, before the first yield (one
+            # version): their kept texts, or their state copied to be encoded.
+            fragments = self.snapshots.fragments[True]
+            wanted: dict[int, Collected] = {}  # since → what to send a client at since
             todo: list[tuple[LiveClient, int]] = []
             for c in list(self.clients):
                 since = c.version
@@ -197,15 +198,17 @@ class LiveHub:
                     continue
                 if since not in wanted:
                     if since == base:  # has everything up to base: the shared delta
-                        wanted[since] = rows
+                        chosen = tags
                     elif since > base:  # joined since the last delta
-                        wanted[since] = [r for r in rows if r[6] > since]
+                        chosen = [t for t in tags if t.version > since]
                     else:  # its snapshot was encoded while a delta left: catch up
-                        wanted[since] = [tag_row(t) for t in _changed(db, since)]
+                        chosen = _changed(db, since)
+                    wanted[since] = fragments.collect(chosen)
                 c.version = now_version
                 todo.append((c, since))
             texts = {
-                since: await _delta(now_version, rs, self.clock) for since, rs in wanted.items()
+                since: _delta(now_version, await fragments.finish(*found))
+                for since, found in wanted.items()
             }
             for c, since in todo:
                 if c in self.clients:
@@ -318,8 +321,7 @@ def _version_of(tag: Tag) -> int:
     return tag.version
 
 
-async def _delta(version: int, rows: list[TagRow], clock: Clock) -> str:
-    tags = await encode_rows(rows, clock, as_map=True)
+def _delta(version: int, tags: str) -> str:
     return f'{{"type": "delta", "version": {version}, "tags": {tags}}}'
 
 
