@@ -25,7 +25,7 @@ from typing import Any, Final
 from supervisor.app.loadgen import SignalGenerator
 from supervisor.channels import Channel, ChannelLimits
 from supervisor.core.clock import RealClock
-from supervisor.core.heap import settle_after_start
+from supervisor.core.heap import collect_when_idle, settle_after_start
 from supervisor.scan import InputBinding, LogicPhase, OutputBinding, ScanEngine, ScanStats
 from supervisor.tags import TagDB, TagSpec
 
@@ -135,6 +135,7 @@ async def http_benchmark(
     for drv in engine.drivers:  # first images in place, so no channel trips
         await drv.poll()
     settle_after_start()  # as `supervisor run` does before its scan (ADR 0018)
+    engine.idle = collect_when_idle
     stop = asyncio.Event()
     scan = asyncio.get_running_loop().create_task(engine.run(stop))
     try:

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Final, NoReturn
 from supervisor.cli import ctl
 from supervisor.config.models import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
-from supervisor.core.heap import settle_after_start
+from supervisor.core.heap import collect_when_idle, settle_after_start
 
 if TYPE_CHECKING:
     from supervisor.app import Bench
@@ -199,6 +199,7 @@ async def _serve(
     # first page's allocations — walked it all on the scan's thread (60–130 ms; the
     # 0.46 s scan.stall of the browser tests on a busy machine; ADR 0019).
     settle_after_start()
+    bench.engine.idle = collect_when_idle  # the collector's turn between scans (ADR 0021)
     try:
         await bench.run(stop)
     finally:

@@ -158,6 +158,9 @@ class ScanEngine:
         self.phases = list(phases)
         self.publishers = list(publishers)
         self.stats = ScanStats()
+        self.idle: Callable[[float], object] | None = None
+        """Real clock: called after each scan with the seconds left before the next one
+        (the garbage collector's turn, ``core/heap.py::collect_when_idle``)."""
         self.yield_every_scans = 1
         """Virtual clock: let the event loop's other tasks run every this many scans (a
         dry run, with no other task to wait for, sets it high: a turn of the loop per scan
@@ -448,6 +451,11 @@ class ScanEngine:
             self._next_t = nxt
             if max_scans is not None and done >= max_scans:
                 return
+            if not clock.virtual and self.idle is not None:
+                try:
+                    self.idle(nxt - clock.now())
+                except Exception:  # the idle work's failure must not stop the scan
+                    log.exception("scan: idle work failed")
             if clock.virtual:
                 if done % self.yield_every_scans == 0 or not isinstance(clock, VirtualClock):
                     await clock.sleep_until(nxt)

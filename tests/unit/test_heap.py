@@ -15,6 +15,7 @@ from supervisor.core.heap import (
     OLD_THRESHOLD,
     SWITCH_INTERVAL_S,
     YOUNG_THRESHOLD,
+    collect_when_idle,
     settle_after_start,
 )
 
@@ -58,3 +59,40 @@ def test_a_thread_waiting_for_the_interpreter_lock_gets_it_within_a_millisecond(
     settle_after_start()
     assert SWITCH_INTERVAL_S <= 0.001
     assert sys.getswitchinterval() == pytest.approx(SWITCH_INTERVAL_S)
+
+
+@pytest.mark.usefixtures("collector")
+def test_between_scans_the_collector_takes_what_is_due_and_only_what_fits_in_the_idle_time() -> (
+    None
+):
+    settle_after_start()
+    gc.disable()  # no automatic collection meanwhile: the counts are the test's
+    try:
+        gc.collect()
+        assert collect_when_idle(0.008) == -1  # nothing due: nothing done
+        made = [[k] for k in range(YOUNG_THRESHOLD)]  # a young generation more than half full
+        assert collect_when_idle(0.0005) == -1  # the next scan is due at once: not now
+        assert collect_when_idle(0.008) == 0
+        assert gc.get_count()[0] < YOUNG_THRESHOLD // 2
+        for _ in range(MIDDLE_THRESHOLD):  # young collections enough for a middle one
+            gc.collect(0)
+        assert collect_when_idle(0.002) == -1  # a middle one needs more idle time
+        assert collect_when_idle(0.008) == 1
+        del made
+    finally:
+        gc.enable()
+
+
+async def test_the_scan_gives_its_idle_time_to_the_idle_hook_on_a_real_clock() -> None:
+    import asyncio
+
+    from supervisor.core.clock import RealClock
+    from supervisor.scan import ScanEngine
+    from supervisor.tags import TagDB
+
+    engine = ScanEngine(RealClock(), TagDB(), 0.01)
+    left: list[float] = []
+    engine.idle = left.append
+    await engine.run(asyncio.Event(), max_scans=5)
+    assert len(left) == 4  # after every scan but the last (the run ends there)
+    assert all(0.0 < s <= 0.01 for s in left)
