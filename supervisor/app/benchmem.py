@@ -175,6 +175,19 @@ def memory_benchmark(
 
 
 def _print_trace(trace_dir: Path, warmup_s: float) -> None:
+    summary = trace_dir / memtrace.SUMMARY
+    if summary.is_file():
+        _say(
+            "  memory trace (s since start: RSS; Python's, traced; SQLite's own; glibc's"
+            " heap in use and kept free; Python's blocks alive):"
+        )
+        for row in summary.read_text(encoding="utf-8").splitlines()[1:]:
+            t, rss, traced, sql, used, free, blocks = (float(v) for v in row.split("\t"))
+            _say(
+                f"    {t:7.0f} s  RSS {rss / MB:6.1f}  traced {traced / MB:6.1f}"
+                f"  SQLite {sql / MB:5.1f}  malloc {used / MB:6.1f} + {free / MB:5.1f} free (MB)"
+                f"  {blocks / 1e3:.0f}k Python blocks"
+            )
     snaps = memtrace.snapshots(trace_dir)
     if len(snaps) < 2:
         _say(f"  memory trace: fewer than two snapshots in {trace_dir}")
