@@ -13,7 +13,9 @@ cache that reached its ceiling during the run shows a smaller one at the end.
 
 ``--trace DIR`` runs the supervisor with the memory tracing switch on (core/memtrace.py:
 slower and bigger, so not the figure to record) and prints what grew, by source line,
-between the snapshot at the end of the warm-up and the last one.
+between the snapshot at the end of the warm-up and the last one, and the summary lines
+(RSS, SQLite, glibc's heap, Python's blocks). With ``SUPERVISOR_TRACEMALLOC_FRAMES=0``
+only the summary lines are written (no tracemalloc): the figures are recorded then.
 """
 
 from __future__ import annotations
@@ -137,11 +139,14 @@ def memory_benchmark(
             if code != 0:
                 _say(f"  supervisor run exited with {code}: {sup.tail()}")
     f = memory_figures(samples, warm)
+    # Summary lines only (no tracemalloc): the process runs at its normal size, the figures
+    # stand.
+    traced = trace_dir is not None and env.get(memtrace.FRAMES_ENV, "") != "0"
     cmd = f"supervisor bench memory --minutes {minutes:g}"
     _say(
         f"memory benchmark: supervisor run {io_map} ({len(channels)} channels, recipes on all),"
         f" VmRSS every {sample_s:g} s for {minutes:g} min, warm-up the first {warm:g} s"
-        + (" (memory tracing on: not the figure)" if trace_dir is not None else "")
+        + (" (memory tracing on: not the figure)" if traced else "")
     )
     _say(f"  at start-up {_both(f.start_b)}, peak {_both(f.peak_b)}")
     _say(f"  warm-up: {f.warmup_rise_b / MB:+.2f} MB in the first {warm:g} s")
@@ -153,6 +158,7 @@ def memory_benchmark(
     )
     if trace_dir is not None:
         _print_trace(trace_dir, warm)
+    if traced:
         return 0
     benchreport.record(
         f"RSS of supervisor run (sim bench, recipes) after {minutes:g} min",
@@ -190,7 +196,8 @@ def _print_trace(trace_dir: Path, warmup_s: float) -> None:
             )
     snaps = memtrace.snapshots(trace_dir)
     if len(snaps) < 2:
-        _say(f"  memory trace: fewer than two snapshots in {trace_dir}")
+        if snaps:
+            _say(f"  memory trace: one snapshot only in {trace_dir}")
         return
     # The snapshots count from the process's start, the samples from its readiness: the
     # first snapshot at or after the warm-up's end is a little later than that end.
