@@ -2,7 +2,7 @@
 version, shared by every process of the machine, built once and renamed into place, so
 that concurrent first starts, a crash while building and an asyncua upgrade never leave a
 reader with a half-written or stale shelf. The builder is a stand-in here (the real one
-runs asyncua in a child process: tests/integration/test_opcua_shelf.py)."""
+runs asyncua in a child process: tests/integration/test_opcua_standard_space_shelf.py)."""
 
 from __future__ import annotations
 
