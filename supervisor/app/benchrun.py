@@ -18,6 +18,7 @@ import sys
 import time
 import urllib.error
 import urllib.request
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -70,7 +71,14 @@ def prepare(io_map: Path, root: Path, influx_url: str | None = None) -> tuple[Pa
 class Supervisor:
     """``supervisor run COPY`` in a child process (its output in ``log_path``)."""
 
-    def __init__(self, io_map: Path, http_port: int, args: list[str], log_path: Path) -> None:
+    def __init__(
+        self,
+        io_map: Path,
+        http_port: int,
+        args: list[str],
+        log_path: Path,
+        env: Mapping[str, str] | None = None,
+    ) -> None:
         self.url = f"http://127.0.0.1:{http_port}"
         self.log_path = log_path
         self._log = log_path.open("ab")
@@ -82,6 +90,7 @@ class Supervisor:
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
             preexec_fn=stop_with_parent(),  # no supervisor left behind by a killed run
+            env=None if env is None else dict(env),
         )
         self.pid = self.proc.pid
 

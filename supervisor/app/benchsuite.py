@@ -19,7 +19,8 @@ def run(args: argparse.Namespace) -> int:
     if args.what == "memory":
         from supervisor.app.benchmem import memory_benchmark
 
-        return memory_benchmark(args.minutes, args.warmup)
+        trace = Path(args.trace) if args.trace else None
+        return memory_benchmark(args.minutes, args.warmup, trace_dir=trace)
     lines = Path(os.environ.get(benchreport.ENV) or Path(args.out) / "results.jsonl")
     js, md = benchreport.write_report(lines, Path(args.out))
     sys.stdout.write(md.read_text(encoding="utf-8"))

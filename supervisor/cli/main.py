@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Final, NoReturn
 
 from supervisor.cli import ctl
 from supervisor.config.models import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
+from supervisor.core import memtrace
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 from supervisor.core.heap import collect_when_idle, settle_after_start
 
@@ -244,6 +245,8 @@ def _dump_tasks() -> None:
 
 def cmd_run(args: argparse.Namespace) -> int:
     _setup_logging(args.log_level)
+    # A debugging switch, off unless $SUPERVISOR_TRACEMALLOC names a folder (core/memtrace.py).
+    trace = memtrace.start_from_env()
     # A bench runs for days: `kill -USR1 <pid>` prints every thread's stack to the log
     # (what a stuck supervisor is doing), without stopping it.
     with contextlib.suppress(io.UnsupportedOperation, AttributeError, ValueError):
@@ -252,7 +255,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     if not Path(args.io_map).exists():
         _err(f"{args.io_map}: no such I/O map (give a path, e.g. io_maps/sim.yaml)")
         return EXIT_USAGE
-    return asyncio.run(_run(args))
+    try:
+        return asyncio.run(_run(args))
+    finally:
+        if trace is not None:
+            trace.stop()
 
 
 # --- sim -----------------------------------------------------------------------------
@@ -861,6 +868,12 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--ws-clients", type=int, default=3, help="http: WebSocket pages")
     b.add_argument("--minutes", type=float, default=30.0, help="memory: minutes to run")
     b.add_argument("--warmup", type=float, default=None, help="load, memory: warm-up seconds")
+    b.add_argument(
+        "--trace",
+        default=None,
+        metavar="DIR",
+        help="memory: tracemalloc snapshots into DIR, what grew printed (not the figure)",
+    )
     b.add_argument("--http-rate", type=float, default=10.0, help="load: GET /api/tags per s")
     b.add_argument(
         "--clients-nice",

@@ -11,7 +11,7 @@ import pytest
 
 from supervisor.app import benchreport
 from supervisor.app.benchload import LOAD_MAP, LOAD_RECIPE, load_benchmark
-from supervisor.app.benchmem import memory_benchmark, slope_per_s
+from supervisor.app.benchmem import memory_benchmark, memory_figures, slope_per_s
 from supervisor.app.benchrun import prepare
 from supervisor.cli.main import main
 from supervisor.config.models import NetworkDevice
@@ -127,6 +127,27 @@ def test_the_growth_is_the_least_squares_slope() -> None:
     assert slope_per_s([(0, 10.0)]) == 0.0
 
 
+def test_the_memory_figures_tell_the_warm_up_from_the_growth() -> None:
+    mb = 1e6
+    # a cache filling to its ceiling during the first third, then flat: no growth
+    warm_then_flat = [(t, 100 * mb + min(t, 600.0) * 10_000) for t in range(0, 1801, 10)]
+    f = memory_figures(warm_then_flat, warmup_s=600.0)
+    assert f.warmup_rise_b == pytest.approx(6 * mb)
+    assert f.growth_b_per_10min == pytest.approx(0.0, abs=1.0)
+    assert f.start_b == 100 * mb
+    assert f.end_b == f.peak_b == 106 * mb
+    # a steady leak: the same slope after the warm-up and over the last third
+    leak = [(t, 100 * mb + t * 5_000) for t in range(0, 1801, 10)]
+    f = memory_figures(leak, warmup_s=600.0)
+    assert f.growth_b_per_10min == pytest.approx(3 * mb)
+    assert f.last_third_b_per_10min == pytest.approx(3 * mb)
+    # a cache reaching its ceiling after the warm-up: the last third shows it levelling off
+    late = [(t, 100 * mb + min(t, 1200.0) * 5_000) for t in range(0, 1801, 10)]
+    f = memory_figures(late, warmup_s=600.0)
+    assert f.last_third_b_per_10min < f.growth_b_per_10min
+    assert f.after_samples == len([p for p in late if p[0] >= 600.0])
+
+
 def test_bench_report_writes_json_and_markdown(results: Path, tmp_path: Path) -> None:
     benchreport.record("a figure", 1.5, "ms", "<= 2", "a reference")
     out = tmp_path / "bench"
@@ -141,7 +162,7 @@ def test_the_memory_benchmark_runs_the_simulated_bench_and_records_its_figures(
 ) -> None:
     assert memory_benchmark(minutes=0.1, warmup_s=2.0, sample_s=2.0) == 0
     figures = benchreport.read(results)
-    assert [f.unit for f in figures] == ["MiB", "MiB"]
+    assert [f.unit for f in figures] == ["MB", "MB"]  # issue 13's targets are in MB
     assert figures[0].measured > 0
 
 

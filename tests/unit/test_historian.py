@@ -39,7 +39,14 @@ from supervisor.publish.historian import (
     UnknownTag,
     WriterSettings,
 )
-from supervisor.publish.historian.store import connect, used_bytes
+from supervisor.publish.historian.store import (
+    CACHE_KIB,
+    CACHE_KIB_PER_TAG,
+    CACHE_MIN_KIB,
+    cache_kib,
+    connect,
+    used_bytes,
+)
 from supervisor.tags import HistorySettings, TagDB, TagSpec
 
 EPOCH = 1_767_225_600.0  # VirtualClock's default: 2026-01-01T00:00:00Z
@@ -123,6 +130,28 @@ def make(tmp_path: Path) -> Iterator[Make]:
 
 
 # --- what is stored -----------------------------------------------------------------
+
+
+def cache_kib_of(conn: sqlite3.Connection) -> int:
+    return -int(conn.execute("PRAGMA cache_size").fetchone()[0])
+
+
+def test_the_writers_page_cache_is_sized_for_the_tags_it_records_up_to_a_ceiling(
+    make: Make,
+) -> None:
+    # A page cache fills up to its size as the file grows: sized for the worst case it grew
+    # for an hour on the simulated bench (issue 13's memory figure).
+    conns: list[sqlite3.Connection] = []
+    names = [f"t{i:04d}" for i in range(600)]
+    rig = make(*(TagSpec(n) for n in names), connect_hook=conns.append)
+    assert cache_kib_of(conns[-1]) == CACHE_MIN_KIB  # no tag recorded yet
+    rig.scan({n: float(i) for i, n in enumerate(names)})
+    rig.flush()
+    recorded = conns[-1].execute("SELECT count(*) FROM tags").fetchone()[0]
+    assert recorded >= 600  # and the historian's own status tags
+    assert cache_kib_of(conns[-1]) == recorded * CACHE_KIB_PER_TAG
+    assert cache_kib(1) == CACHE_MIN_KIB
+    assert cache_kib(100_000) == CACHE_KIB  # the ceiling it had before, for every size
 
 
 def test_a_change_within_the_deadband_is_not_stored_and_one_beyond_it_is(make: Make) -> None:

@@ -49,6 +49,7 @@ from supervisor.publish.historian.store import (
     connect,
     error_name,
     on_disk_bytes,
+    size_cache,
     used_bytes,
 )
 
@@ -442,7 +443,10 @@ class HistoryWriter:
         except (sqlite3.Error, OSError) as exc:
             self._failed(exc)
             return False
-        self._ids.update(new)
+        if new:
+            self._ids.update(new)
+            with contextlib.suppress(sqlite3.Error):  # a smaller cache costs reads, no data
+                size_cache(conn, len(self._ids))
         duration = time.perf_counter() - t0
         size = on_disk_bytes(self.path)
         oldest = self._batch_oldest(samples, events)

@@ -57,6 +57,7 @@ from supervisor.publish.opcua.security import (
     actor_of,
     current_user,
 )
+from supervisor.publish.opcua.shelf import ensure_shelf
 from supervisor.publish.opcua.space import Built, build_space
 from supervisor.publish.opcua.statuses import NO_VALUE, quality_status, refusal_status
 from supervisor.tags import Access, TagDB
@@ -337,7 +338,9 @@ class OpcUaServer:
         # ConditionRefresh replays the retained alarm conditions (asyncua keeps them).
         server.iserver.bind_condition_methods = True
         self._server = server
-        await server.init()
+        # The standard address space from the machine's shared shelf: its nodes are read
+        # when first asked for instead of all kept in memory (ADR 0020; None: in memory).
+        await server.init(shelf_file=await ensure_shelf())
         server.set_endpoint(self.endpoint)
         server.set_server_name(f"bench-supervisor {s.bench}")
         server.allow_remote_admin(False)
