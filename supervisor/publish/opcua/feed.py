@@ -35,9 +35,9 @@ from supervisor.core.quality import Quality, Reason
 from supervisor.core.records import BenchEvent
 from supervisor.tags import Tag, TagDB, TagSpec
 
-SAMPLING_SLACK_S: Final = 1e-6
-"""A scan's time on a real clock is a little after its deadline, never before: a hand-over
-due at the deadline happens in that scan, not the next one."""
+SAMPLING_TOLERANCE: Final = 0.1
+"""A scan up to a tenth of the interval before a grid point hands over for it (scan times
+carry their start jitter; deadlines are exact)."""
 EVENT_QUEUE: Final = 10_000
 """Events waiting for the server at most (a burst of alarms at an e-stop is tens)."""
 
@@ -98,20 +98,27 @@ class OpcUaFeed:
         self.wake: Callable[[], None] | None = None  # set by the server once it serves
         self.sampling_interval_s = 0.0
         """Hand changes over at most this often (0: every scan); set by the server."""
-        self._due_t = float("-inf")
+        self._t0: float | None = None  # the scan time of the first hand-over
+        self._k = -1  # the grid point of the last one
         self._dropped_tag = _declare(db, "opcua.dropped", "int", "Updates and events lost")
         self._depth_tag = _declare(db, "opcua.queue_depth", "int", "Updates waiting for OPC UA")
         self._clients_tag = _declare(db, "opcua.clients", "int", "OPC UA clients connected")
 
     # --- the scan side (never blocks) ---------------------------------------------------
     def on_scan(self, db: TagDB, t: float) -> None:
-        if t + SAMPLING_SLACK_S < self._due_t:
-            return  # sampled at the server's interval: the changes wait in the tag database
         interval = self.sampling_interval_s
-        # On a grid of the interval from the first hand-over; a late scan restarts the grid
-        # instead of handing over twice in a row.
-        due = self._due_t + interval
-        self._due_t = due if due > t + SAMPLING_SLACK_S else t + interval
+        if interval > 0.0:
+            # On a grid of the interval from the first hand-over. A scan starts at its
+            # deadline or a little after (its jitter): the tolerance keeps a scan a little
+            # earlier on the grid than the first one from missing its grid point (at a
+            # 50 ms scan and interval, a grid drawn from the scans' own times handed over
+            # every other scan).
+            if self._t0 is None:
+                self._t0 = t
+            k = int((t - self._t0) / interval + SAMPLING_TOLERANCE)
+            if k <= self._k:
+                return  # sampled at the server's interval: the changes wait in the tag database
+            self._k = k
         with self._lock:
             depth, dropped = len(self._pending) + len(self._events), self.dropped
         db.update(self._dropped_tag, dropped)
