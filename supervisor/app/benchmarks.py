@@ -687,6 +687,8 @@ async def opcua_benchmark(
             {
                 "bench": "opcuabench",
                 "state_dir": str(tmp),
+                # The engine's period: the server samples the scan at it (ADR 0021).
+                "scan": {"period_s": period_s},
                 "devices": {"gen": {"driver": "chadeche", "boards": [{"address": 0}]}},
             }
         )
