@@ -300,7 +300,9 @@ class Bench:
             elif runner.state not in FINAL:
                 collector.close("supervisor stopped", runner.state.value, now=now)
         if self.summaries is not None:
-            await asyncio.to_thread(self.summaries.flush)  # every checkpoint on disk
+            # Every checkpoint on disk and the writer's thread ended (a later checkpoint,
+            # a bench started again, is written at once).
+            await asyncio.to_thread(self.summaries.stop)
         if self.historian is not None:
             await self.historian.stop()  # everything queued written: a clean stop loses none
         if self.retention is not None:
