@@ -47,6 +47,8 @@ class PolledDriver(ABC):
         self._wake = asyncio.Event()
         """Set by ``write()``: the driver's task flushes without waiting for its next poll."""
         self._connected = False
+        self._ever_connected = False
+        """Connected at least once: it may have energised outputs (:meth:`safe_state`)."""
         self._lost_logged = False
         self._backoff_s = BACKOFF_START_S
         self._next_connect_t = float("-inf")
@@ -118,6 +120,7 @@ class PolledDriver(ABC):
                     self._fail(exc, now)
                     return
                 self._connected = True
+                self._ever_connected = True
                 self._backoff_s = BACKOFF_START_S
             try:
                 await self._write_pending()
@@ -177,9 +180,38 @@ class PolledDriver(ABC):
             try:
                 await self._safe()
             except (TimeoutError, SupervisorError, OSError) as exc:
-                log.error("%s: could not reach safe state: %s", self.name, exc)
-                return str(exc).removeprefix(f"{self.name}: ") or type(exc).__name__
+                if not self._ever_connected:
+                    # Never reached: it cannot have energised anything, and connecting now
+                    # would take the unit from whoever has it.
+                    return self._unsafe(exc)
+                # The link may be gone for a reason that says nothing about the device: a
+                # stop that cancels the driver's task in the middle of an exchange closes
+                # it (issue 13's load case, stopped under load). Once, at once (no
+                # backoff: this is the stop), connect again and drive the outputs safe.
+                log.warning(
+                    "%s: safe state failed (%s); connecting again to drive the outputs safe",
+                    self.name,
+                    exc,
+                )
+                try:
+                    await self._connect()
+                    self._connected = True
+                    await self._safe()
+                except (TimeoutError, SupervisorError, OSError) as again:
+                    self._connected = False
+                    return self._unsafe(exc, again)
             return None
+
+    def _unsafe(self, exc: BaseException, again: BaseException | None = None) -> str:
+        """Why the safe state is not confirmed: the attempt's failure, and the second
+        attempt's (the device's own fallback, e.g. a watchdog, is in the first)."""
+
+        def text(e: BaseException) -> str:
+            return str(e).removeprefix(f"{self.name}: ") or type(e).__name__
+
+        why = text(exc) if again is None else f"{text(exc)}; connecting again: {text(again)}"
+        log.error("%s: could not reach safe state: %s", self.name, why)
+        return why
 
     async def close(self) -> None:
         async with self._io_cycle:

@@ -12,6 +12,7 @@ port, the watchdog after a silent socket close) stays in tests/integration/test_
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
@@ -32,7 +33,7 @@ from ea_rig import (
     reconnect_now,
     value,
 )
-from rig_transports import clock_for, on_both_transports
+from rig_transports import IN_PROCESS, clock_for, on_both_transports
 
 from supervisor.app import build_bench
 from supervisor.app.dryrun import dry_run, dry_run_config
@@ -414,6 +415,46 @@ async def test_a_silent_device_times_out_and_no_late_reply_is_taken_later(
     assert_all_good(d)
     assert value(d, "voltage") == pytest.approx(plant.supply_voltage_v, abs=0.01)
     assert value(d, "output_on") is False
+
+
+async def test_a_stop_that_cancels_a_poll_mid_exchange_still_drives_the_unit_safe() -> None:
+    """Issue 13's load case, stopped with SIGTERM: the engine cancelled the EA's task while
+    it waited for a reply, the cancellation closed the link, and the stop's safe state
+    found no link: "safe state NOT confirmed", the output left to the unit's watchdog.
+    (A real clock: on the virtual one the reply's timeout would pass at once.)"""
+    async with open_rig(IN_PROCESS, RealClock()) as rig:
+        driver = rig.make_driver(timeout_s=1.5)
+        await _cancelled_mid_exchange_then_safe(driver, rig.sim, rig.plant)
+
+
+async def _cancelled_mid_exchange_then_safe(
+    driver: EaDriver, sim: EaSimulator, plant: BenchPlant
+) -> None:
+    await charge(driver, 2.0)
+    assert plant.supply.output_on
+    sim.mute = True  # the reply the poll waits for has not come yet
+    poll = asyncio.create_task(driver.poll())
+    for _ in range(5):
+        await asyncio.sleep(0)
+    assert not poll.done()
+    poll.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await poll
+    sim.mute = False
+    assert await driver.safe_state() is None
+    assert not plant.supply.output_on
+    assert (plant.supply.curr_set_a, plant.supply.sink_curr_set_a) == (0.0, 0.0)
+
+
+async def test_a_driver_that_never_reached_its_unit_does_not_connect_to_it_at_the_stop(
+    make_driver: MakeDriver, sim: EaSimulator
+) -> None:
+    """It cannot have energised anything: the stop says it was not connected, and leaves
+    the unit to whoever has it (its front panel)."""
+    before = len(sim.lines)
+    why = await make_driver().safe_state()
+    assert why is not None and "not connected" in why
+    assert len(sim.lines) == before
 
 
 # --- watchdog --------------------------------------------------------------------------------
