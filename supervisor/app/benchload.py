@@ -2,9 +2,15 @@
 
 ``supervisor run io_maps/load16.yaml`` (16 channels, about 1000 tags, 10 ms, historian,
 InfluxDB spool to a throwaway local influxd, OPC UA) runs in a process of its own on free
-ports, benchmarks/load-cycle.yaml started on every channel. Attached for the whole window:
-10 subscribed OPC UA clients (``supervisor.app.opcuaclients``, another process) and 3
-WebSocket pages (``/api/ws``, in this process). After a warm-up the window has two halves:
+ports, benchmarks/load-cycle.yaml started on every channel. Its networked devices (the
+ADAM-5000/TCP, the EA supply, the BMS's socketcand gateway) are simulated by ``supervisor
+sim`` in another process, reached over loopback as real ones are over the bench's network
+(``--no-sim``); the Chadèche boards, on the supervisor's own SPI buses, are simulated in
+it. ``sim_in_process`` (``--sim-in-process``) runs them all inside the supervisor instead,
+as ``make run`` does: their servers then share its event loop and interpreter lock.
+Attached for the whole window: 10 subscribed OPC UA clients (``supervisor.app.opcuaclients``,
+another process) and 3 WebSocket pages (``/api/ws``, in this process). After a warm-up
+the window has two halves:
 
 1. *quiet*: those clients only;
 2. *snapshots*: the same, plus full ``GET /api/tags`` requests at ``http_rate_hz``, whose
@@ -39,7 +45,7 @@ from pathlib import Path
 from typing import Any
 
 from supervisor.app import benchreport
-from supervisor.app.benchrun import Supervisor, prepare, recipe_args
+from supervisor.app.benchrun import Simulators, Supervisor, free_port, prepare, recipe_args
 
 log = logging.getLogger(__name__)
 
@@ -235,6 +241,7 @@ def load_benchmark(
     io_map: Path = LOAD_MAP,
     recipe: Path = LOAD_RECIPE,
     clients_nice: int = CLIENTS_NICE,
+    sim_in_process: bool = False,
 ) -> int:
     """Run the load case and print (and record) its figures; 0, or 2 without influxd."""
     from supervisor.app.influxbench import _influxd, _Server
@@ -258,13 +265,23 @@ def load_benchmark(
             if cfg.influxdb is not None:  # the map's bucket (db/rp), or every write is refused
                 _create_database(influx.url, cfg.influxdb.bucket.split("/")[0])
             copy, http_port, opcua_port = prepare(io_map, root, influx.url)
-            sup = Supervisor(copy, http_port, recipe_args(channels, recipe), root / "run.log")
+            args = recipe_args(channels, recipe)
+            sims = None
+            if not sim_in_process:
+                sims = Simulators(copy, free_port(), root / "sim.log")
+                args.append("--no-sim")
+            sup = None
             try:
+                if sims is not None:
+                    sims.wait_ready()
+                sup = Supervisor(copy, http_port, args, root / "run.log")
                 sup.wait_ready()
                 if clients_nice:
                     # Started at the supervisor's priority (it inherits ours); from here on
                     # this process (the pages, the snapshots, the OPC UA clients it starts)
                     # and influxd run below it.
+                    # The simulated devices keep the supervisor's priority: real ones answer
+                    # in their own time, whatever this machine does.
                     os.setpriority(os.PRIO_PROCESS, influx.proc.pid, clients_nice)
                     os.nice(clients_nice)
                 endpoint = f"opc.tcp://127.0.0.1:{opcua_port}/supervisor"
@@ -274,9 +291,13 @@ def load_benchmark(
                     )
                 )
             finally:
-                code = sup.stop()
-                if code != 0:
-                    _say(f"  supervisor run exited with {code}: {sup.tail()}")
+                # The supervisor first: its stop drives the simulated devices safe.
+                if sup is not None:
+                    code = sup.stop()
+                    if code != 0:
+                        _say(f"  supervisor run exited with {code}: {sup.tail()}")
+                if sims is not None:
+                    sims.stop()
             history = root / "state" / (cfg.history.path if cfg.history else "history.sqlite")
             t_a, t_b, t_c = res["window"]
             dur_q = _scan_samples(history, "scan.duration_s", t_a, t_b)
@@ -298,6 +319,8 @@ def load_benchmark(
     cmd = f"supervisor bench load --seconds {seconds:g}" + (
         f" --clients-nice {clients_nice}" if clients_nice != CLIENTS_NICE else ""
     )
+    if sim_in_process:
+        cmd += " --sim-in-process"
     load1, load5, _ = os.getloadavg()
     _say(
         f"load benchmark: {io_map} — {len(channels)} channels, {res['tags']} tags, scan"
@@ -308,6 +331,10 @@ def load_benchmark(
         f" {warmup_s:g} s warm-up, {scans} scans"
         f" ({len(durations)} scan samples in the historian); machine load average"
         f" {load1:.2f} (1 min), {load5:.2f} (5 min) at the end"
+    )
+    _say(
+        "  simulated ADAM, EA and BMS: "
+        + ("inside the supervisor" if sim_in_process else "a supervisor sim process")
     )
     _say(f"  step chains at the window's end: {res['chains']}")
     if res["alarms"]:  # a chain held by an alarm no longer loads the scan as a running one

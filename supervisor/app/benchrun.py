@@ -146,6 +146,57 @@ class Supervisor:
         return int(self.proc.returncode)
 
 
+class Simulators:
+    """``supervisor sim COPY`` in a child process: the I/O map's served simulators (the
+    ADAM-5000/TCP, the EA supply, the BMS's CAN gateway) on their ports, the devices a
+    ``supervisor run COPY --no-sim`` reaches over loopback as it would reach real ones on
+    the bench's network. Its e-stop button API is on ``control_port``."""
+
+    def __init__(self, io_map: Path, control_port: int, log_path: Path) -> None:
+        self.control_url = f"http://127.0.0.1:{control_port}"
+        self.log_path = log_path
+        self._log = log_path.open("ab")
+        cmd = [sys.executable, "-m", "supervisor.cli.main", "sim", str(io_map)]
+        cmd += ["--control-port", str(control_port), "--log-level", "info"]
+        self.proc = subprocess.Popen(
+            cmd,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            preexec_fn=stop_with_parent(),
+        )
+        self.pid = self.proc.pid
+
+    def wait_ready(self, timeout_s: float = START_TIMEOUT_S) -> None:
+        """Until its plant answers (``GET /api/sim/state``): every simulator is listening."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if self.proc.poll() is not None:
+                tail = self.log_path.read_text(encoding="utf-8", errors="replace")[-2000:]
+                raise RuntimeError(f"supervisor sim exited with {self.proc.returncode}: {tail}")
+            try:
+                with urllib.request.urlopen(self.control_url + "/api/sim/state", timeout=2.0):
+                    return
+            except (urllib.error.URLError, OSError):
+                pass
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"supervisor sim did not start in {timeout_s:.0f} s")
+            time.sleep(0.2)
+
+    def stop(self) -> int:
+        """SIGTERM, SIGKILL if it does not exit."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                log.warning("supervisor sim (pid %d) did not stop: killed", self.pid)
+                self.proc.kill()
+                self.proc.wait()
+        self._log.close()
+        return int(self.proc.returncode)
+
+
 def recipe_args(channels: list[str], recipe: Path) -> list[str]:
     """``--start --recipe CH=FILE`` for every channel."""
     out = ["--start"]

@@ -15,7 +15,13 @@ def run(args: argparse.Namespace) -> int:
         from supervisor.app.benchload import load_benchmark
 
         warm = 10.0 if args.warmup is None else args.warmup
-        return load_benchmark(args.seconds, warm, args.http_rate, clients_nice=args.clients_nice)
+        return load_benchmark(
+            args.seconds,
+            warm,
+            args.http_rate,
+            clients_nice=args.clients_nice,
+            sim_in_process=args.sim_in_process,
+        )
     if args.what == "memory":
         from supervisor.app.benchmem import memory_benchmark
 

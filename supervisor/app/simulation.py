@@ -43,6 +43,14 @@ class SimulatedBench:
             except Exception:
                 log.exception("simulator %s: stop failed", name)
 
+    def release(self) -> None:
+        """After the last ``stop()``: what a simulator keeps across a stop and a start (an
+        unplugged device plugged in again) is let go."""
+        for sim in self.devices.values():
+            release = getattr(sim, "release", None)
+            if release is not None:
+                release()
+
     def addresses(self) -> list[str]:
         return [line for sim in self.devices.values() for line in sim.addresses()]
 

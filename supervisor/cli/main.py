@@ -210,6 +210,8 @@ async def _serve(
         if opcua is not None:
             await opcua.stop()
         await api.stop()
+        if bench.sim is not None:
+            bench.sim.release()  # the process ends
     if unconfirmed:
         # Said only when every device confirmed it: an unreachable supply is not "safe".
         for device, why in unconfirmed.items():
@@ -300,6 +302,7 @@ async def _sim(args: argparse.Namespace) -> int:
     finally:
         await control.stop()
         await sim.stop()
+        sim.release()
     _out("simulators stopped")
     return EXIT_OK
 
@@ -882,6 +885,11 @@ def build_parser() -> argparse.ArgumentParser:
         choices=range(20),
         metavar="0..19",
         help="load: niceness of the clients and influxd (they stand for other machines)",
+    )
+    b.add_argument(
+        "--sim-in-process",
+        action="store_true",
+        help="load: simulators inside the supervisor (default: a supervisor sim process)",
     )
     b.add_argument("--out", default="var/bench", help="report: folder of results.json|md")
     b.set_defaults(func=cmd_bench)

@@ -12,7 +12,7 @@ import pytest
 from supervisor.app import benchreport
 from supervisor.app.benchload import LOAD_MAP, LOAD_RECIPE, load_benchmark
 from supervisor.app.benchmem import memory_benchmark, memory_figures, slope_per_s
-from supervisor.app.benchrun import prepare
+from supervisor.app.benchrun import Simulators, prepare
 from supervisor.cli.main import main
 from supervisor.config.models import NetworkDevice
 from supervisor.devices.registry import load_bench
@@ -174,3 +174,24 @@ def test_the_load_benchmark_runs_the_load_case_with_its_clients_and_records_its_
     assert len(names) == 6
     assert any("GET /api/tags" in n for n in names)
     assert any("overruns" in n for n in names)
+
+
+def test_the_load_benchmark_reaches_its_networked_devices_in_a_simulator_process_and_stops_it(
+    at_root: Path, results: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    logs: list[str] = []
+    stopped_with: list[int] = []
+    real_stop = Simulators.stop
+
+    def spy(self: Simulators) -> int:
+        code = real_stop(self)  # the log is complete once it exited, before it is removed
+        logs.append(self.log_path.read_text(encoding="utf-8"))
+        stopped_with.append(code)
+        return code
+
+    monkeypatch.setattr(Simulators, "stop", spy)
+    assert load_benchmark(seconds=1.0, warmup_s=1.0, http_rate_hz=5.0) == 0
+    assert stopped_with == [0]  # stopped (SIGTERM, by its pid) after the supervisor
+    (log,) = logs
+    # The supervisor (--no-sim) reached the ADAM-5000/TCP of the other process.
+    assert "host watchdog armed" in log

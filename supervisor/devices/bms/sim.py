@@ -525,6 +525,12 @@ class SimulatedBms:
             self._virtual_bus.shutdown()
             self._virtual_bus = None
 
+    def release(self) -> None:
+        """Done with it for good (the process ends): shut the socketcand server's bus,
+        which outlives ``stop()`` so that an unplugged BMS can be plugged in again."""
+        if self.server is not None:
+            self.server.bus.shutdown()
+
     def addresses(self) -> list[str]:
         if self.server is None:
             return []
