@@ -38,6 +38,7 @@ from supervisor.publish.display import ChadecheDisplay
 from supervisor.publish.historian import Historian
 from supervisor.publish.influx import InfluxWriter
 from supervisor.publish.results import TIMELINE_KINDS, ResultCollector, SummaryWriter
+from supervisor.publish.rows import RowWriter
 from supervisor.safety import AlarmManager, SafetyPhase, build_safety
 from supervisor.scan import (
     InputBinding,
@@ -84,12 +85,15 @@ class Bench:
     summaries: SummaryWriter | None = field(init=False, default=None)
     """Test summaries rewritten off the scan's thread (real clock; None on a virtual
     clock, where they are written at once, in the order of the simulated events)."""
+    rows: RowWriter | None = field(init=False, default=None)
+    """Result rows appended off the scan's thread (real clock only, likewise)."""
     commands: CommandPath = field(init=False)
     """The one path of operator commands (HTTP, command line, the ``chN.command`` tags)."""
 
     def __post_init__(self) -> None:
         if not self.clock.virtual:
             self.summaries = SummaryWriter(f"bench {self.cfg.bench}")
+            self.rows = RowWriter(f"bench {self.cfg.bench}")
         self.commands = CommandPath(
             self.db,
             self.clock,
@@ -176,6 +180,7 @@ class Bench:
             folder,
             dba=c.source.board or 0,
             writer=self.summaries,
+            rows=self.rows,
         )
         self.attach_results(channel, collector)
         # Compiled from the text read then, which is what the retained state keeps: a
@@ -299,6 +304,9 @@ class Bench:
                 collector.close("supervisor stopped", runner.state.value, complete=False, now=now)
             elif runner.state not in FINAL:
                 collector.close("supervisor stopped", runner.state.value, now=now)
+        if self.rows is not None:
+            # Every row on disk (each test's close wrote its own) and the thread ended.
+            await asyncio.to_thread(self.rows.stop)
         if self.summaries is not None:
             # Every checkpoint on disk and the writer's thread ended (a later checkpoint,
             # a bench started again, is written at once).

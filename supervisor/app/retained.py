@@ -376,6 +376,7 @@ class Retention:
             folder,
             dba=c.source.board or 0,
             writer=self.bench.summaries,
+            rows=self.bench.rows,
         )
         # Test time 0 on this process's clock axis: the time away counts as test time.
         collector.resume(self.bench.clock.now() - (snap.test_time_s + away_s))

@@ -7,7 +7,8 @@ Layout: ``<results>/<test id>/`` with
   and the step timeline with the cause of every step change.
 
 Nothing is created before the test starts (a recipe loaded and never started leaves no
-file). Rows are flushed as they are written: a crash loses nothing already recorded. A
+file). Rows are flushed as they are written (a live test's by a thread of its own,
+:mod:`supervisor.publish.rows`): a crash loses nothing already written. A
 live test's summary is rewritten atomically (temporary file, then rename) at every event
 of its timeline and periodically (``checkpoint``), marked ``"complete": false``, so a supervisor
 killed outright leaves the last one; the final one (``"complete": true``) is written when
@@ -26,10 +27,12 @@ import time
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import IO, Any, Generic, TypeVar
 
 from supervisor.core.records import ChainEvent, Record
+from supervisor.publish.rows import RowWriter
 
 log = logging.getLogger(__name__)
 
@@ -313,6 +316,8 @@ class ResultCollector:
     _open_cycles: set[int] = field(default_factory=set)  # not known complete yet
     writer: SummaryWriter | None = None
     """Checkpoints go through it, off the caller's thread (None: written at once)."""
+    rows: RowWriter | None = None
+    """Rows go through it, off the caller's thread (None: written at once)."""
 
     def __post_init__(self) -> None:
         if self.events_kept is not None:
@@ -393,33 +398,43 @@ class ResultCollector:
         c.discharged_ah = rec.cycle_discharged_ah
         c.charged_wh = rec.cycle_charged_wh
         c.discharged_wh = rec.cycle_discharged_wh
-        if self._bdf_writer is not None and self._bdf is not None and self._cha is not None:
-            self._bdf_writer.writerow(
-                (
-                    f"{rec.test_time_s:.3f}",
-                    f"{rec.wall:.3f}",
-                    _f(rec.voltage_v),
-                    _f(rec.current_a),
-                    _f(rec.power_w),
-                    rec.cycle,
-                    rec.step_count,
-                    rec.step_id,
-                    rec.step_type,
-                    f"{rec.step_time_s:.3f}",
-                    self.records,
-                    _f(rec.charged_ah),
-                    _f(rec.discharged_ah),
-                    _f(rec.charged_ah - rec.discharged_ah),
-                    _f(rec.charged_wh),
-                    _f(rec.discharged_wh),
-                    _f(rec.cycle_charged_ah),
-                    _f(rec.cycle_discharged_ah),
-                    _f(rec.temperature_c),
-                )
+        if self._bdf_writer is not None:
+            if self.rows is not None:
+                self.rows.put(partial(self._write_row, rec, self.records))
+            else:
+                self._write_row(rec, self.records)
+
+    def _write_row(self, rec: Record, index: int) -> None:
+        """The record's BDF row and Chadèche line, each flushed (on the row writer's
+        thread when there is one)."""
+        if self._bdf_writer is None or self._bdf is None or self._cha is None:
+            return
+        self._bdf_writer.writerow(
+            (
+                f"{rec.test_time_s:.3f}",
+                f"{rec.wall:.3f}",
+                _f(rec.voltage_v),
+                _f(rec.current_a),
+                _f(rec.power_w),
+                rec.cycle,
+                rec.step_count,
+                rec.step_id,
+                rec.step_type,
+                f"{rec.step_time_s:.3f}",
+                index,
+                _f(rec.charged_ah),
+                _f(rec.discharged_ah),
+                _f(rec.charged_ah - rec.discharged_ah),
+                _f(rec.charged_wh),
+                _f(rec.discharged_wh),
+                _f(rec.cycle_charged_ah),
+                _f(rec.cycle_discharged_ah),
+                _f(rec.temperature_c),
             )
-            self._bdf.flush()
-            self._cha.write(chadeche_line(rec, self.dba) + "\n")
-            self._cha.flush()
+        )
+        self._bdf.flush()
+        self._cha.write(chadeche_line(rec, self.dba) + "\n")
+        self._cha.flush()
 
     # --- the summary -------------------------------------------------------------------
     def test_time_s(self, now: float | None = None) -> float:
@@ -490,6 +505,7 @@ class ResultCollector:
         did not end (the supervisor stops with it under way; it may resume after a
         restart), so the summary is not final."""
         s = self.summary(end_reason, state, complete=complete, now=now)
+        self._rows_written()
         if self.folder is not None and self.first_t is not None and not self.closed:
             self._write(s)
         for f in (self._bdf, self._cha):
@@ -503,12 +519,21 @@ class ResultCollector:
     def abandon(self) -> None:
         """Close the files and write nothing more (this process goes away without the
         test ending, e.g. a start-up that failed); the last summary stays as it is."""
+        self._rows_written()
         for f in (self._bdf, self._cha):
             if f is not None:
                 f.close()
         self._bdf = self._cha = None
         self._bdf_writer = None
         self.closed = True
+
+    def _rows_written(self) -> None:
+        """Every row handed over is in the files (before they close, and before the last
+        summary counts them)."""
+        if self.rows is not None and self._bdf is not None and not self.rows.flush():
+            log.error(
+                "%s: result rows still not written; the files close without them", self.channel
+            )
 
     def _write(self, summary: dict[str, Any]) -> None:
         """At once (after a checkpoint of the same file still waiting in the writer)."""

@@ -1,0 +1,104 @@
+"""Result rows appended on a thread of their own, off the scan's (issue 13).
+
+A live test's record (its logging rule: every second in the load case) was a CSV row and
+a Chadèche line formatted, written and flushed on the scan's thread: 16 channels logging
+in the same few scans cost each of them 16 × ~25 µs of formatting and 32 write calls,
+and every write call lets the interpreter lock go, to a publisher's thread that may keep
+it up to the switch interval. Here the scan hands over the row (a frozen record) and
+returns; the writer's thread formats, writes and flushes each row at once, in the order
+they were handed over. A crash loses at most the rows handed over in the last moments,
+not yet written (without it: none); a clean stop, a test's end and ``flush`` write them
+all first.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+
+log = logging.getLogger(__name__)
+
+Job = Callable[[], None]
+
+
+class RowWriter:
+    """Runs the jobs handed over (appending rows to files), one after the other, in order,
+    on a thread started at the first one. After :meth:`stop` a job runs on the caller's
+    thread at once (a test ending during the stop)."""
+
+    def __init__(self, name: str = "results") -> None:
+        self.name = name
+        self._cond = threading.Condition()
+        self._jobs: deque[Job] = deque()
+        self._running = 0  # jobs taken by the thread and not done yet
+        self._waiting = False  # the thread sleeps until the next job
+        self._stopping = False
+        self._thread: threading.Thread | None = None
+        self.done = 0
+        self.failed = 0
+
+    def put(self, job: Job) -> None:
+        """Run ``job`` soon, after every job handed over before it; returns at once."""
+        with self._cond:
+            if not self._stopping:
+                self._jobs.append(job)
+                if self._thread is None:
+                    self._thread = threading.Thread(
+                        target=self._run, name=f"{self.name}-rows", daemon=True
+                    )
+                    self._thread.start()
+                elif self._waiting:
+                    self._cond.notify_all()  # a busy thread takes it without being told
+                return
+        self._do(job)
+
+    def flush(self, timeout_s: float = 10.0) -> bool:
+        """Wait until every job handed over is done; False after ``timeout_s``."""
+        end = time.monotonic() + timeout_s
+        with self._cond:
+            while self._jobs or self._running:
+                left = end - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(left)
+        return True
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        """Run what is waiting, then end the thread; later jobs run at once."""
+        if not self.flush(timeout_s):
+            log.error("%s: result rows not written within %g s", self.name, timeout_s)
+        with self._cond:
+            self._stopping = True
+            self._cond.notify_all()
+            thread, self._thread = self._thread, None
+        if thread is not None:
+            thread.join(timeout_s)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._jobs and not self._stopping:
+                    self._waiting = True
+                    self._cond.wait()
+                    self._waiting = False
+                if not self._jobs:
+                    return
+                jobs = list(self._jobs)
+                self._jobs.clear()
+                self._running = len(jobs)
+            for job in jobs:
+                self._do(job)
+            with self._cond:
+                self._running = 0
+                self._cond.notify_all()  # flush() waits for this
+
+    def _do(self, job: Job) -> None:
+        try:
+            job()
+            self.done += 1
+        except Exception:  # one bad row must not stop the others (its file says why)
+            self.failed += 1
+            log.exception("%s: a result row could not be written", self.name)
