@@ -29,6 +29,7 @@ from supervisor.config.models import BenchConfig, LinearScaling, TagMapping
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver, DType
 from supervisor.core.errors import OperatorError
+from supervisor.core.gate import ScanGate
 from supervisor.core.records import ChainEvent, Record
 from supervisor.core.units import UNITS, Dim
 from supervisor.devices.kind import DriverWiring
@@ -87,6 +88,8 @@ class Bench:
     clock, where they are written at once, in the order of the simulated events)."""
     rows: RowWriter | None = field(init=False, default=None)
     """Result rows appended off the scan's thread (real clock only, likewise)."""
+    gate: ScanGate | None = field(init=False, default=None)
+    """Real clock: the publishers' threads keep out of the scan's way (``core/gate.py``)."""
     commands: CommandPath = field(init=False)
     """The one path of operator commands (HTTP, command line, the ``chN.command`` tags)."""
 
@@ -94,6 +97,9 @@ class Bench:
         if not self.clock.virtual:
             self.summaries = SummaryWriter(f"bench {self.cfg.bench}")
             self.rows = RowWriter(f"bench {self.cfg.bench}")
+            self.gate = self.engine.gate = ScanGate()
+            if self.influx is not None:
+                self.influx.writer.gate = self.gate
         self.commands = CommandPath(
             self.db,
             self.clock,

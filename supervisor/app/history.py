@@ -59,6 +59,7 @@ def attach_historian(bench: Bench) -> Historian | None:
         alarm=hook,
         changes=bench.change_reader(),
     )
+    historian.writer.gate = bench.gate
     feed = EventFeed()
     feed.sinks.append(historian)
     feed.attach(bench)

@@ -75,6 +75,7 @@ def build_opcua(
         views,
         threaded=threaded,
         history=history,
+        gate=bench.gate if threaded else None,  # on the scan's own loop it needs none
     )
     events = EventFeed()
     events.sinks.append(feed)

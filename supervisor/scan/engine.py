@@ -37,6 +37,7 @@ from typing import Protocol
 
 from supervisor.core.clock import Clock, VirtualClock
 from supervisor.core.driver import Driver, Sample, Value
+from supervisor.core.gate import ScanGate
 from supervisor.core.quality import Quality, Reason
 from supervisor.tags.db import Tag, TagDB
 from supervisor.tags.spec import Scaling, TagSpec
@@ -161,6 +162,10 @@ class ScanEngine:
         self.idle: Callable[[float], object] | None = None
         """Real clock: called after each scan with the seconds left before the next one
         (the garbage collector's turn, ``core/heap.py::collect_when_idle``)."""
+        self.gate: ScanGate | None = None
+        """Real clock: closed from the approach of each deadline to the end of its scan,
+        so that the threads that wait at it leave the interpreter lock to the scan
+        (``core/gate.py``)."""
         self.yield_every_scans = 1
         """Virtual clock: let the event loop's other tasks run every this many scans (a
         dry run, with no other task to wait for, sets it high: a turn of the loop per scan
@@ -400,6 +405,8 @@ class ScanEngine:
                 watch.start()
             await self._loop(stop, max_scans, until_t)
         finally:
+            if self.gate is not None:
+                self.gate.open()
             if watch is not None:
                 watch.stop()
             for t in tasks:
@@ -435,7 +442,13 @@ class ScanEngine:
             # On a virtual clock a scan is late only when something moved the clock
             # between two scans: what a held loop looks like in virtual time.
             self.note_start(late)
-            self.scan_once()
+            if self.gate is not None:
+                self.gate.close()  # already, unless this scan came without a wait
+            try:
+                self.scan_once()
+            finally:
+                if self.gate is not None:
+                    self.gate.open()
             if clock.virtual:
                 await self.flush_drivers()
             done += 1
@@ -472,6 +485,8 @@ class ScanEngine:
         last fraction of a millisecond is slept on the thread."""
         clock = self.clock
         await clock.sleep_until(t - WAKE_EARLY_S)
+        if self.gate is not None:
+            self.gate.close()  # the threads at the gate keep out of the scan's way
         spin_s = min(START_SPIN_S, self.period_s / 10)
         rest_s = t - clock.now() - spin_s
         if rest_s > 0:

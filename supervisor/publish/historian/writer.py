@@ -38,6 +38,7 @@ from collections.abc import Callable, Generator, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from supervisor.core.gate import ScanGate
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
 from supervisor.publish.changes import Sample
@@ -120,6 +121,9 @@ class HistoryWriter:
         self._stopping = False
         self._stop_deadline = math.inf
         self._thread: threading.Thread | None = None
+        self.gate: ScanGate | None = None
+        """Write a batch only while the scan is not running (``core/gate.py``; set by the
+        bench)."""
         self._conn: sqlite3.Connection | None = None
         self._check_on_connect = False
         self._ids: dict[str, int] = {}  # tag name → id, upserted on this connection
@@ -281,6 +285,8 @@ class HistoryWriter:
                         known = self._now_wall
                         retention_wall = known if known is not None else self._wall()
                 if take:
+                    if self.gate is not None:
+                        self.gate.wait()  # the batch's rows are made while no scan runs
                     ok = self._write_batch(samples, events, upto)
                     if ok:
                         next_commit = time.monotonic() + settings.commit_interval_s

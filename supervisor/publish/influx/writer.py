@@ -31,6 +31,7 @@ from pathlib import Path
 
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Value
+from supervisor.core.gate import ScanGate
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
 from supervisor.publish.changes import ChangeFeed, ChangeReader, Changes, Sample
@@ -172,6 +173,8 @@ class SpoolWriter:
         # system call and an exchange of the interpreter lock, 100 times a second (issue 13).
         self._idle = False
         self._thread: threading.Thread | None = None
+        self.gate: ScanGate | None = None
+        """Encode only while the scan is not running (``core/gate.py``; set by the bench)."""
         self.error: str | None = None
         self.commits = 0
 
@@ -320,13 +323,15 @@ class SpoolWriter:
             if not stopping:
                 self._sleep(self.commit_interval_s)
 
-    @staticmethod
-    def _encode(queued: list[tuple[str, list[str]] | _Deferred]) -> list[tuple[str, list[str]]]:
+    def _encode(
+        self, queued: list[tuple[str, list[str]] | _Deferred]
+    ) -> list[tuple[str, list[str]]]:
         items: list[tuple[str, list[str]]] = []
         for item in queued:
             if not isinstance(item, _Deferred):
                 items.append(item)
                 continue
+            self._give_way()
             try:
                 lines_by = item.encode()
             except Exception:  # a bug in one scan's encoding must not stop the spool
@@ -335,6 +340,10 @@ class SpoolWriter:
             items.extend(lines_by.items())
             time.sleep(ENCODE_YIELD_S)
         return items
+
+    def _give_way(self) -> None:
+        if self.gate is not None:
+            self.gate.wait()
 
     def _sleep(self, delay_s: float) -> None:
         end = time.monotonic() + delay_s

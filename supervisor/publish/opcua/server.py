@@ -24,6 +24,7 @@ import concurrent.futures
 import contextlib
 import gc
 import logging
+import selectors
 import threading
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
@@ -40,6 +41,7 @@ from supervisor.config.limits import RECIPE_COMPILE_TIMEOUT_S
 from supervisor.config.models import BenchConfig
 from supervisor.config.users import ROLE_ACCESS, UserStore
 from supervisor.core.clock import Clock
+from supervisor.core.gate import ScanGate
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
 from supervisor.publish.historian import HistoryQuery
@@ -155,8 +157,11 @@ class OpcUaServer:
         *,
         threaded: bool = True,
         history: HistoryQuery | None = None,
+        gate: ScanGate | None = None,
     ) -> None:
         self.settings = settings
+        self.gate = gate
+        """On its own thread: each turn of its event loop waits while a scan runs."""
         self.history = history
         self.db = db
         self.clock = clock
@@ -284,8 +289,11 @@ class OpcUaServer:
 
     # --- the server's thread -----------------------------------------------------------------
     def _thread_main(self, ready: concurrent.futures.Future[None]) -> None:
+        gate = self.gate
+        factory = None if gate is None else (lambda: asyncio.SelectorEventLoop(GatedSelector(gate)))
         try:
-            asyncio.run(self._main(ready))
+            with asyncio.Runner(loop_factory=factory) as runner:
+                runner.run(self._main(ready))
         except BaseException as exc:  # never lost: the bench's loop awaits ``ready``
             if not ready.done():
                 ready.set_exception(exc)
@@ -925,3 +933,19 @@ def _result(
     ]
     res.OutputArguments = [ua.Variant(reason, VT.String)] if out else []
     return res
+
+
+class GatedSelector(selectors.DefaultSelector):
+    """The OPC UA thread's selector: after each wait for I/O or a timer, and before the
+    event loop runs what is ready, it waits while a scan runs (``core/gate.py``). The
+    server's work (sampled values into the address space, notifications to the clients'
+    subscriptions) then runs between scans, not against them for the interpreter lock."""
+
+    def __init__(self, gate: ScanGate) -> None:
+        super().__init__()
+        self._gate = gate
+
+    def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
+        ready: list[tuple[selectors.SelectorKey, int]] = super().select(timeout)
+        self._gate.wait()
+        return ready

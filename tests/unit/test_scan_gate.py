@@ -1,0 +1,114 @@
+"""The scan's right of way (issue 13, ``core/gate.py``): the scan engine closes the gate
+from the approach of a deadline to the end of its scan; the publishers' threads that wait
+at it (the OPC UA server's event loop, the InfluxDB spool's encoder, the historian's
+writer) do their work between scans, and are only ever delayed, never stopped."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from pathlib import Path
+
+from supervisor.core.clock import RealClock
+from supervisor.core.gate import ScanGate
+from supervisor.publish.influx.spool import Spool
+from supervisor.publish.influx.writer import SpoolWriter
+from supervisor.publish.opcua.server import GatedSelector
+from supervisor.scan.engine import LogicPhase, ScanEngine
+from supervisor.tags import TagDB
+from supervisor.testing import wait_until
+
+LIMIT_S = 10.0  # an upper bound for a slow machine, not a timing claim
+
+
+async def test_a_thread_waits_at_a_closed_gate_and_goes_on_when_it_opens() -> None:
+    gate = ScanGate(max_wait_s=60.0)
+    gate.close()
+    passed = threading.Event()
+
+    def worker() -> None:
+        gate.wait()
+        passed.set()
+
+    t = threading.Thread(target=worker)
+    t.start()
+    await wait_until(lambda: gate.waits == 1, "the worker at the gate", LIMIT_S)
+    assert not passed.is_set()
+    gate.open()
+    await asyncio.to_thread(t.join, LIMIT_S)
+    assert passed.is_set()
+
+
+def test_an_open_gate_does_not_hold_anyone_and_a_closed_one_only_for_a_while() -> None:
+    gate = ScanGate(max_wait_s=0.01)
+    gate.wait()
+    assert gate.waits == 0
+    gate.close()  # an engine that stopped with it closed: the others are only delayed
+    gate.wait()
+    assert gate.waits == 1 and not gate.is_open
+
+
+async def test_on_a_real_clock_the_gate_is_closed_while_each_scan_runs_and_open_after() -> None:
+    db = TagDB()
+    seen: list[bool] = []
+    engine = ScanEngine(
+        RealClock(),
+        db,
+        0.01,
+        phases=[LogicPhase("look", lambda now, dt: seen.append(engine.gate.is_open))],  # type: ignore[union-attr]
+    )
+    engine.gate = ScanGate()
+    await engine.run(asyncio.Event(), max_scans=5)
+    assert seen == [False] * 5
+    assert engine.gate.is_open
+
+
+async def test_the_opc_ua_threads_event_loop_runs_nothing_while_a_scan_runs() -> None:
+    gate = ScanGate(max_wait_s=60.0)
+    loop = asyncio.SelectorEventLoop(GatedSelector(gate))
+    ran = threading.Event()
+    thread = threading.Thread(target=loop.run_forever)
+    thread.start()
+    try:
+        await wait_until(loop.is_running, "the server's loop", LIMIT_S)
+        gate.close()
+        loop.call_soon_threadsafe(ran.set)  # a client's request arrives during the scan
+        await wait_until(lambda: gate.waits >= 1, "the loop at the gate", LIMIT_S)
+        assert not ran.is_set()
+        gate.open()
+        await wait_until(ran.is_set, "the request served after the scan", LIMIT_S)
+    finally:
+        gate.open()
+        loop.call_soon_threadsafe(loop.stop)
+        await asyncio.to_thread(thread.join, LIMIT_S)
+        loop.close()
+
+
+async def test_the_influx_spool_encodes_a_scans_samples_only_once_the_scan_is_done(
+    tmp_path: Path,
+) -> None:
+    gate = ScanGate(max_wait_s=60.0)
+    writer = SpoolWriter(
+        Spool(tmp_path / "spool.sqlite", 10_000_000),
+        commit_interval_s=0.01,
+        chunk_points=1000,
+        max_queue_points=10_000,
+    )
+    writer.gate = gate
+    encoded = threading.Event()
+
+    def encode() -> dict[str, list[str]]:
+        encoded.set()
+        return {"channel": ["channel,bench=b,channel=ch0 voltage=1.2 1"]}
+
+    writer.start()
+    try:
+        gate.close()
+        writer.put_deferred(1, encode)
+        await wait_until(lambda: gate.waits >= 1, "the encoder at the gate", LIMIT_S)
+        assert not encoded.is_set()
+        gate.open()
+        await wait_until(encoded.is_set, "encoded after the scan", LIMIT_S)
+    finally:
+        gate.open()
+        await asyncio.to_thread(writer.stop)
