@@ -36,11 +36,16 @@ objects still alive, whichever thread runs it: at 5000 (ADR 0018's first choice)
 3–6 ms in issue 13's load case and a scan that met one lost that long; at 700 they take
 about 0.4 ms (load case, back to back: scan duration p99 11–16 → 8–12 ms, jitter p99 6–13
 → 5–9 ms on the loaded machine)."""
-MIDDLE_THRESHOLD: Final = 140
-"""Young collections between two middle ones (default 10): about 100 000 allocations, as
-ADR 0018's 5000 × 20. At 10 the middle collections came every 7000 allocations and took
-3–4 ms each (load case: 67 in 20 s instead of 5), and promoted more to the old
-generation (4 full collections instead of 1)."""
+MIDDLE_THRESHOLD: Final = 1000
+"""Young collections between two middle ones (default 10): about 700 000 allocations. A
+middle collection walks every container object allocated since the last one that is
+still alive, whatever the threshold (the others were freed by their reference counts):
+in issue 13's load case the samples queued for the historian and InfluxDB, 10–13 ms a
+pass. At 140 (about 100 000 allocations) that came 28 times a minute, each a late scan,
+and 3 full passes followed (24–82 ms); at 1000, 4 times a minute and no full pass in the
+minute (load case, back to back). At 10 they came every 7000 allocations and promoted
+more to the old generation. Cyclic garbage waits longer to be collected: a few seconds'
+worth more, bounded."""
 SWITCH_INTERVAL_S: Final = 0.001
 """How long a thread may hold the interpreter lock while another waits for it (CPython's
 default 5 ms; issue 13's load case, 16 channels at 10 ms with every publisher on: scan
