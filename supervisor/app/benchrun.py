@@ -134,16 +134,9 @@ class Supervisor:
 
     def stop(self) -> int:
         """SIGTERM (every output safe, publishers flushed), SIGKILL if it does not exit."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                log.warning("supervisor run (pid %d) did not stop: killed", self.pid)
-                self.proc.kill()
-                self.proc.wait()
+        code = _terminate(self.proc, "supervisor run")
         self._log.close()
-        return int(self.proc.returncode)
+        return code
 
 
 class Simulators:
@@ -185,16 +178,22 @@ class Simulators:
 
     def stop(self) -> int:
         """SIGTERM, SIGKILL if it does not exit."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                log.warning("supervisor sim (pid %d) did not stop: killed", self.pid)
-                self.proc.kill()
-                self.proc.wait()
+        code = _terminate(self.proc, "supervisor sim")
         self._log.close()
-        return int(self.proc.returncode)
+        return code
+
+
+def _terminate(proc: subprocess.Popen[bytes], what: str) -> int:
+    """Stop a child by its pid: SIGTERM, then SIGKILL after ``STOP_TIMEOUT_S``."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            log.warning("%s (pid %d) did not stop: killed", what, proc.pid)
+            proc.kill()
+            proc.wait()
+    return int(proc.returncode)
 
 
 def recipe_args(channels: list[str], recipe: Path) -> list[str]:
