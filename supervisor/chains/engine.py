@@ -398,7 +398,8 @@ class ChainRunner:
             return
         voltage = port.voltage
         if voltage.quality is _GOOD:
-            conditions.observe(now, _as_float(voltage))
+            x = voltage.value
+            conditions.observe(now, x if type(x) is float else voltage.as_float())
         index = r.step
         step = program.steps[index]
         behaviour = self._behaviours[index]
@@ -692,8 +693,11 @@ class ChainRunner:
         assert self._log_rules is not None
         r, port = self._r, self.port
         vt, it = port.voltage, port.current
-        v = _as_float(vt) if vt.quality is _GOOD else None
-        i = _as_float(it) if it.quality is _GOOD else None
+        # ``_as_float`` inlined: every running scan asks whether a record is due.
+        x = vt.value
+        v = (x if type(x) is float else vt.as_float()) if vt.quality is _GOOD else None
+        x = it.value
+        i = (x if type(x) is float else it.as_float()) if it.quality is _GOOD else None
         if not reason:
             reason = self._log_rules.reason(step.index, now, r, v, i)
             if not reason:
