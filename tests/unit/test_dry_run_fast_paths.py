@@ -3,11 +3,13 @@
 behaviour only what it answers differently from a rest step gives the same records,
 events and end as one that computes and asks everything every scan, on the shipped
 recipes; the cell's voltage computed inline is the one its methods compute, bit for bit;
-the simulated board's current from its cache is the one computed afresh; and a dry run
+the simulated board's current from its cache is the one computed afresh; the driver's
+lock test is asyncio's; and a dry run
 settles the heap for the run and leaves the collector as it found it."""
 
 from __future__ import annotations
 
+import asyncio
 import gc
 import sys
 from pathlib import Path
@@ -25,10 +27,12 @@ from supervisor.chains.engine import ChainRunner
 from supervisor.chains.port import ChannelPort
 from supervisor.chains.program import CompiledStep
 from supervisor.chains.run import RunState
+from supervisor.chains.sampling import LogRules
 from supervisor.channels import Channel, ChannelLimits
 from supervisor.config.recipe import load_recipe_text
 from supervisor.core.quality import Quality, Reason
 from supervisor.core.records import Record
+from supervisor.devices.chadeche.driver import _free
 from supervisor.devices.chadeche.protocol import DacChannel, DacWord
 from supervisor.devices.chadeche.sim import SimBoard
 from supervisor.sim.battery import NiMHCell
@@ -246,3 +250,69 @@ async def test_a_dry_run_settles_the_heap_for_the_run_and_puts_it_back() -> None
     finally:
         gc.unfreeze()
     assert outcome(settled) == outcome(unsettled)
+
+
+async def test_a_lock_is_free_exactly_when_acquiring_it_would_not_wait() -> None:
+    lock = asyncio.Lock()
+
+    def plain() -> bool:  # what _free reads, through the public surface
+        waiters = lock._waiters
+        return not lock.locked() and (waiters is None or all(w.cancelled() for w in waiters))
+
+    assert _free(lock) is plain() is True  # never used: no deque of waiters yet
+    await lock.acquire()
+    assert _free(lock) is plain() is False  # held
+    waiter = asyncio.ensure_future(lock.acquire())
+    await asyncio.sleep(0)
+    assert _free(lock) is plain() is False  # held, a task waiting
+    lock.release()
+    await waiter
+    lock.release()
+    assert lock._waiters is not None and not lock._waiters
+    assert _free(lock) is plain() is True  # waited for once: an empty deque
+
+
+def moved(x: float | None, last: float | None, delta: float | None) -> bool:
+    """A logging rule's ΔV / ΔI as it was written before the reason was inlined."""
+    return delta is not None and x is not None and last is not None and abs(x - last) >= delta
+
+
+maybe = st.one_of(st.none(), st.floats(-2.0, 2.0))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.one_of(st.none(), st.sampled_from([1.0, 60.0])),
+    st.one_of(st.none(), st.sampled_from([0.001, 0.01])),
+    st.one_of(st.none(), st.sampled_from([0.01, 0.1])),
+    st.floats(0.0, 200.0),
+    maybe,
+    maybe,
+    maybe,
+    maybe,
+)
+def test_a_records_reason_is_the_rules_answer(
+    period: float | None,
+    dv: float | None,
+    di: float | None,
+    now: float,
+    v: float | None,
+    i: float | None,
+    last_v: float | None,
+    last_i: float | None,
+) -> None:
+    text = "recipe: r\nsteps:\n  - {id: a, rest: 1 h}\n"
+    recipe, pos = load_recipe_text(text)
+    program = compile_recipe(recipe, pos, "<recipe>")
+    rules = LogRules(program)
+    rules._rules = ((period, dv, di),)
+    run = RunState(last_rec_t=100.0, last_rec_v=last_v, last_rec_i=last_i)
+    if period is not None and now - run.last_rec_t >= period - 1e-9:
+        expected = "period"
+    elif moved(v, last_v, dv):
+        expected = "delta_v"
+    elif moved(i, last_i, di):
+        expected = "delta_i"
+    else:
+        expected = ""
+    assert rules.reason(0, now, run, v, i) == expected
