@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import gc
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -228,6 +229,18 @@ def test_the_boards_cached_current_is_the_one_computed_afresh(ops: list[tuple[An
         assert board.current_a == board._current_now()  # the cached answer, read again
 
 
+@pytest.fixture
+def nothing_frozen() -> Iterator[None]:
+    """A process where nothing is frozen (an earlier test of this process may have settled
+    the heap: freezing only changes what the collector walks, not what a test sees)."""
+    frozen = gc.get_freeze_count()
+    gc.unfreeze()
+    yield
+    if frozen:
+        gc.freeze()
+
+
+@pytest.mark.usefixtures("nothing_frozen")
 async def test_a_dry_run_settles_the_heap_for_the_run_and_puts_it_back() -> None:
     thresholds, switch_s = gc.get_threshold(), sys.getswitchinterval()
     assert gc.get_freeze_count() == 0
