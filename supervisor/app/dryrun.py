@@ -15,8 +15,11 @@ files (``results_dir``) are written row by row as the run goes.
 
 from __future__ import annotations
 
+import gc
+import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,6 +33,7 @@ from supervisor.config.limits import DRY_RUN_CYCLES_KEPT, DRY_RUN_EVENTS_KEPT
 from supervisor.config.models import BenchConfig
 from supervisor.config.recipe import load_recipe, load_recipe_text
 from supervisor.core.clock import VirtualClock
+from supervisor.core.heap import settle_after_start
 from supervisor.core.records import Record
 from supervisor.core.units import parse_quantity
 from supervisor.devices.registry import bench_from_data
@@ -247,14 +251,15 @@ async def dry_run(
     runner.command("start", actor="dry-run")
     # Nothing else runs on this loop during a chunk (should_stop is asked between chunks).
     bench.engine.yield_every_scans = DRY_RUN_YIELD_SCANS
-    t0 = time.perf_counter()
-    sim0 = clock.now()
-    limit = sim0 + max_hours * 3600
-    while runner.state not in TERMINAL and clock.now() < limit:
-        if should_stop is not None and should_stop():
-            break
-        await bench.engine.run_for(min(CHUNK_S, limit - clock.now()))
-    wall = time.perf_counter() - t0
+    with settled_heap():
+        t0 = time.perf_counter()
+        sim0 = clock.now()
+        limit = sim0 + max_hours * 3600
+        while runner.state not in TERMINAL and clock.now() < limit:
+            if should_stop is not None and should_stop():
+                break
+            await bench.engine.run_for(min(CHUNK_S, limit - clock.now()))
+        wall = time.perf_counter() - t0
     finished = runner.state in TERMINAL
     runner.listeners.remove(steps)  # the shutdown's last scans are not part of the run
     end = runner.end_reason
@@ -283,6 +288,29 @@ async def dry_run(
         max_hours=max_hours,
         steps_omitted=sequence.omitted,
     )
+
+
+@contextmanager
+def settled_heap() -> Iterator[bool]:
+    """The heap settled for the run, as ``supervisor run`` settles it after start-up
+    (``core/heap.py::settle_after_start``: collect, freeze what is alive, the collector's
+    thresholds and the switch interval; ADR 0018 "Dry run"), and put back as it was after:
+    ``dry_run`` is also called in long-lived processes (the HMI's preview worker, tests),
+    which must not keep every object of each run frozen. Settled only when nothing else
+    froze objects in this process (un-freezing would also release theirs); yields whether
+    it settled. Nothing a run computes depends on it: only when the collector runs."""
+    if gc.get_freeze_count() != 0:
+        yield False
+        return
+    thresholds = gc.get_threshold()
+    switch_s = sys.getswitchinterval()
+    settle_after_start()
+    try:
+        yield True
+    finally:
+        gc.unfreeze()
+        gc.set_threshold(*thresholds)
+        sys.setswitchinterval(switch_s)
 
 
 def cap_message(max_hours: float, snap: ChainSnapshot, program: Program) -> str:

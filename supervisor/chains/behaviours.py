@@ -39,6 +39,14 @@ class StepBehaviour:
     # rated capacity, seed 001's progress bar); None for steps without one.
     progress_current_a: float | None = None
     entry: Action | None = None
+    # What the running scan must ask of this behaviour (issue 13: one call fewer each for
+    # the many steps that answer the base class's constant): ``limits`` gives limits of
+    # its own, ``scan`` does work, ``done`` can end the step, ``setpoint`` depends on the
+    # step time or the voltage. A subclass that overrides one of them says so here.
+    has_limits: bool = False
+    has_scan: bool = False
+    has_done: bool = False
+    setpoint_varies: bool = False
 
     def __init__(self, step: CompiledStep) -> None:
         self.step = step
@@ -70,6 +78,8 @@ class Rest(StepBehaviour):
 
 class Sleep(StepBehaviour):
     """Chadèche's timed sleep (``+HH:MM`` as a step): no current for ``sleep_s``."""
+
+    has_done = True
 
     def done(self, step_time_s: float) -> str:
         s = self.step.sleep_s
@@ -103,6 +113,8 @@ class ConstantVoltage(StepBehaviour):
 class ConstantPower(StepBehaviour):
     """CP regulated in software: I = P / V from the last GOOD voltage."""
 
+    setpoint_varies = True
+
     def setpoint(self, step_time_s: float, voltage_v: float | None) -> float:
         p = self.step.power_w
         if p is None or voltage_v is None or voltage_v <= MIN_POWER_VOLTAGE_V:
@@ -113,6 +125,8 @@ class ConstantPower(StepBehaviour):
 class Pulse(StepBehaviour):
     """A train of ``pulse_count`` pulses (``pulse_on_s`` at the current, ``pulse_off_s``
     at rest), measuring the DC internal resistance of each pulse."""
+
+    has_scan = has_done = setpoint_varies = True
 
     def __init__(self, step: CompiledStep) -> None:
         super().__init__(step)
@@ -170,6 +184,8 @@ class Pulse(StepBehaviour):
 class Profile(StepBehaviour):
     """A drive-cycle profile (seed 002): rows of time and current, each with its own
     V/I/T window, repeated ``profile_repeat`` times."""
+
+    has_limits = has_done = setpoint_varies = True
 
     def __init__(self, step: CompiledStep) -> None:
         super().__init__(step)

@@ -58,6 +58,29 @@ class ConditionValues:
         self._parameters_over = {
             k: v for k, v in self._parameters.items() if k in CHANNEL_VALUE_NAMES
         }
+        # ``read``: the values the running chain reads (``values_read``): those its
+        # conditions name, the three readings the limits and behaviours look at and the
+        # step time. The others are not computed there (issue 13: a 25 h dry run computes
+        # the dict 87 000 times and reads three or four of its fifteen channel values).
+        read = names_read(program) | {"voltage", "current", "temperature", "step_time"}
+        self.read = frozenset(read)
+        self._read_values: Values = {}
+        self._need = tuple(
+            name in read
+            for name in (
+                "power",
+                "charge",
+                "energy",
+                "step_charge",
+                "step_energy",
+                "cycle_time",
+                "test_time",
+                "cycle",
+                "dv_dt",
+                "delta_peak",
+                "peak_voltage",
+            )
+        )
 
     def restart(self) -> None:
         """A step starts: its peak and its dV/dt window start again."""
@@ -130,6 +153,93 @@ class ConditionValues:
             values["dv_dt"] = None
         values["delta_peak"] = (peak - v) if (peak is not None and v is not None) else None
         values["peak_voltage"] = peak
+        if self._parameters_over:
+            values.update(self._parameters_over)
+        if self._tag_names:
+            db = self._db
+            for name in self._tag_names:
+                tag = db.get(name)
+                tv = tag.value if tag is not None and tag.good else None
+                values[name] = (
+                    tv
+                    if isinstance(tv, bool | float)
+                    else float(tv)
+                    if isinstance(tv, int)
+                    else None
+                )
+        return values
+
+    def values_read(self, now: float, run: RunState) -> Values:
+        """:meth:`values` for the names in ``read`` (what the running chain reads: its
+        conditions, limits and behaviours); the other channel values are absent or stale.
+        The same dict every scan, filled again: read it before the next scan, never keep
+        it."""
+        port = self._port
+        good = Quality.GOOD
+        vt, i, t = port.voltage, port.current, port.temperature
+        x = vt.value
+        v = (x if type(x) is float else vt.as_float()) if vt.quality is good else None
+        values = self._read_values
+        if not values:
+            values.update(dict.fromkeys(CHANNEL_VALUE_NAMES))
+            values.update(self._parameters)
+        values["voltage"] = v
+        x = i.value
+        values["current"] = (x if type(x) is float else i.as_float()) if i.quality is good else None
+        x = t.value
+        values["temperature"] = (
+            (x if type(x) is float else t.as_float()) if t.quality is good else None
+        )
+        values["step_time"] = now - run.t_step0
+        (
+            power,
+            charge,
+            energy,
+            step_charge,
+            step_energy,
+            cycle_time,
+            test_time,
+            cycle,
+            dv_dt,
+            delta_peak,
+            peak_voltage,
+        ) = self._need
+        if power:
+            p = port.power
+            x = p.value
+            values["power"] = (
+                (x if type(x) is float else p.as_float()) if p.quality is good else None
+            )
+        if charge or step_charge:
+            q = _as_float(port.charge_ah)
+            if charge:
+                values["charge"] = self._initial_charge_ah + q - run.q0_ah
+            if step_charge:
+                values["step_charge"] = q - run.step_q0
+        if energy or step_energy:
+            e = _as_float(port.energy_wh)
+            if energy:
+                values["energy"] = e
+            if step_energy:
+                values["step_energy"] = e - run.step_e0
+        if cycle_time:
+            values["cycle_time"] = now - run.t_cycle0
+        if test_time:
+            values["test_time"] = now - run.t_test0
+        if cycle:
+            values["cycle"] = float(run.cycle)
+        if dv_dt:
+            ts = self._dv_t  # self.dv_dt(), inlined
+            if len(ts) >= 2 and ts[-1] - ts[0] >= DV_DT_MIN_SPAN_S:
+                vs = self._dv_v
+                values["dv_dt"] = (vs[-1] - vs[0]) / (ts[-1] - ts[0])
+            else:
+                values["dv_dt"] = None
+        if delta_peak:
+            peak = self.peak_v
+            values["delta_peak"] = (peak - v) if (peak is not None and v is not None) else None
+        if peak_voltage:
+            values["peak_voltage"] = self.peak_v
         if self._parameters_over:
             values.update(self._parameters_over)
         if self._tag_names:

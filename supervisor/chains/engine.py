@@ -92,6 +92,11 @@ CHAIN_FIELDS = (
 class ChainRunner:
     """Executes a Program on one channel. Runs as a scan logic phase before the channel."""
 
+    _fast = True
+    """The running scan computes only the condition values the program reads and asks a
+    behaviour only what it answers differently from a rest step (docs/adr/0018, "Dry
+    run"); False only in the tests that check it against asking everything every scan."""
+
     def __init__(self, port: ChannelPort, db: TagDB, clock: Clock) -> None:
         self.port = port
         self.db = db
@@ -115,6 +120,8 @@ class ChainRunner:
         self._started: list[int] = []
         # Set at load: one behaviour per step, the condition values, the logging rules.
         self._behaviours: tuple[StepBehaviour, ...] = ()
+        self._instant: tuple[bool, ...] = ()
+        self._setpoints: tuple[float | None, ...] = ()
         self._conditions: ConditionValues | None = None
         self._log_rules: LogRules | None = None
         self._limits: tuple[LimitCheck, ...] = ()
@@ -187,6 +194,11 @@ class ChainRunner:
         self.program = program
         # Each step's behaviour is chosen once, here: the scan never looks at a kind name.
         self._behaviours = behaviours_for(program.steps)
+        self._instant = tuple(step.instant for step in program.steps)
+        # A behaviour whose setpoint is a constant: asked once, here (``_outputs``).
+        self._setpoints = tuple(
+            None if b.setpoint_varies else b.setpoint(0.0, None) for b in self._behaviours
+        )
         self._conditions = ConditionValues(self.port, self.db, program)
         self._log_rules = LogRules(program)
         lim = program.limits
@@ -386,10 +398,12 @@ class ChainRunner:
             return
         voltage = port.voltage
         if voltage.quality is _GOOD:
-            conditions.observe(now, _as_float(voltage))
-        step = program.steps[r.step]
-        behaviour = self._behaviours[r.step]
-        if step.instant:
+            x = voltage.value
+            conditions.observe(now, x if type(x) is float else voltage.as_float())
+        index = r.step
+        step = program.steps[index]
+        behaviour = self._behaviours[index]
+        if self._instant[index]:  # step.instant
             self._carry_on(step, now)  # held in a goto chain, resumed (ADR 0011)
             return
         if r.sleep_until_t is not None:
@@ -400,16 +414,21 @@ class ChainRunner:
             r.sleep_until_t = r.sleep_then = None
             self._goto(nxt, "woke up", now)
             return
-        values = conditions.values(now, r)
+        # Only the values this chain reads (its conditions, limits and behaviours).
+        fast = self._fast
+        values = conditions.values_read(now, r) if fast else conditions.values(now, r)
         st = values["step_time"]
         assert isinstance(st, float)
         # Recipe limits (and the step's own, e.g. a profile row's): hold, latched alarm;
         # armed once the power path is closed (the battery is what they are about).
-        why = (
-            self._limit_violation(values, step, behaviour.limits(st))
-            if port.armed.value is True  # port.limits_armed
-            else ""
-        )
+        if port.armed.value is not True:  # not port.limits_armed
+            why = ""
+        elif behaviour.has_limits or not fast:
+            why = self._limit_violation(values, step, behaviour.limits(st))
+        elif self._limits:
+            why = self._limit_violation(values, step, ())
+        else:
+            why = ""
         if self._limit_delay.update(bool(why), now):
             self._alarm(why)
             self._set_state(State.HOLDING, why)
@@ -453,17 +472,19 @@ class ChainRunner:
                 if tr.condition.evaluate(values) is True:
                     self._act(tr.action, f"group {grp.id} until #{tr.index}: {tr.text}", now)
                     return
-        v, i = values["voltage"], values["current"]
-        resistance = behaviour.scan(
-            st, v if isinstance(v, float) else None, i if isinstance(i, float) else None
-        )
-        if resistance is not None:
-            self._set("internal_resistance", resistance)
-            self._emit("message", f"DC internal resistance {resistance * 1000:.1f} mohm")
-        done = behaviour.done(st)
-        if done:
-            self._act(Action(ActionKind.NEXT), done, now)
-            return
+        if behaviour.has_scan or not fast:
+            v, i = values["voltage"], values["current"]
+            resistance = behaviour.scan(
+                st, v if isinstance(v, float) else None, i if isinstance(i, float) else None
+            )
+            if resistance is not None:
+                self._set("internal_resistance", resistance)
+                self._emit("message", f"DC internal resistance {resistance * 1000:.1f} mohm")
+        if behaviour.has_done or not fast:
+            done = behaviour.done(st)
+            if done:
+                self._act(Action(ActionKind.NEXT), done, now)
+                return
         if step.duration_s is not None and st >= step.duration_s - EPS_S:
             self._act(Action(ActionKind.NEXT), "duration elapsed", now)
             return
@@ -655,11 +676,15 @@ class ChainRunner:
     # --- outputs, records, tags -----------------------------------------------------------------
     def _outputs(self) -> None:
         running = self.state in ENERGISED and not self._alarm_latched
-        interlocked = bool(self._interlock_tag.value)
-        amps = self.setpoint() if running and not interlocked else 0.0
-        cv = 0.0
+        amps = cv = 0.0
         if running and self.program is not None and self._r.sleep_until_t is None:
-            cv = self._behaviours[self._r.step].cv_target_v
+            # ``self.setpoint()`` (Running, a program, no sleep pending), with a constant
+            # setpoint taken as it is: asking for it again gives the same.
+            index = self._r.step
+            if not self._interlock_tag.value:
+                amps_now = self._setpoints[index] if self._fast else None
+                amps = self.setpoint() if amps_now is None else amps_now
+            cv = self._behaviours[index].cv_target_v
         self.port.request(amps, cv, running)
 
     def _record(self, now: float, step: CompiledStep, reason: str = "") -> None:
@@ -668,8 +693,11 @@ class ChainRunner:
         assert self._log_rules is not None
         r, port = self._r, self.port
         vt, it = port.voltage, port.current
-        v = _as_float(vt) if vt.quality is _GOOD else None
-        i = _as_float(it) if it.quality is _GOOD else None
+        # ``_as_float`` inlined: every running scan asks whether a record is due.
+        x = vt.value
+        v = (x if type(x) is float else vt.as_float()) if vt.quality is _GOOD else None
+        x = it.value
+        i = (x if type(x) is float else it.as_float()) if it.quality is _GOOD else None
         if not reason:
             reason = self._log_rules.reason(step.index, now, r, v, i)
             if not reason:

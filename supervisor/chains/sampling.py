@@ -36,16 +36,17 @@ class LogRules:
         period, dv, di = self._rules[step_index]
         if period is not None and now - run.last_rec_t >= period - EPS_S:
             return "period"
-        if _moved(v, run.last_rec_v, dv):
-            return "delta_v"
-        if _moved(i, run.last_rec_i, di):
-            return "delta_i"
+        # ΔV / ΔI: has the reading moved by the rule's delta since the last record? (Asked
+        # every running scan: no call.)
+        if dv is not None and v is not None:
+            last = run.last_rec_v
+            if last is not None and abs(v - last) >= dv:
+                return "delta_v"
+        if di is not None and i is not None:
+            last = run.last_rec_i
+            if last is not None and abs(i - last) >= di:
+                return "delta_i"
         return ""
-
-
-def _moved(x: float | None, last: float | None, delta: float | None) -> bool:
-    """A logging rule's ΔV / ΔI: has the value moved by ``delta`` since the last record?"""
-    return delta is not None and x is not None and last is not None and abs(x - last) >= delta
 
 
 def build_record(

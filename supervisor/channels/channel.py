@@ -275,7 +275,10 @@ class Channel:
         # Power: a value computed from a Bad input is Bad.
         good = Quality.GOOD
         if v.quality is good and i.quality is good:
-            p = _as_float(v) * _as_float(i)
+            x, y = v.value, i.value  # _as_float(v) * _as_float(i), without the calls
+            p = (x if type(x) is float else v.as_float()) * (
+                y if type(y) is float else i.as_float()
+            )
             update(self.power, p)
             self._prev_p = p
         else:
@@ -303,18 +306,31 @@ class Channel:
         """Ah/Wh with a zero-order hold: the current read last scan flowed during ``dt``."""
         update = self.db.update
         i_prev, p_prev = self._prev_i, self._prev_p
+        # ``_as_float(tag)`` inlined (``x if type(x) is float else tag.as_float()``): five
+        # calls fewer every scan of every channel.
         if dt > 0 and i_prev is not None:
             dq = i_prev * dt / 3600.0
-            update(self.charge_ah, _as_float(self.charge_ah) + dq)
-            side = self.charged_ah if dq >= 0 else self.discharged_ah
-            update(side, _as_float(side) + abs(dq))
+            tag = self.charge_ah
+            x = tag.value
+            update(tag, (x if type(x) is float else tag.as_float()) + dq)
+            tag = self.charged_ah if dq >= 0 else self.discharged_ah
+            x = tag.value
+            update(tag, (x if type(x) is float else tag.as_float()) + abs(dq))
             if p_prev is not None:
                 de = p_prev * dt / 3600.0
-                update(self.energy_wh, _as_float(self.energy_wh) + de)
-                eside = self.charged_wh if de >= 0 else self.discharged_wh
-                update(eside, _as_float(eside) + abs(de))
+                tag = self.energy_wh
+                x = tag.value
+                update(tag, (x if type(x) is float else tag.as_float()) + de)
+                tag = self.charged_wh if de >= 0 else self.discharged_wh
+                x = tag.value
+                update(tag, (x if type(x) is float else tag.as_float()) + abs(de))
         current = self.current
-        self._prev_i = _as_float(current) if current.quality is Quality.GOOD else None
+        x = current.value
+        self._prev_i = (
+            (x if type(x) is float else current.as_float())
+            if current.quality is Quality.GOOD
+            else None
+        )
 
     def _active(self) -> bool:
         """Whether the channel's power stage should be energised (before trips)."""

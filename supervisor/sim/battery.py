@@ -524,8 +524,10 @@ class NiMHCell(_LumpedCell):
     def voltage_at(self, current_a: float) -> float:
         temp = self._temp_c
         soc = self._soc
-        factor = self._arrhenius(temp)
-        ocv = self._ocv(soc, temp)
+        # ``self._arrhenius(temp)`` and ``self._ocv(soc, temp)``, the same expressions
+        # without the calls (a board reads the voltage every poll; test_battery_reuse.py).
+        factor = math.exp(self._arrhenius_b_k * (1.0 / (temp + _KELVIN_OFFSET) - 1.0 / _T_REF_K))
+        ocv = _NIMH_OCV(soc) + _NIMH_TEMPCO_V_PER_K * (temp - 25.0)
         eta = self._overpotential(current_a, soc, temp, factor)
         self._at = (current_a, soc, temp, self._reversed, factor, ocv, eta)
         return ocv + eta

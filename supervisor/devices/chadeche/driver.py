@@ -117,8 +117,11 @@ class _Board:
 def _free(lock: asyncio.Lock) -> bool:
     """``lock`` would be acquired without yielding: nobody holds it and no task waits for
     it (``asyncio.Lock.acquire``'s own test, on its waiters: a waiting task goes first)."""
+    # ``lock.locked()`` is ``lock._locked``; an empty deque of waiters (a lock that was
+    # waited for once) has nobody waiting: both read without a call (three times a poll).
     waiters = lock._waiters
-    return not lock.locked() and (waiters is None or all(w.cancelled() for w in waiters))
+    locked: bool = lock._locked  # type: ignore[attr-defined]
+    return not locked and (not waiters or all(w.cancelled() for w in waiters))
 
 
 class ChadecheDriver(PolledDriver):

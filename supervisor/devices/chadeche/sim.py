@@ -30,6 +30,8 @@ from supervisor.devices.chadeche.protocol import (
 )
 
 log = logging.getLogger(__name__)
+_DAC, _ADC = Chip.DAC, Chip.ADC
+"""The chips as module constants: an enum member is a class attribute lookup per use."""
 
 NO_BOARD_BYTE = 0xFF
 """What MISO reads when no board answers (assumed pulled up / floating high)."""
@@ -115,6 +117,17 @@ class SimBoard:
     @property
     def current_a(self) -> float:
         """Current through the cell now, + charging, − discharging."""
+        key = self._current_key
+        if (
+            key is not None
+            and key[0] is self.dac_a
+            and key[1] is self.charging
+            and key[2] is self.true_current_gain
+            and key[3] is self.true_current_offset_ma
+        ):
+            # The very objects of the last computation (a DAC word is frozen): the same
+            # current, without building the key to compare (issue 13: read twice a poll).
+            return self._current_value
         key = (self.dac_a, self.charging, self.true_current_gain, self.true_current_offset_ma)
         if key != self._current_key:
             # Computed again only when the DAC word, the relay or the source's error moved:
@@ -173,14 +186,14 @@ class SimBoard:
     def handle(self, chip: Chip, data: bytes) -> bytes:
         """Apply one transfer (after :meth:`advance`) and return what MISO carried."""
         self.transfers += 1
-        if chip == Chip.DAC:
+        if chip == _DAC:
             word = decode_dac_word(dac_word_from_bytes(data))
             if word.channel == DacChannel.A:
                 self.dac_a = word
             else:
                 self.dac_b = word
             return bytes(len(data))  # the MCP4922 has no data output
-        if chip == Chip.ADC:
+        if chip == _ADC:
             if len(data) != 2:  # the driver must clock exactly 16 bits
                 raise ProtocolError("chadeche-sim", "ADC read must be 2 bytes", data)
             return self.adc_reply()
@@ -239,8 +252,12 @@ class SimChadecheBus:
             sim = self.boards.get(board)
             if sim is None:
                 return None
-            sim.advance(self.clock.now())
-            return sim.temperature_c
+            now = self.clock.now()
+            last_t = sim._last_t
+            if last_t is None or now > last_t:  # else advance(now) would do nothing
+                sim.advance(now)
+            thermal = sim._thermal  # sim.temperature_c
+            return None if thermal is None else thermal.temperature_c
 
     def advance(self) -> None:
         """Bring every cell up to ``clock.now()`` without a transfer."""
