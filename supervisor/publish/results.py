@@ -106,8 +106,10 @@ def chadeche_line(rec: Record, dba: int) -> str:
     )
 
 
-@dataclass
+@dataclass(slots=True)
 class CycleSummary:
+    """One cycle's figures (slots: a live test keeps up to ``LIVE_CYCLES_KEPT``)."""
+
     cycle: int
     charged_ah: float = 0.0
     discharged_ah: float = 0.0
