@@ -16,16 +16,30 @@ slower and bigger, so not the figure to record) and prints what grew, by source 
 between the snapshot at the end of the warm-up and the last one, and the summary lines
 (RSS, SQLite, glibc's heap, Python's blocks). With ``SUPERVISOR_TRACEMALLOC_FRAMES=0``
 only the summary lines are written (no tracemalloc): the figures are recorded then.
+
+``--trace DIR --virtual`` (:func:`virtual_trace`) finds what grows without that cost to
+the figure: the same bench and recipes built in this process (``build_bench(...,
+in_process=True)``: the drivers linked to their simulators, the historian and the
+retained state on, no OPC UA or HTTP server) on the virtual clock, a snapshot at every
+simulated minute. tracemalloc slows it, but on the virtual clock nothing goes stale: a
+traced ``supervisor run`` on a loaded two-core machine stalls, its inputs go stale, its
+channels trip and hold, and what the recipes make (timelines, chain events) stops
+growing (seen in this session's traces). It cannot see the servers' memory nor C's
+(SQLite, glibc): the summary lines of ``--trace`` do.
 """
 
 from __future__ import annotations
 
+import asyncio
+import math
 import os
 import sys
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+import yaml
 
 from supervisor.app import benchreport
 from supervisor.app.benchrun import START_TIMEOUT_S, Supervisor, prepare, recipe_args
@@ -205,3 +219,82 @@ def _print_trace(trace_dir: Path, warmup_s: float) -> None:
     first = after[0] if after[0] != snaps[-1][1] else snaps[-2][1]
     for line in memtrace.compare(first, snaps[-1][1]):
         _say(f"  {line}")
+
+
+def virtual_trace(
+    minutes: float,
+    warmup_s: float | None,
+    trace_dir: Path,
+    io_map: Path = SIM_MAP,
+    recipe: Path = RECIPE,
+    frames: int = memtrace.DEFAULT_FRAMES,
+) -> int:
+    """``supervisor bench memory --trace DIR --virtual``: the bench of ``io_map`` with
+    ``recipe`` on every channel, in process on the virtual clock, a tracemalloc snapshot
+    into ``trace_dir`` at every simulated minute; prints the traced memory per minute and
+    what grew from the end of the warm-up (default: a third) to the end, by source file
+    and by line. Nothing is recorded (not issue 13's figure)."""
+    _say(
+        f"memory trace on the virtual clock: {io_map} in process, {recipe} on every channel,"
+        f" {minutes:g} simulated minutes, snapshots in {trace_dir}"
+    )
+    trace_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="bench-memory-virtual-") as tmp:
+        root = Path(tmp)
+        data = yaml.safe_load(io_map.read_text(encoding="utf-8"))
+        data["state_dir"] = str(root / "state")
+        if isinstance(data.get("opcua"), dict):
+            data["opcua"]["enabled"] = False  # a server thread of its own: not on this clock
+        data.pop("influxdb", None)
+        copy = root / io_map.name
+        copy.write_text(yaml.safe_dump(data, allow_unicode=True, sort_keys=False), "utf-8")
+        minute_b = asyncio.run(_run_virtual(minutes, trace_dir, copy, recipe, frames))
+    for k, traced_b in enumerate(minute_b, 1):
+        _say(f"    {k:4d} min  traced {traced_b / MB:7.2f} MB")
+    snaps = memtrace.snapshots(trace_dir)
+    if len(snaps) < 2:
+        _say("  fewer than two snapshots: nothing to compare")
+        return 0
+    warm_min = minutes / 3 if warmup_s is None else warmup_s / 60.0
+    after = [p for t, p in snaps if t >= warm_min * 60.0] or [snaps[-2][1]]
+    first = after[0] if after[0] != snaps[-1][1] else snaps[-2][1]
+    for key in ("filename", "lineno"):
+        for line in memtrace.compare(first, snaps[-1][1], key=key):
+            _say(f"  {line}")
+    return 0
+
+
+async def _run_virtual(
+    minutes: float, trace_dir: Path, io_map: Path, recipe: Path, frames: int
+) -> list[int]:
+    import gc
+    import tracemalloc
+
+    from supervisor.app import build_bench
+    from supervisor.core.clock import VirtualClock
+    from supervisor.devices.registry import load_bench
+
+    bench = build_bench(load_bench(io_map), VirtualClock(), in_process=True)
+    bench.retain()
+    bench.record_history()
+    out: list[int] = []
+    try:
+        await bench.start()
+        for channel in bench.runners:
+            bench.load_recipe(channel, recipe)
+        await bench.engine.run_for(1.0)  # the first images in
+        for runner in bench.runners.values():
+            runner.command("start", actor="bench memory --virtual")
+        tracemalloc.start(max(1, frames))
+        for k in range(1, math.ceil(minutes) + 1):
+            await bench.engine.run_for(60.0)
+            if bench.historian is not None:  # its queue written: not counted as growth
+                await asyncio.to_thread(bench.historian.writer.flush)
+            gc.collect()
+            path = trace_dir / f"snap-{k * 60.0:010.3f}s{memtrace.SUFFIX}"
+            tracemalloc.take_snapshot().filter_traces(memtrace.IGNORED).dump(str(path))
+            out.append(tracemalloc.get_traced_memory()[0])
+    finally:
+        tracemalloc.stop()
+        await bench.shutdown()  # the historian, the retained state and the simulators too
+    return out

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from supervisor.app import benchreport
+from supervisor.core.errors import ConfigError
 
 
 def run(args: argparse.Namespace) -> int:
@@ -26,6 +27,12 @@ def run(args: argparse.Namespace) -> int:
         from supervisor.app.benchmem import memory_benchmark
 
         trace = Path(args.trace) if args.trace else None
+        if args.virtual:
+            from supervisor.app.benchmem import virtual_trace
+
+            if trace is None:
+                raise ConfigError("bench memory --virtual: give --trace DIR (the snapshots)")
+            return virtual_trace(args.minutes, args.warmup, trace)
         return memory_benchmark(args.minutes, args.warmup, trace_dir=trace)
     lines = Path(os.environ.get(benchreport.ENV) or Path(args.out) / "results.jsonl")
     js, md = benchreport.write_report(lines, Path(args.out))

@@ -17,6 +17,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from supervisor.publish.results import read_timeline
 from supervisor.scan import ScanStats
 
 
@@ -300,10 +301,12 @@ def kill_restart(
             if why:
                 res.problems.append(f"held by an alarm: {why}")
             test_id = tag(url, f"{ch}.chain.test_id")
-            summary = _read_summary(workdir / "var" / "results" / test_id / "summary.json")
+            folder = workdir / "var" / "results" / test_id
+            summary = _read_summary(folder / "summary.json")
+            # Every event, in the timeline file (the summary has the first and the latest).
             res.restart_noted = any(
                 str(e.get("text", "")).startswith("supervisor restarted after")
-                for e in summary.get("timeline", [])
+                for e in read_timeline(folder)
             )
             res.bdf_continues, res.bdf_backwards_ah = _bdf_continuity(
                 workdir / "var" / "results" / test_id / f"{test_id}.bdf.csv"

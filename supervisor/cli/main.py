@@ -877,6 +877,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="DIR",
         help="memory: tracemalloc snapshots into DIR, what grew printed (not the figure)",
     )
+    b.add_argument(
+        "--virtual",
+        action="store_true",
+        help="memory --trace: the bench in process on the virtual clock (minutes simulated)",
+    )
     b.add_argument("--http-rate", type=float, default=10.0, help="load: GET /api/tags per s")
     b.add_argument(
         "--clients-nice",

@@ -47,7 +47,7 @@ COLUMNS: Final = (
 """Of ``summary.tsv``: ``py_blocks`` is ``sys.getallocatedblocks()`` (Python's objects
 alive, counted without tracemalloc)."""
 
-_IGNORED: Final = (tracemalloc.Filter(False, tracemalloc.__file__),)
+IGNORED: Final = (tracemalloc.Filter(False, tracemalloc.__file__),)
 """Only the tracer's own memory; the imports' (``<frozen importlib._bootstrap_external>``:
 code objects) are part of what the process holds."""
 
@@ -88,7 +88,7 @@ class MemTrace:
         path: Path | None = None
         if tracemalloc.is_tracing():
             path = self.folder / f"snap-{elapsed_s:010.3f}s{SUFFIX}"
-            tracemalloc.take_snapshot().filter_traces(_IGNORED).dump(str(path))
+            tracemalloc.take_snapshot().filter_traces(IGNORED).dump(str(path))
         traced_b, _ = tracemalloc.get_traced_memory()
         summary = self.folder / SUMMARY
         new = not summary.exists()

@@ -1,8 +1,9 @@
 """The test endpoints of the HTTP API, for the Tests screen (issue 12).
 
 A test is a folder of the results directory (``<state_dir>/results/<test id>/``, written by
-``publish/results.py``: ``<id>.bdf.csv``, ``<id>.chadeche.csv``, ``summary.json``) or a
-test under way on a channel (its collector, live).
+``publish/results.py``: ``<id>.bdf.csv``, ``<id>.chadeche.csv``, ``<id>.timeline.jsonl``,
+``<id>.cycles.jsonl``, ``summary.json``) or a test under way on a channel (its collector,
+live).
 
 - ``GET /api/tests``: every test, newest first: ``{"tests": [{"id", "channel", "recipe",
   "started", "ended", "state", "end_reason", "running", "complete", "duration_s",
@@ -11,7 +12,9 @@ test under way on a channel (its collector, live).
   summary is final (else null). A test under way takes its state from its chain.
 - ``GET /api/tests/{id}``: the same entry with the summary's ``records``, ``timeline`` and
   ``cycles: [{"cycle", "charge_ah", "discharge_ah", "efficiency", ...}]`` (as the dry-run
-  preview gives them); a test under way's summary as it stands.
+  preview gives them; of a long test the first and the latest, ``timeline_omitted`` and
+  ``cycles_omitted`` count the others, which its ``.jsonl`` files hold); a test under
+  way's summary as it stands.
 - ``GET /api/tests/{id}/files/{name}``: one of its listed files as an attachment
   (``Content-Disposition``), 404 for anything else.
 
@@ -38,7 +41,12 @@ from supervisor.chains.engine import ChainRunner
 from supervisor.chains.states import ACTIVE
 from supervisor.core.clock import Clock
 from supervisor.hmi.recipes_api import _dumps, cycle_json, timeline_json
-from supervisor.publish.results import SUMMARY_NAME, ResultCollector
+from supervisor.publish.results import (
+    CYCLES_SUFFIX,
+    SUMMARY_NAME,
+    TIMELINE_SUFFIX,
+    ResultCollector,
+)
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +55,13 @@ __all__ = ["ID_PATTERN", "TestsApi", "TestsConfig", "add_test_routes", "file_kin
 ID_PATTERN: Final = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
 """A test id or one of its file names: no folder, no leading dot, no ``..`` (checked too)."""
 
-CONTENT_TYPES: Final = {"bdf": "text/csv", "chadeche": "text/csv", "summary": "application/json"}
+CONTENT_TYPES: Final = {
+    "bdf": "text/csv",
+    "chadeche": "text/csv",
+    "summary": "application/json",
+    "timeline": "application/x-ndjson",
+    "cycles": "application/x-ndjson",
+}
 
 
 def valid_id(name: str) -> bool:
@@ -59,6 +73,10 @@ def file_kind(name: str) -> str:
         return "bdf"
     if name.endswith(".chadeche.csv"):
         return "chadeche"
+    if name.endswith(TIMELINE_SUFFIX):
+        return "timeline"
+    if name.endswith(CYCLES_SUFFIX):
+        return "cycles"
     if name == SUMMARY_NAME:
         return "summary"
     return "other"
@@ -193,6 +211,9 @@ class TestsApi:
             entry["cycles"] = [cycle_json(c) for c in summary.get("cycles", [])]
             entry["cycles_omitted"] = summary.get("cycles_omitted", 0)
             entry["timeline"] = [timeline_json(e) for e in summary.get("timeline", [])]
+            # A long test's summary has its first and latest events (ADR 0022): every
+            # one is in its timeline file, listed in ``files``.
+            entry["timeline_omitted"] = summary.get("timeline_omitted", 0)
         return entry
 
     def _listing(self, live: Mapping[str, _Live]) -> list[dict[str, Any]]:

@@ -1,19 +1,27 @@
-"""Result files per test: BDF CSV, the Chadèche ``;`` line, and a summary.
+"""Result files per test: BDF CSV, the Chadèche ``;`` line, the timeline, and a summary.
 
 Layout: ``<results>/<test id>/`` with
 - ``<test id>.bdf.csv`` — Battery Data Format columns (positive current charges);
 - ``<test id>.chadeche.csv`` — seed 000 §III.E.2 result lines, for continuity;
+- ``<test id>.timeline.jsonl`` — every timeline event (a step change with its cause, a
+  state change, an alarm, an operator command), one JSON object a line, as it happens;
+- ``<test id>.cycles.jsonl`` — every cycle's capacity, energy and efficiencies, one JSON
+  object a line, written once the cycle is over (the next one started, or the test ended);
 - ``summary.json`` — capacity and energy per cycle, efficiencies, duration, end reason,
-  and the step timeline with the cause of every step change.
+  and the step timeline with the cause of every step change: of a long test the first
+  and the latest ones only (``LIVE_EVENTS_KEPT``, ``LIVE_CYCLES_KEPT``), with the count of
+  those between; the two ``.jsonl`` files hold them all (ADR 0022).
 
 Nothing is created before the test starts (a recipe loaded and never started leaves no
-file). Rows are flushed as they are written (a live test's by a thread of its own,
-:mod:`supervisor.publish.rows`): a crash loses nothing already written. A
-live test's summary is rewritten atomically (temporary file, then rename) at every event
-of its timeline and periodically (``checkpoint``), marked ``"complete": false``, so a supervisor
-killed outright leaves the last one; the final one (``"complete": true``) is written when
-the test ends. After a restart the files of a resumed test continue in the same folder
-(``resume``): rows append, the record index and the timeline go on.
+file); the data files are opened at the first record. Rows are flushed as they are
+written (a live test's by a thread of its own, :mod:`supervisor.publish.rows`): a crash
+loses nothing already written. A live test's summary is rewritten atomically (temporary
+file, then rename) at every event of its timeline and periodically (``checkpoint``),
+marked ``"complete": false``, so a supervisor killed outright leaves the last one; the
+final one (``"complete": true``) is written when the test ends. After a restart the files
+of a resumed test continue in the same folder (``resume``): rows append, the record index,
+the timeline and the cycles go on. What a test keeps in memory is bounded whatever its
+length (issue 13: a week-long test is not a growing process).
 """
 
 from __future__ import annotations
@@ -37,9 +45,23 @@ from supervisor.publish.rows import RowWriter
 log = logging.getLogger(__name__)
 
 SUMMARY_NAME = "summary.json"
-SUMMARY_FORMAT = 2
+TIMELINE_SUFFIX = ".timeline.jsonl"
+CYCLES_SUFFIX = ".cycles.jsonl"
+SUMMARY_FORMAT = 3
 """2: ``complete``, ``duration_s`` as the test time at the end, efficiencies only for a
-cycle with both a charge and a discharge (``efficiency_note`` says why not)."""
+cycle with both a charge and a discharge (``efficiency_note`` says why not). 3 (ADR
+0022): a live test's timeline and cycles are the first and the latest ones
+(``timeline_omitted`` events after the first ``timeline_omitted_at``, ``cycles_omitted``),
+every one of them in ``<id>.timeline.jsonl`` and ``<id>.cycles.jsonl``."""
+
+LIVE_EVENTS_KEPT = 200
+"""Timeline events a live test keeps in memory and in its summary: the first 100 (how the
+test began) and the latest 100 (what it is doing), what the Tests screen shows; every
+event is in the timeline file. Full after 200 step changes (8 minutes of
+benchmarks/load-cycle.yaml, whose steps last 1 to 4 s)."""
+LIVE_CYCLES_KEPT = 100
+"""Cycles a live test keeps in memory and in its summary (the first 50 and the latest
+50), besides the one under way; every cycle is in the cycles file."""
 
 MIN_HALF_CYCLE_FRACTION = 0.01
 """A charge (or discharge) smaller than this fraction of the other side of its cycle is
@@ -87,8 +109,10 @@ def chadeche_line(rec: Record, dba: int) -> str:
     )
 
 
-@dataclass
+@dataclass(slots=True)
 class CycleSummary:
+    """One cycle's figures (slots: a live test keeps up to ``LIVE_CYCLES_KEPT``)."""
+
     cycle: int
     charged_ah: float = 0.0
     discharged_ah: float = 0.0
@@ -280,16 +304,83 @@ def write_summary(path: Path, channel: str, summary: dict[str, Any]) -> None:
         log.exception("%s: cannot write %s", channel, path)
 
 
+PENDING_EVENTS_MAX = 32
+"""Timeline events that may wait for the first record before the timeline file is opened
+anyway (a test held before its first step, an operator's commands meanwhile)."""
+
+
+def read_jsonl(path: Path) -> Iterator[dict[str, Any]]:
+    """The objects of a JSON-lines result file, in order (none if there is no file). A
+    line that is not a JSON object (the last one, cut short by a power cut) is skipped
+    with a warning naming the file and the line."""
+    try:
+        f = path.open(encoding="utf-8")
+    except FileNotFoundError:
+        return
+    with f:
+        for n, line in enumerate(f, 1):
+            if not line.strip():
+                continue
+            try:
+                obj = json.loads(line)
+            except ValueError as exc:
+                log.warning("%s:%d: not a JSON line (%s); skipped", path, n, exc)
+                continue
+            if isinstance(obj, dict):
+                yield obj
+            else:
+                log.warning("%s:%d: not a JSON object; skipped", path, n)
+
+
+def read_timeline(folder: Path) -> Iterator[dict[str, Any]]:
+    """Every timeline event of the test in ``folder``: its timeline file, or the summary's
+    timeline for a test recorded before there were timeline files (summary format 2)."""
+    files = sorted(folder.glob(f"*{TIMELINE_SUFFIX}"))
+    if files:
+        yield from read_jsonl(files[0])
+        return
+    try:
+        summary = json.loads((folder / SUMMARY_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return
+    if isinstance(summary, dict):
+        yield from summary.get("timeline", [])
+
+
+def _open_jsonl(path: Path) -> IO[str]:
+    """``path`` opened to append lines; a last line cut short (a power cut) is ended first
+    so that the next line is whole (``read_jsonl`` skips the broken one)."""
+    f = path.open("a", encoding="utf-8")
+    try:
+        with path.open("rb") as r:
+            size = r.seek(0, 2)
+            if size > 0:
+                r.seek(size - 1)
+                if r.read(1) != b"\n":
+                    f.write("\n")
+                    f.flush()
+    except OSError:
+        f.close()
+        raise
+    return f
+
+
+def _line(obj: dict[str, Any]) -> str:
+    return json.dumps(obj, ensure_ascii=False) + "\n"
+
+
 @dataclass
 class ResultCollector:
-    """Keeps the timeline and per-cycle figures in memory; writes files if given a folder.
+    """Writes a test's result files and keeps what its summary shows, bounded.
 
     The owner of a live test calls ``checkpoint`` at every timeline event and periodically
     (the summary of the test under way); a dry run only calls ``close``. ``events_kept``
-    and ``cycles_kept`` (a dry run's ``DRY_RUN_EVENTS_KEPT``, ``DRY_RUN_CYCLES_KEPT``) bound
-    what is kept in memory to the first and the last halves; the summary then counts the
-    rest (``timeline_omitted`` after the first ``timeline_omitted_at`` events,
-    ``cycles_omitted``). None: everything is kept (a live test's record).
+    and ``cycles_kept`` bound what is kept in memory to the first and the latest halves
+    (a live test's ``LIVE_EVENTS_KEPT``, ``LIVE_CYCLES_KEPT``; a dry run's
+    ``DRY_RUN_EVENTS_KEPT``, ``DRY_RUN_CYCLES_KEPT``); the summary then counts the rest
+    (``timeline_omitted`` after the first ``timeline_omitted_at`` events,
+    ``cycles_omitted``). Every event and every cycle goes to the files (with a folder).
+    None: everything is kept in memory too.
     """
 
     channel: str
@@ -299,7 +390,9 @@ class ResultCollector:
     dba: int = 0
     records: int = 0
     timeline: list[dict[str, Any]] = field(default_factory=list)
+    """The timeline when ``events_kept`` is None (else empty: see ``kept_timeline``)."""
     cycles: dict[int, CycleSummary] = field(default_factory=dict)
+    """The cycles kept (``cycles_kept``) and the ones under way, by number."""
     first_t: float | None = None  # Clock.now() of the test start (test time 0)
     last_t: float | None = None  # the latest event or record
     last_rec: Record | None = None
@@ -308,12 +401,18 @@ class ResultCollector:
     _bdf: IO[str] | None = None
     _bdf_writer: Any = None
     _cha: IO[str] | None = None
+    _timeline_file: IO[str] | None = None
+    _cycles_file: IO[str] | None = None
     _resumed: bool = False
-    events_kept: int | None = None
-    cycles_kept: int | None = None
+    events_kept: int | None = LIVE_EVENTS_KEPT
+    cycles_kept: int | None = LIVE_CYCLES_KEPT
     _events: FirstAndLast[dict[str, Any]] | None = None
     _kept_cycles: FirstAndLast[int] | None = None
     _open_cycles: set[int] = field(default_factory=set)  # not known complete yet
+    _unwritten_events: list[dict[str, Any]] = field(default_factory=list)
+    """Events waiting for the timeline file (before the first record; after a restart)."""
+    _unwritten_cycles: list[dict[str, Any]] = field(default_factory=list)
+    """Finished cycles waiting for the cycles file (a summary of format 2 resumed)."""
     writer: SummaryWriter | None = None
     """Checkpoints go through it, off the caller's thread (None: written at once)."""
     rows: RowWriter | None = None
@@ -335,8 +434,21 @@ class ResultCollector:
         return None if self.folder is None else self.folder / f"{self.test_id}.chadeche.csv"
 
     @property
+    def timeline_path(self) -> Path | None:
+        return None if self.folder is None else self.folder / f"{self.test_id}{TIMELINE_SUFFIX}"
+
+    @property
+    def cycles_path(self) -> Path | None:
+        return None if self.folder is None else self.folder / f"{self.test_id}{CYCLES_SUFFIX}"
+
+    @property
     def summary_path(self) -> Path | None:
         return None if self.folder is None else self.folder / SUMMARY_NAME
+
+    @property
+    def kept_timeline(self) -> list[dict[str, Any]]:
+        """The timeline events the summary shows (all of them when ``events_kept`` is None)."""
+        return list(self.timeline if self._events is None else self._events)
 
     def _open_files(self) -> None:
         """Opened at the first record (so never for a test that did not start), in append
@@ -353,6 +465,60 @@ class ResultCollector:
             self._bdf_writer.writerow(BDF_COLUMNS)
             self._bdf.flush()
         self._cha = cha.open("a", encoding="utf-8")
+        self._open_timeline()
+        self._open_cycles_file()
+
+    def _open_timeline(self) -> None:
+        """The timeline file, and the events that waited for it written."""
+        if self._timeline_file is not None or self.folder is None:
+            return
+        path = self.timeline_path
+        assert path is not None
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self._timeline_file = _open_jsonl(path)
+        if self._unwritten_events:
+            self._timeline_file.write("".join(_line(e) for e in self._unwritten_events))
+            self._timeline_file.flush()
+            self._unwritten_events.clear()
+
+    def _open_cycles_file(self) -> None:
+        """The cycles file, and the rows that waited for it written."""
+        if self._cycles_file is not None or self.folder is None:
+            return
+        path = self.cycles_path
+        assert path is not None
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self._cycles_file = _open_jsonl(path)
+        if self._unwritten_cycles:
+            self._cycles_file.write("".join(_line(c) for c in self._unwritten_cycles))
+            self._cycles_file.flush()
+            self._unwritten_cycles.clear()
+
+    def _close_files(self) -> None:
+        for f in (self._bdf, self._cha, self._timeline_file, self._cycles_file):
+            if f is not None:
+                f.close()
+        self._bdf = self._cha = self._timeline_file = self._cycles_file = None
+        self._bdf_writer = None
+
+    def _keep_event(self, entry: dict[str, Any]) -> None:
+        (self._events if self._events is not None else self.timeline).append(entry)
+
+    def _keep_cycle(self, c: CycleSummary) -> None:
+        """A new cycle in memory; with a bound, the one it pushes out is forgotten (it is
+        over, and in the cycles file: cycles end in order)."""
+        self.cycles[c.cycle] = c
+        if self._kept_cycles is not None:
+            dropped = self._kept_cycles.append(c.cycle)
+            if dropped is not None:
+                self.cycles.pop(dropped, None)
+
+    def _cycle_over(self, c: CycleSummary, why_open: str = "") -> None:
+        """``c`` has its final figures: its row in the cycles file."""
+        self._open_cycles.discard(c.cycle)
+        if self._cycles_file is not None:
+            self._cycles_file.write(_line(c.as_dict(why_open)))
+            self._cycles_file.flush()
 
     # --- what the chain emits ----------------------------------------------------------
     def on_event(self, ev: ChainEvent) -> None:
@@ -368,7 +534,14 @@ class ResultCollector:
             "step": ev.step_id,
             "text": ev.text,
         }
-        (self._events if self._events is not None else self.timeline).append(entry)
+        self._keep_event(entry)
+        if self._timeline_file is not None:
+            self._timeline_file.write(_line(entry))
+            self._timeline_file.flush()
+        elif self.folder is not None:
+            self._unwritten_events.append(entry)
+            if len(self._unwritten_events) >= PENDING_EVENTS_MAX:
+                self._open_timeline()
 
     def on_record(self, rec: Record) -> None:
         if self.closed:
@@ -382,18 +555,16 @@ class ResultCollector:
         self.last_t = rec.t if self.last_t is None else max(self.last_t, rec.t)
         # A later cycle started: the earlier ones reached their end (only those not yet
         # known complete are looked at: a million cycles stay linear).
-        for n in [n for n in self._open_cycles if n < rec.cycle]:
-            self._open_cycles.discard(n)
+        for n in sorted(n for n in self._open_cycles if n < rec.cycle):
             if n in self.cycles:
                 self.cycles[n].complete = True
+                self._cycle_over(self.cycles[n])
+            self._open_cycles.discard(n)
         c = self.cycles.get(rec.cycle)
         if c is None:
-            c = self.cycles[rec.cycle] = CycleSummary(rec.cycle)
+            c = CycleSummary(rec.cycle)
             self._open_cycles.add(rec.cycle)
-            if self._kept_cycles is not None:
-                dropped = self._kept_cycles.append(rec.cycle)
-                if dropped is not None:
-                    self.cycles.pop(dropped, None)
+            self._keep_cycle(c)
         c.charged_ah = rec.cycle_charged_ah
         c.discharged_ah = rec.cycle_discharged_ah
         c.charged_wh = rec.cycle_charged_wh
@@ -452,7 +623,8 @@ class ResultCollector:
         complete: bool = True,
         now: float | None = None,
     ) -> dict[str, Any]:
-        """The summary as it stands; ``complete``: the test is over (final summary)."""
+        """The summary as it stands; ``complete``: the test is over (final summary). Its
+        lists are its own (a writer's thread may dump it while the test goes on)."""
         if complete and state == "Complete" and self.cycles:
             self.cycles[max(self.cycles)].complete = True  # the recipe's own end
         why_open = (end_reason or "the test ended") if complete else ""
@@ -467,7 +639,7 @@ class ResultCollector:
             "duration_s": round(self.test_time_s(now), 3),
             "records": self.records,
             "cycles": [c.as_dict(why_open) for _, c in sorted(self.cycles.items())],
-            "timeline": self.timeline if self._events is None else list(self._events),
+            "timeline": self.kept_timeline,
         }
         if self._events is not None:
             out["timeline_omitted"] = self._events.omitted
@@ -487,8 +659,7 @@ class ResultCollector:
         if self.writer is None:
             self._write(summary)
         else:
-            # The writer's thread dumps it later: nothing in it may change meanwhile.
-            summary["timeline"] = list(summary["timeline"])
+            # The writer's thread dumps it later: nothing in it changes meanwhile.
             path = self.summary_path
             assert path is not None
             self.writer.put(path, self.channel, summary)
@@ -503,16 +674,21 @@ class ResultCollector:
     ) -> dict[str, Any]:
         """The test's last summary, and the files closed. ``complete=False``: the test
         did not end (the supervisor stops with it under way; it may resume after a
-        restart), so the summary is not final."""
+        restart), so the summary is not final and the cycle under way has no row yet."""
         s = self.summary(end_reason, state, complete=complete, now=now)
         self._rows_written()
         if self.folder is not None and self.first_t is not None and not self.closed:
+            # A test that ended before its first record (after a restart: before the
+            # next one) has its events and its cycles' rows too.
+            self._open_timeline()
+            self._open_cycles_file()
+            if complete:
+                why_open = end_reason or "the test ended"
+                for n in sorted(self._open_cycles):
+                    if n in self.cycles:
+                        self._cycle_over(self.cycles[n], why_open)
             self._write(s)
-        for f in (self._bdf, self._cha):
-            if f is not None:
-                f.close()
-        self._bdf = self._cha = None
-        self._bdf_writer = None
+        self._close_files()
         self.closed = True
         return s
 
@@ -520,11 +696,7 @@ class ResultCollector:
         """Close the files and write nothing more (this process goes away without the
         test ending, e.g. a start-up that failed); the last summary stays as it is."""
         self._rows_written()
-        for f in (self._bdf, self._cha):
-            if f is not None:
-                f.close()
-        self._bdf = self._cha = None
-        self._bdf_writer = None
+        self._close_files()
         self.closed = True
 
     def _rows_written(self) -> None:
@@ -546,29 +718,75 @@ class ResultCollector:
 
     # --- after a restart ------------------------------------------------------------------
     def resume(self, first_t: float) -> None:
-        """Continue the files of this test after a restart: the timeline and the cycles
-        from the last summary, the record index from the BDF rows; test time 0 at
-        ``first_t`` (the restored chain's)."""
+        """Continue the files of this test after a restart, with test time 0 at
+        ``first_t`` (the restored chain's): the record index from the BDF rows, the
+        timeline and the finished cycles from their files (read line by line into the
+        bounded memory, as if the test had run on), the cycle under way from the last
+        summary. A summary of format 2 (the timeline and the cycles whole in it, no
+        ``.jsonl`` files) gives its events and finished cycles to the new files."""
         self.first_t = first_t
         self.last_t = None
         self._resumed = True
+        old: dict[str, Any] = {}
         path = self.summary_path
         if path is not None and path.exists():
             try:
-                old = json.loads(path.read_text(encoding="utf-8"))
-                self.timeline = list(old.get("timeline", []))
-                self.cycles = {
-                    int(c["cycle"]): CycleSummary.from_dict(c) for c in old.get("cycles", [])
-                }
-                self._open_cycles = {n for n, c in self.cycles.items() if not c.complete}
-            except (OSError, ValueError, KeyError, TypeError) as exc:
+                data = json.loads(path.read_text(encoding="utf-8"))
+                old = data if isinstance(data, dict) else {}
+            except (OSError, ValueError) as exc:
                 log.warning(
                     "%s: summary %s unreadable (%s); starting a new one", self.channel, path, exc
                 )
+        try:
+            self._resume_timeline(old)
+            self._resume_cycles(old)
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            log.warning(
+                "%s: results of %s unreadable (%s); the summary starts again",
+                self.channel,
+                self.folder,
+                exc,
+            )
         bdf = self.bdf_path
         if bdf is not None and bdf.exists():
             with contextlib.suppress(OSError), bdf.open(encoding="utf-8") as f:
                 self.records = max(0, sum(1 for _ in f) - 1)  # minus the header
+
+    def _resume_timeline(self, old: dict[str, Any]) -> None:
+        path = self.timeline_path
+        assert path is not None
+        n = 0
+        for entry in read_jsonl(path):
+            self._keep_event(entry)
+            n += 1
+        if n == 0:
+            # No timeline file (format 2, or killed before the first record): the
+            # summary's events are the timeline so far, and go to the file.
+            for entry in old.get("timeline", []):
+                self._keep_event(dict(entry))
+                self._unwritten_events.append(dict(entry))
+
+    def _resume_cycles(self, old: dict[str, Any]) -> None:
+        path = self.cycles_path
+        assert path is not None
+        last = 0
+        for row in read_jsonl(path):
+            c = CycleSummary.from_dict(row)
+            if c.cycle > last:
+                self._keep_cycle(c)
+                last = c.cycle
+        # The summary's later cycles: the one under way (and, from a summary of format 2,
+        # every finished one, which the cycles file has not got yet).
+        for row in old.get("cycles", []):
+            c = CycleSummary.from_dict(row)
+            if c.cycle <= last:
+                continue
+            self._keep_cycle(c)
+            last = c.cycle
+            if c.complete:
+                self._unwritten_cycles.append(c.as_dict())
+            else:
+                self._open_cycles.add(c.cycle)
 
     @staticmethod
     def final_summary(folder: Path) -> bool:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -120,7 +121,9 @@ async def test_a_finished_test_has_its_files_and_capacity_and_efficiency_per_cyc
     assert test["ended"] == pytest.approx(test["started"] + test["duration_s"])
     assert test["duration_s"] == pytest.approx(240.0, abs=2.0)
     files = {f["kind"]: f for f in test["files"]}
-    assert sorted(files) == ["bdf", "chadeche", "summary"]
+    # ADR 0022: the timeline and the cycles have files of their own, every row in them.
+    assert sorted(files) == ["bdf", "chadeche", "cycles", "summary", "timeline"]
+    assert files["timeline"]["name"] == f"{test_id}.timeline.jsonl"
     assert files["bdf"]["name"] == f"{test_id}.bdf.csv"
     for f in files.values():
         assert f["bytes"] == (client.results / test_id / f["name"]).stat().st_size > 0
@@ -151,6 +154,12 @@ async def test_a_result_file_downloads_as_an_attachment(client: Client, tmp_path
     assert tuple(rows[0]) == BDF_COLUMNS and len(rows) > 2
     status, headers, data = await client.download(f"/tests/{test_id}/files/summary.json")
     assert status == 200 and headers["Content-Type"].startswith("application/json")
+    name = f"{test_id}.timeline.jsonl"
+    status, headers, data = await client.download(f"/tests/{test_id}/files/{name}")
+    assert status == 200 and headers["Content-Type"].startswith("application/x-ndjson")
+    events = [json.loads(line) for line in data.decode("utf-8").splitlines()]
+    summary = json.loads((client.results / test_id / "summary.json").read_text("utf-8"))
+    assert events == summary["timeline"] and summary["timeline_omitted"] == 0
 
 
 async def test_unknown_tests_and_files_are_404(client: Client, tmp_path: Path) -> None:

@@ -15,6 +15,12 @@ from supervisor.app import Bench, build_bench
 from supervisor.app.dryrun import dry_run_config
 from supervisor.chains.states import State
 from supervisor.core.clock import VirtualClock
+from supervisor.publish.results import (
+    CYCLES_SUFFIX,
+    LIVE_CYCLES_KEPT,
+    LIVE_EVENTS_KEPT,
+    TIMELINE_SUFFIX,
+)
 
 pytestmark = pytest.mark.integration
 
@@ -192,3 +198,38 @@ async def test_a_test_aborted_by_a_trip_names_the_alarm(tmp_path: Path) -> None:
     s = summary(tmp_path)
     assert s["state"] == "Aborted"
     assert s["end_reason"] == "aborted: channel trip: e-stop: estop.ok is false (circuit open)"
+
+
+def jsonl(tmp_path: Path, suffix: str) -> list[dict[str, Any]]:
+    path = tmp_path / "results" / "t1" / f"t1{suffix}"
+    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines()]
+
+
+async def test_a_long_live_test_keeps_a_bounded_timeline_while_every_event_reaches_its_file(
+    tmp_path: Path,
+) -> None:
+    # Issue 13 (ADR 0022): 150 cycles of two 2 s steps, 300 step changes, on a bench.
+    b = await loaded(
+        tmp_path,
+        "recipe: r\ncycles: 150\nsteps:\n"
+        "  - {id: c, charge: 300 mA, duration: 2 s}\n"
+        "  - {id: d, discharge: 300 mA, duration: 2 s}\n",
+    )
+    b.runners["ch0"].command("start")
+    await b.engine.run_for(610.0)
+    assert b.runners["ch0"].state is State.COMPLETE
+    s = summary(tmp_path)
+    events = jsonl(tmp_path, TIMELINE_SUFFIX)
+    starts = [e for e in events if e["text"].startswith("starting step")]
+    assert [(e["cycle"], e["step"]) for e in starts] == [
+        (n, step) for n in range(1, 151) for step in ("c", "d")
+    ]
+    assert len(s["timeline"]) == LIVE_EVENTS_KEPT
+    assert s["timeline_omitted"] == len(events) - LIVE_EVENTS_KEPT
+    assert s["timeline"][: LIVE_EVENTS_KEPT // 2] == events[: LIVE_EVENTS_KEPT // 2]
+    assert s["timeline"][LIVE_EVENTS_KEPT // 2 :] == events[-LIVE_EVENTS_KEPT // 2 :]
+    cycles = jsonl(tmp_path, CYCLES_SUFFIX)
+    assert [c["cycle"] for c in cycles] == list(range(1, 151))
+    assert all(c["complete"] for c in cycles)
+    assert s["cycles_omitted"] == 150 - LIVE_CYCLES_KEPT
+    assert s["cycles"][-1] == cycles[-1]

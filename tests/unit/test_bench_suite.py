@@ -15,6 +15,7 @@ from supervisor.app.benchmem import memory_benchmark, memory_figures, slope_per_
 from supervisor.app.benchrun import Simulators, prepare
 from supervisor.cli.main import main
 from supervisor.config.models import NetworkDevice
+from supervisor.core import memtrace
 from supervisor.devices.registry import load_bench
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -195,3 +196,18 @@ def test_the_load_benchmark_reaches_its_networked_devices_in_a_simulator_process
     (log,) = logs
     # The supervisor (--no-sim) reached the ADAM-5000/TCP of the other process.
     assert "host watchdog armed" in log
+
+
+def test_the_virtual_memory_trace_snapshots_every_simulated_minute_and_records_nothing(
+    at_root: Path, results: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Virtual clock: two simulated minutes of the simulated bench with its recipes.
+    assert main(["bench", "memory", "--minutes", "2", "--trace", str(tmp_path), "--virtual"]) == 0
+    assert [t for t, _ in memtrace.snapshots(tmp_path)] == [60.0, 120.0]
+    out = capsys.readouterr().out
+    assert "traced: " in out and "supervisor/chains/engine.py:" in out  # the recipes ran
+    assert not results.exists() or benchreport.read(results) == []  # not issue 13's figure
+
+
+def test_the_virtual_memory_trace_needs_a_folder(at_root: Path) -> None:
+    assert main(["bench", "memory", "--virtual"]) == 2

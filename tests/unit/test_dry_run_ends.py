@@ -20,7 +20,15 @@ from supervisor.app.dryrun import DryRunResult, dry_run, format_report
 from supervisor.chains.states import State
 from supervisor.cli.main import build_parser, main
 from supervisor.config.limits import DRY_RUN_CYCLES_KEPT, DRY_RUN_EVENTS_KEPT
-from supervisor.publish.results import FirstAndLast, ResultCollector
+from supervisor.publish.results import (
+    CYCLES_SUFFIX,
+    LIVE_CYCLES_KEPT,
+    LIVE_EVENTS_KEPT,
+    TIMELINE_SUFFIX,
+    FirstAndLast,
+    ResultCollector,
+    read_jsonl,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 BAD = ROOT / "tests" / "data" / "bad_recipes"
@@ -190,6 +198,13 @@ def result_files(folder: Path) -> tuple[list[dict[str, str]], dict[str, Any]]:
     return rows, json.loads((bdf.parent / "summary.json").read_text(encoding="utf-8"))
 
 
+def jsonl_files(folder: Path) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """The timeline events and the cycle rows a dry run wrote under ``folder``."""
+    (timeline,) = folder.rglob(f"*{TIMELINE_SUFFIX}")
+    (cycles,) = folder.rglob(f"*{CYCLES_SUFFIX}")
+    return list(read_jsonl(timeline)), list(read_jsonl(cycles))
+
+
 async def test_result_files_get_every_row_while_memory_keeps_the_halves(tmp_path: Path) -> None:
     res = await dry_run(write(tmp_path, MILLION_CYCLES), max_hours=0.5, results_dir=tmp_path)
     rows, saved = result_files(tmp_path)
@@ -198,6 +213,13 @@ async def test_result_files_get_every_row_while_memory_keeps_the_halves(tmp_path
     assert len(saved["timeline"]) <= DRY_RUN_EVENTS_KEPT
     assert len(saved["cycles"]) <= DRY_RUN_CYCLES_KEPT
     assert saved["end_reason"] == res.end_reason
+    # ADR 0022: every event and every cycle in their files.
+    events, rows = jsonl_files(tmp_path)
+    assert len(events) == len(saved["timeline"]) + saved["timeline_omitted"]
+    assert events[: DRY_RUN_EVENTS_KEPT // 2] == saved["timeline"][: DRY_RUN_EVENTS_KEPT // 2]
+    assert events[-1] == saved["timeline"][-1]
+    assert len(rows) == len(saved["cycles"]) + saved["cycles_omitted"]
+    assert rows[-1] == saved["cycles"][-1]
 
 
 # --- the bounded lists ----------------------------------------------------------------------
@@ -216,8 +238,13 @@ def test_first_and_last_under_its_limit_keeps_everything() -> None:
     assert list(kept) == ["a", "b", "c"] and kept.omitted == 0
 
 
-def test_a_live_tests_collector_keeps_everything() -> None:
-    # A bench's result summary is the test's record: bounded only in dry runs.
+def test_a_live_tests_collector_keeps_everything_in_its_files_and_its_summary_says_so() -> None:
+    # A bench's test record is its files (every event, every cycle: ADR 0022); its
+    # summary, like a dry run's, keeps the first and the latest and counts the others.
     collector = ResultCollector("ch0", "r", "t")
-    assert "timeline_omitted" not in collector.summary("", "Running")
-    assert "cycles_omitted" not in collector.summary("", "Running")
+    assert (collector.events_kept, collector.cycles_kept) == (LIVE_EVENTS_KEPT, LIVE_CYCLES_KEPT)
+    assert collector.summary("", "Running")["timeline_omitted"] == 0
+    assert collector.summary("", "Running")["cycles_omitted"] == 0
+    whole = ResultCollector("ch0", "r", "t", events_kept=None, cycles_kept=None)
+    assert "timeline_omitted" not in whole.summary("", "Running")
+    assert "cycles_omitted" not in whole.summary("", "Running")
