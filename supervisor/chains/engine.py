@@ -69,6 +69,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+EVENTS_KEPT = 200
 CLOCK_HISTORY = HistorySettings(min_interval_s=1.0)
 """The chain's clocks and what follows from them (step and test time, progress, ETA) change
 every scan, linearly: the historian and InfluxDB store them at most once a second (the
@@ -115,7 +116,10 @@ class ChainRunner:
         self.listeners: list[Callable[[ChainEvent], None]] = []
         self.recorders: list[Callable[[Record], None]] = []
         self.samplers: list[Sampler] = []
-        self.events: deque[ChainEvent] = deque(maxlen=1000)
+        # The latest events, for a look from a debugger or a test; every event also goes
+        # to the listeners (results, retained state, publishers). 200: full after minutes,
+        # not after half an hour (issue 13's memory growth).
+        self.events: deque[ChainEvent] = deque(maxlen=EVENTS_KEPT)
         # Set by the composition root: a command written to ``chN.command`` (by an older
         # client) goes through the bench's one command path, which checks and records it.
         self.command_handler: Callable[[str], None] | None = None

@@ -30,8 +30,7 @@ import sys
 import threading
 import time
 import traceback
-from collections import deque
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -39,6 +38,7 @@ from supervisor.core.clock import Clock, VirtualClock
 from supervisor.core.driver import Driver, Sample, Value
 from supervisor.core.gate import ScanGate
 from supervisor.core.quality import Quality, Reason
+from supervisor.core.ring import FloatRing
 from supervisor.tags.db import Tag, TagDB
 from supervisor.tags.spec import Scaling, TagSpec
 
@@ -124,14 +124,14 @@ class ScanStats:
     logic_errors: int = 0
     stalls: int = 0
     stall_max_s: float = 0.0
-    durations_s: deque[float] = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
-    jitters_s: deque[float] = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
+    durations_s: FloatRing = field(default_factory=lambda: FloatRing(STATS_WINDOW))
+    jitters_s: FloatRing = field(default_factory=lambda: FloatRing(STATS_WINDOW))
 
     @staticmethod
-    def percentile(values: Sequence[float], q: float) -> float:
-        if not values:
-            return 0.0
+    def percentile(values: Iterable[float], q: float) -> float:
         s = sorted(values)
+        if not s:
+            return 0.0
         k = min(len(s) - 1, max(0, round(q / 100 * (len(s) - 1))))
         return s[k]
 
@@ -553,5 +553,10 @@ class StallWatch:
         frame = sys._current_frames().get(self._loop_thread)
         if frame is None:
             return "  (unknown)"
-        stack = traceback.extract_stack(frame)[-self.FRAMES :]
-        return "".join(traceback.format_list(stack)).rstrip()
+        # File, line and function only: formatting the source lines too would read every
+        # file of the stack into linecache for good (megabytes over a day of stalls).
+        frames = list(traceback.walk_stack(frame))[: self.FRAMES]
+        return "\n".join(
+            f'  File "{f.f_code.co_filename}", line {line}, in {f.f_code.co_name}'
+            for f, line in reversed(frames)
+        )

@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from supervisor.app import build_bench
+from supervisor.chains.engine import EVENTS_KEPT
 from supervisor.core.clock import VirtualClock
 from supervisor.devices.registry import load_bench
 from supervisor.scan.engine import STATS_WINDOW, ScanStats
@@ -15,7 +16,7 @@ from supervisor.testing import run_scans
 
 ROOT = Path(__file__).resolve().parents[2]
 SIM = ROOT / "io_maps" / "sim.yaml"
-CHAIN_EVENTS_KEPT = 1000
+CHAIN_EVENTS_KEPT = EVENTS_KEPT  # supervisor/chains/engine.py
 
 FAST_STEPS = """\
 recipe: fast-steps
