@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import IO, Any, Generic, TypeVar
 
 from supervisor.core.records import ChainEvent, Record
-from supervisor.publish.rows import RowWriter
+from supervisor.publish.rows import RowWriter, ThreadWriter
 
 log = logging.getLogger(__name__)
 
@@ -205,7 +205,7 @@ class FirstAndLast(Generic[T]):
         return len(self.first) + len(self.last)
 
 
-class SummaryWriter:
+class SummaryWriter(ThreadWriter):
     """Rewrites test summaries on a thread of its own, off the scan's (issue 13).
 
     A live test's summary is rewritten at every timeline event (a step change) and
@@ -217,14 +217,13 @@ class SummaryWriter:
     ``write_now`` (a test's last summary) writes at once, after anything older of that file.
     """
 
+    what = "summaries"
+
     def __init__(self, name: str = "results") -> None:
-        self.name = name
-        self._cond = threading.Condition()
+        super().__init__(name)
         self._pending: dict[Path, tuple[str, dict[str, Any]]] = {}
         self._io = threading.Lock()  # one file write at a time: the newest is written last
         self._writing = 0
-        self._stopping = False
-        self._thread: threading.Thread | None = None
         self.written = 0
 
     def put(self, path: Path, channel: str, summary: dict[str, Any]) -> None:
@@ -232,11 +231,7 @@ class SummaryWriter:
         with self._cond:
             if not self._stopping:
                 self._pending[path] = (channel, summary)
-                if self._thread is None:
-                    self._thread = threading.Thread(
-                        target=self._run, name=f"{self.name}-summaries", daemon=True
-                    )
-                    self._thread.start()
+                self._start_thread()
                 self._cond.notify_all()
                 return
         self.write_now(path, channel, summary)  # stopped: on the caller's thread
@@ -249,27 +244,8 @@ class SummaryWriter:
             write_summary(path, channel, summary)
             self.written += 1
 
-    def flush(self, timeout_s: float = 10.0) -> bool:
-        """Wait until every summary handed over is on disk; False after ``timeout_s``."""
-        end = time.monotonic() + timeout_s
-        with self._cond:
-            while self._pending or self._writing:
-                left = end - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cond.wait(left)
-        return True
-
-    def stop(self, timeout_s: float = 10.0) -> None:
-        """Write what is waiting, then end the thread; later summaries are written at once."""
-        if not self.flush(timeout_s):
-            log.error("%s: summaries not written within %g s", self.name, timeout_s)
-        with self._cond:
-            self._stopping = True
-            self._cond.notify_all()
-            thread, self._thread = self._thread, None
-        if thread is not None:
-            thread.join(timeout_s)
+    def _busy(self) -> bool:
+        return bool(self._pending or self._writing)
 
     def _run(self) -> None:
         while True:

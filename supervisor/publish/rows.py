@@ -24,19 +24,71 @@ log = logging.getLogger(__name__)
 Job = Callable[[], None]
 
 
-class RowWriter:
+class ThreadWriter:
+    """What the result writers with a thread of their own share: the thread started at the
+    first piece of work, ``flush`` (wait until nothing is waiting or being written) and
+    ``stop`` (write what waits, end the thread; later work is done on the caller's
+    thread). A subclass says what is busy (``_busy``, under ``_cond``) and does the work
+    (``_run``, notifying ``_cond`` when a piece is done)."""
+
+    what = "work"
+    """What it writes, for its log line."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self._cond = threading.Condition()
+        self._stopping = False
+        self._thread: threading.Thread | None = None
+
+    def _start_thread(self) -> None:
+        """The caller holds ``_cond``."""
+        if self._thread is None:
+            self._thread = threading.Thread(
+                target=self._run, name=f"{self.name}-{self.what}", daemon=True
+            )
+            self._thread.start()
+
+    def _busy(self) -> bool:
+        raise NotImplementedError
+
+    def _run(self) -> None:
+        raise NotImplementedError
+
+    def flush(self, timeout_s: float = 10.0) -> bool:
+        """Wait until everything handed over is on disk; False after ``timeout_s``."""
+        end = time.monotonic() + timeout_s
+        with self._cond:
+            while self._busy():
+                left = end - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(left)
+        return True
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        """Write what is waiting, then end the thread; later work is done at once."""
+        if not self.flush(timeout_s):
+            log.error("%s: %s not written within %g s", self.name, self.what, timeout_s)
+        with self._cond:
+            self._stopping = True
+            self._cond.notify_all()
+            thread, self._thread = self._thread, None
+        if thread is not None:
+            thread.join(timeout_s)
+
+
+class RowWriter(ThreadWriter):
     """Runs the jobs handed over (appending rows to files), one after the other, in order,
     on a thread started at the first one. After :meth:`stop` a job runs on the caller's
     thread at once (a test ending during the stop)."""
 
+    what = "rows"
+
     def __init__(self, name: str = "results") -> None:
-        self.name = name
-        self._cond = threading.Condition()
+        super().__init__(name)
         self._jobs: deque[Job] = deque()
         self._running = 0  # jobs taken by the thread and not done yet
         self._waiting = False  # the thread sleeps until the next job
-        self._stopping = False
-        self._thread: threading.Thread | None = None
         self.done = 0
         self.failed = 0
 
@@ -46,36 +98,14 @@ class RowWriter:
             if not self._stopping:
                 self._jobs.append(job)
                 if self._thread is None:
-                    self._thread = threading.Thread(
-                        target=self._run, name=f"{self.name}-rows", daemon=True
-                    )
-                    self._thread.start()
+                    self._start_thread()
                 elif self._waiting:
                     self._cond.notify_all()  # a busy thread takes it without being told
                 return
         self._do(job)
 
-    def flush(self, timeout_s: float = 10.0) -> bool:
-        """Wait until every job handed over is done; False after ``timeout_s``."""
-        end = time.monotonic() + timeout_s
-        with self._cond:
-            while self._jobs or self._running:
-                left = end - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cond.wait(left)
-        return True
-
-    def stop(self, timeout_s: float = 10.0) -> None:
-        """Run what is waiting, then end the thread; later jobs run at once."""
-        if not self.flush(timeout_s):
-            log.error("%s: result rows not written within %g s", self.name, timeout_s)
-        with self._cond:
-            self._stopping = True
-            self._cond.notify_all()
-            thread, self._thread = self._thread, None
-        if thread is not None:
-            thread.join(timeout_s)
+    def _busy(self) -> bool:
+        return bool(self._jobs or self._running)
 
     def _run(self) -> None:
         while True:
