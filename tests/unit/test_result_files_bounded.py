@@ -29,38 +29,10 @@ from supervisor.publish.results import (
     read_jsonl,
     read_timeline,
 )
+from supervisor.testing.records import make_record
 
 WALL = 1.7e9
-REC = Record(
-    t=0.0,
-    wall=WALL,
-    test_time_s=0.0,
-    step_time_s=0.0,
-    cycle_time_s=0.0,
-    cycle=1,
-    step_count=1,
-    step_index=0,
-    step_id="c",
-    step_type="CC_CHG",
-    voltage_v=1.3,
-    current_a=0.05,
-    power_w=0.065,
-    temperature_c=None,
-    charge_ah=0.0,
-    charged_ah=0.0,
-    discharged_ah=0.0,
-    charged_wh=0.0,
-    discharged_wh=0.0,
-    cycle_charged_ah=0.0,
-    cycle_discharged_ah=0.0,
-    cycle_charged_wh=0.0,
-    cycle_discharged_wh=0.0,
-    setpoint_a=0.05,
-    step_remaining_s=None,
-    reason="period",
-    current_cmd_a=0.05,
-    last_voltage_v=1.3,
-)
+REC = make_record(wall=WALL, current_cmd_a=0.05, last_voltage_v=1.3)
 
 
 def step_event(t: float, cycle: int) -> ChainEvent:

@@ -15,34 +15,17 @@ import pytest
 from supervisor.core.records import Record
 from supervisor.publish.results import ResultCollector
 from supervisor.publish.rows import RowWriter
+from supervisor.testing.records import make_record
 
-REC = Record(
+REC = make_record(
     t=1000.0,
     wall=1.8e9,
-    test_time_s=0.0,
-    step_time_s=0.0,
-    cycle_time_s=0.0,
-    cycle=1,
-    step_count=1,
-    step_index=0,
     step_id="charge",
     step_type="charge",
     voltage_v=1.31,
-    current_a=0.05,
     power_w=0.0655,
     temperature_c=25.0,
-    charge_ah=0.0,
-    charged_ah=0.0,
-    discharged_ah=0.0,
-    charged_wh=0.0,
-    discharged_wh=0.0,
-    cycle_charged_ah=0.0,
-    cycle_discharged_ah=0.0,
-    cycle_charged_wh=0.0,
-    cycle_discharged_wh=0.0,
-    setpoint_a=0.05,
     step_remaining_s=4.0,
-    reason="period",
 )
 
 
