@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -57,6 +57,17 @@ class RecipeSource:
     text: str
     parameters: dict[str, str] = field(default_factory=dict)
     folder: str = ""  # the test's result folder
+
+    def as_dict(self) -> dict[str, Any]:
+        """``dataclasses.asdict(self)`` without its recursion: a channel's document is
+        built at each of its result records (every second of a test, 16 channels in the
+        same scan in issue 13's load case)."""
+        return {
+            "file": self.file,
+            "text": self.text,
+            "parameters": dict(self.parameters),
+            "folder": self.folder,
+        }
 
     @classmethod
     def from_dict(cls, data: Any) -> RecipeSource:
@@ -239,7 +250,7 @@ class Retention:
         return {
             "channel": channel,
             "chain": snap.as_dict() if snap is not None else None,
-            "recipe": asdict(src) if src is not None and snap is not None else None,
+            "recipe": src.as_dict() if src is not None and snap is not None else None,
             "tags": {tag.name: tag.value for tag in self._channel_tags.get(channel, [])},
             "mode": bench.db[f"{channel}.mode"].value,
         }

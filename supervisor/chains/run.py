@@ -10,7 +10,7 @@ restart, DESIGN.md "Safety", seed 001's context save) can put it back on its own
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 SNAPSHOT_FORMAT = 1
@@ -170,7 +170,12 @@ class ChainSnapshot:
     format: int = SNAPSHOT_FORMAT
 
     def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """``dataclasses.asdict(self)`` without its recursion (every field is a plain value
+        or a dict of plain values): the retained state saves it at each result record."""
+        out = {name: getattr(self, name) for name in _SNAPSHOT_FIELDS}
+        for name in _SNAPSHOT_DICTS:
+            out[name] = dict(out[name])
+        return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ChainSnapshot:
@@ -185,3 +190,8 @@ class ChainSnapshot:
             return cls(**data)
         except TypeError as exc:
             raise ValueError(f"chain snapshot fields: {exc}") from None
+
+
+_SNAPSHOT_FIELDS = tuple(f.name for f in fields(ChainSnapshot))
+_SNAPSHOT_DICTS = ("group_time_s", "test0", "cycle0")
+"""The fields of a snapshot that are dicts (copied by ``as_dict``, as ``asdict`` does)."""

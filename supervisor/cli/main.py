@@ -8,15 +8,19 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import atexit
 import contextlib
 import faulthandler
 import io
 import logging
+import logging.handlers
 import math
 import os
+import queue
 import re
 import signal
 import sys
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Final, NoReturn
@@ -47,12 +51,32 @@ def _out(msg: str) -> None:
     sys.stdout.flush()
 
 
-def _setup_logging(level: str) -> None:
-    logging.basicConfig(
-        level=getattr(logging, level.upper(), logging.INFO),
-        format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
-        stream=sys.stderr,
-    )
+LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
+
+
+def _setup_logging(level: str, *, off_thread: bool = False) -> None:
+    """Log lines to stderr, as ``logging.basicConfig`` does (nothing when the root logger
+    has a handler already: a test's). ``off_thread``: formatted and written by a thread of
+    their own (``QueueHandler`` → ``QueueListener``), for ``supervisor run``: the scan's
+    thread only hands each record over. A write to stderr is a system call that lets the
+    interpreter lock go, and a step change of 16 channels in one scan logged 16 lines on
+    the scan's thread, each a chance for a publisher's thread to keep the lock up to the
+    switch interval (issue 13, ADR 0021). The listener writes what is queued before the
+    process exits (``atexit``)."""
+    root = logging.getLogger()
+    if root.handlers:
+        return
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(LOG_FORMAT))
+    if off_thread:
+        records: queue.SimpleQueue[logging.LogRecord] = queue.SimpleQueue()
+        listener = logging.handlers.QueueListener(records, handler)
+        listener.start()
+        atexit.register(listener.stop)
+        root.addHandler(logging.handlers.QueueHandler(records))
+    else:
+        root.addHandler(handler)
+    root.setLevel(getattr(logging, level.upper(), logging.INFO))
 
 
 # --- run -----------------------------------------------------------------------------
@@ -126,18 +150,22 @@ async def _serve(
         from supervisor.app.opcua import build_opcua
 
         opcua = build_opcua(bench)  # ConfigError for a bad users file: exit 2
+    starts: list[str] = []
     for spec in args.recipe:
         channel, _, file = spec.partition("=")
         if not file:
             raise ConfigError(f"--recipe {spec!r}: expected CHANNEL=FILE, e.g. ch0=recipes/x.yaml")
-        # The same command path as the HTTP API: load (and start) checked and recorded,
-        # the recipe compiled in a worker thread with its time limit.
+        # The same command path as the HTTP API: loaded (checked and recorded, the recipe
+        # compiled in a worker thread with its time limit) before anything is served;
+        # ``--start`` starts it once the channel's inputs read GOOD (``_start_when_ready``).
         verb = Verb.START if args.start else Verb.LOAD
         result = await bench.commands.execute_async(
             Command.channel(
-                channel, verb, "command line", recipe=file, parameters=_params(args.param)
+                channel, Verb.LOAD, "command line", recipe=file, parameters=_params(args.param)
             )
         )
+        if args.start:
+            starts.append(channel)
         if not result.accepted:
             _err(f"supervisor: --recipe {spec}: {verb.value} refused: {result.reason}")
             for line in result.details[1:]:
@@ -201,9 +229,13 @@ async def _serve(
     # 0.46 s scan.stall of the browser tests on a busy machine; ADR 0019).
     settle_after_start()
     bench.engine.idle = collect_when_idle  # the collector's turn between scans (ADR 0021)
+    starter = asyncio.create_task(_start_when_ready(bench, starts)) if starts else None
     try:
         await bench.run(stop)
     finally:
+        if starter is not None:
+            starter.cancel()
+            await asyncio.gather(starter, return_exceptions=True)
         if opcua is not None:
             opcua.closing()  # no command while the outputs go safe; clients see them go
         unconfirmed = await bench.shutdown()
@@ -239,6 +271,53 @@ def _recipes_config(cfg: BenchConfig, bench: Bench) -> RecipesConfig:
     )
 
 
+START_WAIT_S: Final = 10.0
+"""``supervisor run --start``: how long a test waits for its channel's inputs to read GOOD
+after the scan began, before its start is refused."""
+
+
+async def _start_when_ready(bench: Bench, channels: list[str]) -> None:
+    """``--start``: each loaded test started once the inputs its channel's guard checks read
+    GOOD (``ChannelGuard.inputs_not_good``). Started at the first scan, a test whose BMS
+    had not sent its first frames yet tripped its channel at once (Held, with the alarm "BMS
+    value … is BAD (initial value)") on a busy machine. A channel still waiting after
+    ``START_WAIT_S`` is not started: its start is refused in the log, with what it waited
+    for; the operator starts it when the bench is ready."""
+    from supervisor.commands import Command, Verb
+
+    guards = bench.safety.guards
+    deadline = time.monotonic() + START_WAIT_S
+    waiting = list(channels)
+    while waiting:
+        late = time.monotonic() >= deadline
+        for ch in list(waiting):
+            guard = guards.get(ch)
+            missing = guard.inputs_not_good() if guard is not None else []
+            if missing and not late:
+                continue
+            waiting.remove(ch)
+            if missing:
+                log.error(
+                    "--start %s: start refused: its inputs do not read GOOD %g s after the"
+                    " scan began: %s",
+                    ch,
+                    START_WAIT_S,
+                    ", ".join(missing),
+                )
+                continue
+            result = await bench.commands.execute_async(
+                Command.channel(ch, Verb.START, "command line")
+            )
+            if not result.accepted:
+                log.error("--start %s: start refused: %s", ch, result.reason)
+        if waiting:
+            await asyncio.sleep(START_POLL_S)
+
+
+START_POLL_S: Final = 0.05
+"""How often ``_start_when_ready`` looks at the channels still waiting."""
+
+
 def _dump_tasks() -> None:
     for task in asyncio.all_tasks():
         log.warning("task %s:", task.get_name())
@@ -246,7 +325,7 @@ def _dump_tasks() -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    _setup_logging(args.log_level)
+    _setup_logging(args.log_level, off_thread=True)
     # A debugging switch, off unless $SUPERVISOR_TRACEMALLOC names a folder (core/memtrace.py).
     trace = memtrace.start_from_env()
     # A bench runs for days: `kill -USR1 <pid>` prints every thread's stack to the log
@@ -725,7 +804,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
     r.add_argument("--recipe", action="append", default=[], metavar="CHANNEL=FILE")
     r.add_argument("--param", action="append", default=[], metavar="NAME=VALUE")
-    r.add_argument("--start", action="store_true", help="start the --recipe chains at once")
+    r.add_argument(
+        "--start",
+        action="store_true",
+        help="start the --recipe chains once their channels' inputs read GOOD",
+    )
     r.add_argument("-v", "--verbose", action="store_true", help="status line every 10 s")
     r.add_argument(
         "--no-sim",

@@ -345,6 +345,11 @@ def _line(obj: dict[str, Any]) -> str:
     return json.dumps(obj, ensure_ascii=False) + "\n"
 
 
+def _append_line(f: IO[str], obj: dict[str, Any]) -> None:
+    f.write(_line(obj))
+    f.flush()
+
+
 @dataclass
 class ResultCollector:
     """Writes a test's result files and keeps what its summary shows, bounded.
@@ -471,6 +476,7 @@ class ResultCollector:
             self._unwritten_cycles.clear()
 
     def _close_files(self) -> None:
+        self._rows_written()  # the lines handed over go to the files before they close
         for f in (self._bdf, self._cha, self._timeline_file, self._cycles_file):
             if f is not None:
                 f.close()
@@ -493,8 +499,7 @@ class ResultCollector:
         """``c`` has its final figures: its row in the cycles file."""
         self._open_cycles.discard(c.cycle)
         if self._cycles_file is not None:
-            self._cycles_file.write(_line(c.as_dict(why_open)))
-            self._cycles_file.flush()
+            self._append(self._cycles_file, c.as_dict(why_open))
 
     # --- what the chain emits ----------------------------------------------------------
     def on_event(self, ev: ChainEvent) -> None:
@@ -512,8 +517,7 @@ class ResultCollector:
         }
         self._keep_event(entry)
         if self._timeline_file is not None:
-            self._timeline_file.write(_line(entry))
-            self._timeline_file.flush()
+            self._append(self._timeline_file, entry)
         elif self.folder is not None:
             self._unwritten_events.append(entry)
             if len(self._unwritten_events) >= PENDING_EVENTS_MAX:
@@ -675,10 +679,20 @@ class ResultCollector:
         self._close_files()
         self.closed = True
 
+    def _append(self, f: IO[str], entry: dict[str, Any]) -> None:
+        """One line of a JSON-lines file (the timeline, the cycles), flushed: on the row
+        writer's thread when there is one, as the rows (16 channels changing step in one
+        scan were 16 writes on the scan's thread, each a system call; issue 13)."""
+        if self.rows is not None:
+            self.rows.put(partial(_append_line, f, entry))
+        else:
+            _append_line(f, entry)
+
     def _rows_written(self) -> None:
-        """Every row handed over is in the files (before they close, and before the last
-        summary counts them)."""
-        if self.rows is not None and self._bdf is not None and not self.rows.flush():
+        """Every row and line handed over is in the files (before they close, and before
+        the last summary counts them)."""
+        files = (self._bdf, self._timeline_file, self._cycles_file)
+        if self.rows is not None and any(f is not None for f in files) and not self.rows.flush():
             log.error(
                 "%s: result rows still not written; the files close without them", self.channel
             )

@@ -186,6 +186,21 @@ class ChannelGuard:
             }
             self._check("bms", self._bms_limits, bms.trip_delay_s)
 
+    # --- what a start waits for ------------------------------------------------------------
+    def inputs_not_good(self) -> list[str]:
+        """The inputs this guard checks that do not read GOOD (yet): the channel's voltage,
+        current and temperature (when it has one), its source's connection and the BMS
+        values. Empty once every device answered (``supervisor run --start`` waits for
+        it: a BMS's first frames come some time after its connection)."""
+        tags = [self._v, self._i, *getattr(self, "_bms_tags", {}).values()]
+        if self.cfg.temperature_tag is not None:
+            tags.append(self._temp)
+        out = [f"{t.name} {t.quality.name} ({t.reason})" for t in tags if not t.good]
+        connected = self.db.get(self._connected_name)
+        if connected is None or connected.value is not True:
+            out.append(f"{self._connected_name} not true")
+        return out
+
     # --- the scan -----------------------------------------------------------------------
     def evaluate(self, now: float, dt: float) -> None:
         db = self.db

@@ -78,7 +78,9 @@ def test_a_recipe_started_from_the_command_line_runs_and_takes_http_commands(
         out, err = proc.communicate(timeout=20)
         assert proc.returncode == 0, err
         assert "stopped: all outputs safe" in out
-        assert f"start {file} by command line: accepted" in err
+        # Loaded before anything is served, started once the channel's inputs read GOOD.
+        assert f"load {file} by command line: accepted" in err
+        assert "command on ch0: start by command line: accepted" in err
         assert "Traceback" not in err
     finally:
         if proc.poll() is None:

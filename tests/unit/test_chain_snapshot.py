@@ -4,11 +4,13 @@ next process: a snapshot keeps durations and the Unix time of the save."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
 import pytest
 
+from supervisor.app.retained import RecipeSource
 from supervisor.chains.run import SNAPSHOT_FORMAT, ChainSnapshot, RunState
 
 WALL = 1_767_254_400.0
@@ -105,3 +107,24 @@ def test_the_document_goes_through_json_and_refuses_another_format() -> None:
         ChainSnapshot.from_dict({**s.as_dict(), "format": 0})
     with pytest.raises(ValueError, match="fields"):
         ChainSnapshot.from_dict({"format": SNAPSHOT_FORMAT, "state": "Running"})
+
+
+def test_the_document_is_the_snapshots_fields_with_dicts_of_its_own() -> None:
+    s = freeze(running())
+    doc = s.as_dict()
+    assert doc == dataclasses.asdict(s)
+    for name in ("group_time_s", "test0", "cycle0"):
+        assert doc[name] == getattr(s, name) and doc[name] is not getattr(s, name)
+    # Every dict-valued field is copied: a field added later must be named there too.
+    assert {f.name for f in dataclasses.fields(s) if isinstance(getattr(s, f.name), dict)} == {
+        "group_time_s",
+        "test0",
+        "cycle0",
+    }
+
+
+def test_the_recipe_source_document_is_its_fields() -> None:
+    src = RecipeSource("recipes/x.yaml", "recipe: x\n", {"i": "1 A"}, "var/results/t1")
+    doc = src.as_dict()
+    assert doc == dataclasses.asdict(src) and doc["parameters"] is not src.parameters
+    assert RecipeSource.from_dict(doc) == src

@@ -3,9 +3,12 @@ tag's history settings, in order, with its acquisition time."""
 
 from __future__ import annotations
 
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from supervisor.core.clock import VirtualClock
 from supervisor.core.quality import Quality, Reason
-from supervisor.publish.changes import ChangeFeed
+from supervisor.publish.changes import ChangeFeed, Sample
 from supervisor.tags import TagDB, TagSpec
 from supervisor.tags.spec import HistorySettings
 
@@ -72,3 +75,64 @@ def test_text_tags_and_disabled_history() -> None:
     put(db, clock, 1.0, 1.0)
     db.update(db["ch0.state"], "running")
     assert [(s.name, s.value) for s in feed.take()] == [("ch0.state", "running")]
+
+
+class PlainFeed(ChangeFeed):
+    """The feed's rule applied one change at a time (``_keep`` for every tag): what the
+    inlined path of ``take`` must give."""
+
+    def take(self) -> list[Sample]:
+        changed = self.db.changed_since(self._version)
+        out: list[Sample] = []
+        self._wall_offset = self.clock.to_wall(0.0)
+        if self._pending:
+            now = self.clock.now()
+            for index, tag in list(self._pending.items()):
+                if now - self._last[index][2] >= tag.spec.history.min_interval_s:
+                    del self._pending[index]
+                    if tag.version <= self._version:
+                        sample = self._keep(tag, now)
+                        if sample is not None:
+                            out.append(sample)
+        for tag in changed:
+            sample = self._keep(tag)
+            if sample is not None:
+                out.append(sample)
+        self._version = self.db.version
+        return out
+
+
+HISTORIES = (
+    HistorySettings(),
+    HistorySettings(deadband=0.5),
+    HistorySettings(min_interval_s=0.03),
+    HistorySettings(enabled=False),
+)
+# One scan: (tag, value or None for BAD, an explicit source time or not) changes.
+scan_changes = st.lists(
+    st.tuples(st.integers(0, 4), st.one_of(st.none(), st.integers(0, 4)), st.booleans()),
+    max_size=6,
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(scan_changes, min_size=1, max_size=40))
+def test_the_feed_stores_what_its_rule_applied_to_each_change_stores(
+    plan: list[list[tuple[int, int | None, bool]]],
+) -> None:
+    db, clock = TagDB(), VirtualClock(wall_epoch_s=1_767_254_400.0)
+    for k, history in enumerate(HISTORIES):
+        db.add(TagSpec(f"t{k}", unit="V", history=history))
+    db.add(TagSpec("state", dtype="str", initial=""))
+    fast, plain = ChangeFeed(db, clock), PlainFeed(db, clock)
+    for changes in plan:
+        clock.advance(0.01)
+        db.set_scan_time(clock.now())
+        for k, v, stamped in changes:
+            tag = db["state"] if k == 4 else db[f"t{k}"]
+            source_t = clock.now() - 0.005 if stamped else None
+            if v is None:
+                db.update(tag, tag.value, Quality.BAD, Reason.NOT_CONNECTED, source_t)
+            else:
+                db.update(tag, str(v) if k == 4 else float(v), source_t=source_t)
+        assert fast.take() == plain.take()

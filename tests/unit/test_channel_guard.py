@@ -301,3 +301,21 @@ def test_the_first_trip_is_first_out_and_every_transition_is_logged_with_its_act
     assert ("ch0.voltage_high", "activated", "") in log
     assert ("ch0.voltage_high", "acknowledged", "alice") in log
     assert ("ch0.voltage_high", "reset", "alice") in log
+
+
+# --- what a start waits for ----------------------------------------------------------------
+def test_a_channel_whose_bms_has_not_sent_yet_lists_it_among_its_inputs_not_good() -> None:
+    r = make(
+        extra_tags=(TagSpec("bms.cell_max", unit="V"), TagSpec("dev.connected", dtype="bool")),
+        bms={"cell_max_tag": "bms.cell_max", "cell_voltage_v": [3.0, 4.2]},
+    )
+    r.db.update(r.db["bms.cell_max"], None, Quality.BAD, Reason.INITIAL)  # no frame yet
+    assert r.guard.inputs_not_good() == [
+        "bms.cell_max BAD (initial value)",
+        "dev.connected not true",
+    ]
+    r.set("dev.connected", True)
+    r.set("bms.cell_max", 4.0)
+    assert r.guard.inputs_not_good() == []
+    r.set("ch0.voltage", None, Quality.BAD)
+    assert r.guard.inputs_not_good() == ["ch0.voltage BAD (comm failure)"]

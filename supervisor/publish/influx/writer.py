@@ -434,6 +434,7 @@ class InfluxWriter:
         # new series, which get every field of the channel once (``_new_test_samples``).
         self._tagged: dict[str, tuple[str, str]] = self._current_tests()
         self._alarms: dict[str, tuple[bool, str]] = {}
+        self._alarms_active: tuple[bool, ...] = (False,) * 5  # as the last scan saw them
         self._spool_problem = ""
         self._started = False
         self._floor_t = clock.now()
@@ -580,45 +581,50 @@ class InfluxWriter:
         failure = fs.failure
         if self._spool_problem and self.writer.commits:
             self._spool_problem = ""  # the new spool works: the alarm returns to normal
-        wanted = {
-            ALARM_CONFIG: (
-                failure in CONFIGURATION,
+        active = (
+            failure in CONFIGURATION,
+            failure in TRANSIENT and fs.failing_s >= s.alarm_after_s,
+            bool(fs.dead_alarm),
+            self.spool.overflowing or self.writer.unspooled_drops > 0,
+            bool(st.spool_error or self._spool_problem),
+        )
+        if active == self._alarms_active:
+            return  # every scan: the messages are made only for a change
+        self._alarms_active = active
+        messages: dict[str, Callable[[], str]] = {
+            ALARM_CONFIG: lambda: (
                 f"InfluxDB {s.url} bucket {s.bucket!r} refuses every write ({fs.last_error});"
-                " points are kept in the spool",
+                " points are kept in the spool"
             ),
-            ALARM_UNREACHABLE: (
-                failure in TRANSIENT and fs.failing_s >= s.alarm_after_s,
+            ALARM_UNREACHABLE: lambda: (
                 f"InfluxDB {s.url} has not accepted a write for {s.alarm_after_s:g} s"
-                f" ({fs.last_error}); points wait in the spool",
+                f" ({fs.last_error}); points wait in the spool"
             ),
-            ALARM_DEAD_LETTERS: (
-                bool(fs.dead_alarm),
+            ALARM_DEAD_LETTERS: lambda: (
                 f"InfluxDB refused points for good ({fs.dead_alarm}); they are in the"
-                f" dead-letter table of {s.spool_path}",
+                f" dead-letter table of {s.spool_path}"
             ),
-            ALARM_SPOOL_FULL: (
-                self.spool.overflowing or self.writer.unspooled_drops > 0,
+            ALARM_SPOOL_FULL: lambda: (
                 f"spool {s.spool_path} full ({s.spool_max_bytes} bytes) or not keeping up:"
-                " the oldest points are dropped",
+                " the oldest points are dropped"
             ),
-            ALARM_SPOOL: (
-                bool(st.spool_error or self._spool_problem),
+            ALARM_SPOOL: lambda: (
                 f"spool {s.spool_path}: "
                 + (
                     st.spool_error
                     or f"unreadable ({self._spool_problem}), moved to {self.spool.moved_to};"
                     " a new spool started"
-                ),
+                )
             ),
         }
         assert self.alarm is not None
-        for alarm_id, (active, message) in wanted.items():
+        for (alarm_id, message), on in zip(messages.items(), active, strict=True):
             previous = self._alarms.get(alarm_id)
-            if previous is None and not active:
+            if previous is None and not on:
                 continue
-            if previous is None or previous[0] != active:
-                self._alarms[alarm_id] = (active, message)
+            if previous is None or previous[0] != on:
+                self._alarms[alarm_id] = (on, message())
                 try:
-                    self.alarm(alarm_id, active, message)
+                    self.alarm(alarm_id, on, self._alarms[alarm_id][1])
                 except Exception:  # the alarm model's fault must not stop the publisher
                     log.exception("InfluxDB writer: alarm %s could not be set", alarm_id)
