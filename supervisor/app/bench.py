@@ -98,6 +98,7 @@ class Bench:
             self.summaries = SummaryWriter(f"bench {self.cfg.bench}")
             self.rows = RowWriter(f"bench {self.cfg.bench}")
             self.gate = self.engine.gate = ScanGate()
+            self.summaries.gate = self.rows.gate = self.gate
             if self.influx is not None:
                 self.influx.writer.gate = self.gate
         self.commands = CommandPath(

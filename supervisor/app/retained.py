@@ -160,6 +160,7 @@ class Retention:
         """Open ``<state_dir>/state.sqlite``, restore what it holds, and save from now on."""
         cfg = bench.cfg
         store = RetainStore(Path(cfg.state_dir) / STATE_NAME, wall=bench.clock.wall)
+        store.gate = bench.gate
         retention = cls(bench, store, cfg.retain.period_s, cfg.retain.summary_period_s)
         retention.restore()
         bench.engine.publishers.append(retention)

@@ -201,6 +201,11 @@ class FirstAndLast(Generic[T]):
         yield from self.first
         yield from self.last
 
+    def items(self) -> list[T]:
+        """The items kept, in order, as a new list (without a generator: a live test's
+        summary takes them at every step change)."""
+        return [*self.first, *self.last]
+
     def __len__(self) -> int:
         return len(self.first) + len(self.last)
 
@@ -252,6 +257,8 @@ class SummaryWriter(ThreadWriter):
             with self._cond:
                 while not self._pending and not self._stopping:
                     self._cond.wait()
+            self._give_way()
+            with self._cond:
                 if not self._pending:
                     return
                 path = next(iter(self._pending))
@@ -390,6 +397,8 @@ class ResultCollector:
     _events: FirstAndLast[dict[str, Any]] | None = None
     _kept_cycles: FirstAndLast[int] | None = None
     _open_cycles: set[int] = field(default_factory=set)  # not known complete yet
+    _done_dicts: dict[int, dict[str, Any]] = field(default_factory=dict)
+    """The summary's dicts of the finished cycles kept (``_cycle_dicts``)."""
     _unwritten_events: list[dict[str, Any]] = field(default_factory=list)
     """Events waiting for the timeline file (before the first record; after a restart)."""
     _unwritten_cycles: list[dict[str, Any]] = field(default_factory=list)
@@ -429,7 +438,7 @@ class ResultCollector:
     @property
     def kept_timeline(self) -> list[dict[str, Any]]:
         """The timeline events the summary shows (all of them when ``events_kept`` is None)."""
-        return list(self.timeline if self._events is None else self._events)
+        return list(self.timeline) if self._events is None else self._events.items()
 
     def _open_files(self) -> None:
         """Opened at the first record (so never for a test that did not start), in append
@@ -490,10 +499,12 @@ class ResultCollector:
         """A new cycle in memory; with a bound, the one it pushes out is forgotten (it is
         over, and in the cycles file: cycles end in order)."""
         self.cycles[c.cycle] = c
+        self._done_dicts.pop(c.cycle, None)
         if self._kept_cycles is not None:
             dropped = self._kept_cycles.append(c.cycle)
             if dropped is not None:
                 self.cycles.pop(dropped, None)
+                self._done_dicts.pop(dropped, None)
 
     def _cycle_over(self, c: CycleSummary, why_open: str = "") -> None:
         """``c`` has its final figures: its row in the cycles file."""
@@ -618,7 +629,7 @@ class ResultCollector:
             "end_reason": end_reason,
             "duration_s": round(self.test_time_s(now), 3),
             "records": self.records,
-            "cycles": [c.as_dict(why_open) for _, c in sorted(self.cycles.items())],
+            "cycles": self._cycle_dicts(why_open),
             "timeline": self.kept_timeline,
         }
         if self._events is not None:
@@ -626,6 +637,22 @@ class ResultCollector:
             out["timeline_omitted_at"] = len(self._events.first)
         if self._kept_cycles is not None:
             out["cycles_omitted"] = self._kept_cycles.omitted
+        return out
+
+    def _cycle_dicts(self, why_open: str) -> list[dict[str, Any]]:
+        """Every kept cycle as the summary shows it. A finished cycle's figures no longer
+        change: its dict is made once (a live test's summary is made at every step change,
+        and keeps up to ``cycles_kept`` cycles: made anew each time, that was 100 cycles per
+        step change and channel on the scan's thread after a few hours)."""
+        done = self._done_dicts
+        out = []
+        for n, c in sorted(self.cycles.items()):
+            d = done.get(n) if c.complete else None
+            if d is None:
+                d = c.as_dict(why_open)
+                if c.complete and n not in self._open_cycles:
+                    done[n] = d  # read only from here on (a writer's thread may dump it)
+            out.append(d)
         return out
 
     def checkpoint(self, state: str = "", now: float | None = None) -> None:

@@ -33,6 +33,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from supervisor.core.gate import ScanGate
+
 log = logging.getLogger(__name__)
 
 STATE_NAME = "state.sqlite"
@@ -83,6 +85,8 @@ class RetainStore:
         self._stopping = False
         self._retry_now = False
         self._thread: threading.Thread | None = None
+        self.gate: ScanGate | None = None
+        """Real clock: the writer waits here while a scan runs (``core/gate.py``)."""
         self.error: str | None = None  # the last write's failure; None once one succeeds
         self.writes = 0  # transactions committed
         self.failures = 0  # transactions that failed
@@ -220,6 +224,11 @@ class RetainStore:
                 with self._cond:
                     while not self._pending and not self._stopping:
                         self._cond.wait()
+                if self.gate is not None:
+                    # Woken by a put of the scan: the documents are dumped once it is done
+                    # (and those of the same scan come along), not against it (ADR 0021).
+                    self.gate.wait()
+                with self._cond:
                     if not self._pending:
                         return  # stopping, nothing left
                     batch, self._pending = self._pending, {}

@@ -19,6 +19,8 @@ import time
 from collections import deque
 from collections.abc import Callable
 
+from supervisor.core.gate import ScanGate
+
 log = logging.getLogger(__name__)
 
 Job = Callable[[], None]
@@ -39,6 +41,14 @@ class ThreadWriter:
         self._cond = threading.Condition()
         self._stopping = False
         self._thread: threading.Thread | None = None
+        self.gate: ScanGate | None = None
+        """Real clock: the thread waits here while a scan runs (``core/gate.py``)."""
+
+    def _give_way(self) -> None:
+        """Before a piece of work, outside ``_cond``: a thread woken by the scan's hand-over
+        would otherwise take the interpreter lock from that very scan (ADR 0021)."""
+        if self.gate is not None:
+            self.gate.wait()
 
     def _start_thread(self) -> None:
         """The caller holds ``_cond``."""
@@ -114,6 +124,8 @@ class RowWriter(ThreadWriter):
                     self._waiting = True
                     self._cond.wait()
                     self._waiting = False
+            self._give_way()  # the rows of this scan come along
+            with self._cond:
                 if not self._jobs:
                     return
                 jobs = list(self._jobs)

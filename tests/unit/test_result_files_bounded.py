@@ -257,3 +257,28 @@ def test_a_dry_run_without_a_folder_keeps_nothing_for_a_file() -> None:
     run(c, range(1000))
     assert c._unwritten_events == [] and c._unwritten_cycles == []
     assert len(c.kept_timeline) == 4
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    n_s=st.integers(min_value=1, max_value=200),
+    cycles_kept=st.integers(min_value=1, max_value=12),
+    every_s=st.integers(min_value=1, max_value=15),
+)
+def test_the_summary_at_every_checkpoint_shows_each_cycle_as_it_stands_then(
+    n_s: int, cycles_kept: int, every_s: int
+) -> None:
+    """The dicts of finished cycles are made once and reused: each summary still shows
+    every kept cycle exactly as its figures stand at that moment."""
+    c = ResultCollector("ch0", "r", "t1", None, cycles_kept=cycles_kept)
+    for t in range(n_s):
+        run(c, range(t, t + 1))
+        if t % every_s == 0:
+            fresh = [cy.as_dict() for _, cy in sorted(c.cycles.items())]
+            assert c.summary("", "Running", complete=False)["cycles"] == fresh
+    whole = everything(range(n_s), "aborted: abort by bob", "Aborted")
+    s = c.summary("aborted: abort by bob", "Aborted")
+    assert all(row in whole["cycles"] for row in s["cycles"])
+    assert s["cycles"] == [
+        cy.as_dict("aborted: abort by bob") for _, cy in sorted(c.cycles.items())
+    ]

@@ -14,6 +14,9 @@ from supervisor.core.gate import ScanGate
 from supervisor.publish.influx.spool import Spool
 from supervisor.publish.influx.writer import SpoolWriter
 from supervisor.publish.opcua.server import GatedSelector
+from supervisor.publish.results import SummaryWriter
+from supervisor.publish.retain import RetainStore
+from supervisor.publish.rows import RowWriter
 from supervisor.scan.engine import LogicPhase, ScanEngine
 from supervisor.tags import TagDB
 from supervisor.testing import wait_until
@@ -112,3 +115,34 @@ async def test_the_influx_spool_encodes_a_scans_samples_only_once_the_scan_is_do
     finally:
         gate.open()
         await asyncio.to_thread(writer.stop)
+
+
+async def test_result_rows_summaries_and_retained_state_are_written_once_the_scan_is_done(
+    tmp_path: Path,
+) -> None:
+    """The scan hands a row, a summary and a retained document over and wakes their
+    threads; each waits at the gate before it writes."""
+    gate = ScanGate(max_wait_s=60.0)
+    rows, summaries = RowWriter("t"), SummaryWriter("t")
+    store = RetainStore(tmp_path / "state.sqlite")
+    store.open()
+    rows.gate = summaries.gate = store.gate = gate
+    row_written = threading.Event()
+    summary = tmp_path / "summary.json"
+    try:
+        gate.close()
+        rows.put(row_written.set)
+        summaries.put(summary, "ch0", {"state": "Running"})
+        store.put("channel:ch0", {"chain": None})
+        await wait_until(lambda: gate.waits >= 3, "the three writers at the gate", LIMIT_S)
+        assert not row_written.is_set() and not summary.exists() and store.read() == {}
+        gate.open()
+        await wait_until(row_written.is_set, "the row after the scan", LIMIT_S)
+        await wait_until(summary.exists, "the summary after the scan", LIMIT_S)
+        assert await asyncio.to_thread(store.flush, LIMIT_S)
+        assert store.read() == {"channel:ch0": {"chain": None}}
+    finally:
+        gate.open()
+        await asyncio.to_thread(rows.stop)
+        await asyncio.to_thread(summaries.stop)
+        await asyncio.to_thread(store.close)
