@@ -25,6 +25,7 @@ from supervisor.app.history import history_enabled, history_path
 from supervisor.core.clock import VirtualClock
 from supervisor.core.driver import Value
 from supervisor.core.errors import ConfigErrors
+from supervisor.core.gate import ScanGate
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
 from supervisor.devices.registry import bench_from_data, load_bench
@@ -744,3 +745,19 @@ def test_history_defaults_and_bounds() -> None:
                     "devices": {"chadeche": {"driver": "chadeche", "boards": [{"address": 0}]}},
                 }
             )
+
+
+def test_the_writer_looks_at_the_scan_gate_between_every_scans_samples_of_a_batch(
+    make: Make,
+) -> None:
+    """A batch is made and inserted a piece at a time, the scan's turn in between: a
+    second of the load case's changes in one go held the interpreter lock for ms."""
+    r = make(settings=WriterSettings(commit_interval_s=60.0, retry_s=0.02))
+    gate = ScanGate(max_wait_s=0.001)  # closed for good: every look at it counts a wait
+    for k in range(5):
+        r.scan({"ch0.voltage": 1.0 + k / 10})
+    r.historian.writer.gate = gate
+    gate.close()
+    r.flush()
+    assert gate.waits >= 5 + 1  # before each scan's rows, and before the first insert
+    assert [v for _, v, _ in r.stored("ch0.voltage")][-5:] == [1.0, 1.1, 1.2, 1.3, 1.4]

@@ -63,6 +63,9 @@ ConnectHook = Callable[[sqlite3.Connection], None]
 SIZE_TARGET_FRACTION = 0.9
 """Retention by size deletes down to this fraction of ``max_bytes``: a file at its bound
 would otherwise run a delete at every pass."""
+GATE_ROWS = 500
+"""Rows inserted between two looks at the scan gate (``executemany`` takes the interpreter
+lock back for every row; a batch of ten thousand rows in one call is milliseconds of it)."""
 SIZE_ROUNDS = 20
 """Estimates of the cut-off time per retention pass (each one deletes the slice of time
 the file's average rate says is too much; the next one corrects it)."""
@@ -417,11 +420,13 @@ class HistoryWriter:
             try:
                 rows = self._rows(conn, samples, new)
                 n_rows = len(rows)
-                conn.executemany(
-                    "INSERT OR REPLACE INTO samples (tag_id, t, value, quality)"
-                    " VALUES (?, ?, ?, ?)",
-                    rows,
-                )
+                for k in range(0, n_rows, GATE_ROWS):
+                    self._give_way()
+                    conn.executemany(
+                        "INSERT OR REPLACE INTO samples (tag_id, t, value, quality)"
+                        " VALUES (?, ?, ?, ?)",
+                        rows[k : k + GATE_ROWS],
+                    )
                 if events:
                     conn.executemany(
                         "INSERT INTO events (wall, kind, channel, source, text, actor,"
@@ -478,19 +483,28 @@ class HistoryWriter:
         samples: deque[Sequence[Sample]],
         new: dict[str, int],
     ) -> list[tuple[int, float, object, Quality]]:
-        """The rows of a batch. One comprehension (this is the writer's share of the GIL,
-        which the scan needs too); a tag first seen on this connection is upserted into
-        the dictionary first. Values are stored as they are: the tag database has made a
-        non-finite value BAD, so it arrives here as None (``ChangeFeed``)."""
+        """The rows of a batch, a scan's samples at a time; a tag first seen on this
+        connection is upserted into the dictionary first. Values are stored as they are:
+        the tag database has made a non-finite value BAD, so it arrives here as None
+        (``ChangeFeed``)."""
         ids = self._ids
-        try:
-            return [(ids[s.name], s.wall, s.value, s.quality) for b in samples for s in b]
-        except KeyError:
-            pass
-        for name in {s.name for b in samples for s in b if s.name not in ids}:
-            new[name] = self._upsert_tag(conn, name)
-        known = {**ids, **new}
-        return [(known[s.name], s.wall, s.value, s.quality) for b in samples for s in b]
+        if any(s.name not in ids for b in samples for s in b):
+            for name in {s.name for b in samples for s in b if s.name not in ids}:
+                new[name] = self._upsert_tag(conn, name)
+            ids = {**ids, **new}
+        rows: list[tuple[int, float, object, Quality]] = []
+        extend = rows.extend
+        for b in samples:
+            # A scan's samples at a time, the scan's turn in between: a second of changes
+            # in the load case is ten thousand rows, 5 ms of the interpreter lock in one go.
+            self._give_way()
+            extend([(ids[s.name], s.wall, s.value, s.quality) for s in b])
+        return rows
+
+    def _give_way(self) -> None:
+        """Between two pieces of a batch: wait while a scan runs (``core/gate.py``)."""
+        if self.gate is not None:
+            self.gate.wait()
 
     def _upsert_tag(self, conn: sqlite3.Connection, name: str) -> int:
         """The tag's id, its unit, dtype and description as this run declares them."""

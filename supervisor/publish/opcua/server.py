@@ -489,10 +489,16 @@ class OpcUaServer:
 
     async def _write(self, server: Server, updates: list[Update]) -> None:
         aspace = server.iserver.aspace
+        gate = self.gate
         for n, u in enumerate(updates, 1):
             target = self._by_index.get(u.index)
             if target is None:
                 continue  # declared after the server started
+            if gate is not None:
+                # Between two writes, not only at the loop's selects: a batch of a few
+                # hundred writes (each with its subscriptions' notifications) held the
+                # interpreter lock for milliseconds, against the scan (ADR 0021).
+                gate.wait()
             nid, kind = target
             await aspace.write_attribute_value(nid, ua.AttributeIds.Value, self._value(u, kind))
             self.written += 1
