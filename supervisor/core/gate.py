@@ -13,8 +13,12 @@ long, or an engine that stopped with the gate closed, delays the others, never s
 
 from __future__ import annotations
 
+import logging
 import threading
+from collections.abc import Callable
 from typing import Final
+
+log = logging.getLogger(__name__)
 
 MAX_WAIT_S: Final = 0.02
 """The longest a thread waits at a closed gate: two periods of a 10 ms scan. A scan
@@ -29,6 +33,7 @@ class ScanGate:
         self.max_wait_s = max_wait_s
         self._open = threading.Event()
         self._open.set()
+        self._wakes: list[Callable[[], None]] = []
         self.waits = 0
         """Times a thread found the gate closed (diagnostics)."""
 
@@ -41,8 +46,31 @@ class ScanGate:
         self._open.clear()
 
     def open(self) -> None:
-        """The scan is done: the threads waiting go on."""
+        """The scan is done: the threads waiting go on, and those handed work during the
+        scan are woken (each once)."""
         self._open.set()
+        if self._wakes:
+            wakes, self._wakes = self._wakes, []
+            for wake in dict.fromkeys(wakes):  # a bound method equals itself: once each
+                try:
+                    wake()
+                except Exception:  # one writer's fault must not keep the others asleep
+                    log.exception("scan gate: a wake-up failed")
+
+    @property
+    def pending_wakes(self) -> int:
+        """Wake-ups waiting for the scan to end (diagnostics)."""
+        return len(self._wakes)
+
+    def after_scan(self, wake: Callable[[], None]) -> None:
+        """``wake()`` (a thread's wake-up after a hand-over) now if no scan runs, else when
+        the scan is done. Woken during the scan, a thread takes the interpreter lock from
+        it to reach the gate, and the wake-up itself is a system call on the scan's thread
+        (a futex, a pipe write); after the scan it costs the scan nothing."""
+        if self._open.is_set():
+            wake()
+        else:
+            self._wakes.append(wake)  # open() swaps the list: a late one waits a period
 
     def wait(self) -> None:
         """Between two pieces of a thread's work: go on at once if the gate is open, else

@@ -234,12 +234,14 @@ class SummaryWriter(ThreadWriter):
     def put(self, path: Path, channel: str, summary: dict[str, Any]) -> None:
         """Write ``summary`` to ``path`` soon (replacing one not written yet); returns at once."""
         with self._cond:
-            if not self._stopping:
+            stopped = self._stopping
+            if not stopped:
                 self._pending[path] = (channel, summary)
                 self._start_thread()
-                self._cond.notify_all()
-                return
-        self.write_now(path, channel, summary)  # stopped: on the caller's thread
+        if stopped:
+            self.write_now(path, channel, summary)  # stopped: on the caller's thread
+        else:
+            self._wake()
 
     def write_now(self, path: Path, channel: str, summary: dict[str, Any]) -> None:
         """Write ``summary`` now (the older one waiting for ``path`` is dropped)."""

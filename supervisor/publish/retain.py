@@ -163,6 +163,13 @@ class RetainStore:
         with self._cond:
             self._pending[key] = (wall, document)
             self._submitted += 1
+        if self.gate is not None:
+            self.gate.after_scan(self._kick)  # woken once the scan is done
+        else:
+            self._kick()
+
+    def _kick(self) -> None:
+        with self._cond:
             self._cond.notify_all()
 
     @property

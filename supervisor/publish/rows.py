@@ -44,6 +44,17 @@ class ThreadWriter:
         self.gate: ScanGate | None = None
         """Real clock: the thread waits here while a scan runs (``core/gate.py``)."""
 
+    def _wake(self) -> None:
+        """Wake the thread for work handed over (after the scan when one runs)."""
+        if self.gate is not None:
+            self.gate.after_scan(self._kick)
+        else:
+            self._kick()
+
+    def _kick(self) -> None:
+        with self._cond:
+            self._cond.notify_all()
+
     def _give_way(self) -> None:
         """Before a piece of work, outside ``_cond``: a thread woken by the scan's hand-over
         would otherwise take the interpreter lock from that very scan (ADR 0021)."""
@@ -105,14 +116,16 @@ class RowWriter(ThreadWriter):
     def put(self, job: Job) -> None:
         """Run ``job`` soon, after every job handed over before it; returns at once."""
         with self._cond:
-            if not self._stopping:
+            stopped = self._stopping
+            if not stopped:
                 self._jobs.append(job)
+                wake = self._thread is not None and self._waiting
                 if self._thread is None:
                     self._start_thread()
-                elif self._waiting:
-                    self._cond.notify_all()  # a busy thread takes it without being told
-                return
-        self._do(job)
+        if stopped:
+            self._do(job)
+        elif wake:
+            self._wake()  # a busy thread takes it without being told
 
     def _busy(self) -> bool:
         return bool(self._jobs or self._running)

@@ -108,10 +108,11 @@ async def test_the_influx_spool_encodes_a_scans_samples_only_once_the_scan_is_do
     try:
         gate.close()
         writer.put_deferred(1, encode)
-        await wait_until(lambda: gate.waits >= 1, "the encoder at the gate", LIMIT_S)
-        assert not encoded.is_set()
+        # The idle encoder is not even woken during the scan: that waits for its end.
+        assert gate.pending_wakes == 1 and not encoded.is_set()
         gate.open()
         await wait_until(encoded.is_set, "encoded after the scan", LIMIT_S)
+        assert gate.pending_wakes == 0
     finally:
         gate.open()
         await asyncio.to_thread(writer.stop)
@@ -120,8 +121,8 @@ async def test_the_influx_spool_encodes_a_scans_samples_only_once_the_scan_is_do
 async def test_result_rows_summaries_and_retained_state_are_written_once_the_scan_is_done(
     tmp_path: Path,
 ) -> None:
-    """The scan hands a row, a summary and a retained document over and wakes their
-    threads; each waits at the gate before it writes."""
+    """The scan hands a row, a summary and a retained document over; their threads are
+    woken when the scan is done (and wait at the gate before they write)."""
     gate = ScanGate(max_wait_s=60.0)
     rows, summaries = RowWriter("t"), SummaryWriter("t")
     store = RetainStore(tmp_path / "state.sqlite")
@@ -130,19 +131,45 @@ async def test_result_rows_summaries_and_retained_state_are_written_once_the_sca
     row_written = threading.Event()
     summary = tmp_path / "summary.json"
     try:
+        # Their threads started and idle (the first hand-over starts a writer's thread).
+        rows.put(lambda: None)
+        summaries.put(tmp_path / "other.json", "ch1", {})
+        store.put("channel:ch1", {})
+        assert await asyncio.to_thread(rows.flush) and await asyncio.to_thread(summaries.flush)
+        assert await asyncio.to_thread(store.flush, LIMIT_S)
         gate.close()
         rows.put(row_written.set)
         summaries.put(summary, "ch0", {"state": "Running"})
         store.put("channel:ch0", {"chain": None})
-        await wait_until(lambda: gate.waits >= 3, "the three writers at the gate", LIMIT_S)
-        assert not row_written.is_set() and not summary.exists() and store.read() == {}
+        # Woken only once the scan is done, each once.
+        assert gate.pending_wakes == 3
+        assert not row_written.is_set() and not summary.exists()
+        assert "channel:ch0" not in store.read()
         gate.open()
         await wait_until(row_written.is_set, "the row after the scan", LIMIT_S)
         await wait_until(summary.exists, "the summary after the scan", LIMIT_S)
         assert await asyncio.to_thread(store.flush, LIMIT_S)
-        assert store.read() == {"channel:ch0": {"chain": None}}
+        assert store.read()["channel:ch0"] == {"chain": None}
     finally:
         gate.open()
         await asyncio.to_thread(rows.stop)
         await asyncio.to_thread(summaries.stop)
         await asyncio.to_thread(store.close)
+
+
+def test_a_wake_up_asked_for_during_a_scan_is_made_once_when_it_ends() -> None:
+    gate = ScanGate()
+    woken: list[str] = []
+
+    def wake() -> None:
+        woken.append("writer")
+
+    gate.after_scan(wake)
+    assert woken == ["writer"]  # no scan runs: at once
+    gate.close()
+    gate.after_scan(wake)
+    gate.after_scan(wake)
+    gate.after_scan(lambda: woken.append("other"))
+    assert woken == ["writer"] and gate.pending_wakes == 3
+    gate.open()
+    assert woken == ["writer", "writer", "other"] and gate.pending_wakes == 0

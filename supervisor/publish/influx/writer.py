@@ -209,8 +209,16 @@ class SpoolWriter:
             self._queued += points
             if self._queued > self.max_queue_points:
                 self._shed()
-            if self._idle:
-                self._cond.notify_all()
+            idle = self._idle
+        if idle:
+            if self.gate is not None:
+                self.gate.after_scan(self._kick)  # woken once the scan is done
+            else:
+                self._kick()
+
+    def _kick(self) -> None:
+        with self._cond:
+            self._cond.notify_all()
 
     def _shed(self) -> None:
         dropped = 0

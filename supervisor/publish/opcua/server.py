@@ -403,12 +403,19 @@ class OpcUaServer:
         wake = self._wake
         assert wake is not None
 
+        def signal() -> None:
+            with contextlib.suppress(RuntimeError):  # the server's loop has ended
+                loop.call_soon_threadsafe(wake.set)
+
+        gate = self.gate
+
         def wake_up() -> None:
-            if self.threaded:
-                with contextlib.suppress(RuntimeError):  # the server's loop has ended
-                    loop.call_soon_threadsafe(wake.set)
-            else:
+            if not self.threaded:
                 wake.set()
+            elif gate is not None:
+                gate.after_scan(signal)  # the pipe write once the scan is done
+            else:
+                signal()
 
         first = await self._call_bench(lambda: self.feed.start(self.db, wake_up))
         await self._write(server, first)
