@@ -72,10 +72,12 @@ class ScanGate:
         else:
             self._wakes.append(wake)  # open() swaps the list: a late one waits a period
 
-    def wait(self) -> None:
+    def wait(self, timeout_s: float | None = None) -> None:
         """Between two pieces of a thread's work: go on at once if the gate is open, else
-        wait (without the interpreter lock) until it opens or ``max_wait_s`` passed."""
+        wait (without the interpreter lock) until it opens or ``max_wait_s`` (or the
+        shorter ``timeout_s``) passed."""
         if self._open.is_set():
             return
         self.waits += 1
-        self._open.wait(self.max_wait_s)
+        limit_s = self.max_wait_s if timeout_s is None else min(timeout_s, self.max_wait_s)
+        self._open.wait(limit_s)

@@ -24,6 +24,8 @@ from supervisor.core.gate import ScanGate
 log = logging.getLogger(__name__)
 
 Job = Callable[[], None]
+FLUSH_LOOK_S = 0.001
+"""How often a thread at the scan gate looks whether someone waits in ``flush``."""
 
 
 class ThreadWriter:
@@ -43,6 +45,7 @@ class ThreadWriter:
         self._thread: threading.Thread | None = None
         self.gate: ScanGate | None = None
         """Real clock: the thread waits here while a scan runs (``core/gate.py``)."""
+        self._flushing = 0  # callers waiting in flush()
 
     def _wake(self) -> None:
         """Wake the thread for work handed over (after the scan when one runs)."""
@@ -57,9 +60,15 @@ class ThreadWriter:
 
     def _give_way(self) -> None:
         """Before a piece of work, outside ``_cond``: a thread woken by the scan's hand-over
-        would otherwise take the interpreter lock from that very scan (ADR 0021)."""
-        if self.gate is not None:
-            self.gate.wait()
+        would otherwise take the interpreter lock from that very scan (ADR 0021). Not while
+        someone waits in ``flush``: that may be the scan itself (a test ending in it)."""
+        gate = self.gate
+        if gate is None:
+            return
+        end = time.monotonic() + gate.max_wait_s
+        # In steps, so that a flush that comes meanwhile is not kept waiting.
+        while not gate.is_open and not self._flushing and time.monotonic() < end:
+            gate.wait(FLUSH_LOOK_S)
 
     def _start_thread(self) -> None:
         """The caller holds ``_cond``."""
@@ -79,11 +88,18 @@ class ThreadWriter:
         """Wait until everything handed over is on disk; False after ``timeout_s``."""
         end = time.monotonic() + timeout_s
         with self._cond:
-            while self._busy():
-                left = end - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cond.wait(left)
+            # Woken here, not after the scan (``_wake``), and past the gate: the caller
+            # waits for it, and may be the scan.
+            self._flushing += 1
+            self._cond.notify_all()
+            try:
+                while self._busy():
+                    left = end - time.monotonic()
+                    if left <= 0:
+                        return False
+                    self._cond.wait(left)
+            finally:
+                self._flushing -= 1
         return True
 
     def stop(self, timeout_s: float = 10.0) -> None:

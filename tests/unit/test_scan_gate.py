@@ -173,3 +173,25 @@ def test_a_wake_up_asked_for_during_a_scan_is_made_once_when_it_ends() -> None:
     assert woken == ["writer"] and gate.pending_wakes == 3
     gate.open()
     assert woken == ["writer", "writer", "other"] and gate.pending_wakes == 0
+
+
+async def test_a_flush_during_a_scan_writes_what_that_scan_handed_over(tmp_path: Path) -> None:
+    """A test ending in a scan closes its files, which first waits for its rows: the row
+    writer is woken by the flush and does not wait for the gate the scan holds closed."""
+    gate = ScanGate(max_wait_s=60.0)  # a writer waiting at it would outlast the flush
+    rows, summaries = RowWriter("t"), SummaryWriter("t")
+    rows.gate = summaries.gate = gate
+    written: list[str] = []
+    try:
+        rows.put(lambda: written.append("earlier"))
+        assert await asyncio.to_thread(rows.flush)
+        gate.close()  # the scan runs
+        rows.put(lambda: written.append("the test's last row"))
+        summaries.put(tmp_path / "summary.json", "ch0", {"state": "Running"})
+        assert rows.flush(timeout_s=LIMIT_S) and summaries.flush(timeout_s=LIMIT_S)
+        assert written == ["earlier", "the test's last row"]
+        assert (tmp_path / "summary.json").exists()
+    finally:
+        gate.open()
+        await asyncio.to_thread(rows.stop)
+        await asyncio.to_thread(summaries.stop)
