@@ -30,6 +30,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict
 from typing import Any, Final
@@ -54,6 +55,8 @@ log = logging.getLogger(__name__)
 QUEUE_SIZE: Final = 256
 """Messages waiting for one client at most (about 50 s of deltas at 0.2 s, with room for
 an alarm storm's events) before it counts as too slow."""
+EVENTS_WAITING: Final = 1000
+"""Bench events kept for the next publication at most (an e-stop's burst is tens)."""
 TOO_SLOW_CODE: Final = int(WSCloseCode.POLICY_VIOLATION)  # 1008 (RFC 6455 §7.4.1)
 TOO_SLOW: Final = "too slow"
 CLOSE_TIMEOUT_S: Final = 10.0
@@ -121,6 +124,7 @@ class LiveHub:
         self._next_t: float | None = None
         self._due = asyncio.Event()
         self._alarms_changed = False
+        self._events: deque[BenchEvent] = deque()  # for the next publication
         self._task: asyncio.Task[None] | None = None
         self.snapshots = TagSnapshots(db, clock)
         self._clients_tag = _declare(db, "hmi.ws_clients", "WebSocket clients (screens) connected")
@@ -149,12 +153,21 @@ class LiveHub:
 
     def on_event(self, event: BenchEvent) -> None:
         """An ``EventSink`` (chain steps, commands, alarm transitions), from the scan or a
-        command: one text for every client, queued without waiting."""
+        command: kept, and sent to every client by the next publication, before its delta.
+        Encoded there, not here: 16 channels changing step in one scan were 16 JSON texts
+        made on the scan's thread (issue 13)."""
         if not self.clients:
             return
-        body = asdict(event)
-        del body["t"]  # the clock's own axis: meaningless to a browser
-        self._broadcast(json_dumps({"type": "event", "event": body}))
+        if len(self._events) >= EVENTS_WAITING:
+            self.dropped += 1  # the publication is stuck: the clients get the newest
+            self._events.popleft()
+        self._events.append(event)
+
+    def _send_events(self) -> None:
+        while self._events:
+            body = asdict(self._events.popleft())
+            del body["t"]  # the clock's own axis: meaningless to a browser
+            self._broadcast(json_dumps({"type": "event", "event": body}))
 
     def _on_alarm(self, ev: AlarmEvent) -> None:
         self._alarms_changed = True
@@ -180,6 +193,7 @@ class LiveHub:
         for c in list(self.clients):
             if not c.valid():
                 self._kick(c, WSCloseCode.POLICY_VIOLATION, "session expired")
+        self._send_events()
         if not self.clients:
             self._version, self._alarms_changed = now_version, False
             return

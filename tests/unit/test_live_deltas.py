@@ -11,6 +11,7 @@ import json
 from typing import Any
 
 from supervisor.core.clock import VirtualClock
+from supervisor.core.records import BenchEvent
 from supervisor.hmi.live import LiveClient, LiveHub, tag_entry
 from supervisor.hmi.server import json_dumps
 from supervisor.tags import TagDB, TagSpec
@@ -91,5 +92,41 @@ def test_a_snapshot_after_a_delta_encodes_again_only_what_changed_since(
         assert fragments.encoded == encoded + 9
         by_name = {t.name: tag_entry(t, virtual_clock) for t in db}
         assert (version, text) == (db.version, json_dumps(by_name))
+
+    asyncio.run(scenario())
+
+
+def test_a_bench_event_reaches_the_pages_with_the_next_publication_before_its_delta(
+    virtual_clock: VirtualClock,
+) -> None:
+    """An event from the scan (a step change) is kept, not encoded there: the next
+    publication sends it to every page, then the delta with the tags that changed."""
+    db = _db(3)
+    hub = LiveHub(db, virtual_clock, publish_period_s=0.2)
+
+    async def scenario() -> None:
+        await hub.publish()
+        page = _client(hub.version)
+        hub.clients.add(page)
+        db.update(db["t000"], 9.0)
+        hub.on_event(BenchEvent(5.0, 1_767_225_605.0, "step", "ch0", "charge", "starting step 1"))
+        assert page.queue.empty()  # nothing made or queued in the scan
+        await hub.publish()
+        event, delta = json.loads(page.queue.get_nowait()), json.loads(page.queue.get_nowait())
+        assert event == {
+            "type": "event",
+            "event": {
+                "wall": 1_767_225_605.0,
+                "kind": "step",
+                "channel": "ch0",
+                "source": "charge",
+                "text": "starting step 1",
+                "actor": "",
+                "severity": 0,
+                "test_id": "",
+                "recipe": "",
+            },
+        }
+        assert delta["type"] == "delta" and list(delta["tags"]) == ["t000"]
 
     asyncio.run(scenario())
