@@ -38,6 +38,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Final
 
 import yaml
 
@@ -186,7 +187,7 @@ def memory_benchmark(
         f"RSS growth per 10 min after {warm:g} s warm-up ({minutes:g} min run)",
         f.growth_b_per_10min / MB,
         "MB",
-        "<= 1",
+        growth_target(minutes),
         f"{f.after_samples} samples every {sample_s:g} s;"
         f" last third {f.last_third_b_per_10min / MB:+.2f} MB per 10 min",
         cmd,
@@ -298,3 +299,16 @@ async def _run_virtual(
         tracemalloc.stop()
         await bench.shutdown()  # the historian, the retained state and the simulators too
     return out
+
+
+TARGET_RUN_MIN: Final = 30.0
+"""The run the growth target is defined over (issue 13: "after 30 min")."""
+
+
+def growth_target(minutes: float) -> str:
+    """The growth target as recorded: judged on a run of ``TARGET_RUN_MIN`` or longer. A
+    shorter run's slope is mostly its warm-up (the caches filling to their ceilings): it
+    is shown, not judged (``benchreport.met`` gives None, the table a dash)."""
+    if minutes >= TARGET_RUN_MIN:
+        return "<= 1"
+    return f"{TARGET_RUN_MIN:g} min run: <= 1 (not judged on {minutes:g} min)"

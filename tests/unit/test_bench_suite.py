@@ -211,3 +211,13 @@ def test_the_virtual_memory_trace_snapshots_every_simulated_minute_and_records_n
 
 def test_the_virtual_memory_trace_needs_a_folder(at_root: Path) -> None:
     assert main(["bench", "memory", "--virtual"]) == 2
+
+
+def test_the_growth_target_is_judged_on_a_run_of_thirty_minutes_only() -> None:
+    from supervisor.app.benchmem import growth_target
+    from supervisor.app.benchreport import met
+
+    assert met(0.4, growth_target(30)) is True and met(1.5, growth_target(45)) is False
+    # Three minutes are mostly warm-up: shown, not judged.
+    assert met(8.2, growth_target(3)) is None
+    assert growth_target(3) == "30 min run: <= 1 (not judged on 3 min)"
