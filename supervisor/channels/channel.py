@@ -31,6 +31,7 @@ _AUTO = Mode.AUTO.value
 
 
 _isfinite = math.isfinite
+_GOOD, _NONE = Quality.GOOD, Reason.NONE
 
 
 def _as_float(tag: Tag, default: float = 0.0) -> float:
@@ -279,7 +280,13 @@ class Channel:
             p = (x if type(x) is float else v.as_float()) * (
                 y if type(y) is float else i.as_float()
             )
-            update(self.power, p)
+            power = self.power
+            if p == power.value and power.quality is _GOOD and power.reason is _NONE:
+                # Unchanged (a GOOD float tag holds a finite value, so ``p`` is one): only
+                # the source time moves, as the update would (issue 13: most scans).
+                db.stamp(power)
+            else:
+                update(power, p)
             self._prev_p = p
         else:
             update(self.power, self.power.value, Quality.BAD, Reason.DERIVED_FROM_BAD)
@@ -290,7 +297,14 @@ class Channel:
         request, active = self._request(), self._active()
         if self.fault.value:
             request, active = 0.0, False
-        db.update(self.current_cmd, self._clamp(request))
+        # The command, the clamp flag and the state are the same most scans: then only
+        # their source time moves, as their updates would (issue 13; the command is a
+        # finite number when it equals a GOOD float tag's value).
+        cmd, tag = self._clamp(request), self.current_cmd
+        if cmd == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+            db.stamp(tag)
+        else:
+            db.update(tag, cmd)
         if self.voltage_cmd is not None:
             vlo, vhi = self.limits.voltage_v
             target = _as_float(self.auto_voltage) if self.mode.value == _AUTO else 0.0
@@ -300,7 +314,11 @@ class Channel:
             db.update(self.output_cmd, active)
         if self._contactor is not None:
             db.update(self._contactor, active)
-        db.update(self.state, self._state_name())
+        state, tag = self._state_name(), self.state
+        if state == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+            db.stamp(tag)
+        else:
+            db.update(tag, state)
 
     def _integrate(self, dt: float) -> None:
         """Ah/Wh with a zero-order hold: the current read last scan flowed during ``dt``."""
@@ -356,8 +374,17 @@ class Channel:
             raise ValueError(f"non-finite current request {request!r}")
         out = min(max(request, lo), hi)
         hard = out != request
-        allowed = min(out, _as_float(self.charge_limit, hi)) if out > 0 else out
-        allowed = max(allowed, -_as_float(self.discharge_limit, -lo)) if allowed < 0 else allowed
+        # ``_as_float(tag, default)`` inlined: the limits are floats (every scan).
+        if out > 0:
+            limit = self.charge_limit
+            x = limit.value
+            allowed = min(out, x if type(x) is float else limit.as_float(hi))
+        else:
+            allowed = out
+        if allowed < 0:
+            limit = self.discharge_limit
+            x = limit.value
+            allowed = max(allowed, -(x if type(x) is float else limit.as_float(-lo)))
         clamped = allowed != request
         if clamped and request != self._last_clamp_req:
             why = f"hard limits [{lo}, {hi}] A" if hard and allowed == out else "safety limits"
@@ -366,7 +393,11 @@ class Channel:
             )
         out = allowed
         self._last_clamp_req = request if clamped else None
-        self.db.update(self.clamped, clamped)
+        tag = self.clamped
+        if clamped is tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+            self.db.stamp(tag)  # unchanged: as its update would
+        else:
+            self.db.update(tag, clamped)
         return out
 
     def _state_name(self) -> str:

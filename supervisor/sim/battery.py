@@ -140,9 +140,6 @@ class _Table:
         return self._ys[i] + self._slopes[i] * (x - xs[i])
 
 
-_isfinite = math.isfinite
-
-
 def _check_finite(name: str, value: float) -> float:
     if not math.isfinite(value):
         raise ValueError(f"{name} must be finite, got {value!r}")
@@ -234,9 +231,10 @@ class _LumpedCell(ABC):
     def step(self, current_a: float, dt_s: float) -> None:
         # A finite float passes _check_finite unchanged: the call only for anything else
         # (a dry run steps its cell 87 000 times).
-        if type(current_a) is not float or not _isfinite(current_a):
+        # ``x - x != 0.0``: not finite, for a float (inf - inf and NaN - NaN are NaN).
+        if type(current_a) is not float or current_a - current_a != 0.0:
             current_a = _check_finite("current_a", current_a)
-        if type(dt_s) is not float or not _isfinite(dt_s):
+        if type(dt_s) is not float or dt_s - dt_s != 0.0:
             dt_s = _check_finite("dt_s", dt_s)
         if dt_s < 0.0:
             raise ValueError(f"dt_s must be >= 0, got {dt_s!r}")
@@ -306,6 +304,8 @@ _NIMH_OCV = _Table(
         (1.05, 1.420),
     )
 )
+_OCV_XS, _OCV_YS, _OCV_SLOPES = _NIMH_OCV._xs, _NIMH_OCV._ys, _NIMH_OCV._slopes
+"""The NiMH OCV table's points, for the lookup written out in ``NiMHCell.voltage_at``."""
 
 # Negative temperature coefficient of the cell voltage (≈ −1 to −2 mV/°C per cell for
 # NiMH). With the oxygen overpotential's own fall with temperature (below) and the
@@ -527,8 +527,37 @@ class NiMHCell(_LumpedCell):
         # ``self._arrhenius(temp)`` and ``self._ocv(soc, temp)``, the same expressions
         # without the calls (a board reads the voltage every poll; test_battery_reuse.py).
         factor = math.exp(self._arrhenius_b_k * (1.0 / (temp + _KELVIN_OFFSET) - 1.0 / _T_REF_K))
-        ocv = _NIMH_OCV(soc) + _NIMH_TEMPCO_V_PER_K * (temp - 25.0)
-        eta = self._overpotential(current_a, soc, temp, factor)
+        # ``_NIMH_OCV(soc)``: the table's lookup, the same steps without the call.
+        xs = _OCV_XS
+        if soc <= xs[0]:
+            table_v = _OCV_YS[0]
+        elif soc >= xs[-1]:
+            table_v = _OCV_YS[-1]
+        else:
+            i = bisect_right(xs, soc) - 1
+            table_v = _OCV_YS[i] + _OCV_SLOPES[i] * (soc - xs[i])
+        ocv = table_v + _NIMH_TEMPCO_V_PER_K * (temp - 25.0)
+        # ``self._overpotential(current_a, soc, temp, factor)``, the same expressions in
+        # the same order without the calls (test_dry_run_fast_paths.py, bit for bit).
+        eta = current_a * self._r25 * factor + self._tafel_b * math.asinh(
+            current_a * factor * self._inv_2i0
+        )
+        rate = current_a / self.capacity_ah
+        if current_a > 0.0:
+            if soc > _NIMH_ACCEPT_KNEE:  # else all of it is accepted
+                unaccepted = 1.0 - (
+                    0.0
+                    if soc >= _SOC_MAX
+                    else math.sqrt((_SOC_MAX - soc) / (_SOC_MAX - _NIMH_ACCEPT_KNEE))
+                )
+                if unaccepted > 0.0:
+                    g = self._oxygen_v * math.exp((25.0 - temp) / _NIMH_O2_THETA_K)
+                    eta += g * unaccepted * rate / (rate + 0.1)
+        elif current_a < 0.0:
+            eta += self._depletion_v * rate / (-rate + soc * 100.0 + 0.01)
+            if self._reversed > 0.0:
+                depth = 1.0 - math.exp(-self._reversed / _NIMH_REVERSAL_DEPTH)
+                eta += self._reversal_v * depth * rate / (-rate + 0.01)
         self._at = (current_a, soc, temp, self._reversed, factor, ocv, eta)
         return ocv + eta
 
@@ -551,7 +580,13 @@ class NiMHCell(_LumpedCell):
             eta = self._overpotential(current_a, soc, temp, factor)
         loss_w = current_a * eta
         if current_a > 0.0:
-            accepted = self._acceptance(soc)
+            # ``self._acceptance(soc)`` without the call.
+            if soc <= _NIMH_ACCEPT_KNEE:
+                accepted = 1.0
+            elif soc >= _SOC_MAX:
+                accepted = 0.0
+            else:
+                accepted = math.sqrt((_SOC_MAX - soc) / (_SOC_MAX - _NIMH_ACCEPT_KNEE))
             # Unaccepted charge drives O2 evolution + recombination: all of it is heat.
             loss_w += (
                 (1.0 - accepted) * current_a * (ocv if ocv is not None else self._ocv(soc, temp))
@@ -569,7 +604,9 @@ class NiMHCell(_LumpedCell):
                 self._reversed -= soc
                 if self._reversed > self._reversed_max:
                     self._reversed_max = self._reversed
-        self._relax_temperature(loss_w)
+        # ``self._relax_temperature(loss_w)``, the same expressions without the call.
+        t_inf = self._ambient_c + loss_w / self._conductance_w_per_k
+        self._temp_c = t_inf + (self._temp_c - t_inf) * self._decay
 
 
 # --------------------------------------------------------------------------------------

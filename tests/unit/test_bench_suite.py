@@ -4,16 +4,18 @@ printed, never asserted: only that they run and write their results)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
-from supervisor.app import benchreport
+from supervisor.app import benchreport, dryrun
 from supervisor.app.benchload import LOAD_MAP, LOAD_RECIPE, load_benchmark
 from supervisor.app.benchmem import memory_benchmark, memory_figures, slope_per_s
 from supervisor.app.benchrun import Simulators, prepare
-from supervisor.cli.main import main
+from supervisor.cli.main import build_parser, main
 from supervisor.config.models import NetworkDevice
 from supervisor.core import memtrace
 from supervisor.devices.registry import load_bench
@@ -221,3 +223,50 @@ def test_the_growth_target_is_judged_on_a_run_of_thirty_minutes_only() -> None:
     # Three minutes are mostly warm-up: shown, not judged.
     assert met(8.2, growth_target(3)) is None
     assert growth_target(3) == "30 min run: <= 1 (not judged on 3 min)"
+
+
+# --- the dry run's figure ----------------------------------------------------------------
+SHORT_NIMH = """recipe: short-rest
+chemistry: nimh
+capacity: 2000 mAh
+steps:
+  - {id: rest, rest: 2 min}
+"""
+
+
+def test_bench_dry_run_records_the_median_of_its_runs_with_their_spread(
+    tmp_path: Path,
+    results: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    recipe = tmp_path / "short.yaml"
+    recipe.write_text(SHORT_NIMH, encoding="utf-8")
+    real_dry_run = dryrun.dry_run
+    # The real dry runs, with wall times chosen so that their ratios are known: 1000×,
+    # 3000× and 2000× (the median is the middle one, not the last nor the mean of all).
+    ratios = iter([1000.0, 3000.0, 2000.0])
+    calls: list[float | None] = []
+
+    async def timed(recipe_path: str, **kwargs: Any) -> dryrun.DryRunResult:
+        calls.append(kwargs.get("soc"))
+        res = await real_dry_run(recipe_path, **kwargs)
+        return dataclasses.replace(res, wall_s=res.simulated_s / next(ratios))
+
+    monkeypatch.setattr(dryrun, "dry_run", timed)
+    assert main(["bench", "dry-run", "--recipe", str(recipe), "--runs", "3"]) == 0
+    assert calls == [0.0, 0.0, 0.0]  # three runs, each from an empty cell
+    (figure,) = benchreport.read(results)
+    assert figure.measured == pytest.approx(2000.0)
+    assert figure.reference.startswith("median of 3 runs, min–max 1,000–3,000×, ")
+    assert "simulated h" in figure.reference and "s wall" in figure.reference
+    assert figure.command.endswith("--runs 3")
+    out = capsys.readouterr().out
+    for k, ratio in enumerate(["1,000x", "3,000x", "2,000x"], start=1):
+        assert f"run {k} of 3: " in out and f"ratio {ratio}" in out
+    assert "median of 3 runs: 2,000x" in out
+
+
+def test_bench_dry_run_runs_five_times_unless_told() -> None:
+    args = build_parser().parse_args(["bench", "dry-run"])
+    assert args.runs == 5

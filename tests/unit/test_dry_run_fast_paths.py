@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import gc
+import math
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -33,11 +34,19 @@ from supervisor.channels import Channel, ChannelLimits
 from supervisor.config.recipe import load_recipe_text
 from supervisor.core.quality import Quality, Reason
 from supervisor.core.records import Record
+from supervisor.devices.chadeche import ChadecheDriver
 from supervisor.devices.chadeche.driver import _free
-from supervisor.devices.chadeche.protocol import DacChannel, DacWord
+from supervisor.devices.chadeche.protocol import (
+    ADC_LSB_V,
+    ADC_MAX_CODE,
+    Chip,
+    DacChannel,
+    DacWord,
+    voltage_to_adc_code,
+)
 from supervisor.devices.chadeche.sim import SimBoard
 from supervisor.sim.battery import NiMHCell
-from supervisor.tags import TagDB
+from supervisor.tags import TagDB, TagSpec
 
 RECIPES = Path(__file__).parents[2] / "recipes"
 
@@ -329,3 +338,161 @@ def test_a_records_reason_is_the_rules_answer(
     else:
         expected = ""
     assert rules.reason(0, now, run, v, i) == expected
+
+
+# --- third pass: the lockstep without coroutines, stamps, the board's current ----------
+@pytest.mark.parametrize(
+    ("recipe", "max_hours"),
+    [("nimh-25h-slow-cycle.yaml", 2.0), ("nimh-fast-charge-dv.yaml", 3.0)],
+)
+async def test_the_lockstep_without_awaits_gives_the_records_and_end_of_the_awaited_one(
+    recipe: str, max_hours: float, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    direct, direct_records = await run(RECIPES / recipe, max_hours)
+    # Every poll and flush awaited, on the driver's plain path too (PolledDriver's poll
+    # and flush: the I/O locks taken, a new sample for every point of every poll).
+    monkeypatch.setattr(ChadecheDriver, "poll_now", lambda self: False)
+    monkeypatch.setattr(ChadecheDriver, "flush_now", lambda self: False)
+    awaited, awaited_records = await run(RECIPES / recipe, max_hours)
+    assert awaited_records == direct_records
+    assert outcome(awaited) == outcome(direct)
+
+
+class Paced:
+    """A driver without a direct path, polled every other scan, that records the order
+    of the lockstep's calls (with the Chadèche driver's, through its methods)."""
+
+    def __init__(self, name: str, calls: list[str]) -> None:
+        self.name, self.calls = name, calls
+        self.poll_period_s = 2.0
+        self.connected = True
+
+    def points(self) -> dict[str, Any]:
+        return {}
+
+    def image(self) -> dict[str, Any]:
+        return {}
+
+    def write(self, point: str, value: Any) -> None:
+        raise KeyError(point)
+
+    async def poll(self) -> None:
+        self.calls.append(f"poll {self.name}")
+
+    async def flush(self) -> None:
+        self.calls.append(f"flush {self.name}")
+
+    async def safe_state(self) -> str | None:
+        return None
+
+    async def close(self) -> None:
+        return None
+
+
+async def test_the_lockstep_polls_and_flushes_direct_and_awaited_drivers_in_their_order(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from supervisor.app.bench import build_bench
+    from supervisor.app.dryrun import dry_run_config
+    from supervisor.core.clock import VirtualClock
+
+    def lockstep(direct: bool) -> list[str]:
+        calls: list[str] = []
+        clock = VirtualClock()
+        bench = build_bench(dry_run_config("nimh-aa", 2.0, 0.5, 1.0), clock, in_process=True)
+        engine = bench.engine
+        chadeche = engine.drivers[0]
+        assert isinstance(chadeche, ChadecheDriver)
+        chadeche._direct = direct
+        engine.drivers = [Paced("a", calls), chadeche, Paced("b", calls)]
+        bus = chadeche._bus
+        transfer = bus.transfer
+
+        def seen(board: int, chip: Chip, data: bytes) -> bytes:
+            calls.append(f"chadeche {chip.name}")  # what a poll or a flush sends
+            return transfer(board, chip, data)
+
+        monkeypatch.setattr(bus, "transfer", seen)
+        asyncio.run(engine.run_for(5.0))
+        calls.append(f"{chadeche.polls} polls at {clock.now()}")
+        return calls
+
+    direct = await asyncio.to_thread(lockstep, True)
+    awaited = await asyncio.to_thread(lockstep, False)
+    assert direct == awaited
+    assert direct[-1] == "5 polls at 5.0"
+    assert direct[-9:-1] == [
+        "chadeche ADC", "flush a", "flush b",  # t = 3: a and b are not due
+        "poll a", "chadeche ADC", "poll b", "flush a", "flush b",  # t = 4
+    ]  # fmt: skip
+
+
+FORCED: dict[str, Any] = {"float": 1.5, "int": 2, "bool": True, "str": "idle"}
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.sampled_from(["float", "int", "bool", "str"]),
+    st.lists(
+        st.tuples(
+            st.one_of(
+                st.none(),
+                st.floats(allow_nan=True, allow_infinity=True),
+                st.integers(-3, 3),
+                st.booleans(),
+                st.sampled_from(["", "idle", "charging"]),
+            ),
+            st.sampled_from([Quality.GOOD, Quality.UNCERTAIN, Quality.BAD]),
+            st.sampled_from([Reason.NONE, Reason.STALE, Reason.LAST_KNOWN]),
+            st.booleans(),  # forced before this step
+            st.one_of(st.none(), st.floats(0.0, 100.0)),
+        ),
+        max_size=20,
+    ),
+)
+def test_a_stamp_is_an_update_that_changes_nothing(dtype: str, steps: list[Any]) -> None:
+    """What the call sites that stamp rely on: when the value equals a GOOD, reason-less
+    tag's value (a float tag's is then finite), the update would change nothing but the
+    source time; and ``stamp`` does just that, forced or not."""
+    db, ref = TagDB(), TagDB()
+    spec = TagSpec("t", dtype=dtype)  # type: ignore[arg-type]
+    tag, twin = db.add(spec), ref.add(spec)
+    for k, (value, quality, reason, forced, source_t) in enumerate(steps):
+        db.set_scan_time(float(k))
+        ref.set_scan_time(float(k))
+        if forced != tag.forced:
+            for d in (db, ref):
+                if forced:
+                    d.force("t", FORCED[dtype])
+                else:
+                    d.unforce("t")
+        if value == tag.value and tag.quality is Quality.GOOD and tag.reason is Reason.NONE:
+            db.stamp(tag, source_t)
+            assert ref.update(twin, value, Quality.GOOD, Reason.NONE, source_t) is False
+        else:
+            db.update(tag, value, quality, reason, source_t)
+            ref.update(twin, value, quality, reason, source_t)
+        mine = (tag.value, tag.quality, tag.reason, tag.source_t, tag.server_t, tag.version)
+        theirs = (
+            twin.value,
+            twin.quality,
+            twin.reason,
+            twin.source_t,
+            twin.server_t,
+            twin.version,
+        )
+        assert repr(mine) == repr(theirs)
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.floats(allow_nan=False, allow_infinity=True) | st.integers(-10, 10))
+def test_the_simulated_adcs_code_is_the_plain_formulas(voltage_v: float) -> None:
+    if voltage_v <= 0.0:
+        expected = 0
+    elif voltage_v >= (ADC_MAX_CODE + 1) * ADC_LSB_V:
+        expected = ADC_MAX_CODE
+    else:
+        expected = min(ADC_MAX_CODE, round(voltage_v / ADC_LSB_V))
+    assert voltage_to_adc_code(voltage_v) == expected
+    with pytest.raises(ValueError, match="NaN"):
+        voltage_to_adc_code(math.nan)

@@ -1,4 +1,6 @@
-"""Copying inputs skips a sample already copied (docs/adr/0018-scan-performance.md): the tags
+"""Copying inputs skips a sample already copied, or only stamps its new time when its driver
+stamped the same sample again, and only stamps the connection tags that did not change
+(docs/adr/0018-scan-performance.md): the tags
 come out exactly as if every input were updated from its driver's image at every scan, as
 the scan did before (value, quality, reason, source and server times, versions, and the
 order of changes), whatever the drivers, the clock, forcing and other writers do between
@@ -27,10 +29,8 @@ class ImageDriver:
     def __init__(self, name: str) -> None:
         self.name = name
         self.samples: dict[str, Sample] = {}
-
-    @property
-    def connected(self) -> bool:
-        return True
+        self.connected = True
+        self.failures = 0
 
     def points(self) -> Mapping[str, PointInfo]:
         return {}
@@ -82,7 +82,21 @@ POINTS = ("ai0", "ai1", "ai2", "di0")
 sample_value = st.sampled_from([0.0, 1.5, 2.0, math.nan, math.inf, 3, True, None])
 # Between two scans, one of: (what, point number, value, quality, dt)
 event = st.tuples(
-    st.sampled_from(["scan", "scan", "new", "same", "drop", "force", "unforce", "write", "touch"]),
+    st.sampled_from(
+        [
+            "scan",
+            "scan",
+            "new",
+            "same",
+            "again",
+            "drop",
+            "force",
+            "unforce",
+            "write",
+            "touch",
+            "link",
+        ]
+    ),
     st.integers(0, len(POINTS) - 1),
     sample_value,
     st.sampled_from([Quality.GOOD, Quality.UNCERTAIN, Quality.BAD]),
@@ -130,6 +144,13 @@ def play(events: list[tuple[str, int, Value | None, Quality, float]], reference:
         elif what == "same" and point in drv.samples:
             old = drv.samples[point]  # an equal sample, but another object
             drv.samples[point] = Sample(old.value, old.quality, old.reason, old.t)
+        elif what == "again" and point in drv.samples:
+            # A poll that read what the sample says: the same object, stamped again in
+            # place with the poll's time (devices/chadeche/driver.py::_read_direct).
+            drv.samples[point].t = clock.now()
+        elif what == "link":  # the device lost or back, a failed poll counted
+            drv.connected = not drv.connected
+            drv.failures += 0 if drv.connected else 1
         elif what == "drop":
             drv.samples.pop(point, None)
         elif what == "force" and value is not None and not isinstance(value, float | bool):

@@ -200,36 +200,55 @@ class ChadecheDriver(PolledDriver):
         super().write(point, value)
 
     async def poll(self) -> None:
-        """:meth:`PolledDriver.poll`; on an in-process bus, while connected with nothing to
-        send and nobody holding or awaiting the I/O locks, the same poll without an await:
+        """:meth:`PolledDriver.poll`, without an await when :meth:`poll_now` can."""
+        if not self.poll_now():
+            await super().poll()
+
+    def poll_now(self) -> bool:
+        """On an in-process bus, while connected with nothing to send and nobody holding
+        or awaiting the I/O locks, :meth:`PolledDriver.poll` without an await (True):
         acquiring such a lock never yields, there is nothing to write, and the simulated
         bus answers at once, so the awaited path would do exactly this (issue 13: a dry
-        run polls 87 000 times; the equivalence is tested in test_chadeche_direct.py)."""
+        run polls 87 000 times; the equivalence is tested in test_chadeche_direct.py).
+        Otherwise nothing (False): ``poll()`` must be awaited. The scan engine's lockstep
+        calls it directly (``scan/engine.py::DirectDriver``)."""
+        cycle, io = self._io_cycle, self._io_lock
+        # ``_free(lock)``, without the call while nobody ever waited (an empty deque of
+        # waiters is falsy, so is None); else its whole test.
         if not (
             self._direct
             and self._connected
             and not self._pending
             and not self._lost_logged
-            and _free(self._io_cycle)
-            and _free(self._io_lock)
+            and ((not cycle._locked and not cycle._waiters) or _free(cycle))  # type: ignore[attr-defined]
+            and ((not io._locked and not io._waiters) or _free(io))  # type: ignore[attr-defined]
         ):
-            await super().poll()
-            return
+            return False
         now = self.clock.now()
         try:
             samples = self._read_direct()
         except (TimeoutError, SupervisorError, OSError) as exc:
             self._fail(exc, now)
-            return
+            return True
         self.polls += 1
         self._image.update(samples)
+        return True
 
     async def flush(self) -> None:
-        """:meth:`PolledDriver.flush`, which does nothing without a queued write while
-        connected; with the I/O lock free that is known without taking it."""
-        if self._direct and not (self._connected and self._pending) and _free(self._io_cycle):
-            return
-        await super().flush()
+        """:meth:`PolledDriver.flush`, without an await when :meth:`flush_now` can."""
+        if not self.flush_now():
+            await super().flush()
+
+    def flush_now(self) -> bool:
+        """:meth:`PolledDriver.flush` does nothing without a queued write while
+        connected; on an in-process bus with the I/O lock free that is known without
+        taking it (True: done). False: ``flush()`` must be awaited."""
+        cycle = self._io_cycle
+        return (
+            self._direct
+            and not (self._connected and self._pending)
+            and ((not cycle._locked and not cycle._waiters) or _free(cycle))  # type: ignore[attr-defined]
+        )
 
     # --- PolledDriver hooks ----------------------------------------------------
     async def _connect(self) -> None:
@@ -274,9 +293,15 @@ class ChadecheDriver(PolledDriver):
         The same transfers, raw-log lines and samples; what depends only on the ADC reply
         (its code, its raw-log line, the calibrated voltage) and the current echo are
         computed again only when their inputs changed: a cell's voltage moves by one ADC
-        step (1 mV) every few minutes of a slow charge.
+        step (1 mV) every few minutes of a slow charge. A point that reads the same value
+        (the very object), GOOD and for the same reason as its sample in the image keeps
+        that sample, stamped with this poll's time once every board has been read (the
+        scan's input copy then only moves its tag's source time, ``scan/engine.py``); the
+        samples returned are the new ones.
         """
         samples: dict[str, Sample] = {}
+        again: list[tuple[Sample, float]] = []
+        image = self._image
         transfer = self._bus.transfer
         now = self.clock.now
         probe = self._temperature_probe
@@ -304,20 +329,50 @@ class ChadecheDriver(PolledDriver):
             self.raw_log.append(board.last_adc_line)
             code = board.last_adc_code
             t = now()
+            # The same test for each point, written out (a call per point cost more than
+            # the sample it saves).
             if code >= ADC_MAX_CODE or board.sensor_failed:
                 samples[board.voltage_point] = self._voltage_sample(board, code, t)
             else:
-                samples[board.voltage_point] = Sample(board.last_adc_voltage_v, good, none, t)
+                value = board.last_adc_voltage_v
+                s = image.get(board.voltage_point)
+                if s is not None and s.value is value and s.quality is good and s.reason is none:
+                    again.append((s, t))
+                else:
+                    samples[board.voltage_point] = Sample(value, good, none, t)
+            # ``board.current_echo_a()``: its cached answer while the DAC code, the relay
+            # and the calibration are the very ones it was computed for.
+            key = board.last_current_key
+            if (
+                key is not None
+                and key[0] == board.dac_a_code
+                and key[1] is board.charging
+                and key[2] is board.cal
+            ):
+                value = board.last_current_a
+            else:
+                value = board.current_echo_a()
             reason = Reason.CLAMPED if board.clamped else none
-            samples[board.current_point] = Sample(board.current_echo_a(), good, reason, t)
-            samples[board.charging_point] = Sample(board.charging, good, none, t)
+            s = image.get(board.current_point)
+            if s is not None and s.value is value and s.quality is good and s.reason is reason:
+                again.append((s, t))
+            else:
+                samples[board.current_point] = Sample(value, good, reason, t)
+            charging = board.charging
+            s = image.get(board.charging_point)
+            if s is not None and s.value is charging and s.quality is good and s.reason is none:
+                again.append((s, t))
+            else:
+                samples[board.charging_point] = Sample(charging, good, none, t)
             if probe is not None:
-                temp = probe(address)
+                temp = probe(address)  # a new reading (a new float) every poll
                 samples[board.temperature_point] = (
                     Sample(None, Quality.BAD, Reason.SENSOR_FAILURE, t)
                     if temp is None
                     else Sample(temp, good, none, t)
                 )
+        for s, t in again:  # every board read: nothing can fail any more
+            s.t = t
         return samples
 
     async def _write(self, point: str, value: Value) -> None:

@@ -206,15 +206,21 @@ def encode_adc_reply(code: int) -> bytes:
     return bytes((b0, b1))
 
 
+_ADC_FULL_SCALE_V: Final = (ADC_MAX_CODE + 1) * ADC_LSB_V
+
+
 def voltage_to_adc_code(voltage_v: float) -> int:
     """Uncalibrated ADC code for an input voltage, clamped to 0..4095 (simulator side)."""
-    if math.isnan(voltage_v):
+    # Once per simulated ADC read (a dry run: 87 000): a float that is not equal to itself
+    # is NaN (math.isnan's answer without the call); the clamp without min().
+    if voltage_v != voltage_v or (type(voltage_v) is not float and math.isnan(voltage_v)):
         raise ValueError("voltage is NaN")
     if voltage_v <= 0.0:
         return 0
-    if voltage_v >= (ADC_MAX_CODE + 1) * ADC_LSB_V:
+    if voltage_v >= _ADC_FULL_SCALE_V:
         return ADC_MAX_CODE
-    return min(ADC_MAX_CODE, round(voltage_v / ADC_LSB_V))
+    code: int = round(voltage_v / ADC_LSB_V)
+    return code if code < ADC_MAX_CODE else ADC_MAX_CODE
 
 
 # --- relay latch (74HC74) -----------------------------------------------------------------

@@ -90,14 +90,17 @@ class SimBoard:
         adc_offset_v: float = 0.0,
     ) -> None:
         self.cell = cell
-        self.true_current_gain = true_current_gain
-        self.true_current_offset_ma = true_current_offset_ma
+        # The current source's inputs (properties: the current it drives is computed again
+        # whenever one of them is set, and read as a plain attribute by every transfer).
+        self._true_current_gain = true_current_gain
+        self._true_current_offset_ma = true_current_offset_ma
         self.adc_gain = adc_gain
         self.adc_offset_v = adc_offset_v
         # Power-up: both channels shut down (MCP4922 POR), latch state unknown -> discharge.
-        self.dac_a = DacWord(DacChannel.A, 0, active=False)
+        self._dac_a = DacWord(DacChannel.A, 0, active=False)
         self.dac_b = DacWord(DacChannel.B, 0, active=False)
-        self.charging = False
+        self._charging = False
+        self._current = self._current_now()
         self.transfers = 0
         self.hot_switches = 0
         """Relay flips made while current was flowing (the driver must keep this at 0)."""
@@ -108,43 +111,64 @@ class SimBoard:
         # The last ADC reply, kept with the code it encodes: a cell's voltage moves by one
         # ADC step every few minutes of a slow charge, its reply need not be encoded anew.
         self._adc_code = -1
-        self._current_key: tuple[DacWord, bool, float, float] | None = None
-        self._current_value = 0.0
         self._adc_reply = b""
         self.label = "Chadèche board"
         """How the log names it (the bus sets the address)."""
 
+    # The current source's inputs: each set computes the current again (a few times per
+    # test; the current is read twice per transfer, issue 13).
+    @property
+    def dac_a(self) -> DacWord:
+        return self._dac_a
+
+    @dac_a.setter
+    def dac_a(self, word: DacWord) -> None:
+        self._dac_a = word
+        self._current = self._current_now()
+
+    @property
+    def charging(self) -> bool:
+        return self._charging
+
+    @charging.setter
+    def charging(self, charging: bool) -> None:
+        self._charging = charging
+        self._current = self._current_now()
+
+    @property
+    def true_current_gain(self) -> float:
+        return self._true_current_gain
+
+    @true_current_gain.setter
+    def true_current_gain(self, gain: float) -> None:
+        self._true_current_gain = gain
+        self._current = self._current_now()
+
+    @property
+    def true_current_offset_ma(self) -> float:
+        return self._true_current_offset_ma
+
+    @true_current_offset_ma.setter
+    def true_current_offset_ma(self, offset_ma: float) -> None:
+        self._true_current_offset_ma = offset_ma
+        self._current = self._current_now()
+
     @property
     def current_a(self) -> float:
         """Current through the cell now, + charging, − discharging."""
-        key = self._current_key
-        if (
-            key is not None
-            and key[0] is self.dac_a
-            and key[1] is self.charging
-            and key[2] is self.true_current_gain
-            and key[3] is self.true_current_offset_ma
-        ):
-            # The very objects of the last computation (a DAC word is frozen): the same
-            # current, without building the key to compare (issue 13: read twice a poll).
-            return self._current_value
-        key = (self.dac_a, self.charging, self.true_current_gain, self.true_current_offset_ma)
-        if key != self._current_key:
-            # Computed again only when the DAC word, the relay or the source's error moved:
-            # it is read twice per transfer, and changes a few times per test.
-            self._current_key = key
-            self._current_value = self._current_now()
-        return self._current_value
+        return self._current
 
     def _current_now(self) -> float:
-        word = self.dac_a
+        word = self._dac_a
         if not word.active or word.code == 0:
             return 0.0
         gain = 1.0 if word.gain_1x else 2.0
-        i_ma = word.code * gain * DAC_LSB_MA * self.true_current_gain + self.true_current_offset_ma
+        i_ma = (
+            word.code * gain * DAC_LSB_MA * self._true_current_gain + self._true_current_offset_ma
+        )
         # The current source cannot reverse: below zero it simply turns off.
         i_a = max(i_ma, 0.0) / 1000.0
-        return i_a if self.charging else -i_a
+        return i_a if self._charging else -i_a
 
     @property
     def led_duty(self) -> float:
@@ -160,24 +184,28 @@ class SimBoard:
 
     def advance(self, now: float) -> None:
         """Step the cell from the last update to ``now`` at the current that was flowing."""
-        if self._last_t is not None and now > self._last_t:
-            self.cell.step(self.current_a, now - self._last_t)
+        last_t = self._last_t
+        if last_t is None:
+            self._last_t = now
+        elif now > last_t:
+            self.cell.step(self._current, now - last_t)
             if not self._fault_logged and self._thermal is not None:
                 fault = self._thermal.fault
                 if fault is not None:
                     # Once: a dry run would otherwise log it every poll for hours.
                     log.warning("simulated %s at t=%.0f s: %s", self.label, now, fault)
                     self._fault_logged = True
-        if self._last_t is None or now > self._last_t:
             self._last_t = now
 
     def adc_code(self) -> int:
-        v = self.cell.voltage_at(self.current_a)
+        v = self.cell.voltage_at(self._current)
         return voltage_to_adc_code(self.adc_gain * v + self.adc_offset_v)
 
     def adc_reply(self) -> bytes:
         """``encode_adc_reply(self.adc_code())``, encoded again only when the code moved."""
-        code = self.adc_code()
+        # ``self.adc_code()``, the same expression without the call (every poll).
+        v = self.cell.voltage_at(self._current)
+        code = voltage_to_adc_code(self.adc_gain * v + self.adc_offset_v)
         if code != self._adc_code:
             self._adc_reply = encode_adc_reply(code)
             self._adc_code = code
@@ -198,7 +226,7 @@ class SimBoard:
                 raise ProtocolError("chadeche-sim", "ADC read must be 2 bytes", data)
             return self.adc_reply()
         charging = decode_latch(data)
-        if charging != self.charging and self.current_a != 0.0:
+        if charging != self._charging and self._current != 0.0:
             self.hot_switches += 1
         self.charging = charging
         return bytes(len(data))
@@ -219,8 +247,9 @@ class SimChadecheBus:
         self.boards: dict[int, SimBoard] = dict(boards)
         for address, sim in self.boards.items():
             sim.label = f"Chadèche board {address}"
-        self.history: deque[SimTransfer] = deque(maxlen=history_len)
-        """The last transfers in order (bounded: dry runs last hours)."""
+        # The last transfers as plain tuples (a named tuple is built by a Python call:
+        # once per transfer was more than the rest of a dry run's ADC read, issue 13).
+        self._history: deque[tuple[float, int, Chip, bytes, bytes]] = deque(maxlen=history_len)
         self.closed = False
         self.fault: Exception | None = None
         """Fault injection: while set, every transfer raises it (cable pulled, bus error)."""
@@ -234,14 +263,32 @@ class SimChadecheBus:
                 raise self.fault
             now = self.clock.now()
             sim = self.boards.get(board)
-            sent = bytes(data)
+            sent = data if type(data) is bytes else bytes(data)  # bytes(b) is b itself
             if sim is None:
                 reply = bytes([NO_BOARD_BYTE]) * len(data)
+            elif chip is _ADC and len(sent) == 2 and sim._last_t is not None:
+                # An ADC read (every poll): ``sim.advance(now)`` and ``sim.handle(chip,
+                # sent)``, the same steps without the calls and the other chips' tests.
+                last_t = sim._last_t
+                if now > last_t:
+                    sim.advance(now)
+                sim.transfers += 1
+                v = sim.cell.voltage_at(sim._current)
+                code = voltage_to_adc_code(sim.adc_gain * v + sim.adc_offset_v)
+                if code != sim._adc_code:
+                    sim._adc_reply = encode_adc_reply(code)
+                    sim._adc_code = code
+                reply = sim._adc_reply
             else:
                 sim.advance(now)
                 reply = sim.handle(chip, sent)
-            self.history.append(SimTransfer(now, board, chip, sent, reply))
+            self._history.append((now, board, chip, sent, reply))
             return reply
+
+    @property
+    def history(self) -> deque[SimTransfer]:
+        """The last transfers in order (bounded: dry runs last hours); a copy."""
+        return deque(map(SimTransfer._make, self._history), maxlen=self._history.maxlen)
 
     def cell_temperature_c(self, board: int) -> float | None:
         """The temperature of board ``board``'s simulated cell now (None: no such board, or
