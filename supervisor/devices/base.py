@@ -18,7 +18,7 @@ import asyncio
 import logging
 from abc import ABC, abstractmethod
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Awaitable, Callable, Mapping
 
 from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
@@ -54,6 +54,10 @@ class PolledDriver(ABC):
         self._next_connect_t = float("-inf")
         self.polls = 0
         self.failures = 0
+        self.scan_sync: Callable[[], Awaitable[None]] | None = None
+        """Set by the scan engine on a real clock (``ScanEngine.after_next_scan``): a poll
+        that is due starts when the next scan is done, so that its work on the loop comes
+        in the period's first milliseconds, never when the scan should start."""
         self.last_error: str = ""
         # Last raw exchanges, for diagnostics when a device misbehaves.
         self.raw_log: deque[str] = deque(maxlen=32)
@@ -160,6 +164,8 @@ class PolledDriver(ABC):
                 # let that keep a driver task alive once it was told to stop.
                 raise asyncio.CancelledError
             if self.clock.now() >= next_t:
+                if self.scan_sync is not None:
+                    await self.scan_sync()  # the poll starts as a scan ends
                 await self.poll()
                 next_t += self.poll_period_s
                 now = self.clock.now()

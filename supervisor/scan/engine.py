@@ -203,6 +203,7 @@ class ScanEngine:
         """``time.monotonic()`` at the start of the last scan (read by :class:`StallWatch`)."""
         self._last_t: float | None = None
         self._next_t: float | None = None
+        self._scan_end: asyncio.Future[None] | None = None  # ``after_next_scan``'s
         self._next_poll: dict[int, float] = {}
         # The lockstep's view of the drivers (``_stepped``), built for ``_stepped_of``.
         self._stepped_list: list[_Stepped] = []
@@ -471,6 +472,8 @@ class ScanEngine:
             await asyncio.gather(*(d.poll() for d in self.drivers), return_exceptions=True)
         if not self.clock.virtual:
             for d in self.drivers:
+                if hasattr(d, "scan_sync"):
+                    d.scan_sync = self.after_next_scan
                 run = getattr(d, "run", None)
                 if run is not None:
                     tasks.append(asyncio.create_task(run(), name=f"driver:{d.name}"))
@@ -481,6 +484,7 @@ class ScanEngine:
         finally:
             if self.gate is not None:
                 self.gate.open()
+            self._scan_ended()  # nobody waits for a scan that will not come
             if watch is not None:
                 watch.stop()
             for t in tasks:
@@ -518,6 +522,7 @@ class ScanEngine:
             finally:
                 if self.gate is not None:
                     self.gate.open()
+                self._scan_ended()
             done += 1
             k += 1
             nxt = start + k * self.period_s
@@ -624,6 +629,22 @@ class ScanEngine:
                 await clock.sleep_until(nxt)
             elif nxt > now:  # the clock stands at ``now``: nothing ran since
                 virtual.advance(nxt - now)  # no other task's turn this scan
+
+    async def after_next_scan(self) -> None:
+        """Real clock: return once the next scan is done (at most two periods: a scan that
+        does not come must not stop a driver). The drivers start their polls here
+        (``PolledDriver.scan_sync``): a poll's callbacks on this loop then run in the
+        period's first milliseconds, not when the engine should wake for its deadline
+        (the ADAM's took 1.5–13 ms on the loaded machine, issue 13's start jitter)."""
+        fut = self._scan_end
+        if fut is None:
+            fut = self._scan_end = asyncio.get_running_loop().create_future()
+        await asyncio.wait((fut,), timeout=2 * self.period_s)
+
+    def _scan_ended(self) -> None:
+        fut, self._scan_end = self._scan_end, None
+        if fut is not None and not fut.done():
+            fut.set_result(None)
 
     async def _wait_for_deadline(self, t: float) -> None:
         """Real clock: until ``t``, on time. The event loop's selector (epoll) rounds its
