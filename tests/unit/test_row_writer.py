@@ -4,6 +4,7 @@ its row over and returns; every row reaches its files, in order, before they clo
 from __future__ import annotations
 
 import csv
+import json
 import logging
 import threading
 from collections.abc import Iterator
@@ -12,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from supervisor.core.records import Record
+from supervisor.core.records import ChainEvent, Record
 from supervisor.publish.results import ResultCollector
 from supervisor.publish.rows import RowWriter
 from supervisor.testing.records import make_record
@@ -133,3 +134,22 @@ def test_a_row_that_fails_is_logged_and_the_next_ones_are_still_written(
     assert any("could not be written" in r.getMessage() for r in caplog.records)
     assert len(bdf_rows(c)) == 1
     c.abandon()
+
+
+def test_a_step_change_returns_before_its_timeline_line_is_written_and_it_follows(
+    tmp_path: Path, rows: RowWriter
+) -> None:
+    """The timeline's JSON lines go through the row writer too: 16 channels changing step
+    in one scan were 16 writes on the scan's thread."""
+    c = ResultCollector("ch0", "r", "t1", tmp_path, rows=rows)
+    c.on_record(record(0))  # the files open at the first record
+    assert rows.flush(10.0)
+    disk_busy = threading.Event()
+    rows.put(lambda: disk_busy.wait(10.0))
+    c.on_event(ChainEvent(REC.t + 1, REC.wall + 1, "ch0", "step", "starting step 2 d", 1, "d", 1))
+    assert c.timeline_path is not None
+    assert c.timeline_path.read_text(encoding="utf-8") == ""  # not waited for
+    disk_busy.set()
+    c.close("aborted: abort by bob", "Aborted")  # the line before the file closes
+    lines = [json.loads(x) for x in c.timeline_path.read_text(encoding="utf-8").splitlines()]
+    assert [e["text"] for e in lines] == ["starting step 2 d"]
