@@ -247,6 +247,27 @@ def test_the_feed_keeps_one_update_per_tag_and_counts_the_replaced_ones() -> Non
     assert db["opcua.dropped"].value == feed.dropped and woken
 
 
+def test_an_update_is_the_tags_state_as_the_scan_left_it() -> None:
+    db = TagDB()
+    a = db.add(TagSpec("a", unit="V"))
+    feed = OpcUaFeed(db)
+    feed.start(db, lambda: None)
+    db.set_scan_time(7.5)
+    db.update(a, None, Quality.BAD, Reason.STALE, source_t=7.25)
+    feed.on_scan(db, 7.5)
+    (u,) = (u for u in feed.take() if u.name == "a")
+    assert u == (a.index, "a", None, Quality.BAD, Reason.STALE, 7.25, 7.5)
+    assert (u.tag_index, u.quality, u.reason, u.source_t, u.server_t) == (
+        a.index,
+        Quality.BAD,
+        Reason.STALE,
+        7.25,
+        7.5,
+    )
+    db.update(a, 1.5)  # the tag changes on; the update handed over does not
+    assert u.value is None
+
+
 def test_at_a_sampling_interval_the_feed_hands_over_the_latest_values_once_per_interval() -> None:
     db = TagDB()
     a, b = db.add(TagSpec("a")), db.add(TagSpec("b"))

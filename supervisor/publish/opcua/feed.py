@@ -28,7 +28,7 @@ import threading
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Final
+from typing import Final, NamedTuple
 
 from supervisor.core.driver import Value
 from supervisor.core.quality import Quality, Reason
@@ -42,11 +42,12 @@ EVENT_QUEUE: Final = 10_000
 """Events waiting for the server at most (a burst of alarms at an e-stop is tens)."""
 
 
-@dataclass(frozen=True, slots=True)
-class Update:
-    """One tag's value as the scan left it (copied: the tag changes on)."""
+class Update(NamedTuple):
+    """One tag's value as the scan left it (copied: the tag changes on). A named tuple:
+    a hand-over copies every tag changed in the sampling interval, hundreds in one scan
+    (a frozen dataclass took five times as long to make)."""
 
-    index: int
+    tag_index: int  # the tag's index in the tag database
     name: str
     value: Value | None
     quality: Quality
@@ -133,9 +134,9 @@ class OpcUaFeed:
         with self._lock:
             pending = self._pending
             for u in updates:
-                if u.index in pending:
+                if u.tag_index in pending:
                     self.dropped += 1
-                pending[u.index] = u
+                pending[u.tag_index] = u
         wake()
 
     def on_event(self, event: BenchEvent) -> None:
@@ -196,9 +197,14 @@ class OpcUaFeed:
 
 
 def _copy(tag: Tag) -> Update:
-    return Update(
-        tag.index, tag.name, tag.value, tag.quality, tag.reason, tag.source_t, tag.server_t
+    return _new_update(
+        Update,
+        (tag.index, tag.spec.name, tag.value, tag.quality, tag.reason, tag.source_t, tag.server_t),
     )
+
+
+_new_update = tuple.__new__
+"""``Update(...)`` without its generated ``__new__`` (a named tuple is a tuple)."""
 
 
 def _declare(db: TagDB, name: str, dtype: str, description: str) -> Tag:

@@ -498,7 +498,7 @@ class OpcUaServer:
         aspace = server.iserver.aspace
         gate = self.gate
         for n, u in enumerate(updates, 1):
-            target = self._by_index.get(u.index)
+            target = self._by_index.get(u.tag_index)
             if target is None:
                 continue  # declared after the server started
             if gate is not None:
