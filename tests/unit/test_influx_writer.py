@@ -17,7 +17,7 @@ from influxrig import Reply, ScriptedInflux, parse_line
 from supervisor.app import build_bench
 from supervisor.cli.main import main
 from supervisor.commands import Command
-from supervisor.core.clock import VirtualClock
+from supervisor.core.clock import RealClock, VirtualClock
 from supervisor.core.records import BenchEvent
 from supervisor.devices.registry import bench_from_data, load_bench
 from supervisor.publish.influx import InfluxSettings, InfluxWriter
@@ -434,3 +434,33 @@ async def test_a_put_wakes_the_spool_writer_only_when_it_waits_for_work(tmp_path
     finally:
         writer.stop()  # wakes it: what was queued is committed at the stop
     assert writer.commits == 2 and spool.counts().produced == 101
+
+
+def published_at(w: InfluxWriter, db: TagDB, times: list[float]) -> list[float]:
+    """The scan times at which ``w`` brought its status tags up to date."""
+    calls: list[int] = []
+    w._publish_status = lambda _db: calls.append(1)  # type: ignore[method-assign]
+    out = []
+    for t in times:
+        before = len(calls)
+        w.on_scan(db, t)
+        if len(calls) > before:
+            out.append(t)
+    return out
+
+
+def test_on_a_real_clock_the_status_tags_are_brought_up_to_date_ten_times_a_second(
+    tmp_path: Path, db: TagDB
+) -> None:
+    """Diagnostics, not process values: at a 10 ms scan, every tenth scan (on a virtual
+    clock, every scan: dry runs and these tests step it)."""
+    times = [100.0, 100.01, 100.05, 100.09, 100.1, 100.15]
+    url = "http://127.0.0.1:9"
+    real = writer_for(tmp_path / "real", url, db, RealClock(), Alarms())  # type: ignore[arg-type]
+    virtual = writer_for(tmp_path / "virtual", url, db, VirtualClock(), Alarms())
+    try:
+        assert published_at(real, db, times) == [100.0, 100.1]
+        assert published_at(virtual, db, times) == times
+    finally:
+        real.close()
+        virtual.close()
