@@ -65,6 +65,9 @@ WAKE_EARLY_S = 0.002
 millisecond rounding, and a driver poll or an HTTP slice that is running when the loop
 should wake: about a millisecond each in issue 13's load case) and sleeps the rest on the
 thread (:meth:`ScanEngine._wait_for_deadline`)."""
+GATE_EARLY_S = 0.003
+"""On a real clock the scan gate is closed this long before each deadline by a thread of
+the engine's (``GateCloser``, at most a third of the period)."""
 START_SPIN_S = 0.0008
 """...the last of it spent holding the interpreter lock (at most a tenth of the period):
 at the deadline the scan has the lock instead of waiting up to the switch interval for a
@@ -204,6 +207,10 @@ class ScanEngine:
         self._last_t: float | None = None
         self._next_t: float | None = None
         self._scan_end: asyncio.Future[None] | None = None  # ``after_next_scan``'s
+        self.next_deadline: float | None = None
+        """Real clock: when the next scan is due (the clock's axis)."""
+        self.deadlines_set = 0
+        self._deadline_event = threading.Event()
         self._next_poll: dict[int, float] = {}
         # The lockstep's view of the drivers (``_stepped``), built for ``_stepped_of``.
         self._stepped_list: list[_Stepped] = []
@@ -467,6 +474,7 @@ class ScanEngine:
         """
         tasks: list[asyncio.Task[None]] = []
         watch = None if self.clock.virtual else StallWatch(self)
+        closer = None if self.clock.virtual or self.gate is None else GateCloser(self, self.gate)
         if not self.clock.virtual and self.stats.count == 0:
             # First images in before the first scan, so logic never starts on "not connected".
             await asyncio.gather(*(d.poll() for d in self.drivers), return_exceptions=True)
@@ -480,8 +488,12 @@ class ScanEngine:
         try:
             if watch is not None:
                 watch.start()
+            if closer is not None:
+                closer.start()
             await self._loop(stop, max_scans, until_t)
         finally:
+            if closer is not None:
+                closer.stop()
             if self.gate is not None:
                 self.gate.open()
             self._scan_ended()  # nobody waits for a scan that will not come
@@ -536,6 +548,7 @@ class ScanEngine:
             self._next_t = nxt
             if max_scans is not None and done >= max_scans:
                 return
+            self.deadline_set(nxt)
             if self.idle is not None:
                 try:
                     self.idle(nxt - clock.now())
@@ -641,6 +654,12 @@ class ScanEngine:
             fut = self._scan_end = asyncio.get_running_loop().create_future()
         await asyncio.wait((fut,), timeout=2 * self.period_s)
 
+    def deadline_set(self, t: float) -> None:
+        """The next scan is due at ``t`` (real clock; for the ``GateCloser``)."""
+        self.next_deadline = t
+        self.deadlines_set += 1
+        self._deadline_event.set()
+
     def _scan_ended(self) -> None:
         fut, self._scan_end = self._scan_end, None
         if fut is not None and not fut.done():
@@ -676,6 +695,50 @@ class ScanEngine:
         start = self._next_t if (self.clock.virtual and self._next_t is not None) else None
         t0 = self.clock.now() if start is None else start
         await self.run(asyncio.Event(), until_t=t0 + duration_s)
+
+
+class GateCloser:
+    """Real clock: a thread that closes the scan gate ``GATE_EARLY_S`` before each deadline,
+    whatever the scan's event loop is doing then. The loop closes it too when it wakes for
+    the deadline (``WAKE_EARLY_S``), but it wakes late when a callback runs long or when its
+    own I/O lets the interpreter lock go to a busy thread (issue 13: the wake-up late by
+    p99 5.6 ms in the load case): with the gate closed by then, the threads that wait at it
+    have stopped taking the lock, and the loop gets it at once. The engine opens the gate
+    when its scan is done, as before."""
+
+    def __init__(self, engine: ScanEngine, gate: ScanGate) -> None:
+        self.engine = engine
+        self.gate = gate
+        self.early_s = min(GATE_EARLY_S, engine.period_s / 3)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="scan gate closer", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.engine._deadline_event.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=1.0)
+
+    def _run(self) -> None:
+        engine, clock, stop = self.engine, self.engine.clock, self._stop
+        event = engine._deadline_event
+        seen = -1
+        while not stop.is_set():
+            # The deadline the engine set after its last scan (a new one each scan).
+            while engine.deadlines_set == seen and not stop.is_set():
+                event.wait(2 * engine.period_s)
+                event.clear()
+            seen, t, scans = engine.deadlines_set, engine.next_deadline, engine.stats.count
+            if t is None:
+                continue
+            left_s = t - self.early_s - clock.now()
+            if left_s > 0 and stop.wait(left_s):
+                return
+            if engine.stats.count == scans:  # that scan has not come and gone meanwhile
+                self.gate.close()
 
 
 class StallWatch:

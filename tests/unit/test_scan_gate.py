@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import asyncio
 import threading
+import time
 from pathlib import Path
+
+import pytest
 
 from supervisor.core.clock import RealClock
 from supervisor.core.gate import ScanGate
@@ -17,6 +20,7 @@ from supervisor.publish.opcua.server import GatedSelector
 from supervisor.publish.results import SummaryWriter
 from supervisor.publish.retain import RetainStore
 from supervisor.publish.rows import RowWriter
+from supervisor.scan import engine as engine_module
 from supervisor.scan.engine import LogicPhase, ScanEngine
 from supervisor.tags import TagDB
 from supervisor.testing import wait_until
@@ -195,3 +199,26 @@ async def test_a_flush_during_a_scan_writes_what_that_scan_handed_over(tmp_path:
         gate.open()
         await asyncio.to_thread(rows.stop)
         await asyncio.to_thread(summaries.stop)
+
+
+async def test_the_gate_closes_before_a_deadline_even_while_the_event_loop_is_held(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A callback that holds the scan's event loop when it should wake for the deadline
+    (here the idle work) does not keep the gate open: a thread of the engine's closes it
+    ``GATE_EARLY_S`` before the deadline."""
+    monkeypatch.setattr(engine_module, "GATE_EARLY_S", 0.03)
+    period_s = 0.1
+    engine = ScanEngine(RealClock(), TagDB(), period_s)
+    engine.gate = ScanGate()
+    seen: list[bool] = []
+
+    def held(left_s: float) -> None:
+        time.sleep(max(0.0, left_s - 0.002))  # the loop held until 2 ms before the deadline
+        assert engine.gate is not None
+        seen.append(engine.gate.is_open)
+
+    engine.idle = held
+    await engine.run(asyncio.Event(), max_scans=4)
+    assert seen == [False, False, False]  # closed by then (the last scan has no idle)
+    assert engine.gate.is_open  # and open once the engine stopped
