@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import math
 import sqlite3
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -631,6 +632,13 @@ def test_a_failing_disk_is_reported_once_counted_alarmed_and_retried_losing_noth
     r = make(connect_hook=disk.hook)
     r.scan({"ch0.voltage": 0.0})
     r.flush()
+    # The fault goes onto the writer's own connection from this thread: only once the
+    # writer is idle (its start-up retention pass done too), or a failure of that pass
+    # would close the connection under this statement (a segfault in sqlite3).
+    deadline = time.monotonic() + 30.0
+    while r.historian.writer.retention_runs < 1 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert r.historian.writer.retention_runs >= 1
     disk.fail(fault)
     with caplog.at_level(logging.ERROR):
         for k in range(1, 400):
