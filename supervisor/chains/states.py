@@ -89,6 +89,13 @@ ACTIVE = (State.RUNNING, State.HOLDING, State.HELD, State.RESUMING)  # a test is
 FINAL = (State.COMPLETE, State.STOPPED, State.ABORTED)
 LOADABLE = (State.IDLE, *FINAL)
 MANUAL_DRIVEN = "the channel is driven in manual (enable on): turn enable off first"
+# What ends the test under way, for a refused load: a test held after a restart comes back
+# Held, and the operator who asked for another recipe at start-up needs the way out.
+_WAY_OUT = {
+    State.HELD: "resume it, or stop or abort it first",
+    State.STOPPING: "wait for it to stop",
+    State.ABORTING: "wait for it to abort",
+}
 
 
 @dataclass(frozen=True, slots=True)
@@ -137,7 +144,10 @@ def check_load(channel: str, state: State, manual_driven: bool = False) -> None:
     """A recipe is loaded only when no test is under way, and never from under an
     operator driving the channel in Manual (loading does not touch mode or enable)."""
     if state not in LOADABLE:
-        raise OperatorError(f"{channel}: cannot load a recipe while {state.value}")
+        raise OperatorError(
+            f"{channel}: cannot load a recipe while {state.value}: a test is under way: "
+            + _WAY_OUT.get(state, "stop or abort it first")
+        )
     if manual_driven:
         raise OperatorError(f"{channel}: cannot load a recipe while {MANUAL_DRIVEN}")
 

@@ -112,7 +112,11 @@ async def test_load_is_refused_while_the_channel_is_driven_in_manual(
 async def test_load_is_refused_while_a_test_is_under_way(bench: Bench, tmp_path: Path) -> None:
     await running(bench, tmp_path)
     res = run(bench, "ch0", V.LOAD, recipe=recipe(tmp_path))
-    assert refused(res, REFUSED, "ch0: cannot load a recipe while Running")
+    assert refused(
+        res,
+        REFUSED,
+        "ch0: cannot load a recipe while Running: a test is under way: stop or abort it first",
+    )
 
 
 async def test_load_names_a_missing_file_and_every_error_of_a_refused_recipe(
