@@ -30,6 +30,7 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver, DType
 from supervisor.core.errors import OperatorError
 from supervisor.core.gate import ScanGate
+from supervisor.core.realtime import RealtimePriority
 from supervisor.core.records import ChainEvent, Record
 from supervisor.core.units import UNITS, Dim
 from supervisor.devices.kind import DriverWiring
@@ -490,6 +491,8 @@ def build_bench(
         phases=phases.ordered(),
         publishers=[*(publishers or []), *([influx] if influx is not None else [])],
     )
+    if cfg.scan.realtime_priority is not None:
+        engine.realtime = RealtimePriority(cfg.scan.realtime_priority)
     bench = Bench(
         cfg,
         clock,

@@ -63,6 +63,15 @@ class ScanConfig(Strict):
     period_s: float = Field(
         0.1, ge=MIN_SCAN_PERIOD_S, le=MAX_SCAN_PERIOD_S, description="Scan period in seconds."
     )
+    realtime_priority: int | None = Field(
+        None,
+        ge=1,
+        le=99,
+        description="Run the scan's thread at this real-time priority (SCHED_FIFO, 1-99)"
+        " so that other programs of the machine neither delay its start nor interrupt it;"
+        " needs CAP_SYS_NICE or LimitRTPRIO= (deploy/bench-supervisor@.service). Refused, it"
+        " is logged and the scan runs at normal priority. Unset: normal priority.",
+    )
 
 
 HMI_SESSION_TIMEOUT_S: Final = 8 * 3600.0

@@ -231,6 +231,8 @@ class Layout:
             "stalls": stats.stalls,
             "stall_max_s": stats.stall_max_s,
             "logic_errors": stats.logic_errors,
+            "realtime_priority": stats.realtime_priority,
+            "realtime_refused": stats.realtime_refused,
             "window": len(durations),
         }
         publishers = []

@@ -38,6 +38,7 @@ from supervisor.core.clock import Clock, VirtualClock
 from supervisor.core.driver import Driver, Sample, Value
 from supervisor.core.gate import ScanGate
 from supervisor.core.quality import Quality, Reason
+from supervisor.core.realtime import RealtimePriority
 from supervisor.core.ring import FloatRing
 from supervisor.tags.db import Tag, TagDB
 from supervisor.tags.spec import Scaling, TagSpec
@@ -157,6 +158,10 @@ class ScanStats:
     stall_max_s: float = 0.0
     durations_s: FloatRing = field(default_factory=lambda: FloatRing(STATS_WINDOW))
     jitters_s: FloatRing = field(default_factory=lambda: FloatRing(STATS_WINDOW))
+    realtime_priority: int | None = None
+    """The real-time priority the scan's thread runs at (None: normal priority)."""
+    realtime_refused: str | None = None
+    """Why the configured real-time priority was refused (None when it was not)."""
 
     @staticmethod
     def percentile(values: Iterable[float], q: float) -> float:
@@ -197,6 +202,9 @@ class ScanEngine:
         """Real clock: closed from the approach of each deadline to the end of its scan,
         so that the threads that wait at it leave the interpreter lock to the scan
         (``core/gate.py``)."""
+        self.realtime: RealtimePriority | None = None
+        """Real clock: the scan's thread (and the gate closer's) at this real-time priority
+        while the engine runs (``scan.realtime_priority``, ``core/realtime.py``)."""
         self.yield_every_scans = 1
         """Virtual clock: let the event loop's other tasks run every this many scans (a
         dry run, with no other task to wait for, sets it high: a turn of the loop per scan
@@ -485,13 +493,22 @@ class ScanEngine:
                 run = getattr(d, "run", None)
                 if run is not None:
                     tasks.append(asyncio.create_task(run(), name=f"driver:{d.name}"))
+        realtime = None if self.clock.virtual else self.realtime
         try:
+            if realtime is not None:
+                # The loop's thread: the scans and the wake-ups for their deadlines.
+                raised = realtime.enter()
+                self.stats.realtime_priority = realtime.priority if raised else None
+                self.stats.realtime_refused = realtime.refused
             if watch is not None:
                 watch.start()
             if closer is not None:
                 closer.start()
             await self._loop(stop, max_scans, until_t)
         finally:
+            if realtime is not None:
+                realtime.leave()
+                self.stats.realtime_priority = None
             if closer is not None:
                 closer.stop()
             if self.gate is not None:
@@ -725,6 +742,9 @@ class GateCloser:
     def _run(self) -> None:
         engine, clock, stop = self.engine, self.engine.clock, self._stop
         event = engine._deadline_event
+        if engine.realtime is not None and engine.stats.realtime_priority is not None:
+            # As the scan's: a closer waiting for a core would close the gate late.
+            RealtimePriority(engine.realtime.priority, "scan gate closer").enter()
         seen = -1
         while not stop.is_set():
             # The deadline the engine set after its last scan (a new one each scan).

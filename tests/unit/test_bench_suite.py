@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from supervisor.app import benchreport, dryrun
-from supervisor.app.benchload import LOAD_MAP, LOAD_RECIPE, load_benchmark
+from supervisor.app.benchload import LOAD_MAP, LOAD_RECIPE, block_plan, load_benchmark
 from supervisor.app.benchmem import memory_benchmark, memory_figures, slope_per_s
 from supervisor.app.benchrun import Simulators, prepare
 from supervisor.cli.main import build_parser, main
@@ -177,6 +177,15 @@ def test_the_load_benchmark_runs_the_load_case_with_its_clients_and_records_its_
     assert len(names) == 6
     assert any("GET /api/tags" in n for n in names)
     assert any("overruns" in n for n in names)
+
+
+def test_the_load_window_alternates_quiet_and_snapshot_blocks_so_drift_weighs_on_both() -> None:
+    # Two halves compared the machine's first half-minute with its second: the same code
+    # gave a jitter ratio of 1.06 in one run and 2.12 in the next (issue 13).
+    plan = block_plan(60.0, alternations=3)
+    assert [kind for kind, _ in plan] == ["quiet", "snapshots"] * 3
+    assert {s for _, s in plan} == {10.0}
+    assert sum(s for _, s in plan) == 60.0
 
 
 def test_the_load_benchmark_reaches_its_networked_devices_in_a_simulator_process_and_stops_it(

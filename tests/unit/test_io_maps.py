@@ -108,7 +108,7 @@ def test_check_exits_2_and_prints_one_line_per_error_without_traceback(
     assert "Traceback" not in err
     assert err.strip().splitlines() == [
         f"{BAD / 'unknown_key.yaml'}:3:3: unknown key 'perod_s' in scan"
-        " (did you mean 'period_s'? expected one of: period_s)"
+        " (did you mean 'period_s'? expected one of: period_s, realtime_priority)"
     ]
     assert "sim.yaml: OK" in out
 

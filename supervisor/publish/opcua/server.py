@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import contextvars
 import gc
 import logging
 import selectors
@@ -290,7 +291,7 @@ class OpcUaServer:
     # --- the server's thread -----------------------------------------------------------------
     def _thread_main(self, ready: concurrent.futures.Future[None]) -> None:
         gate = self.gate
-        factory = None if gate is None else (lambda: asyncio.SelectorEventLoop(GatedSelector(gate)))
+        factory = None if gate is None else (lambda: GatedLoop(gate))
         try:
             with asyncio.Runner(loop_factory=factory) as runner:
                 runner.run(self._main(ready))
@@ -962,3 +963,41 @@ class GatedSelector(selectors.DefaultSelector):
         ready: list[tuple[selectors.SelectorKey, int]] = super().select(timeout)
         self._gate.wait()
         return ready
+
+
+class GatedLoop(asyncio.SelectorEventLoop):
+    """The OPC UA thread's event loop: its selector waits at the gate after each wait for
+    I/O (``GatedSelector``), and every callback handed to it waits at the gate too before
+    it runs. One turn of the loop runs every callback that is ready then (a dozen of
+    0.5–2 ms each with 10 subscribed clients): without the second wait, a scan that began
+    during the first met the others taking the interpreter lock from it (issue 13)."""
+
+    def __init__(self, gate: ScanGate) -> None:
+        super().__init__(GatedSelector(gate))
+        self._gate = gate
+
+    def call_soon(  # type: ignore[override]
+        self,
+        callback: Callable[..., object],
+        *args: Any,
+        context: contextvars.Context | None = None,
+    ) -> asyncio.Handle:
+        return super().call_soon(self._gated(callback), *args, context=context)
+
+    def call_soon_threadsafe(  # type: ignore[override]
+        self,
+        callback: Callable[..., object],
+        *args: Any,
+        context: contextvars.Context | None = None,
+    ) -> asyncio.Handle:
+        return super().call_soon_threadsafe(self._gated(callback), *args, context=context)
+
+    def _gated(self, callback: Callable[..., object]) -> Callable[..., object]:
+        gate = self._gate
+
+        def gated(*args: Any) -> object:
+            if not gate.is_open:
+                gate.wait()
+            return callback(*args)
+
+        return gated
