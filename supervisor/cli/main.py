@@ -31,6 +31,7 @@ from supervisor.config.models import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core import memtrace
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 from supervisor.core.heap import collect_when_idle, settle_after_start
+from supervisor.scan.engine import ScanFirstLoop
 
 if TYPE_CHECKING:
     from supervisor.app import Bench
@@ -338,7 +339,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         _err(f"{args.io_map}: no such I/O map (give a path, e.g. io_maps/sim.yaml)")
         return EXIT_USAGE
     try:
-        return asyncio.run(_run(args))
+        # The scan's loop runs a scan that falls due before its next callback (ADR 0023).
+        with asyncio.Runner(loop_factory=ScanFirstLoop) as runner:
+            return runner.run(_run(args))
     finally:
         if trace is not None:
             trace.stop()

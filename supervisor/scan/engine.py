@@ -25,14 +25,16 @@ it at once, with where the loop's thread is.
 from __future__ import annotations
 
 import asyncio
+import contextvars
 import logging
+import selectors
 import sys
 import threading
 import time
 import traceback
 from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 from supervisor.core.clock import Clock, VirtualClock
 from supervisor.core.driver import Driver, Sample, Value
@@ -65,7 +67,7 @@ WAKE_EARLY_S = 0.002
 """On a real clock the scan's event loop wakes this long before a deadline (the selector's
 millisecond rounding, and a driver poll or an HTTP slice that is running when the loop
 should wake: about a millisecond each in issue 13's load case) and sleeps the rest on the
-thread (:meth:`ScanEngine._wait_for_deadline`)."""
+thread (:meth:`ScanEngine._wait_on_thread`)."""
 GATE_EARLY_S = 0.003
 """On a real clock the scan gate is closed this long before each deadline by a thread of
 the engine's (``GateCloser``, at most a third of the period)."""
@@ -217,6 +219,13 @@ class ScanEngine:
         self._scan_end: asyncio.Future[None] | None = None  # ``after_next_scan``'s
         self.next_deadline: float | None = None
         """Real clock: when the next scan is due (the clock's axis)."""
+        self._start_t = 0.0  # real clock: the first scan's deadline, and the scans since
+        self._k = 0
+        self._done = 0
+        self._in_scan = False
+        self._hook_due: float | None = None
+        """The deadline ``_scan_first`` may run the scan of (None: the coroutine's)."""
+        self._hook_stop: asyncio.Event | None = None
         self.deadlines_set = 0
         self._deadline_event = threading.Event()
         self._next_poll: dict[int, float] = {}
@@ -531,47 +540,101 @@ class ScanEngine:
         if clock.virtual:
             await self._lockstep_loop(stop, max_scans, until_t)
             return
-        start = clock.now()
-        k = 0
-        done = 0
-        jtag = self._stats_tags["scan.jitter_s"]
-        while not stop.is_set():
-            scheduled = start + k * self.period_s
-            if until_t is not None and scheduled >= until_t - 1e-9:
-                self._next_t = scheduled
-                return
-            late = max(0.0, clock.now() - scheduled)
-            self.stats.jitters_s.append(late)
-            self.db.update(jtag, late)
-            self.note_start(late)
+        self._start_t = clock.now()
+        self._k = 0
+        self._done = 0
+        # A loop that runs a due scan before its next callback (``ScanFirstLoop``) may
+        # start the scans of an unbounded run itself: ``_scan_first``.
+        running = asyncio.get_running_loop()
+        loop = running if isinstance(running, ScanFirstLoop) else None
+        first = loop is not None and max_scans is None and until_t is None
+        if first and loop is not None:
+            self._hook_stop = stop
+            loop.scan_first = self._scan_first
+        try:
+            waited = False
+            while not stop.is_set():
+                scheduled = self._start_t + self._k * self.period_s
+                if until_t is not None and scheduled >= until_t - 1e-9:
+                    self._next_t = scheduled
+                    return
+                if waited:
+                    if clock.now() < scheduled - WAKE_EARLY_S:
+                        # The loop ran the scan this coroutine waited for: the next one.
+                        await clock.sleep_until(scheduled - WAKE_EARLY_S)
+                        continue
+                    self._wait_on_thread(scheduled)
+                self._hook_due = None  # this scan is the coroutine's
+                last = max_scans is not None and self._done + 1 >= max_scans
+                nxt = self._scan_at(scheduled, announce=not last)
+                if last:
+                    return
+                if first:
+                    self._hook_due = nxt
+                await clock.sleep_until(nxt - WAKE_EARLY_S)
+                # The loop may have run that scan (and more) meanwhile: the next one due.
+                waited = True
+        finally:
+            self._hook_due = None
+            if first and loop is not None:
+                loop.scan_first = None
+
+    def _scan_first(self) -> None:
+        """``ScanFirstLoop``'s hook, before each of its callbacks: the scan due within
+        ``WAKE_EARLY_S`` runs now, before that callback, rather than after every callback
+        ready in this turn of the loop (issue 13's start jitter: the engine's own wake-up
+        is a timer, and a turn runs every ready callback before its timers)."""
+        t = self._hook_due
+        if t is None or self._in_scan or self.clock.now() < t - WAKE_EARLY_S:
+            return
+        if self._hook_stop is not None and self._hook_stop.is_set():
+            return
+        self._hook_due = None
+        try:
+            self._wait_on_thread(t)
+            self._hook_due = self._scan_at(t)
+        except Exception:  # never the callback's failure: the coroutine's loop goes on
+            log.exception("scan: the scan run ahead of the loop's callbacks failed")
+
+    def _scan_at(self, scheduled: float, announce: bool = True) -> float:
+        """The scan due at ``scheduled`` (real clock), now; returns the next deadline (the
+        deadlines missed skipped) and, ``announce``, tells the gate closer and does the
+        idle work (not after the last scan of a bounded run)."""
+        clock = self.clock
+        late = max(0.0, clock.now() - scheduled)
+        self.stats.jitters_s.append(late)
+        self.db.update(self._stats_tags["scan.jitter_s"], late)
+        self.note_start(late)
+        if self.gate is not None:
+            self.gate.close()  # already, unless this scan came without a wait
+        self._in_scan = True
+        try:
+            self.scan_once()
+        finally:
+            self._in_scan = False
             if self.gate is not None:
-                self.gate.close()  # already, unless this scan came without a wait
+                self.gate.open()
+            self._scan_ended()
+        self._done += 1
+        self._k += 1
+        nxt = self._start_t + self._k * self.period_s
+        now = clock.now()
+        if nxt <= now:
+            # Overrun or stall: skip the deadlines already missed instead of bursting.
+            missed = int((now - nxt) / self.period_s) + 1
+            self.stats.skipped += missed
+            self._k += missed
+            nxt = self._start_t + self._k * self.period_s
+        self._next_t = nxt
+        if not announce:
+            return nxt
+        self.deadline_set(nxt)
+        if self.idle is not None:
             try:
-                self.scan_once()
-            finally:
-                if self.gate is not None:
-                    self.gate.open()
-                self._scan_ended()
-            done += 1
-            k += 1
-            nxt = start + k * self.period_s
-            now = clock.now()
-            if nxt <= now:
-                # Overrun or stall: skip the deadlines already missed instead of bursting.
-                missed = int((now - nxt) / self.period_s) + 1
-                self.stats.skipped += missed
-                k += missed
-                nxt = start + k * self.period_s
-            self._next_t = nxt
-            if max_scans is not None and done >= max_scans:
-                return
-            self.deadline_set(nxt)
-            if self.idle is not None:
-                try:
-                    self.idle(nxt - clock.now())
-                except Exception:  # the idle work's failure must not stop the scan
-                    log.exception("scan: idle work failed")
-            await self._wait_for_deadline(nxt)
+                self.idle(nxt - clock.now())
+            except Exception:  # the idle work's failure must not stop the scan
+                log.exception("scan: idle work failed")
+        return nxt
 
     async def _lockstep_loop(
         self, stop: asyncio.Event, max_scans: int | None, until_t: float | None
@@ -682,20 +745,19 @@ class ScanEngine:
         if fut is not None and not fut.done():
             fut.set_result(None)
 
-    async def _wait_for_deadline(self, t: float) -> None:
-        """Real clock: until ``t``, on time. The event loop's selector (epoll) rounds its
-        timeout up to a whole millisecond, so an ``asyncio.sleep`` to the deadline wakes
-        0–1 ms late, the start jitter issue 13 measured. The loop is asked to wake
-        ``WAKE_EARLY_S`` before the deadline (everything else on it runs meanwhile); the
-        last fraction of a millisecond is slept on the thread."""
+    def _wait_on_thread(self, t: float) -> None:
+        """Real clock: the last ``WAKE_EARLY_S`` before ``t``, on the thread, on time. The
+        event loop's selector (epoll) rounds its timeout up to a whole millisecond, so an
+        ``asyncio.sleep`` to the deadline wakes 0–1 ms late, the start jitter issue 13
+        measured: the loop is asked to wake ``WAKE_EARLY_S`` before the deadline
+        (everything else on it runs meanwhile) and the rest is slept here."""
         clock = self.clock
-        await clock.sleep_until(t - WAKE_EARLY_S)
         if self.gate is not None:
             self.gate.close()  # the threads at the gate keep out of the scan's way
         spin_s = min(START_SPIN_S, self.period_s / 10)
         rest_s = t - clock.now() - spin_s
         if rest_s > 0:
-            time.sleep(rest_s)  # noqa: ASYNC251 - under WAKE_EARLY_S, on purpose
+            time.sleep(rest_s)
         # Holding the interpreter lock for the last fraction: a publisher's thread that
         # took it while we slept would otherwise keep it up to the switch interval past
         # the deadline (ADR 0021).
@@ -712,6 +774,58 @@ class ScanEngine:
         start = self._next_t if (self.clock.virtual and self._next_t is not None) else None
         t0 = self.clock.now() if start is None else start
         await self.run(asyncio.Event(), until_t=t0 + duration_s)
+
+
+class ScanFirstLoop(asyncio.SelectorEventLoop):
+    """The scan's event loop: before each callback it runs (task steps, futures' callbacks,
+    everything handed to ``call_soon``), and after each wait for I/O, it gives the scan
+    engine the chance to run a scan that falls due (``ScanEngine._scan_first``). A scan
+    then waits for the callback under way at its deadline at most, not for every callback
+    ready in the same turn of the loop, which run before any timer's (issue 13). Nothing
+    changes for a callback: it runs between two scans, as on any loop; only the order of
+    the scan among the ready callbacks does. ``supervisor run`` runs on it."""
+
+    def __init__(self) -> None:
+        super().__init__(_ScanFirstSelector(self))
+        self.scan_first: Callable[[], None] | None = None
+
+    def call_soon(  # type: ignore[override]
+        self,
+        callback: Callable[..., object],
+        *args: Any,
+        context: contextvars.Context | None = None,
+    ) -> asyncio.Handle:
+        return super().call_soon(self._first(callback), *args, context=context)
+
+    def call_soon_threadsafe(  # type: ignore[override]
+        self,
+        callback: Callable[..., object],
+        *args: Any,
+        context: contextvars.Context | None = None,
+    ) -> asyncio.Handle:
+        return super().call_soon_threadsafe(self._first(callback), *args, context=context)
+
+    def _first(self, callback: Callable[..., object]) -> Callable[..., object]:
+        def first(*args: Any) -> object:
+            hook = self.scan_first
+            if hook is not None:
+                hook()
+            return callback(*args)
+
+        return first
+
+
+class _ScanFirstSelector(selectors.DefaultSelector):
+    def __init__(self, loop: ScanFirstLoop) -> None:
+        super().__init__()
+        self._loop = loop
+
+    def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
+        ready: list[tuple[selectors.SelectorKey, int]] = super().select(timeout)
+        hook = self._loop.scan_first
+        if hook is not None:
+            hook()  # before the I/O callbacks of this turn
+        return ready
 
 
 class GateCloser:
