@@ -71,6 +71,12 @@ thread (:meth:`ScanEngine._wait_on_thread`)."""
 GATE_EARLY_S = 0.003
 """On a real clock the scan gate is closed this long before each deadline by a thread of
 the engine's (``GateCloser``, at most a third of the period)."""
+SCAN_FIRST_EARLY_S = 0.001
+"""``ScanFirstLoop``: a callback that would start this close to a deadline waits for the
+scan instead (the loop sleeps the rest, as the engine does from ``WAKE_EARLY_S`` on when
+nothing else runs). Two milliseconds, as ``WAKE_EARLY_S``, left the loop idle up to a
+fifth of each 10 ms period while it had work: a full snapshot's request waited for two
+scans and two such sleeps (p99 latency 50 ms against 25, issue 13's load case)."""
 START_SPIN_S = 0.0008
 """...the last of it spent holding the interpreter lock (at most a tenth of the period):
 at the deadline the scan has the lock instead of waiting up to the switch interval for a
@@ -581,11 +587,12 @@ class ScanEngine:
 
     def _scan_first(self) -> None:
         """``ScanFirstLoop``'s hook, before each of its callbacks: the scan due within
-        ``WAKE_EARLY_S`` runs now, before that callback, rather than after every callback
-        ready in this turn of the loop (issue 13's start jitter: the engine's own wake-up
-        is a timer, and a turn runs every ready callback before its timers)."""
+        ``SCAN_FIRST_EARLY_S`` runs now (on time: the rest slept), before that callback,
+        rather than after every callback ready in this turn of the loop (issue 13's start
+        jitter: the engine's own wake-up is a timer, and a turn runs every ready callback
+        before its timers)."""
         t = self._hook_due
-        if t is None or self._in_scan or self.clock.now() < t - WAKE_EARLY_S:
+        if t is None or self._in_scan or self.clock.now() < t - SCAN_FIRST_EARLY_S:
             return
         if self._hook_stop is not None and self._hook_stop.is_set():
             return
