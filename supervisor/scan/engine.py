@@ -25,20 +25,19 @@ it at once, with where the loop's thread is.
 from __future__ import annotations
 
 import asyncio
-import contextvars
 import logging
-import selectors
 import sys
 import threading
 import time
 import traceback
 from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
 
 from supervisor.core.clock import Clock, VirtualClock
 from supervisor.core.driver import Driver, Sample, Value
 from supervisor.core.gate import ScanGate
+from supervisor.core.loops import HookedLoop
 from supervisor.core.quality import Quality, Reason
 from supervisor.core.realtime import RealtimePriority
 from supervisor.core.ring import FloatRing
@@ -246,6 +245,7 @@ class ScanEngine:
         # The ones every scan writes or reads, without a lookup by name.
         tags = self._stats_tags
         self._duration_tag = tags["scan.duration_s"]
+        self._jitter_tag = tags["scan.jitter_s"]
         self._duration_max_tag = tags["scan.duration_max_s"]
         self._overruns_tag = tags["scan.overruns"]
         self._count_tag = tags["scan.count"]
@@ -610,7 +610,7 @@ class ScanEngine:
         clock = self.clock
         late = max(0.0, clock.now() - scheduled)
         self.stats.jitters_s.append(late)
-        self.db.update(self._stats_tags["scan.jitter_s"], late)
+        self.db.update(self._jitter_tag, late)
         self.note_start(late)
         if self.gate is not None:
             self.gate.close()  # already, unless this scan came without a wait
@@ -783,7 +783,7 @@ class ScanEngine:
         await self.run(asyncio.Event(), until_t=t0 + duration_s)
 
 
-class ScanFirstLoop(asyncio.SelectorEventLoop):
+class ScanFirstLoop(HookedLoop):
     """The scan's event loop: before each callback it runs (task steps, futures' callbacks,
     everything handed to ``call_soon``), and after each wait for I/O, it gives the scan
     engine the chance to run a scan that falls due (``ScanEngine._scan_first``). A scan
@@ -793,46 +793,13 @@ class ScanFirstLoop(asyncio.SelectorEventLoop):
     the scan among the ready callbacks does. ``supervisor run`` runs on it."""
 
     def __init__(self) -> None:
-        super().__init__(_ScanFirstSelector(self))
+        super().__init__()
         self.scan_first: Callable[[], None] | None = None
 
-    def call_soon(  # type: ignore[override]
-        self,
-        callback: Callable[..., object],
-        *args: Any,
-        context: contextvars.Context | None = None,
-    ) -> asyncio.Handle:
-        return super().call_soon(self._first(callback), *args, context=context)
-
-    def call_soon_threadsafe(  # type: ignore[override]
-        self,
-        callback: Callable[..., object],
-        *args: Any,
-        context: contextvars.Context | None = None,
-    ) -> asyncio.Handle:
-        return super().call_soon_threadsafe(self._first(callback), *args, context=context)
-
-    def _first(self, callback: Callable[..., object]) -> Callable[..., object]:
-        def first(*args: Any) -> object:
-            hook = self.scan_first
-            if hook is not None:
-                hook()
-            return callback(*args)
-
-        return first
-
-
-class _ScanFirstSelector(selectors.DefaultSelector):
-    def __init__(self, loop: ScanFirstLoop) -> None:
-        super().__init__()
-        self._loop = loop
-
-    def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
-        ready: list[tuple[selectors.SelectorKey, int]] = super().select(timeout)
-        hook = self._loop.scan_first
+    def before(self) -> None:
+        hook = self.scan_first
         if hook is not None:
-            hook()  # before the I/O callbacks of this turn
-        return ready
+            hook()
 
 
 class GateCloser:

@@ -16,7 +16,7 @@ from supervisor.core.clock import RealClock
 from supervisor.core.gate import ScanGate
 from supervisor.publish.influx.spool import Spool
 from supervisor.publish.influx.writer import SpoolWriter
-from supervisor.publish.opcua.server import GatedLoop, GatedSelector
+from supervisor.publish.opcua.server import GatedLoop
 from supervisor.publish.results import SummaryWriter
 from supervisor.publish.retain import RetainStore
 from supervisor.publish.rows import RowWriter
@@ -72,7 +72,7 @@ async def test_on_a_real_clock_the_gate_is_closed_while_each_scan_runs_and_open_
 
 async def test_the_opc_ua_threads_event_loop_runs_nothing_while_a_scan_runs() -> None:
     gate = ScanGate(max_wait_s=60.0)
-    loop = asyncio.SelectorEventLoop(GatedSelector(gate))
+    loop = GatedLoop(gate)
     ran = threading.Event()
     thread = threading.Thread(target=loop.run_forever)
     thread.start()

@@ -22,10 +22,8 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
-import contextvars
 import gc
 import logging
-import selectors
 import threading
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
@@ -43,6 +41,7 @@ from supervisor.config.models import BenchConfig
 from supervisor.config.users import ROLE_ACCESS, UserStore
 from supervisor.core.clock import Clock
 from supervisor.core.gate import ScanGate
+from supervisor.core.loops import HookedLoop
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
 from supervisor.publish.historian import HistoryQuery
@@ -949,55 +948,20 @@ def _result(
     return res
 
 
-class GatedSelector(selectors.DefaultSelector):
-    """The OPC UA thread's selector: after each wait for I/O or a timer, and before the
-    event loop runs what is ready, it waits while a scan runs (``core/gate.py``). The
-    server's work (sampled values into the address space, notifications to the clients'
-    subscriptions) then runs between scans, not against them for the interpreter lock."""
+class GatedLoop(HookedLoop):
+    """The OPC UA thread's event loop: after each wait for I/O and before every callback
+    it waits while a scan runs (``core/gate.py``), so the server's work (sampled values
+    into the address space, notifications to the clients' subscriptions) runs between
+    scans. One turn of the loop runs every callback that is ready then (a dozen of
+    0.5–2 ms each with 10 subscribed clients): waiting only after the ``select``, a scan
+    that began during the first met the others taking the interpreter lock from it
+    (issue 13)."""
 
     def __init__(self, gate: ScanGate) -> None:
         super().__init__()
         self._gate = gate
 
-    def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
-        ready: list[tuple[selectors.SelectorKey, int]] = super().select(timeout)
-        self._gate.wait()
-        return ready
-
-
-class GatedLoop(asyncio.SelectorEventLoop):
-    """The OPC UA thread's event loop: its selector waits at the gate after each wait for
-    I/O (``GatedSelector``), and every callback handed to it waits at the gate too before
-    it runs. One turn of the loop runs every callback that is ready then (a dozen of
-    0.5–2 ms each with 10 subscribed clients): without the second wait, a scan that began
-    during the first met the others taking the interpreter lock from it (issue 13)."""
-
-    def __init__(self, gate: ScanGate) -> None:
-        super().__init__(GatedSelector(gate))
-        self._gate = gate
-
-    def call_soon(  # type: ignore[override]
-        self,
-        callback: Callable[..., object],
-        *args: Any,
-        context: contextvars.Context | None = None,
-    ) -> asyncio.Handle:
-        return super().call_soon(self._gated(callback), *args, context=context)
-
-    def call_soon_threadsafe(  # type: ignore[override]
-        self,
-        callback: Callable[..., object],
-        *args: Any,
-        context: contextvars.Context | None = None,
-    ) -> asyncio.Handle:
-        return super().call_soon_threadsafe(self._gated(callback), *args, context=context)
-
-    def _gated(self, callback: Callable[..., object]) -> Callable[..., object]:
+    def before(self) -> None:
         gate = self._gate
-
-        def gated(*args: Any) -> object:
-            if not gate.is_open:
-                gate.wait()
-            return callback(*args)
-
-        return gated
+        if not gate.is_open:
+            gate.wait()
