@@ -56,12 +56,12 @@ WS_PAGES = 3
 OPCUA_TAGS = 100
 """Tags each OPC UA client subscribes to (channel values, then signal tags)."""
 CLIENTS_NICE = 10
+"""The clients' and influxd's niceness (see above)."""
 ALTERNATIONS = 3
 """The window's quiet and snapshot blocks alternate this many times (quiet first): a
 machine that slows down or speeds up during the run then weighs on both alike, where two
 halves compared the first against the second (issue 13: the same code gave 1.06 and 2.12
 in two runs)."""
-"""The clients' and influxd's niceness (see above)."""
 
 
 def _say(msg: str) -> None:
