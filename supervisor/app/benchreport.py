@@ -20,7 +20,17 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Final
 
-__all__ = ["ENV", "Figure", "machine", "met", "read", "record", "write_report"]
+__all__ = [
+    "ENV",
+    "JITTER_UNCHANGED_MS",
+    "Figure",
+    "jitter_change",
+    "machine",
+    "met",
+    "read",
+    "record",
+    "write_report",
+]
 
 ENV: Final = "SUPERVISOR_BENCH_RESULTS"
 """Environment variable naming the JSON-lines file that :func:`record` appends to."""
@@ -47,6 +57,23 @@ _OPS: Final[dict[str, Callable[[float, float], bool]]] = {
     "<": lambda a, b: a < b,
     ">": lambda a, b: a > b,
 }
+
+
+JITTER_UNCHANGED_MS: Final = 0.1
+"""How much the scan's start jitter p99 may rise with the extra load and still count as
+"unchanged" (issue 13's HTTP/WebSocket row): a tenth of the 1 ms jitter target. The p99s
+compared are 0.01-0.1 ms on a quiet scan, where a ratio of two of them swings by 2-20x
+from run to run with the same code (docs/adr/0024-jitter-unchanged.md)."""
+
+
+def jitter_change(alone_ms: float, loaded_ms: float) -> tuple[float, str]:
+    """The rise of the start jitter p99 under load (ms; negative: it fell) and the
+    reference line that shows both p99s and their ratio (for the record, not judged)."""
+    ratio = f"{loaded_ms / alone_ms:.2f}x" if alone_ms > 0 else "n/a"
+    return loaded_ms - alone_ms, (
+        f"without {alone_ms:.3f} ms, with {loaded_ms:.3f} ms (ratio {ratio});"
+        f" unchanged: a rise of at most {JITTER_UNCHANGED_MS:g} ms"
+    )
 
 
 def met(measured: float, target: str) -> bool | None:

@@ -173,10 +173,28 @@ def test_the_load_benchmark_runs_the_load_case_with_its_clients_and_records_its_
     at_root: Path, results: Path
 ) -> None:
     assert load_benchmark(seconds=2.0, warmup_s=1.0, http_rate_hz=5.0) == 0
-    names = [f.figure for f in benchreport.read(results)]
+    figures = benchreport.read(results)
+    names = [f.figure for f in figures]
     assert len(names) == 6
     assert any("GET /api/tags" in n for n in names)
     assert any("overruns" in n for n in names)
+    # "Scan jitter unchanged" is judged as the rise of its p99 in ms, both p99s shown.
+    (jitter,) = [f for f in figures if "snapshots" in f.figure]
+    assert (jitter.unit, jitter.target) == ("ms", "<= 0.1")
+    assert "without" in jitter.reference and "with" in jitter.reference
+
+
+def test_jitter_unchanged_is_a_rise_of_at_most_a_tenth_of_the_jitter_target() -> None:
+    # Two p99s of 0.01 and 0.03 ms are a ratio of 3 and no change a scan would notice;
+    # 1.0 against 2.0 ms is a ratio of 2 and a scan twice as late (issue 13).
+    rise, reference = benchreport.jitter_change(0.01, 0.03)
+    assert rise == pytest.approx(0.02)
+    assert benchreport.met(rise, f"<= {benchreport.JITTER_UNCHANGED_MS}")
+    assert "ratio 3.00x" in reference
+    rise, _ = benchreport.jitter_change(1.0, 2.0)
+    assert not benchreport.met(rise, f"<= {benchreport.JITTER_UNCHANGED_MS}")
+    assert benchreport.met(benchreport.jitter_change(0.5, 0.3)[0], "<= 0.1")  # it fell
+    assert "ratio n/a" in benchreport.jitter_change(0.0, 0.2)[1]
 
 
 def test_the_load_window_alternates_quiet_and_snapshot_blocks_so_drift_weighs_on_both() -> None:
