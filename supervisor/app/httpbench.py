@@ -126,7 +126,7 @@ async def http_benchmark(
     cpu = await snapshot_cpu(n_tags, period_s)
     engine = _engine(n_tags, period_s)
     db, clock = engine.db, engine.clock
-    api = HttpApi(db, clock, "127.0.0.1", 0)
+    api = HttpApi(db, clock, "127.0.0.1", 0, pacing=engine)  # as supervisor run does
     hub = LiveHub(db, clock, 0.2)
     hub.install(api.app)
     jit = _Jitters(engine.stats)

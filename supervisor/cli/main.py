@@ -145,6 +145,7 @@ async def _serve(
         history=history,
         recipes=_recipes_config(cfg, bench),
         tests=TestsConfig(Path(cfg.state_dir) / "results", bench.results, bench.runners),
+        pacing=bench.engine,
     )
     screens = build_screens(bench, api)  # ConfigError for a bad users file: exit 2
     opcua = None

@@ -529,6 +529,7 @@ class ScanEngine:
             if self.gate is not None:
                 self.gate.open()
             self._scan_ended()  # nobody waits for a scan that will not come
+            self.next_deadline = None  # and none is due
             if watch is not None:
                 watch.stop()
             for t in tasks:
