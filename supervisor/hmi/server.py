@@ -170,8 +170,10 @@ class ScanPacing(Protocol):
 
 
 CLEAR_MARGIN_S: Final = 0.0003
-"""Added to twice the longest recent image turn: the response's own writing follows the
-image in the same callback (:meth:`TagSnapshots.clear_of_scan`)."""
+"""Added to the usual image turn: the response's own writing follows the image in the same
+callback (:meth:`TagSnapshots.clear_of_scan`)."""
+TURN_WEIGHT: Final = 0.1
+"""Weight of the newest turn in :attr:`TagSnapshots.turn_s` (an exponential average)."""
 
 
 _FLOAT_TEXT: Final = float.__repr__  # what json.dumps writes for a finite float
@@ -393,8 +395,11 @@ class TagSnapshots:
         self.deferred = 0
         """Image turns started after a scan because that scan was due too soon."""
         self.turn_s = 0.0
-        """The longest recent image turn (decays by 2 % an image): the time an image's
-        turn needs clear of the next scan."""
+        """The usual image turn (an exponential average): the time an image's turn needs
+        clear of the next scan. Not the longest: a turn longer than the window delays the
+        scan by what is left of it only when the deadline falls in that remainder, rare
+        enough for the jitter's p99 (a window of twice the longest recent turn deferred
+        most requests and doubled the snapshot's median latency)."""
         self.fragments = {as_map: TagFragments(db, clock, as_map) for as_map in (False, True)}
         self._done: dict[bool, tuple[int, str]] = {}
         self._building: dict[bool, tuple[int, asyncio.Task[str]]] = {}
@@ -462,7 +467,7 @@ class TagSnapshots:
         if pacing is None:
             return False
         due = pacing.next_deadline
-        if due is None or due - self.clock.now() > 2.0 * self.turn_s + CLEAR_MARGIN_S:
+        if due is None or due - self.clock.now() > self.turn_s + CLEAR_MARGIN_S:
             return False
         self.deferred += 1
         await pacing.after_next_scan()
@@ -470,8 +475,10 @@ class TagSnapshots:
 
     def timed(self, turn_s: float) -> None:
         """Note how long an image's turn took (see :attr:`turn_s`)."""
-        decayed = self.turn_s * 0.98
-        self.turn_s = turn_s if turn_s > decayed else decayed
+        if self.built == 0:
+            self.turn_s = turn_s
+        else:
+            self.turn_s += TURN_WEIGHT * (turn_s - self.turn_s)
 
     def _keep(self, as_map: bool, version: int, text: str) -> tuple[int, str]:
         self.built += 1

@@ -201,3 +201,22 @@ def test_an_image_waits_for_one_scan_at_most_and_not_at_all_when_none_is_due(
         assert scan.scans == 1
 
     asyncio.run(scenario())
+
+
+def test_one_long_image_turn_does_not_keep_requests_waiting_for_scans_far_away(
+    virtual_clock: VirtualClock,
+) -> None:
+    # The window is the usual turn, not the longest: a window of twice the longest recent
+    # turn deferred most requests and doubled the snapshot's median latency (issue 13).
+    db = _db(50)
+    scan = _Scan(db, virtual_clock, due_in_s=0.003)
+    snapshots = TagSnapshots(db, virtual_clock, scan)
+    for turn_s in [0.0008] * 10 + [0.006]:  # usually 0.8 ms, once 6 ms (a busy machine)
+        snapshots.timed(turn_s)
+        snapshots.built += 1
+
+    async def scenario() -> None:
+        await snapshots.image()
+        assert (scan.scans, snapshots.deferred) == (0, 0)  # 3 ms is clear of a usual turn
+
+    asyncio.run(scenario())
