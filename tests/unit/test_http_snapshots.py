@@ -150,16 +150,25 @@ class _Scan:
         self.next_deadline = self.clock.now() + self.period_s
 
 
+def _paced(
+    clock: VirtualClock, due_in_s: float, turn_s: float = 0.001
+) -> tuple[TagDB, _Scan, TagSnapshots]:
+    """50 tags, a scan due in ``due_in_s``, and their snapshots paced by that scan, whose
+    image turns usually take ``turn_s``."""
+    db = _db(50)
+    scan = _Scan(db, clock, due_in_s)
+    snapshots = TagSnapshots(db, clock, scan)
+    snapshots.turn_s = turn_s
+    return db, scan, snapshots
+
+
 def test_an_image_due_to_overlap_the_next_scan_waits_for_it_and_shows_what_it_left(
     virtual_clock: VirtualClock,
 ) -> None:
     # A turn of the loop is not interrupted by the scan on the same loop: an image begun
     # just before a deadline made that scan start late by the rest of it (issue 13: start
     # jitter p99 0.04 ms without snapshots, 0.65 ms with them).
-    db = _db(50)
-    scan = _Scan(db, virtual_clock, due_in_s=0.0001)
-    snapshots = TagSnapshots(db, virtual_clock, scan)
-    snapshots.turn_s = 0.001  # an image's turn takes about a millisecond
+    db, scan, snapshots = _paced(virtual_clock, due_in_s=0.0001, turn_s=0.001)
 
     async def scenario() -> None:
         version, text = await snapshots.image()
@@ -171,10 +180,7 @@ def test_an_image_due_to_overlap_the_next_scan_waits_for_it_and_shows_what_it_le
 
 
 def test_an_image_clear_of_the_next_scan_is_built_at_once(virtual_clock: VirtualClock) -> None:
-    db = _db(50)
-    scan = _Scan(db, virtual_clock, due_in_s=0.008)
-    snapshots = TagSnapshots(db, virtual_clock, scan)
-    snapshots.turn_s = 0.001
+    db, scan, snapshots = _paced(virtual_clock, due_in_s=0.008, turn_s=0.001)
 
     async def scenario() -> None:
         version, _ = await snapshots.image()
@@ -187,10 +193,8 @@ def test_an_image_clear_of_the_next_scan_is_built_at_once(virtual_clock: Virtual
 def test_an_image_waits_for_one_scan_at_most_and_not_at_all_when_none_is_due(
     virtual_clock: VirtualClock,
 ) -> None:
-    db = _db(50)
-    scan = _Scan(db, virtual_clock, due_in_s=0.0)
+    db, scan, snapshots = _paced(virtual_clock, due_in_s=0.0)
     scan.period_s = 0.0  # the clock does not move: the next scan is "due" again at once
-    snapshots = TagSnapshots(db, virtual_clock, scan)
 
     async def scenario() -> None:
         await snapshots.image()
@@ -208,9 +212,8 @@ def test_one_long_image_turn_does_not_keep_requests_waiting_for_scans_far_away(
 ) -> None:
     # The window is the usual turn, not the longest: a window of twice the longest recent
     # turn deferred most requests and doubled the snapshot's median latency (issue 13).
-    db = _db(50)
-    scan = _Scan(db, virtual_clock, due_in_s=0.003)
-    snapshots = TagSnapshots(db, virtual_clock, scan)
+    _, scan, snapshots = _paced(virtual_clock, due_in_s=0.003, turn_s=0.0)
+    snapshots.built = 0  # no image yet: the first turn is the average
     for turn_s in [0.0008] * 10 + [0.006]:  # usually 0.8 ms, once 6 ms (a busy machine)
         snapshots.timed(turn_s)
         snapshots.built += 1
