@@ -375,9 +375,10 @@ def load_benchmark(
         f" {len(lat)} requests, p50 {_pct(lat, 50) * 1000:.1f} ms, p99 {lat_p99:.1f} ms"
         f" (target ≤ 20 ms)"
     )
+    rise_ms, reference = benchreport.jitter_change(jit_quiet, jit_snap)
     _say(
         f"  start jitter p99 without snapshots {jit_quiet:.2f} ms, with {jit_snap:.2f} ms"
-        f" ({ALTERNATIONS} blocks of each, alternating): rise {jit_snap - jit_quiet:+.3f} ms,"
+        f" ({ALTERNATIONS} blocks of each, alternating): rise {rise_ms:+.3f} ms,"
         f" ratio {jit_ratio:.2f} (target: unchanged, a rise of at most"
         f" {benchreport.JITTER_UNCHANGED_MS:g} ms)"
     )
@@ -417,7 +418,6 @@ def load_benchmark(
         f"{len(lat)} requests at {http_rate_hz:g}/s",
         cmd,
     )
-    rise_ms, reference = benchreport.jitter_change(jit_quiet, jit_snap)
     rec(
         "scan jitter p99 rise with snapshots (same run)",
         rise_ms,

@@ -475,10 +475,10 @@ class TagSnapshots:
 
     def timed(self, turn_s: float) -> None:
         """Note how long an image's turn took (see :attr:`turn_s`)."""
-        if self.built == 0:
-            self.turn_s = turn_s
-        else:
-            self.turn_s += TURN_WEIGHT * (turn_s - self.turn_s)
+        # The first turn timed is the average; the next ones move it.
+        self.turn_s = (
+            turn_s if self.turn_s == 0.0 else self.turn_s + TURN_WEIGHT * (turn_s - self.turn_s)
+        )
 
     def _keep(self, as_map: bool, version: int, text: str) -> tuple[int, str]:
         self.built += 1
