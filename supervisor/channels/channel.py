@@ -229,15 +229,48 @@ class Channel:
     # request is clamped and protected before it reaches the outputs.
     def derive(self, now: float, dt: float) -> None:
         """Derived values: measurements copied from other tags, Ah/Wh, power."""
+        # One call per phase and scan: the body is here, not in a helper (issue 13).
         try:
-            self._derive(dt)
+            db = self.db
+            update = db.update
+            sources = self._sources
+            if sources is None:
+                for dst, name in self._copies:
+                    if name is not None:
+                        src = db[name]  # a missing tag: a logic error, the channel safe
+                        update(dst, src.value, src.quality, src.reason, src.source_t)
+                # Every source tag exists: looked up by name once, not every scan.
+                self._sources = [(dst, db[n]) for dst, n in self._copies if n is not None]
+            else:
+                for dst, src in sources:
+                    update(dst, src.value, src.quality, src.reason, src.source_t)
+            self._integrate(dt)
+            # Power: a value computed from a Bad input is Bad.
+            v, i, power = self.voltage, self.current, self.power
+            if v.quality is _GOOD and i.quality is _GOOD:
+                x, y = v.value, i.value  # _as_float(v) * _as_float(i), without the calls
+                p = (x if type(x) is float else v.as_float()) * (
+                    y if type(y) is float else i.as_float()
+                )
+                if p == power.value and power.quality is _GOOD and power.reason is _NONE:
+                    # Unchanged (a GOOD float tag holds a finite value, so ``p`` is one):
+                    # only the source time moves, as the update would (issue 13: most
+                    # scans). ``db.stamp(power)``, inline.
+                    if not power.forced:
+                        power.source_t = now
+                else:
+                    update(power, p)
+                self._prev_p = p
+            else:
+                update(power, power.value, Quality.BAD, Reason.DERIVED_FROM_BAD)
+                self._prev_p = None
         except Exception as exc:  # logic error: this channel goes safe, the scan goes on
             self._failed(exc)
 
     def drive(self, now: float, dt: float) -> None:
         """Setpoint selection, clamping to what safety allows, the output commands."""
         try:
-            self._drive(dt)
+            self._drive(now)
         except Exception as exc:
             self._failed(exc)
         else:
@@ -250,59 +283,34 @@ class Channel:
         self.drive(now, dt)
 
     def _failed(self, exc: Exception) -> None:
-        """A phase raised (``derive`` and ``drive`` call their phase directly, inside a
-        ``try``: one call less per phase and scan): the channel goes safe."""
+        """A phase raised (``derive`` and ``drive`` run their work inside a ``try``: one
+        call less per phase and scan): the channel goes safe."""
         log.exception("%s: channel logic failed", self.name)
         self.go_safe()
         # The safety phase trips the channel on it (latched, until reset).
         self.db.update(self.logic_error, f"{type(exc).__name__}: {exc}")
 
-    def _derive(self, dt: float) -> None:
+    def _drive(self, now: float) -> None:
+        """``now``: the scan's time, which the database stamps (``TagDB.set_scan_time``)."""
         db = self.db
-        update = db.update
-        v, i = self.voltage, self.current
-        sources = self._sources
-        if sources is None:
-            for dst, name in self._copies:
-                if name is not None:
-                    src = db[name]  # a missing tag: a logic error, the channel safe
-                    update(dst, src.value, src.quality, src.reason, src.source_t)
-            # Every source tag exists: looked up by name once, not every scan.
-            self._sources = [(dst, db[name]) for dst, name in self._copies if name is not None]
-        else:
-            for dst, src in sources:
-                update(dst, src.value, src.quality, src.reason, src.source_t)
-        self._integrate(dt)
-        # Power: a value computed from a Bad input is Bad.
-        good = Quality.GOOD
-        if v.quality is good and i.quality is good:
-            x, y = v.value, i.value  # _as_float(v) * _as_float(i), without the calls
-            p = (x if type(x) is float else v.as_float()) * (
-                y if type(y) is float else i.as_float()
-            )
-            power = self.power
-            if p == power.value and power.quality is _GOOD and power.reason is _NONE:
-                # Unchanged (a GOOD float tag holds a finite value, so ``p`` is one): only
-                # the source time moves, as the update would (issue 13: most scans).
-                db.stamp(power)
-            else:
-                update(power, p)
-            self._prev_p = p
-        else:
-            update(self.power, self.power.value, Quality.BAD, Reason.DERIVED_FROM_BAD)
-            self._prev_p = None
-
-    def _drive(self, dt: float) -> None:
-        db = self.db
-        request, active = self._request(), self._active()
         if self.fault.value:
             request, active = 0.0, False
+        else:
+            # The request and whether the stage is active, in one look at the mode.
+            mode = self.mode.value
+            if mode == _MANUAL:
+                active = bool(self.enable.value)
+                request = _as_float(self.manual_current) if active else 0.0
+            else:
+                active = bool(self.auto_active.value)
+                request = _as_float(self.auto_current) if active and mode == _AUTO else 0.0
         # The command, the clamp flag and the state are the same most scans: then only
         # their source time moves, as their updates would (issue 13; the command is a
-        # finite number when it equals a GOOD float tag's value).
-        cmd, tag = self._clamp(request), self.current_cmd
+        # finite number when it equals a GOOD float tag's value). ``db.stamp``, inline.
+        cmd, tag = self._clamp(request, now), self.current_cmd
         if cmd == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-            db.stamp(tag)
+            if not tag.forced:
+                tag.source_t = now
         else:
             db.update(tag, cmd)
         if self.voltage_cmd is not None:
@@ -314,9 +322,17 @@ class Channel:
             db.update(self.output_cmd, active)
         if self._contactor is not None:
             db.update(self._contactor, active)
-        state, tag = self._state_name(), self.state
+        # The state's name, from the fault and the command just written.
+        if self.fault.value:
+            state = "faulted"
+        else:
+            x = self.current_cmd.value
+            c = x if type(x) is float else self.current_cmd.as_float()
+            state = "idle" if c == 0.0 else "charging" if c > 0 else "discharging"
+        tag = self.state
         if state == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-            db.stamp(tag)
+            if not tag.forced:
+                tag.source_t = now
         else:
             db.update(tag, state)
 
@@ -324,55 +340,47 @@ class Channel:
         """Ah/Wh with a zero-order hold: the current read last scan flowed during ``dt``."""
         update = self.db.update
         i_prev, p_prev = self._prev_i, self._prev_p
-        # ``_as_float(tag)`` inlined (``x if type(x) is float else tag.as_float()``): five
-        # calls fewer every scan of every channel.
+        # ``_as_float(tag)`` inlined (``x if type(x) is float else tag.as_float()``), and
+        # ``abs``: five calls fewer every scan of every channel.
         if dt > 0 and i_prev is not None:
             dq = i_prev * dt / 3600.0
             tag = self.charge_ah
             x = tag.value
             update(tag, (x if type(x) is float else tag.as_float()) + dq)
-            tag = self.charged_ah if dq >= 0 else self.discharged_ah
-            x = tag.value
-            update(tag, (x if type(x) is float else tag.as_float()) + abs(dq))
+            if dq >= 0:
+                tag = self.charged_ah
+                x = tag.value
+                update(tag, (x if type(x) is float else tag.as_float()) + dq)
+            else:
+                tag = self.discharged_ah
+                x = tag.value
+                update(tag, (x if type(x) is float else tag.as_float()) - dq)
             if p_prev is not None:
                 de = p_prev * dt / 3600.0
                 tag = self.energy_wh
                 x = tag.value
                 update(tag, (x if type(x) is float else tag.as_float()) + de)
-                tag = self.charged_wh if de >= 0 else self.discharged_wh
-                x = tag.value
-                update(tag, (x if type(x) is float else tag.as_float()) + abs(de))
+                if de >= 0:
+                    tag = self.charged_wh
+                    x = tag.value
+                    update(tag, (x if type(x) is float else tag.as_float()) + de)
+                else:
+                    tag = self.discharged_wh
+                    x = tag.value
+                    update(tag, (x if type(x) is float else tag.as_float()) - de)
         current = self.current
         x = current.value
         self._prev_i = (
-            (x if type(x) is float else current.as_float())
-            if current.quality is Quality.GOOD
-            else None
+            (x if type(x) is float else current.as_float()) if current.quality is _GOOD else None
         )
 
-    def _active(self) -> bool:
-        """Whether the channel's power stage should be energised (before trips)."""
-        if self.mode.value == _MANUAL:
-            return bool(self.enable.value)
-        return bool(self.auto_active.value)
-
-    def _request(self) -> float:
-        mode = self.mode.value
-        if mode == _MANUAL:
-            if not self.enable.value:
-                return 0.0
-            return _as_float(self.manual_current)
-        if mode == _AUTO and self.auto_active.value:
-            return _as_float(self.auto_current)
-        return 0.0
-
-    def _clamp(self, request: float) -> float:
+    def _clamp(self, request: float, now: float) -> float:
         """Into the hard current limits, and into what the safety phase allows this scan
         (nothing towards a crossed voltage limit, less near a BMS cell limit)."""
         lo, hi = self.limits.current_a
         if not _isfinite(request):
             raise ValueError(f"non-finite current request {request!r}")
-        out = min(max(request, lo), hi)
+        out = request if lo <= request <= hi else min(max(request, lo), hi)
         hard = out != request
         # ``_as_float(tag, default)`` inlined: the limits are floats (every scan).
         if out > 0:
@@ -391,22 +399,14 @@ class Channel:
             log.warning(
                 "%s: setpoint %.4f A clamped to %.4f A (%s)", self.name, request, allowed, why
             )
-        out = allowed
         self._last_clamp_req = request if clamped else None
         tag = self.clamped
         if clamped is tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-            self.db.stamp(tag)  # unchanged: as its update would
+            if not tag.forced:  # unchanged: as its update would (``db.stamp``, inline)
+                tag.source_t = now
         else:
             self.db.update(tag, clamped)
-        return out
-
-    def _state_name(self) -> str:
-        if self.fault.value:
-            return "faulted"
-        cmd = _as_float(self.current_cmd)
-        if cmd == 0.0:
-            return "idle"
-        return "charging" if cmd > 0 else "discharging"
+        return allowed
 
     def go_safe(self) -> None:
         """Request zero current (used at shutdown before the drivers' own safe state)."""

@@ -61,14 +61,16 @@ class VirtualClock:
 
     def __init__(self, start_s: float = 0.0, wall_epoch_s: float = 1_767_225_600.0) -> None:
         # Default epoch 2026-01-01T00:00:00Z keeps result files reproducible.
-        self._t = start_s
+        self.t_s = start_s
+        """The time now (``now()``); the scan engine's lockstep reads and moves it without
+        a call (issue 13's dry run). Never moved backwards."""
         self._epoch = wall_epoch_s
 
     def now(self) -> float:
-        return self._t
+        return self.t_s
 
     def wall(self) -> float:
-        return self._epoch + self._t
+        return self._epoch + self.t_s
 
     def to_wall(self, t: float) -> float:
         return self._epoch + t
@@ -76,10 +78,10 @@ class VirtualClock:
     def advance(self, dt_s: float) -> None:
         if dt_s < 0:
             raise ValueError("virtual time never goes backwards")
-        self._t += dt_s
+        self.t_s += dt_s
 
     async def sleep_until(self, t: float) -> None:
-        if t > self._t:
-            self._t = t
+        if t > self.t_s:
+            self.t_s = t
         # Yield once so other tasks get a turn, as a real sleep would allow.
         await asyncio.sleep(0)

@@ -45,6 +45,8 @@ from supervisor.tags.db import Tag, TagDB
 from supervisor.tags.spec import Scaling, TagSpec
 
 log = logging.getLogger(__name__)
+_perf_counter = time.perf_counter
+_GOOD, _BAD, _NONE = Quality.GOOD, Quality.BAD, Reason.NONE
 
 STATS_WINDOW = 10_000
 DRIVER_STOP_S = 5.0
@@ -238,9 +240,9 @@ class ScanEngine:
         self._stepped_list: list[_Stepped] = []
         self._flushes: list[tuple[Callable[[], bool] | None, Callable[[], Awaitable[None]]]] = []
         self._stepped_of: list[Driver] | None = None
-        self._plan: list[tuple[InputBinding, int]] = []
-        self._input_drivers: list[Driver] = []
+        self._plan: list[tuple[Driver, list[InputBinding]]] = []
         self._plan_of: list[InputBinding] | None = None
+        self._plan_len = 0
         self._stats_tags = self._declare_stats_tags()
         # The ones every scan writes or reads, without a lookup by name.
         tags = self._stats_tags
@@ -362,9 +364,10 @@ class ScanEngine:
 
     def scan_once(self) -> None:
         """Inputs, logic, outputs, publish — synchronous: the scan never awaits I/O."""
-        t0 = time.perf_counter()
+        t0 = _perf_counter()
         now = self.clock.now()
-        dt = 0.0 if self._last_t is None else now - self._last_t
+        last_t = self._last_t
+        dt = 0.0 if last_t is None else now - last_t
         self._last_t = now
         db = self.db
         db.set_scan_time(now)
@@ -375,101 +378,104 @@ class ScanEngine:
             except Exception:  # an exception in logic is an alarm, not a crash
                 self.stats.logic_errors += 1
                 log.exception("scan: logic phase %r failed", phase.name)
-        self._queue_outputs()
+        if self.outputs:
+            self._queue_outputs()
         for pub in self.publishers:
             try:
                 pub.on_scan(db, now)
             except Exception:
                 log.exception("scan: publisher %r failed", pub.name)
-        duration = time.perf_counter() - t0
+        duration = _perf_counter() - t0
         st = self.stats
         st.count += 1
         st.durations_s.append(duration)
         if duration > self.period_s:
             st.overruns += 1
-        db.update(self._duration_tag, duration)
+        update = db.update
+        update(self._duration_tag, duration)
         if duration > (self._duration_max_tag.value or 0.0):  # type: ignore[operator]
-            db.update(self._duration_max_tag, duration)
+            update(self._duration_max_tag, duration)
         if self._overruns_tag.value != st.overruns:  # rare: no update call per scan
-            db.update(self._overruns_tag, st.overruns)
-        db.update(self._count_tag, st.count)
+            update(self._overruns_tag, st.overruns)
+        update(self._count_tag, st.count)
         if self._logic_errors_tag.value != st.logic_errors:
-            db.update(self._logic_errors_tag, st.logic_errors)
+            update(self._logic_errors_tag, st.logic_errors)
 
     def _copy_inputs(self, now: float) -> None:
         """``now``: the scan's time, which ``scan_once`` gave the database."""
         db = self.db
         update = db.update
-        good, none = Quality.GOOD, Reason.NONE
         for d, ctag, ftag in self._conn_tags:
             # Both change a few times a run: an unchanged one only has its source time
             # stamped, as its update would (``TagDB.stamp``, inline: neither is a float
             # tag, no coercion to mind).
             connected = d.connected
-            if connected == ctag.value and ctag.quality is good and ctag.reason is none:
+            if connected == ctag.value and ctag.quality is _GOOD and ctag.reason is _NONE:
                 if not ctag.forced:
                     ctag.source_t = now
             else:
                 update(ctag, connected)
             failures = getattr(d, "failures", 0)
-            if failures == ftag.value and ftag.quality is good and ftag.reason is none:
+            if failures == ftag.value and ftag.quality is _GOOD and ftag.reason is _NONE:
                 if not ftag.forced:
                     ftag.source_t = now
             else:
                 update(ftag, failures)
-        bad = Quality.BAD
         inputs = self.inputs
-        if self._plan_of is not inputs or len(self._plan) != len(inputs):
+        if self._plan_of is not inputs or self._plan_len != len(inputs):
             self._input_plan()
-        images = [d.image() for d in self._input_drivers]  # once per driver, not per input
-        for b, slot in self._plan:
-            s = images[slot].get(b.point)
-            tag = b.tag
-            if s is None:
-                update(tag, None, bad, Reason.NOT_CONNECTED)
-                b._sample = None
-                continue
-            stale_after_s = b.stale_after_s
-            stale = stale_after_s is not None and s.quality is not bad and now - s.t > stale_after_s
-            if s is b._sample and stale is b._stale and tag.version == b._version:
-                # The same sample, as fresh as last scan, and nobody changed the tag since:
-                # the update would compute what it did then and change nothing but the
-                # source time (a driver may stamp a sample again in place with a newer
-                # time, never change its value, quality or reason: a new poll that read
-                # the same is the same object, ``devices/chadeche/driver.py``). Stamped
-                # as ``TagDB.stamp`` does, inline.
-                if not tag.forced:
-                    tag.source_t = s.t
-                continue
-            value: Value | None = s.value
-            quality, reason = s.quality, s.reason
-            if b.scaling is not None and isinstance(value, int | float) and value is not True:
-                value = b.scaling.to_eu(float(value))
-            if b.threshold is not None and isinstance(value, int | float):
-                value = value >= b.threshold
-            if stale:
-                quality, reason = bad, Reason.STALE
-            update(tag, value, quality, reason, s.t)
-            # A NaN never equals itself: every copy of it is a change, as update says.
-            b._sample = s if tag.value == tag.value else None
-            b._stale = stale
-            b._version = tag.version
+        for d, bindings in self._plan:
+            image = d.image()  # once per driver, not per input: one consistent snapshot
+            for b in bindings:
+                s = image.get(b.point)
+                tag = b.tag
+                if s is None:
+                    update(tag, None, _BAD, Reason.NOT_CONNECTED)
+                    b._sample = None
+                    continue
+                stale_after_s = b.stale_after_s
+                stale = (
+                    stale_after_s is not None
+                    and s.quality is not _BAD
+                    and now - s.t > stale_after_s
+                )
+                if s is b._sample and stale is b._stale and tag.version == b._version:
+                    # The same sample, as fresh as last scan, and nobody changed the tag
+                    # since: the update would compute what it did then and change nothing
+                    # but the source time (a driver may stamp a sample again in place with
+                    # a newer time, never change its value, quality or reason: a new poll
+                    # that read the same is the same object, ``devices/chadeche/
+                    # driver.py``). Stamped as ``TagDB.stamp`` does, inline.
+                    if not tag.forced:
+                        tag.source_t = s.t
+                    continue
+                value: Value | None = s.value
+                quality, reason = s.quality, s.reason
+                if b.scaling is not None and isinstance(value, int | float) and value is not True:
+                    value = b.scaling.to_eu(float(value))
+                if b.threshold is not None and isinstance(value, int | float):
+                    value = value >= b.threshold
+                if stale:
+                    quality, reason = _BAD, Reason.STALE
+                update(tag, value, quality, reason, s.t)
+                # A NaN never equals itself: every copy of it is a change, as update says.
+                b._sample = s if tag.value == tag.value else None
+                b._stale = stale
+                b._version = tag.version
 
-    def _input_plan(self) -> list[tuple[InputBinding, int]]:
-        """Each input binding with the index of its driver in ``_input_drivers`` (built
-        again if someone replaced ``inputs``)."""
+    def _input_plan(self) -> list[tuple[Driver, list[InputBinding]]]:
+        """The input bindings grouped by driver, each driver once, in the order of their
+        first binding (built again if someone replaced or grew ``inputs``): a driver's
+        image is taken once per scan and every one of its inputs copied from it."""
         inputs = self.inputs
-        if self._plan_of is not inputs or len(self._plan) != len(inputs):
-            slots: dict[int, int] = {}
-            drivers: list[Driver] = []
-            plan = []
+        if self._plan_of is not inputs or self._plan_len != len(inputs):
+            groups: dict[int, tuple[Driver, list[InputBinding]]] = {}
             for b in inputs:
-                slot = slots.get(id(b.driver))
-                if slot is None:
-                    slot = slots[id(b.driver)] = len(drivers)
-                    drivers.append(b.driver)
-                plan.append((b, slot))
-            self._plan, self._input_drivers, self._plan_of = plan, drivers, inputs
+                group = groups.get(id(b.driver))
+                if group is None:
+                    group = groups[id(b.driver)] = (b.driver, [])
+                group[1].append(b)
+            self._plan, self._plan_of, self._plan_len = list(groups.values()), inputs, len(inputs)
         return self._plan
 
     def _queue_outputs(self) -> None:
@@ -660,20 +666,26 @@ class ScanEngine:
         stall_tag = self._stats_tags["scan.stall_s"]
         monotonic = time.monotonic
         next_poll = self._next_poll
-        # A virtual clock of another kind sleeps its own way, every scan.
+        # A virtual clock of another kind sleeps its own way, every scan. Ours is read and
+        # moved through its attribute (``VirtualClock.t_s``): three reads and a move a scan,
+        # a call each (issue 13's dry run).
         virtual = clock if isinstance(clock, VirtualClock) else None
+        now_of = clock.now
+        scan_once = self.scan_once
+        stopped = stop.is_set
+        end_t = None if until_t is None else until_t - 1e-9
         k = 0
         done = 0
-        while not stop.is_set():
+        while not stopped():
             scheduled = start + k * period_s
-            if until_t is not None and scheduled >= until_t - 1e-9:
+            if end_t is not None and scheduled >= end_t:
                 self._next_t = scheduled
                 return
             # ``poll_due_drivers`` without an await, for as long as each due driver polls
             # without one (its ``poll_now``, :class:`DirectDriver`); from the first that
             # did nothing on, awaited (the same ``now``). Written out here, as is the
             # flush below: a call less each, every scan.
-            now = clock.now()
+            now = now_of() if virtual is None else virtual.t_s
             stepped = self._stepped_list if self._stepped_of == self.drivers else self._stepped()
             polled = 0
             for d, key, poll_now, _, _ in stepped:
@@ -686,22 +698,23 @@ class ScanEngine:
                 polled += 1
             if polled < len(stepped):
                 await self._poll_due_from(now, polled)
-            late = clock.now() - scheduled
-            late = late if late > 0.0 else 0.0  # max(0.0, late) without the call
+            late = (now_of() if virtual is None else virtual.t_s) - scheduled
             # A scan is late only when something moved the clock between two scans: what
             # a held loop looks like in virtual time. ``note_start`` when it has anything
             # to do (``late`` within the limit and ``scan.stall_s`` at 0: only the time).
             if late > self.stall_after_s or stall_tag.value != 0.0:
-                self.note_start(late)
+                self.note_start(late if late > 0.0 else 0.0)  # max(0.0, late), no call
             else:
                 self.last_scan_mono = monotonic()
-            if self.gate is not None:
-                self.gate.close()
-            try:
-                self.scan_once()
-            finally:
-                if self.gate is not None:
-                    self.gate.open()
+            gate = self.gate
+            if gate is None:
+                scan_once()
+            else:
+                gate.close()
+                try:
+                    scan_once()
+                finally:
+                    gate.open()
             if self._stepped_of != self.drivers:
                 self._stepped()
             flushes = self._flushes
@@ -715,7 +728,7 @@ class ScanEngine:
             done += 1
             k += 1
             nxt = start + k * period_s
-            now = clock.now()
+            now = now_of() if virtual is None else virtual.t_s
             if nxt <= now:
                 # A poll, a flush or a scan moved the clock past the next deadline: skip
                 # the deadlines already missed instead of bursting.
@@ -729,7 +742,7 @@ class ScanEngine:
             if virtual is None or done % self.yield_every_scans == 0:
                 await clock.sleep_until(nxt)
             elif nxt > now:  # the clock stands at ``now``: nothing ran since
-                virtual.advance(nxt - now)  # no other task's turn this scan
+                virtual.t_s = nxt  # ``virtual.advance``: no other task's turn this scan
 
     async def after_next_scan(self) -> None:
         """Real clock: return once the next scan is done (at most two periods: a scan that

@@ -140,10 +140,10 @@ def test_an_exception_in_channel_logic_makes_the_channel_safe_not_the_scan_crash
     r.db.write("ch0.manual_current", 0.3)
     r.scan(1)
 
-    def broken() -> float:
+    def broken(request: float, now: float) -> float:
         raise RuntimeError("corrupted request")
 
-    monkeypatch.setattr(r.ch, "_request", broken)
+    monkeypatch.setattr(r.ch, "_clamp", broken)
     r.scan(1)
     assert r.ch.current_cmd.value == 0.0  # safe at once, in the failing scan
     r.scan(1)
