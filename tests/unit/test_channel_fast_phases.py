@@ -59,6 +59,12 @@ def plain_drive(ch: Channel) -> None:
         if ch.fault.value:
             request, active = 0.0, False
         db.update(ch.current_cmd, plain_clamp(ch, request))
+        if ch.voltage_cmd is not None:
+            vlo, vhi = ch.limits.voltage_v
+            target = _f(ch.auto_voltage) if ch.mode.value == _AUTO else 0.0
+            db.update(ch.voltage_cmd, min(max(target, vlo), vhi) if target > 0 else vhi)
+        if ch.output_cmd is not None:
+            db.update(ch.output_cmd, active)
         if ch.fault.value:
             state = "faulted"
         else:
@@ -108,6 +114,7 @@ scan_state = st.fixed_dictionaries(
         "manual_current": request_value,
         "auto_active": st.booleans(),
         "auto_current": request_value,
+        "auto_voltage": st.sampled_from([0.0, 1.2, 2.5]),
         "fault": st.sampled_from(["", "", "voltage high"]),
         "charge_limit": st.sampled_from([0.4, 0.2, 0.0]),
         "discharge_limit": st.sampled_from([0.4, 0.1, 0.0]),
@@ -122,7 +129,15 @@ scan_state = st.fixed_dictionaries(
 
 
 def apply(db: TagDB, ch: Channel, s: dict[str, Any]) -> None:
-    for name in ("mode", "enable", "manual_current", "auto_active", "auto_current", "fault"):
+    for name in (
+        "mode",
+        "enable",
+        "manual_current",
+        "auto_active",
+        "auto_current",
+        "auto_voltage",
+        "fault",
+    ):
         db.update(getattr(ch, name), s[name])
     db.update(ch.charge_limit, s["charge_limit"])
     db.update(ch.discharge_limit, s["discharge_limit"])
@@ -142,13 +157,16 @@ def image(db: TagDB) -> list[tuple[Any, ...]]:
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.lists(scan_state, min_size=1, max_size=12))
+@given(st.lists(scan_state, min_size=1, max_size=12), st.booleans())
 def test_the_channels_phases_leave_the_tags_the_plain_rules_leave(
-    scans: list[dict[str, Any]],
+    scans: list[dict[str, Any]], supply: bool
 ) -> None:
+    """``supply``: a channel on a supply with an output switch and a voltage setpoint (an
+    EA), else one on a Chadèche board."""
     fast_db, plain_db = TagDB(), TagDB()
-    fast = Channel("ch0", fast_db, LIMITS, capacity_ah=2.0)
-    plain = Channel("ch0", plain_db, LIMITS, capacity_ah=2.0)
+    kw = {"has_output_switch": supply, "has_voltage_setpoint": supply}
+    fast = Channel("ch0", fast_db, LIMITS, capacity_ah=2.0, **kw)
+    plain = Channel("ch0", plain_db, LIMITS, capacity_ah=2.0, **kw)
     prev: dict[str, float | None] = {"i": None, "p": None}
     now = 0.0
     for s in scans:
