@@ -6,17 +6,27 @@ lateness, the shelving, the acknowledgements and the clock do."""
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import math
 from typing import Any
 
-from hypothesis import given, settings
+import pytest
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from supervisor.app.dryrun import dry_run_config
+from supervisor.channels import Channel, ChannelLimits
+from supervisor.config.models import ChannelConfig, InterlockConfig
 from supervisor.core.clock import VirtualClock
 from supervisor.core.errors import OperatorError
-from supervisor.safety import AlarmManager
+from supervisor.core.quality import Quality, Reason
+from supervisor.safety import AlarmManager, ChannelGuard
+from supervisor.safety.alarms import Alarm
+from supervisor.safety.build import build_safety
+from supervisor.safety.interlocks import Interlock, TagAlarms
 from supervisor.safety.stall import STALL_TAG, STALLS_TAG, ScanStall
-from supervisor.tags import Tag, TagDB, TagSpec
+from supervisor.tags import AlarmLimits, Tag, TagDB, TagSpec
 
 
 # --- the scan-stall check ----------------------------------------------------------------------
@@ -119,3 +129,341 @@ def test_a_late_scan_then_one_on_time_raise_and_clear_the_stall_alarm() -> None:
     rig.apply(("scan", 1.0))
     assert not rig.alarms["scan.stall"].active
     assert [e[1].value for e in rig.state()[1]] == ["activated", "cleared"]
+
+
+# --- the channel guard -------------------------------------------------------------------------
+DT = 0.5
+
+GATED = {
+    # Every check a function of its tags (as the dry run's channel): the whole pass over
+    # the checks is skipped while nothing moved.
+    "limits": {
+        "current_a": [-0.4, 0.4],
+        "voltage_v": [0.8, 1.9],
+        "temperature_c": [0.0, 45.0],
+        "trip_delay_s": 1.0,
+    },
+    "temperature_tag": "amb.t",
+}
+EVERY_KIND = {
+    # Checks evaluated every scan too (read-backs, permissive, a second voltage, BMS): the
+    # trips, the admission (derated by the BMS) and the stamps still take their fast paths.
+    **GATED,
+    "contactor_tag": "k.cmd",
+    "contactor_feedback_tag": "k.closed",
+    "feedback": {"delay_s": 1.0, "current_tolerance_a": 0.05},
+    "permissives": ["door.closed"],
+    "voltage_checks": [{"tag": "v2", "tolerance_v": 0.1, "delay_s": 1.0}],
+    "bms": {
+        "cell_max_tag": "bms.cell_max",
+        "cell_min_tag": "bms.cell_min",
+        "temperature_tag": "bms.t",
+        "cell_voltage_v": [0.9, 1.85],
+        "derate_band_v": 0.1,
+        "temperature_max_c": 50.0,
+    },
+}
+CONFIGS = {"gated": GATED, "every kind": EVERY_KIND}
+OUTPUTS = ["ch0.armed", "ch0.fault", "ch0.fault_action", "ch0.first_out"]
+OUTPUTS += ["ch0.limit.charge_a", "ch0.limit.discharge_a"]
+
+
+class GuardRig:
+    """One channel, a bench-wide interlock that aborts and its guard, scanned in design
+    order (derive, safety, drive), with what people, other checks and restored state do
+    to them between scans."""
+
+    def __init__(self, fast: bool, config: str) -> None:
+        self.clock = VirtualClock()
+        self.db = db = TagDB()
+        db.add(TagSpec("amb.t", unit="degC"))
+        db.add(TagSpec("v2", unit="V"))
+        db.add(TagSpec("il.x", unit="bar"))
+        for name in ("bms.cell_max", "bms.cell_min"):
+            db.add(TagSpec(name, unit="V"))
+        db.add(TagSpec("bms.t", unit="degC"))
+        for name in ("door.closed", "k.cmd", "k.closed"):
+            db.add(TagSpec(name, dtype="bool"))
+        cfg = ChannelConfig.model_validate(
+            {"name": "ch0", "source": {"device": "dev"}, "capacity_ah": 2.0, **CONFIGS[config]}
+        )
+        lim = cfg.limits
+        self.ch = Channel(
+            "ch0",
+            db,
+            ChannelLimits(lim.current_a, lim.voltage_v, lim.temperature_c),
+            capacity_ah=2.0,
+            temperature_tag="amb.t",
+            contactor_tag=cfg.contactor_tag,
+            has_output_switch=config == "every kind",
+            has_output_feedback=config == "every kind",
+        )
+        self.alarms = AlarmManager(self.clock)
+        self.events: list[Any] = []
+        self.alarms.listeners.append(self.events.append)
+        self.interlock = Interlock(
+            InterlockConfig(id="pressure", tag="il.x", above=5.0, action="abort"),
+            db,
+            self.alarms,
+        )
+        self.guard = ChannelGuard(cfg, db, self.alarms)
+        self.guard._gated = fast
+        db.add(TagSpec("dev.connected", dtype="bool"))  # declared after the guard, as the scan does
+        for name, value in [("dev.connected", True), ("door.closed", True), ("il.x", 1.0)]:
+            db.update(db[name], value)
+        self.later: Alarm | None = None
+
+    def apply(self, o: tuple[Any, ...]) -> None:
+        db, kind, alarms = self.db, o[0], self.alarms
+        if kind == "scan":
+            for _ in range(o[1]):
+                now = self.clock.now()
+                db.set_scan_time(now)
+                self.ch.derive(now, DT)
+                self.interlock.evaluate(now, DT)
+                self.guard.evaluate(now, DT)
+                self.ch.drive(now, DT)
+                self.clock.advance(DT)
+        elif kind == "reading" and o[1] in db:  # the supply's output only with "every kind"
+            _, name, value, good = o
+            q, r = (Quality.GOOD, Reason.NONE) if good else (Quality.BAD, Reason.COMM_FAILURE)
+            db.update(db[name], value, q, r)
+        elif kind == "write":
+            db.update(db[o[1]], o[2])
+        elif kind == "reset":
+            with contextlib.suppress(OperatorError):  # a cause still present: refused
+                self.guard.reset("op")
+        elif kind == "restored":
+            # What restoring retained alarms does behind the checks' backs (app/retained.py).
+            a = list(alarms)[o[1] % len(list(alarms))]
+            a.active = False
+            a.message = "restored"
+            a.acked = o[2]
+            a.tripped = o[2] and a.latched
+            a.first_out = a.tripped
+            a.activated_t = self.clock.now() - 3.0
+        elif kind == "shelved":
+            # A trip cannot be shelved through the manager: written behind its back.
+            list(alarms)[o[1] % len(list(alarms))].shelved_until = self.clock.now() + o[2]
+        elif kind == "quality":
+            db.set_quality(db[o[1]], *o[2])
+        elif kind == "force":
+            db.force(o[1], o[2])
+        elif kind == "unforce":
+            db.unforce(o[1])
+        elif kind == "fail_safe":
+            self.guard.fail_safe("guard failed")
+        elif kind == "later_alarm":
+            # A bench-wide trip declared after the first scans, raised by some other check.
+            if self.later is None:
+                self.later = alarms.declare("later", latched=True, action=o[1])
+            alarms.set(self.later, o[2], "later trip")
+
+    def state(self) -> Any:
+        tags = [
+            (t.name, t.value, t.quality, t.reason, t.version, t.source_t, t.server_t, t.forced)
+            for t in self.db
+        ]
+        alarms = [
+            (
+                a.id,
+                a.active,
+                a.acked,
+                a.tripped,
+                a.first_out,
+                a.message,
+                a.activated_t,
+                a.shelved_until,
+                a.acked_by,
+            )
+            for a in self.alarms
+        ]
+        events = [(e.t, e.alarm_id, e.transition, e.state, e.message, e.actor) for e in self.events]
+        return tags, alarms, events
+
+
+def reading(names: list[str], values: list[Any]) -> st.SearchStrategy[tuple[Any, ...]]:
+    return st.tuples(
+        st.just("reading"), st.sampled_from(names), st.sampled_from(values), st.booleans()
+    )
+
+
+guard_ops = st.one_of(
+    st.tuples(st.just("scan"), st.integers(1, 4)),
+    st.tuples(st.just("scan"), st.integers(1, 4)),
+    reading(
+        ["ch0.voltage", "ch0.current", "amb.t", "v2", "bms.cell_max", "bms.cell_min"],
+        [0.5, 1.2, 1.8, 1.95, 2.5, -0.1, 0.1, 0.3, 30.0, 50.0, math.inf],
+    ),
+    reading(["bms.t", "il.x"], [1.0, 6.0, 55.0]),
+    reading(["k.closed", "ch0.output_fb", "door.closed"], [True, False]),
+    st.tuples(st.just("write"), st.just("ch0.mode"), st.sampled_from(["manual", "auto"])),
+    st.tuples(st.just("write"), st.sampled_from(["ch0.enable", "ch0.auto_active"]), st.booleans()),
+    st.tuples(
+        st.just("write"),
+        st.sampled_from(["ch0.manual_current", "ch0.auto_current"]),
+        st.sampled_from([0.0, 0.2, -0.2]),
+    ),
+    st.tuples(st.just("write"), st.just("ch0.ack"), st.just(True)),
+    st.tuples(st.just("write"), st.just("ch0.logic_error"), st.sampled_from(["", "boom"])),
+    st.tuples(st.just("write"), st.just("dev.connected"), st.booleans()),
+    # Someone else writes what the guard publishes.
+    st.tuples(st.just("write"), st.sampled_from(OUTPUTS[1:4]), st.sampled_from(["", "x", "hold"])),
+    st.tuples(st.just("write"), st.sampled_from(OUTPUTS[4:]), st.sampled_from([0.0, 0.4, 0.1])),
+    st.tuples(st.just("write"), st.just("ch0.armed"), st.booleans()),
+    st.tuples(
+        st.just("quality"),
+        st.sampled_from(OUTPUTS),
+        st.sampled_from(
+            [
+                (Quality.UNCERTAIN, Reason.NONE),
+                (Quality.BAD, Reason.NONE),
+                (Quality.GOOD, Reason.STALE),
+            ]
+        ),
+    ),
+    st.tuples(st.just("reset")),
+    st.tuples(st.just("restored"), st.integers(0, 30), st.booleans()),
+    st.tuples(st.just("shelved"), st.integers(0, 30), st.sampled_from([0.4, 2.0])),
+    st.tuples(st.just("force"), st.sampled_from(OUTPUTS[4:]), st.sampled_from([0.0, 0.3])),
+    st.tuples(st.just("force"), st.sampled_from(OUTPUTS[1:4]), st.sampled_from(["", "forced"])),
+    st.tuples(st.just("unforce"), st.sampled_from(OUTPUTS)),
+    st.tuples(st.just("fail_safe")),
+    st.tuples(st.just("later_alarm"), st.sampled_from(["hold", "abort"]), st.booleans()),
+)
+
+CHARGING = [("write", "ch0.manual_current", 0.2), ("write", "ch0.enable", True)]
+
+
+@pytest.mark.parametrize("config", CONFIGS)
+@settings(max_examples=150, deadline=None)
+@given(st.lists(guard_ops, max_size=40))
+# A limit crossed while charging, held through the on-delay, then nothing moves for a while.
+@example([*CHARGING, ("scan", 1), ("reading", "ch0.voltage", 1.95, True), ("scan", 4), ("scan", 4)])
+# A trip cleared by restored state behind the guard's back, its cause still present.
+@example(
+    [
+        *CHARGING,
+        ("scan", 1),
+        ("reading", "ch0.voltage", 1.2, False),
+        ("scan", 4),
+        ("restored", 1, True),
+    ]
+)
+# A trip shelved behind the guard's back while nothing moves (the shelving expires).
+@example([("scan", 2), ("write", "ch0.logic_error", "boom"), ("scan", 2), ("shelved", 0, 0.4)])
+# Someone else writes the fault and a limit while nothing moves; then they are forced.
+@example(
+    [
+        ("scan", 2),
+        ("write", "ch0.fault", "x"),
+        ("write", "ch0.limit.charge_a", 0.1),
+        ("scan", 1),
+        ("force", "ch0.limit.discharge_a", 0.0),
+        ("scan", 1),
+        ("unforce", "ch0.limit.discharge_a"),
+    ]
+)
+# A bench-wide trip declared late; an operator's reset between scans; the guard fails.
+@example(
+    [
+        ("scan", 2),
+        ("later_alarm", "abort", True),
+        ("scan", 1),
+        ("later_alarm", "abort", False),
+        ("reset",),
+        ("scan", 1),
+        ("fail_safe",),
+    ]
+)
+def test_the_guard_s_fast_paths_give_what_evaluating_and_updating_everything_gives(
+    config: str, program: list[tuple[Any, ...]]
+) -> None:
+    fast, plain = GuardRig(True, config), GuardRig(False, config)
+    for o in [("scan", 1), *program, ("scan", 2), ("scan", 3)]:
+        fast.apply(o)
+        plain.apply(o)
+        assert fast.state() == plain.state(), o
+
+
+def counted(monkeypatch: pytest.MonkeyPatch, obj: object, name: str) -> list[int]:
+    calls = [0]
+    real = getattr(obj, name)
+
+    def counting(*args: Any, **kw: Any) -> Any:
+        calls[0] += 1
+        return real(*args, **kw)
+
+    monkeypatch.setattr(obj, name, counting)
+    return calls
+
+
+def test_a_guard_whose_tags_and_alarms_do_not_move_evaluates_no_check_and_finds_no_trip(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    rig = GuardRig(True, "gated")
+    readings = [("ch0.voltage", 1.2), ("ch0.current", 0.2), ("amb.t", 25.0)]
+    for o in [*[("reading", n, x, True) for n, x in readings], *CHARGING, ("scan", 3)]:
+        rig.apply(o)
+    assert rig.db["ch0.fault"].value == "" and rig.db["ch0.current_cmd"].value == 0.2
+    passes = counted(monkeypatch, rig.guard, "_evaluate_checks")
+    trips = counted(monkeypatch, rig.alarms, "trips")
+    admissions = counted(monkeypatch, rig.guard, "_admission")
+    writes = rig.alarms.writes
+    rig.apply(("scan", 10))
+    assert passes == trips == admissions == [0]
+    assert rig.alarms.writes == writes
+    assert {rig.db[n].source_t for n in OUTPUTS} == {rig.clock.now() - DT}  # stamped
+    rig.apply(("reading", "ch0.voltage", 1.21, True))
+    rig.apply(("scan", 1))
+    assert passes == admissions == [1] and trips == [0]  # the voltage moved, no alarm did
+    rig.apply(("reading", "ch0.voltage", 1.95, True))
+    rig.apply(("scan", 3))  # through the on-delay: a trip
+    assert rig.db["ch0.first_out"].value == "ch0.voltage_high"
+    assert trips[0] >= 1
+
+
+def test_every_check_is_skipped_at_once_only_when_each_declares_its_tags() -> None:
+    rig = GuardRig(True, "gated")
+    assert rig.guard._gate_tags is None  # the source's status tag is not declared yet
+    rig.apply(("scan", 1))
+    assert rig.guard._gate_tags is not None  # found by the first scan: its check declares it
+    # Read-backs, permissives, a second voltage, the BMS: evaluated every scan.
+    assert GuardRig(True, "every kind").guard._gate_tags is None
+
+
+# --- the alarms' writes --------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "field_name", [f.name for f in dataclasses.fields(Alarm) if f.name != "owner"]
+)
+def test_any_write_to_an_alarm_counts_in_its_manager_s_writes(field_name: str) -> None:
+    alarms = AlarmManager(VirtualClock())
+    before = alarms.writes
+    a = alarms.declare("a", latched=True)
+    assert alarms.writes > before  # a declaration is a change (the reach of the channels)
+    before = alarms.writes
+    setattr(a, field_name, getattr(a, field_name))  # even the same value
+    assert alarms.writes == before + 1
+
+
+def test_an_alarm_held_active_with_the_same_message_is_not_written_every_scan() -> None:
+    alarms = AlarmManager(VirtualClock())
+    a = alarms.declare("a")
+    alarms.set(a, True, "high")
+    before = alarms.writes
+    alarms.set(a, True, "high")
+    assert alarms.writes == before
+    alarms.set(a, True, "higher")
+    assert alarms.writes == before + 1 and a.message == "higher"
+
+
+# --- the safety phase --------------------------------------------------------------------------
+def test_tag_alarm_limits_are_a_check_of_the_phase_only_when_a_tag_has_some() -> None:
+    cfg = dry_run_config("nimh-aa", 2.0, 0.0, 1.0).model_copy(update={"channels": []})
+    db = TagDB()
+    db.add(TagSpec("a.t", unit="degC"))
+    phase = build_safety(cfg, db, AlarmManager(VirtualClock()))
+    assert [type(c) for c in phase.checks] == [ScanStall]
+    db.add(TagSpec("b.t", unit="degC", alarms=AlarmLimits(h=40.0)))
+    phase = build_safety(cfg, db, AlarmManager(VirtualClock()))
+    assert [type(c) for c in phase.checks] == [TagAlarms, ScanStall]
