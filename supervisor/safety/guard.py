@@ -130,16 +130,15 @@ class ChannelGuard:
         self._quiet = False
         self._quiet_version = -1
         self._alarm_writes = -1
-        # The trips published last and the alarm writes they were found at (``_publish_trips``).
-        self._trip_tags = (self._fault, self._action, self._first_out)
+        # The trips published last, each tag with its value, and the alarm writes they were
+        # found at (``_publish_trips``).
         self._trips_writes = -1
-        self._trips_out = ("", "", "")
-        # The admission's charge and discharge limits and the database version they were
-        # computed at, from the tags that ``_admission`` reads (``_admission_reads``).
+        self._trips_out: tuple[tuple[Tag, str], ...] = ()
+        # The admission's charge and discharge limits, each tag with its value, and the
+        # database version they were computed at, from the tags ``_admission`` reads.
         self._admission_reads = (self._fault, self._v, *getattr(self, "_bms_tags", {}).values())
-        self._limit_tags = (self._charge_limit, self._discharge_limit)
         self._admission_version = -1
-        self._admission_a = (0.0, 0.0)
+        self._limits_a: tuple[tuple[Tag, float], ...] = ()
 
     # --- declaration --------------------------------------------------------------------
     def _check(
@@ -276,9 +275,10 @@ class ChannelGuard:
                 moved = True
                 break
         if moved:
-            self._admission_a = self._admission()
+            charge, discharge = self._admission()
+            self._limits_a = ((self._charge_limit, charge), (self._discharge_limit, discharge))
             self._admission_version = db.version
-        for tag, value in zip(self._limit_tags, self._admission_a, strict=True):
+        for tag, value in self._limits_a:
             if fast and value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
                 db.stamp(tag)
             else:
@@ -372,13 +372,17 @@ class ChannelGuard:
         writes = alarms.writes
         if writes != self._trips_writes or not fast:
             trips = alarms.trips(self.name)
+            fault, action, first_out = "", "", ""
             if trips:
-                abort = any(a.action == "abort" for a in trips)
-                self._trips_out = (trips[0].message, "abort" if abort else "hold", trips[0].id)
-            else:
-                self._trips_out = ("", "", "")
+                fault, first_out = trips[0].message, trips[0].id
+                action = "abort" if any(a.action == "abort" for a in trips) else "hold"
+            self._trips_out = (
+                (self._fault, fault),
+                (self._action, action),
+                (self._first_out, first_out),
+            )
             self._trips_writes = writes
-        for tag, value in zip(self._trip_tags, self._trips_out, strict=True):
+        for tag, value in self._trips_out:
             if fast and value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
                 db.stamp(tag)
             else:

@@ -1,8 +1,19 @@
 """The safety phase's fast paths answer what its plain paths do (issue 13, the dry run's
-fourth pass; docs/adr/0018-scan-performance.md): the scan-stall check that does not tell
-an inactive, unshelved alarm that it is still inactive gives the alarm, its log and its
-listeners' events the plain check (``AlarmManager.set`` every scan) gives, whatever the
-lateness, the shelving, the acknowledgements and the clock do."""
+fourth pass; docs/adr/0018-scan-performance.md):
+
+- the scan-stall check, which does not tell an inactive, unshelved alarm that it is still
+  inactive, gives the alarm, its log and its listeners' events that telling it every scan
+  gives, whatever the lateness, the shelving, the acknowledgements and the clock do;
+- a channel guard that skips every check at once while none of their tags moved and no
+  alarm was written, finds its trips again only when an alarm was written, computes its
+  admission again only when its tags moved and stamps the tags it writes when they hold
+  their value gives the tags (values, qualities, reasons, versions, source and server
+  times), the alarms and the alarm log that evaluating every check and updating every tag
+  every scan gives, whatever the readings, the requests, the operator, other checks,
+  restored or shelved alarms, forced or rewritten outputs and the clock do;
+- every write to an alarm counts in its manager's ``writes``, which the guard relies on;
+- the phase has no tag-alarm check when no tag has limits (it would do nothing).
+"""
 
 from __future__ import annotations
 
