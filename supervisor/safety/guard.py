@@ -124,7 +124,7 @@ class ChannelGuard:
         # (``_evaluate_checks``) left each settled (``_quiet``), none of the tags a check
         # reads (``_gate_tags``; None while a check is evaluated every scan) changed since
         # that pass started (database version ``_quiet_version``), and no alarm was written
-        # since the guard's last evaluation ended (``AlarmManager.writes`` at
+        # since the guard's last evaluation started (``AlarmManager.writes`` then,
         # ``_alarm_writes``): each check would be skipped by its own test in the pass.
         self._gate_tags = self._union_of_reads()
         self._quiet = False
@@ -248,9 +248,10 @@ class ChannelGuard:
         else:
             db.update(armed, closed)
         # Every check skipped while none of their tags changed since they all settled and no
-        # alarm was written since (issue 13: nearly every scan of a slow test): each would be
-        # skipped by ``_evaluate_checks``'s own test (see ``_quiet``).
-        quiet = fast and self._quiet and self.alarms.writes == self._alarm_writes
+        # alarm was written since the last pass (issue 13: nearly every scan of a slow test):
+        # each would be skipped by ``_evaluate_checks``'s own test (see ``_quiet``).
+        writes = self.alarms.writes
+        quiet = fast and self._quiet and writes == self._alarm_writes
         if quiet:
             seen = self._quiet_version
             for tag in self._gate_tags or ():
@@ -283,7 +284,9 @@ class ChannelGuard:
                 db.stamp(tag)
             else:
                 db.update(tag, value)
-        self._alarm_writes = self.alarms.writes
+        # The count at the start: after an evaluation that wrote an alarm (a trip, a reset),
+        # the next scan's pass checks each alarm against its check again.
+        self._alarm_writes = writes
 
     def _evaluate_checks(self, now: float) -> None:
         """Evaluate the checks: each gated one only when one of its tags moved since it was

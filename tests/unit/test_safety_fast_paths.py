@@ -264,6 +264,16 @@ class GuardRig:
             db.unforce(o[1])
         elif kind == "fail_safe":
             self.guard.fail_safe("guard failed")
+        elif kind == "meddler" and len(self.alarms.listeners) == 1:
+            # A listener that clears another alarm whenever one changes: even a write made
+            # during the guard's own evaluation is seen.
+            victim = list(alarms)[o[1] % len(list(alarms))]
+
+            def meddle(ev: Any) -> None:
+                if ev.alarm_id != victim.id:
+                    victim.active = False
+
+            alarms.listeners.append(meddle)
         elif kind == "later_alarm":
             # A bench-wide trip declared after the first scans, raised by some other check.
             if self.later is None:
@@ -316,6 +326,8 @@ guard_ops = st.one_of(
         st.sampled_from([0.0, 0.2, -0.2]),
     ),
     st.tuples(st.just("write"), st.just("ch0.ack"), st.just(True)),
+    # The command as the source was last given it (before the channel drives it again).
+    st.tuples(st.just("write"), st.just("ch0.current_cmd"), st.sampled_from([0.0, 0.3])),
     st.tuples(st.just("write"), st.just("ch0.logic_error"), st.sampled_from(["", "boom"])),
     st.tuples(st.just("write"), st.just("dev.connected"), st.booleans()),
     # Someone else writes what the guard publishes.
@@ -340,6 +352,7 @@ guard_ops = st.one_of(
     st.tuples(st.just("force"), st.sampled_from(OUTPUTS[1:4]), st.sampled_from(["", "forced"])),
     st.tuples(st.just("unforce"), st.sampled_from(OUTPUTS)),
     st.tuples(st.just("fail_safe")),
+    st.tuples(st.just("meddler"), st.integers(0, 30)),
     st.tuples(st.just("later_alarm"), st.sampled_from(["hold", "abort"]), st.booleans()),
 )
 
@@ -351,6 +364,32 @@ CHARGING = [("write", "ch0.manual_current", 0.2), ("write", "ch0.enable", True)]
 @given(st.lists(guard_ops, max_size=40))
 # A limit crossed while charging, held through the on-delay, then nothing moves for a while.
 @example([*CHARGING, ("scan", 1), ("reading", "ch0.voltage", 1.95, True), ("scan", 4), ("scan", 4)])
+# Only the request moves: the chain's mode left while a trip holds (its cause goes with
+# it); a command given to the source while the voltage input is lost.
+@example(
+    [
+        ("write", "ch0.mode", "auto"),
+        ("write", "ch0.auto_active", True),
+        ("write", "ch0.auto_current", 0.2),
+        ("scan", 5),
+        ("write", "ch0.mode", "manual"),
+        ("scan", 2),
+    ]
+)
+@example([("scan", 3), ("write", "ch0.current_cmd", 0.3), ("scan", 1)])
+# The source lost while charging, then a trip drops the enable in the middle of a scan.
+@example(
+    [
+        *CHARGING,
+        ("reading", "ch0.voltage", 1.2, True),
+        ("reading", "ch0.current", 0.2, True),
+        ("reading", "amb.t", 25.0, True),
+        ("scan", 1),
+        ("write", "dev.connected", False),
+        ("write", "ch0.logic_error", "boom"),
+        ("scan", 3),
+    ]
+)
 # A trip cleared by restored state behind the guard's back, its cause still present.
 @example(
     [
@@ -385,6 +424,21 @@ CHARGING = [("write", "ch0.manual_current", 0.2), ("write", "ch0.enable", True)]
         ("reset",),
         ("scan", 1),
         ("fail_safe",),
+    ]
+)
+# A listener clears the current input's trip (its cause still present) while the voltage
+# trip is raised, in the guard's own evaluation; then nothing moves (the chain's request
+# stays, the command stays 0).
+@example(
+    [
+        ("meddler", 3),
+        ("reading", "ch0.voltage", 1.2, True),
+        ("write", "ch0.mode", "auto"),
+        ("write", "ch0.auto_active", True),
+        ("write", "ch0.auto_current", 0.2),
+        ("scan", 2),
+        ("reading", "ch0.voltage", 1.95, True),
+        ("scan", 4),
     ]
 )
 def test_the_guard_s_fast_paths_give_what_evaluating_and_updating_everything_gives(
