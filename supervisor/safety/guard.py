@@ -135,7 +135,8 @@ class ChannelGuard:
         self._trips_writes = -1
         self._trips_out: tuple[tuple[Tag, str], ...] = ()
         # The admission's charge and discharge limits, each tag with its value, and the
-        # database version they were computed at, from the tags ``_admission`` reads.
+        # database version they were computed at, from the tags ``_admission`` reads (the
+        # BMS's temperature too: one tag more to look at, never one too few).
         self._admission_reads = (self._fault, self._v, *getattr(self, "_bms_tags", {}).values())
         self._admission_version = -1
         self._limits_a: tuple[tuple[Tag, float], ...] = ()
@@ -238,6 +239,7 @@ class ChannelGuard:
     def evaluate(self, now: float, dt: float) -> None:
         db = self.db
         fast = self._gated
+        # Without a contactor the path is always closed: no call (``_power_path_closed``).
         closed = True if self._contactor is None else self._power_path_closed(now)
         armed = self._armed
         # The tags this guard writes are the same most scans: then only their source time
