@@ -80,6 +80,19 @@ class Alarm:
     activated_t: float | None = None
     shelved_until: float | None = None
     acked_by: str = ""
+    owner: AlarmManager | None = field(default=None, init=False, repr=False, compare=False)
+    """The manager that declared it, which counts every write to it (``AlarmManager.writes``)."""
+
+    def __setattr__(self, name: str, value: object) -> None:
+        # Every write to an alarm, whoever makes it (its owner's ``set``, an operator's
+        # acknowledge or reset, retained alarms restored at start, a test), counts in its
+        # manager's ``writes``: a check that finds the count it saw at its last evaluation
+        # knows that no alarm changed since without reading each one (issue 13). Writes are
+        # rare (edges, people); reads, every scan, are plain attribute reads.
+        object.__setattr__(self, name, value)
+        owner = self.owner
+        if owner is not None:
+            owner.writes += 1
 
     @property
     def state(self) -> AlarmState:
@@ -121,6 +134,8 @@ class AlarmManager:
     # with the number of alarms declared when the list was made: ``trips`` runs every scan
     # for every channel, and an alarm's group and reach never change once declared.
     _reach: dict[str, tuple[int, list[Alarm]]] = field(default_factory=dict)
+    writes: int = 0
+    """Writes to its alarms so far (declarations included): unchanged, no alarm changed."""
 
     # --- declaration ------------------------------------------------------------------
     def declare(
@@ -137,6 +152,7 @@ class AlarmManager:
         if alarm_id in self._alarms:
             raise ValueError(f"alarm {alarm_id!r} is declared twice")
         alarm = Alarm(alarm_id, group, severity, latched, affects, action=action)
+        alarm.owner = self  # counted from now on, this write too: one alarm more
         self._alarms[alarm_id] = alarm
         return alarm
 
@@ -159,7 +175,9 @@ class AlarmManager:
         if alarm.shelved_until is not None and now >= alarm.shelved_until:
             alarm.shelved_until = None
             self._event(alarm, Transition.UNSHELVED, "shelving expired")
-        if active and message:
+        if active and message and message != alarm.message:
+            # Not written again when the same: an alarm that stays active with the same
+            # message (an interlock held) does not count as a change every scan.
             alarm.message = message
         if active == alarm.active:
             return

@@ -13,15 +13,17 @@ from supervisor.tags import TagDB
 
 def build_safety(cfg: BenchConfig, db: TagDB, alarms: AlarmManager) -> SafetyPhase:
     """Checks in the order they must run: bench-wide trips first (so a channel's first-out
-    is the e-stop when the e-stop came first), then tag alarms, then each channel's guard,
-    the scan's own stalls, then the heartbeat (it stops when anything before it crashes the
-    scan)."""
+    is the e-stop when the e-stop came first), then tag alarms (when a tag has limits),
+    then each channel's guard, the scan's own stalls, then the heartbeat (it stops when
+    anything before it crashes the scan)."""
     checks: list[SafetyCheck] = []
     s = cfg.safety
     if s.estop is not None:
         checks.append(Estop(s.estop, db, alarms))
     checks += [Interlock(i, db, alarms) for i in s.interlocks]
-    checks.append(TagAlarms(db, alarms))
+    tag_alarms = TagAlarms(db, alarms)
+    if tag_alarms.levels:
+        checks.append(tag_alarms)  # without limits to watch it would have nothing to do
     guards = [ChannelGuard(c, db, alarms) for c in cfg.channels]
     checks += guards
     checks.append(ScanStall(db, alarms))

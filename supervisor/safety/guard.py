@@ -30,13 +30,13 @@ from dataclasses import dataclass
 from supervisor.config.models import ChannelConfig
 from supervisor.core.delay import OnDelay
 from supervisor.core.errors import OperatorError
-from supervisor.core.quality import Quality
+from supervisor.core.quality import Quality, Reason
 from supervisor.safety.alarms import Alarm, AlarmManager, Severity
 from supervisor.tags import Tag, TagDB
 
 log = logging.getLogger(__name__)
 
-_GOOD = Quality.GOOD
+_GOOD, _NONE = Quality.GOOD, Reason.NONE
 AUTO = "auto"  # the value of chN.mode under a step chain
 REGULATION_MARGIN = 0.02
 """A source holding a voltage (CV, or the supply's own limit) may give less current than
@@ -103,11 +103,6 @@ class ChannelGuard:
         self._connected: Tag | None = None
         self._closing = OnDelay(cfg.feedback.delay_s)  # coil on, no feedback: settle time
         self._cmd_version = self._cmd.version
-        self._checks: list[_Check] = []
-        self._build_checks()
-        self._gated = True
-        """Skip a check whose tags did not change since it settled (``evaluate``); False
-        only in the tests that check it against evaluating every check every scan."""
         self._request_tags = (
             self._mode,
             self._auto,
@@ -117,6 +112,34 @@ class ChannelGuard:
             self._cmd,
         )
         """What ``_intended_a`` reads."""
+        self._checks: list[_Check] = []
+        self._build_checks()
+        self._gated = True
+        """The fast paths of ``evaluate`` (a check skipped while its tags did not change
+        since it settled, every check skipped while none of theirs did, the trips and the
+        admission computed again only when their inputs moved, unchanged tags stamped);
+        False only in the tests that check them against the plain path: every check
+        evaluated and every tag updated every scan."""
+        # Every check skipped at once (``evaluate``) when the last pass over them
+        # (``_evaluate_checks``) left each settled (``_quiet``), none of the tags a check
+        # reads (``_gate_tags``; None while a check is evaluated every scan) changed since
+        # that pass started (database version ``_quiet_version``), and no alarm was written
+        # since the guard's last evaluation started (``AlarmManager.writes`` then,
+        # ``_alarm_writes``): each check would be skipped by its own test in the pass.
+        self._gate_tags = self._union_of_reads()
+        self._quiet = False
+        self._quiet_version = -1
+        self._alarm_writes = -1
+        # The trips published last, each tag with its value, and the alarm writes they were
+        # found at (``_publish_trips``).
+        self._trips_writes = -1
+        self._trips_out: tuple[tuple[Tag, str], ...] = ()
+        # The admission's charge and discharge limits, each tag with its value, and the
+        # database version they were computed at, from the tags ``_admission`` reads (the
+        # BMS's temperature too: one tag more to look at, never one too few).
+        self._admission_reads = (self._fault, self._v, *getattr(self, "_bms_tags", {}).values())
+        self._admission_version = -1
+        self._limits_a: tuple[tuple[Tag, float], ...] = ()
 
     # --- declaration --------------------------------------------------------------------
     def _check(
@@ -186,6 +209,17 @@ class ChannelGuard:
             }
             self._check("bms", self._bms_limits, bms.trip_delay_s)
 
+    def _union_of_reads(self) -> tuple[Tag, ...] | None:
+        """Every tag a check reads, the request's included, the voltage first (it moves
+        most); None while a check is evaluated every scan (it has no ``reads``)."""
+        union: dict[Tag, None] = {self._v: None}
+        for check in self._checks:
+            if check.reads is None:
+                return None
+            union.update(dict.fromkeys(check.reads))
+        union.update(dict.fromkeys(self._request_tags))
+        return tuple(union)
+
     # --- what a start waits for ------------------------------------------------------------
     def inputs_not_good(self) -> list[str]:
         """The inputs this guard checks that do not read GOOD (yet): the channel's voltage,
@@ -204,14 +238,74 @@ class ChannelGuard:
     # --- the scan -----------------------------------------------------------------------
     def evaluate(self, now: float, dt: float) -> None:
         db = self.db
-        db.update(self._armed, self._power_path_closed(now))
+        fast = self._gated
+        # Without a contactor the path is always closed: no call (``_power_path_closed``).
+        closed = True if self._contactor is None else self._power_path_closed(now)
+        armed = self._armed
+        # The tags this guard writes are the same most scans: then only their source time
+        # moves, as their update would (an unforced GOOD tag without a reason holding the
+        # value: the update would change nothing else; issue 13).
+        if fast and closed == armed.value and armed.quality is _GOOD and armed.reason is _NONE:
+            db.stamp(armed)
+        else:
+            db.update(armed, closed)
+        # Every check skipped while none of their tags changed since they all settled and no
+        # alarm was written since the last pass (issue 13: nearly every scan of a slow test):
+        # each would be skipped by ``_evaluate_checks``'s own test (see ``_quiet``).
+        writes = self.alarms.writes
+        quiet = fast and self._quiet and writes == self._alarm_writes
+        if quiet:
+            seen = self._quiet_version
+            for tag in self._gate_tags or ():
+                if tag.version > seen:
+                    quiet = False
+                    break
+        if not quiet:
+            self._evaluate_checks(now)
+        if self._ack.value:
+            db.update(self._ack, False)
+            try:
+                self.reset("operator")
+            except OperatorError as exc:
+                log.warning("%s", exc)
+        self._publish_trips()
+        # The admission is a function of ``_admission_reads`` (and the frozen
+        # configuration): computed again only when one of them changed since.
+        seen = self._admission_version
+        moved = not fast
+        for tag in self._admission_reads:
+            if tag.version > seen:
+                moved = True
+                break
+        if moved:
+            charge, discharge = self._admission()
+            self._limits_a = ((self._charge_limit, charge), (self._discharge_limit, discharge))
+            self._admission_version = db.version
+        for tag, value in self._limits_a:
+            if fast and value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+                db.stamp(tag)
+            else:
+                db.update(tag, value)
+        # The count at the start: after an evaluation that wrote an alarm (a trip, a reset),
+        # the next scan's pass checks each alarm against its check again.
+        self._alarm_writes = writes
+
+    def _evaluate_checks(self, now: float) -> None:
+        """Evaluate the checks: each gated one only when one of its tags moved since it was
+        last evaluated, or while it has not settled, or when its alarm was changed behind
+        it; the others every scan."""
+        db = self.db
         set_alarm = self.alarms.set
         gated = self._gated
+        self._quiet = False  # until this pass is over
+        start_version = db.version
         if gated:
             m, a, aa, mc, e, c = self._request_tags
             request = max(m.version, a.version, aa.version, mc.version, e.version, c.version)
         else:
             request = 0
+        # All settled at the end of this pass, every check gated from its start.
+        quiet = gated and self._gate_tags is not None
         for check in self._checks:
             alarm = check.alarm
             reads = check.reads
@@ -242,16 +336,10 @@ class ChannelGuard:
                 # Never re-energised on its own: the operator must enable again after reset.
                 db.update(self._enable, False)
                 request = max(request, self._enable.version)
-        if self._ack.value:
-            db.update(self._ack, False)
-            try:
-                self.reset("operator")
-            except OperatorError as exc:
-                log.warning("%s", exc)
-        self._publish_trips()
-        charge, discharge = self._admission()
-        db.update(self._charge_limit, charge)
-        db.update(self._discharge_limit, discharge)
+            if not (active or not why) or alarm.shelved_until is not None:
+                quiet = False  # its on-delay runs, or its alarm is shelved: evaluated again
+        self._quiet = quiet
+        self._quiet_version = start_version
 
     def fail_safe(self, why: str) -> None:
         """The guard itself failed: hold the channel with no current in either direction."""
@@ -282,17 +370,28 @@ class ChannelGuard:
         return done
 
     def _publish_trips(self) -> None:
-        trips = self.alarms.trips(self.name)
-        db = self.db
-        if trips:
-            db.update(self._fault, trips[0].message)
-            abort = any(a.action == "abort" for a in trips)
-            db.update(self._action, "abort" if abort else "hold")
-            db.update(self._first_out, trips[0].id)
-        else:
-            db.update(self._fault, "")
-            db.update(self._action, "")
-            db.update(self._first_out, "")
+        alarms, db = self.alarms, self.db
+        fast = self._gated
+        # The trips are a function of the alarms (their state, and which are declared):
+        # found again only when one was written since (``AlarmManager.writes``).
+        writes = alarms.writes
+        if writes != self._trips_writes or not fast:
+            trips = alarms.trips(self.name)
+            fault, action, first_out = "", "", ""
+            if trips:
+                fault, first_out = trips[0].message, trips[0].id
+                action = "abort" if any(a.action == "abort" for a in trips) else "hold"
+            self._trips_out = (
+                (self._fault, fault),
+                (self._action, action),
+                (self._first_out, first_out),
+            )
+            self._trips_writes = writes
+        for tag, value in self._trips_out:
+            if fast and value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+                db.stamp(tag)
+            else:
+                db.update(tag, value)
 
     # --- what the outputs may do ----------------------------------------------------------
     def _admission(self) -> tuple[float, float]:
@@ -371,6 +470,7 @@ class ChannelGuard:
             if connected is not None:
                 check = self._source_check
                 check.reads, check.reads_request = (connected,), True
+                self._gate_tags = self._union_of_reads()
         if connected is None or connected.value is not False or self._intended_a() == 0.0:
             return ""
         return f"source {self.cfg.source.device} lost ({connected.name} is false)"

@@ -143,6 +143,11 @@ class TagAlarms:
                     levels.append(_Level(key, value, high, alarm, OnDelay(lim.delay_s)))
             self._tags.append((tag, lim, levels))
 
+    @property
+    def levels(self) -> int:
+        """The limits it watches (HH/H/L/LL of every tag): none, it has nothing to do."""
+        return sum(len(levels) for _, _, levels in self._tags)
+
     def evaluate(self, now: float, dt: float) -> None:
         for tag, lim, levels in self._tags:
             if not tag.good:

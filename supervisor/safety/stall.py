@@ -29,12 +29,14 @@ class ScanStall:
         self._late: Tag | None = None
 
     def evaluate(self, now: float, dt: float) -> None:
-        late = self._late or self.db.get(STALL_TAG)
+        late = self._late
         if late is None:
-            return  # no scan engine on this database (a test of the checks alone)
-        self._late = late
+            late = self._late = self.db.get(STALL_TAG)
+            if late is None:
+                return  # no scan engine on this database (a test of the checks alone)
         v = late.value
         late_s = (v if type(v) is float else late.as_float()) if v is not None else 0.0
+        alarm = self.alarm
         if late_s > 0.0:
             stalls = self.db.get(STALLS_TAG)
             count = stalls.value if stalls is not None else "?"
@@ -42,11 +44,14 @@ class ScanStall:
                 f"scan started {late_s:.2f} s late: its event loop was held between two scans"
                 f" (stall {count} since start; see the log)"
             )
-        else:
+            self.alarms.set(alarm, True, why)
+        elif alarm.active or alarm.shelved_until is not None:
             # An inactive alarm's message is not read (AlarmManager.set keeps the last
-            # active one): nothing to format on the scans that start on time (all but a few).
-            why = ""
-        self.alarms.set(self.alarm, late_s > 0.0, why)
+            # active one): nothing to format on the scans that start on time.
+            self.alarms.set(alarm, False)
+        # Else on time, the alarm inactive and not shelved: ``set(alarm, False)`` would
+        # change nothing (no shelving to expire, no edge, no message to keep), so it is not
+        # called on the scans that start on time (all but a few; issue 13).
 
     def fail_safe(self, why: str) -> None:
         self.alarms.set(self.alarm, True, why)
