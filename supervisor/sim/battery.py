@@ -164,6 +164,13 @@ class _LumpedCell(ABC):
     """Shared plumbing: argument checks, coulomb counter, substepping, thermal node."""
 
     capacity_ah: float
+    # Two read-outs are plain attributes, not properties, written only by the model: a
+    # simulated Chadèche board reads both at every poll (its thermometer and its fault
+    # report), and a property's call cost more than the rest of such a read (issue 13).
+    temperature_c: float
+    fault: str | None = None
+    """Latched: what was done to the cell that a real one would not survive unharmed
+    (``NiMHCell``: driven into reversal past empty); None if nothing."""
 
     def __init__(
         self,
@@ -178,7 +185,7 @@ class _LumpedCell(ABC):
     ) -> None:
         self.capacity_ah = _check_positive("capacity_ah", capacity_ah)
         self._soc = _check_range("soc", soc, _SOC_MIN, _SOC_MAX)
-        self._temp_c = _check_range("temperature_c", temperature_c, _T_MIN_C, _T_MAX_C)
+        self.temperature_c = _check_range("temperature_c", temperature_c, _T_MIN_C, _T_MAX_C)
         self._ambient_c = _check_range("ambient_c", ambient_c, _T_MIN_C, _T_MAX_C)
         heat_capacity = _check_positive("heat_capacity_j_per_k", heat_capacity_j_per_k)
         self._tau_th_s = _check_positive("thermal_time_constant_s", thermal_time_constant_s)
@@ -200,10 +207,6 @@ class _LumpedCell(ABC):
         return self._soc
 
     @property
-    def temperature_c(self) -> float:
-        return self._temp_c
-
-    @property
     def charge_ah(self) -> float:
         return self._charge_ah
 
@@ -214,10 +217,6 @@ class _LumpedCell(ABC):
     @property
     def terminal_voltage_v(self) -> float:
         return self.voltage_at(self._current)
-
-    @property
-    def fault(self) -> str | None:
-        return None
 
     @property
     @abstractmethod
@@ -264,8 +263,9 @@ class _LumpedCell(ABC):
                 self._advance(current_a, h)
 
     @abstractmethod
-    def _advance(self, current_a: float, h: float) -> None:
-        """Integrate one substep of ``h`` <= ``_MAX_SUBSTEP_S`` seconds."""
+    def _advance(self, current_a: float, h: float) -> float | None:
+        """Integrate one substep of ``h`` <= ``_MAX_SUBSTEP_S`` seconds (a model may return
+        its voltage at the state left, ``NiMHCell``)."""
 
     def _arrhenius(self, temp_c: float) -> float:
         """Resistance multiplier relative to 25 °C (> 1 when colder)."""
@@ -278,7 +278,7 @@ class _LumpedCell(ABC):
         the steady state ``T_amb + P/G``: unconditionally stable, never overshoots.
         """
         t_inf = self._ambient_c + power_w / self._conductance_w_per_k
-        self._temp_c = t_inf + (self._temp_c - t_inf) * self._decay
+        self.temperature_c = t_inf + (self.temperature_c - t_inf) * self._decay
 
 
 # --------------------------------------------------------------------------------------
@@ -305,7 +305,7 @@ _NIMH_OCV = _Table(
     )
 )
 _OCV_XS, _OCV_YS, _OCV_SLOPES = _NIMH_OCV._xs, _NIMH_OCV._ys, _NIMH_OCV._slopes
-"""The NiMH OCV table's points, for the lookup written out in ``NiMHCell.voltage_at``."""
+"""The NiMH OCV table's points, for the lookup written out in ``NiMHCell._advance``."""
 
 # Negative temperature coefficient of the cell voltage (≈ −1 to −2 mV/°C per cell for
 # NiMH). With the oxygen overpotential's own fall with temperature (below) and the
@@ -460,12 +460,16 @@ class NiMHCell(_LumpedCell):
         self._reversal_v = _check_range("reversal_v", reversal_v, 0.0, 2.0)
         self._reversed = 0.0  # charge drawn past empty now, as a fraction of capacity
         self._reversed_max = 0.0  # the deepest reversal so far (the latched fault)
-        # The last ``voltage_at``: its inputs (current, soc, temperature, reversal, as the
-        # very objects it read) and what it computed (Arrhenius factor, OCV,
-        # overpotential). A simulated board reads the voltage after each step, and the
-        # next step starts from that same state at the same current: it reuses them
-        # instead of computing the same functions of the same values again.
+        # The voltage last computed, by a substep for the state it left or by
+        # ``voltage_at``: its inputs (current, soc, temperature, reversal, as the very
+        # objects it read) and what it computed (OCV, overpotential, voltage). A
+        # simulated board reads the voltage after each step, and the next step starts
+        # from that same state at the same current: both reuse them instead of computing
+        # the same functions of the same values again (test_battery_reuse.py).
         self._at: tuple[float, float, float, float, float, float, float] | None = None
+        # The OCV table's segment the last substep's lookup found: its ends, its value at
+        # the lower one and its slope (none yet: no soc lies strictly between inf and -inf).
+        self._ocv_segment = (math.inf, -math.inf, 0.0, 0.0)
 
     # -- reversal -------------------------------------------------------------------------
 
@@ -473,14 +477,6 @@ class NiMHCell(_LumpedCell):
     def reversal_ah(self) -> float:
         """Charge drawn past empty in the present reversal (0 when not reversed)."""
         return self._reversed * self.capacity_ah
-
-    @property
-    def fault(self) -> str | None:
-        """Latched: the cell was driven past empty into reversal (None if never)."""
-        if self._reversed_max == 0.0:
-            return None
-        depth_mah = self._reversed_max * self.capacity_ah * 1000.0
-        return f"cell driven past empty into reversal (deepest {depth_mah:.3g} mAh past empty)"
 
     # -- electrical -----------------------------------------------------------------------
 
@@ -519,30 +515,147 @@ class NiMHCell(_LumpedCell):
 
     @property
     def ocv_v(self) -> float:
-        return self._ocv(self._soc, self._temp_c)
+        return self._ocv(self._soc, self.temperature_c)
 
     def voltage_at(self, current_a: float) -> float:
-        temp = self._temp_c
+        at = self._at
+        if (
+            at is not None
+            and at[0] is current_a
+            and at[1] is self._soc
+            and at[2] is self.temperature_c
+            and at[3] is self._reversed
+        ):
+            # What the last step (or reading) computed from the very same state objects
+            # and current: the same values, so the same voltage (test_battery_reuse.py).
+            return at[6]
+        temp, soc = self.temperature_c, self._soc
+        ocv = self._ocv(soc, temp)
+        eta = self._overpotential(current_a, soc, temp, self._arrhenius(temp))
+        v = ocv + eta
+        self._at = (current_a, soc, temp, self._reversed, ocv, eta, v)
+        return v
+
+    def step_then_voltage_v(self, current_a: float, dt_s: float) -> float:
+        """``step(current_a, dt_s)`` then ``voltage_at(current_a)``, in one call.
+
+        A simulated board steps its cell and reads its voltage at every poll (issue 13:
+        87 000 times a dry run). For what such a poll gives (a finite float current, a
+        float step of at most one substep, the cached thermal decay of that length),
+        ``step``'s checks, counter and substep done here without its call; the substep
+        leaves the voltage at the new state for this current (``_advance``). Anything
+        else takes ``step`` and ``voltage_at`` themselves (test_battery_reuse.py: bit
+        for bit the same cell and voltage).
+        """
+        if (
+            type(current_a) is float
+            and type(dt_s) is float
+            and current_a - current_a == 0.0  # finite (else NaN)
+            # One substep whose decay is cached: ``_decay_h`` is -1.0 or the length of a
+            # substep ``step`` made, in (0, _MAX_SUBSTEP_S]; false for NaN.
+            and 0.0 < dt_s == self._decay_h
+        ):
+            self._current = current_a
+            # ``step``'s Kahan summation, the same expressions.
+            y = current_a * dt_s / _SECONDS_PER_HOUR - self._charge_comp
+            t = self._charge_ah + y
+            self._charge_comp = (t - self._charge_ah) - y
+            self._charge_ah = t
+            return self._advance(current_a, dt_s)
+        self.step(current_a, dt_s)
+        return self.voltage_at(current_a)
+
+    def _advance(self, current_a: float, h: float) -> float:
+        """One substep; returns ``voltage_at(current_a)`` at the state it leaves, which it
+        computes for the next substep or reading anyway (see ``_at``)."""
         soc = self._soc
-        # ``self._arrhenius(temp)`` and ``self._ocv(soc, temp)``, the same expressions
-        # without the calls (a board reads the voltage every poll; test_battery_reuse.py).
-        factor = math.exp(self._arrhenius_b_k * (1.0 / (temp + _KELVIN_OFFSET) - 1.0 / _T_REF_K))
-        # ``_NIMH_OCV(soc)``: the table's lookup, the same steps without the call.
-        xs = _OCV_XS
-        if soc <= xs[0]:
-            table_v = _OCV_YS[0]
-        elif soc >= xs[-1]:
-            table_v = _OCV_YS[-1]
+        temp = self.temperature_c
+        at = self._at
+        ocv: float | None
+        if at is not None:
+            at_current, at_soc, at_temp, at_reversed, ocv, eta, _ = at
+            if (
+                at_current is not current_a
+                or at_soc is not soc
+                or at_temp is not temp
+                or at_reversed is not self._reversed
+            ):
+                at = None
+            # (Else the same objects: the same values, so the same results.)
+        if at is None:
+            ocv = None  # computed below only if needed
+            eta = self._overpotential(current_a, soc, temp, self._arrhenius(temp))
+        loss_w = current_a * eta
+        if current_a > 0.0:
+            # ``self._acceptance(soc)`` without the call.
+            if soc <= _NIMH_ACCEPT_KNEE:
+                # All of it is accepted: the lines below with ``accepted`` 1.0. Their heat
+                # term ``0.0·I·OCV`` is ±0.0 (or NaN for an OCV that is NaN, but only a
+                # NaN temperature makes it so, and then the loss already is NaN), and
+                # the loss ``I·η`` is +0.0 or more here (I > 0, η >= 0): adding it would
+                # change no bit. ``1.0 * current_a`` is ``current_a``.
+                soc += current_a * h * self._inv_capacity_as
+            else:
+                if soc >= _SOC_MAX:
+                    accepted = 0.0
+                else:
+                    accepted = math.sqrt((_SOC_MAX - soc) / (_SOC_MAX - _NIMH_ACCEPT_KNEE))
+                # Unaccepted charge drives O2 evolution + recombination: all of it is heat.
+                loss_w += (
+                    (1.0 - accepted)
+                    * current_a
+                    * (ocv if ocv is not None else self._ocv(soc, temp))
+                )
+                soc += accepted * current_a * h * self._inv_capacity_as
+            soc = soc if soc < _SOC_MAX else _SOC_MAX
+            self._reversed = 0.0  # charging the exhausted positive ends the reversal
         else:
-            i = bisect_right(xs, soc) - 1
-            table_v = _OCV_YS[i] + _OCV_SLOPES[i] * (soc - xs[i])
+            soc += current_a * h * self._inv_capacity_as
+            if not soc > _SOC_MIN:  # (not ``<=``: the same branch as ever for a NaN)
+                # Past empty: nothing more to give; what is drawn drives the reversal.
+                self._reversed -= soc
+                soc = _SOC_MIN
+                if self._reversed > self._reversed_max:
+                    self._reversed_max = self._reversed
+                    # ``fault``: latched, with the deepest reversal so far.
+                    depth_mah = self._reversed_max * self.capacity_ah * 1000.0
+                    self.fault = (
+                        "cell driven past empty into reversal"
+                        f" (deepest {depth_mah:.3g} mAh past empty)"
+                    )
+        self._soc = soc
+        # ``self._relax_temperature(loss_w)``, the same expressions without the call.
+        t_inf = self._ambient_c + loss_w / self._conductance_w_per_k
+        temp = t_inf + (temp - t_inf) * self._decay
+        self.temperature_c = temp
+
+        # The voltage at the new state with ``current_a`` still flowing: what the next
+        # substep starts from and what the board reads next. ``self._arrhenius(temp)``,
+        # ``self._ocv(soc, temp)`` and ``self._overpotential(current_a, soc, temp,
+        # factor)``, the same expressions in the same order without the calls
+        # (test_dry_run_fast_paths.py, bit for bit).
+        factor = math.exp(self._arrhenius_b_k * (1.0 / (temp + _KELVIN_OFFSET) - 1.0 / _T_REF_K))
+        # ``_NIMH_OCV(soc)``: the table's lookup, the same steps without the call; first
+        # in the segment the last lookup found (a slow charge stays in one for hours),
+        # where the lookup would find it again: strictly between its ends.
+        low, high, table_y, table_slope = self._ocv_segment
+        if low < soc < high:
+            table_v = table_y + table_slope * (soc - low)
+        else:
+            xs = _OCV_XS
+            if soc <= xs[0]:
+                table_v = _OCV_YS[0]
+            elif soc >= xs[-1]:
+                table_v = _OCV_YS[-1]
+            else:
+                i = bisect_right(xs, soc) - 1
+                table_v = _OCV_YS[i] + _OCV_SLOPES[i] * (soc - xs[i])
+                self._ocv_segment = (xs[i], xs[i + 1], _OCV_YS[i], _OCV_SLOPES[i])
         ocv = table_v + _NIMH_TEMPCO_V_PER_K * (temp - 25.0)
-        # ``self._overpotential(current_a, soc, temp, factor)``, the same expressions in
-        # the same order without the calls (test_dry_run_fast_paths.py, bit for bit).
         eta = current_a * self._r25 * factor + self._tafel_b * math.asinh(
             current_a * factor * self._inv_2i0
         )
-        rate = current_a / self.capacity_ah
+        # (``rate``, the C-rate, only where a term uses it.)
         if current_a > 0.0:
             if soc > _NIMH_ACCEPT_KNEE:  # else all of it is accepted
                 unaccepted = 1.0 - (
@@ -551,62 +664,18 @@ class NiMHCell(_LumpedCell):
                     else math.sqrt((_SOC_MAX - soc) / (_SOC_MAX - _NIMH_ACCEPT_KNEE))
                 )
                 if unaccepted > 0.0:
+                    rate = current_a / self.capacity_ah
                     g = self._oxygen_v * math.exp((25.0 - temp) / _NIMH_O2_THETA_K)
                     eta += g * unaccepted * rate / (rate + 0.1)
         elif current_a < 0.0:
+            rate = current_a / self.capacity_ah
             eta += self._depletion_v * rate / (-rate + soc * 100.0 + 0.01)
             if self._reversed > 0.0:
                 depth = 1.0 - math.exp(-self._reversed / _NIMH_REVERSAL_DEPTH)
                 eta += self._reversal_v * depth * rate / (-rate + 0.01)
-        self._at = (current_a, soc, temp, self._reversed, factor, ocv, eta)
-        return ocv + eta
-
-    def _advance(self, current_a: float, h: float) -> None:
-        soc = self._soc
-        temp = self._temp_c
-        at = self._at
-        ocv: float | None = None
-        if (
-            at is not None
-            and at[0] is current_a
-            and at[1] is soc
-            and at[2] is temp
-            and at[3] is self._reversed
-        ):
-            # The same objects: the same values, so the same results (test_battery.py).
-            factor, ocv, eta = at[4], at[5], at[6]
-        else:
-            factor = self._arrhenius(temp)
-            eta = self._overpotential(current_a, soc, temp, factor)
-        loss_w = current_a * eta
-        if current_a > 0.0:
-            # ``self._acceptance(soc)`` without the call.
-            if soc <= _NIMH_ACCEPT_KNEE:
-                accepted = 1.0
-            elif soc >= _SOC_MAX:
-                accepted = 0.0
-            else:
-                accepted = math.sqrt((_SOC_MAX - soc) / (_SOC_MAX - _NIMH_ACCEPT_KNEE))
-            # Unaccepted charge drives O2 evolution + recombination: all of it is heat.
-            loss_w += (
-                (1.0 - accepted) * current_a * (ocv if ocv is not None else self._ocv(soc, temp))
-            )
-            soc += accepted * current_a * h * self._inv_capacity_as
-            self._soc = soc if soc < _SOC_MAX else _SOC_MAX
-            self._reversed = 0.0  # charging the exhausted positive ends the reversal
-        else:
-            soc += current_a * h * self._inv_capacity_as
-            if soc > _SOC_MIN:
-                self._soc = soc
-            else:
-                # Past empty: nothing more to give; what is drawn drives the reversal.
-                self._soc = _SOC_MIN
-                self._reversed -= soc
-                if self._reversed > self._reversed_max:
-                    self._reversed_max = self._reversed
-        # ``self._relax_temperature(loss_w)``, the same expressions without the call.
-        t_inf = self._ambient_c + loss_w / self._conductance_w_per_k
-        self._temp_c = t_inf + (self._temp_c - t_inf) * self._decay
+        v = ocv + eta
+        self._at = (current_a, soc, temp, self._reversed, ocv, eta, v)
+        return v
 
 
 # --------------------------------------------------------------------------------------
@@ -708,11 +777,11 @@ class LiIonPack(_LumpedCell):
         return self._cells * _LIION_OCV(self._soc)
 
     def voltage_at(self, current_a: float) -> float:
-        r0 = self._r0_25 * self._arrhenius(self._temp_c)
+        r0 = self._r0_25 * self._arrhenius(self.temperature_c)
         return self._cells * _LIION_OCV(self._soc) + current_a * r0 + self._v_rc
 
     def _advance(self, current_a: float, h: float) -> None:
-        factor = self._arrhenius(self._temp_c)
+        factor = self._arrhenius(self.temperature_c)
         r0 = self._r0_25 * factor
         r1 = self._r1_25 * factor
         tau = r1 * self._c1

@@ -53,11 +53,18 @@ from supervisor.devices.chadeche.protocol import (
 )
 
 log = logging.getLogger(__name__)
+_ADC = Chip.ADC
+_GOOD, _NONE = Quality.GOOD, Reason.NONE
+"""Enum members as module constants: a class attribute lookup per use otherwise."""
 
 RELAY_SETTLE_S = 0.02
 """Wait between flipping the relay latch and raising the current again, so the 2RT relay
 (seed §II.C.3) has finished moving and never makes contact under current. Small signal
 relays operate in about 10 ms; UNVERIFIED for the board's Finder relay."""
+
+
+_Kept = tuple[tuple[bytes, int, bool, bool], Sample, Sample, Sample]
+"""A board's memo of its last GOOD reading (``_Board.kept``)."""
 
 
 @dataclass(slots=True)
@@ -79,7 +86,7 @@ class _Board:
     clamped: bool = False
     sensor_failed: bool = False
 
-    # The direct poll's memory of its last reading (``ChadecheDriver._read_direct``): the
+    # The direct poll's memory of its last reading (``ChadecheDriver.poll_now``): the
     # ADC reply, its raw-log line and its calibrated voltage; the current echo and the DAC
     # state it was computed for. Each is computed again as soon as its input differs (the
     # calibration of a board never changes after construction).
@@ -89,6 +96,12 @@ class _Board:
     last_adc_voltage_v: float = 0.0
     last_current_key: tuple[int, bool, Calibration] | None = None
     last_current_a: float = 0.0
+    # The direct poll's memory of a reading whose voltage, current and charging samples
+    # were all GOOD: what they are a function of (the ADC reply, the DAC code, the relay
+    # and the clamp) and the three samples the image got (made or kept). While those
+    # inputs are equal and the image still holds these very samples, a poll keeps them
+    # as they are (``ChadecheDriver.poll_now``); samples change in place only by time.
+    kept: _Kept | None = None
 
     def __post_init__(self) -> None:
         p = f"b{self.address}."
@@ -211,7 +224,19 @@ class ChadecheDriver(PolledDriver):
         bus answers at once, so the awaited path would do exactly this (issue 13: a dry
         run polls 87 000 times; the equivalence is tested in test_chadeche_direct.py).
         Otherwise nothing (False): ``poll()`` must be awaited. The scan engine's lockstep
-        calls it directly (``scan/engine.py::DirectDriver``)."""
+        calls it directly (``scan/engine.py::DirectDriver``).
+
+        The read is :meth:`_read`'s: the same transfers, raw-log lines and samples. What
+        depends only on the ADC reply (its code, its raw-log line, the calibrated
+        voltage) is computed again only when the reply changed (:meth:`_new_adc_reply`):
+        a cell's voltage moves by one ADC step (1 mV) every few minutes of a slow charge.
+        A point that reads the same value (the very object), GOOD and for the same
+        reason as its sample in the image keeps that sample, stamped with this poll's
+        time once every board has been read (the scan's input copy then only moves its
+        tag's source time, ``scan/engine.py``); when none of a board's three such points
+        changed, its memo (``_Board.kept``) says so in one test instead of three
+        (:meth:`_read_points` is the point-by-point reading).
+        """
         cycle, io = self._io_cycle, self._io_lock
         # ``_free(lock)``, without the call while nobody ever waited (an empty deque of
         # waiters is falsy, so is None); else its whole test.
@@ -225,13 +250,47 @@ class ChadecheDriver(PolledDriver):
         ):
             return False
         now = self.clock.now()
+        samples: dict[str, Sample] = {}
+        again: list[tuple[_Kept, float]] = []
+        image = self._image
+        probe = self._temperature_probe
         try:
-            samples = self._read_direct()
+            for board in self._boards.values():
+                try:
+                    reply = self._bus.transfer(board.address, _ADC, ADC_READ)
+                except OSError as exc:
+                    raise DeviceIOError(self.name, f"board {board.address} ADC: {exc}") from exc
+                if reply != board.last_adc_reply:
+                    self._new_adc_reply(board, reply)
+                self.raw_log.append(board.last_adc_line)
+                t = self.clock.now()
+                kept = board.kept
+                if not (
+                    kept is not None
+                    and kept[0] == (reply, board.dac_a_code, board.charging, board.clamped)
+                    # (The image has every input point from the start: ``PolledDriver``.)
+                    and image[board.voltage_point] is kept[1]
+                    and image[board.current_point] is kept[2]
+                    and image[board.charging_point] is kept[3]
+                ):
+                    kept = self._read_points(board, reply, t, samples)
+                again.append((kept, t))
+                if probe is not None:
+                    temp = probe(board.address)  # a new reading (a new float) every poll
+                    samples[board.temperature_point] = (
+                        Sample(None, Quality.BAD, Reason.SENSOR_FAILURE, t)
+                        if temp is None
+                        else Sample(temp, _GOOD, _NONE, t)
+                    )
         except (TimeoutError, SupervisorError, OSError) as exc:
             self._fail(exc, now)
             return True
+        # Every board read: nothing can fail any more. (A sample made by this poll
+        # already has its time.)
+        for (_, voltage, current, charging), t in again:
+            voltage.t = current.t = charging.t = t
         self.polls += 1
-        self._image.update(samples)
+        image.update(samples)
         return True
 
     async def flush(self) -> None:
@@ -287,93 +346,79 @@ class ChadecheDriver(PolledDriver):
                     )
         return samples
 
-    def _read_direct(self) -> dict[str, Sample]:
-        """:meth:`_read` on an in-process bus, called without awaiting (see :meth:`poll`).
+    def _new_adc_reply(self, board: _Board, reply: bytes) -> None:
+        """What a new ADC ``reply`` of ``board`` means, kept for the polls that get the
+        same reply again (:meth:`poll_now`): its code, raw-log line and calibrated
+        voltage. A reply of the wrong length is logged and raises as :meth:`_xfer`."""
+        address = board.address
+        if len(reply) != len(ADC_READ):
+            self.raw_log.append(f"b{address} ADC >{ADC_READ.hex()} <{reply.hex()}")
+            raise ProtocolError(
+                self.name,
+                f"board {address} ADC: {len(reply)} bytes back for {len(ADC_READ)} sent",
+                reply,
+            )
+        code = decode_adc_reply(reply)
+        board.last_adc_reply = reply
+        board.last_adc_line = f"b{address} ADC >{ADC_READ.hex()} <{reply.hex()}"
+        board.last_adc_code = code
+        if code < ADC_MAX_CODE:
+            board.last_adc_voltage_v = adc_code_to_voltage_v(code, board.cal)
 
-        The same transfers, raw-log lines and samples; what depends only on the ADC reply
-        (its code, its raw-log line, the calibrated voltage) and the current echo are
-        computed again only when their inputs changed: a cell's voltage moves by one ADC
-        step (1 mV) every few minutes of a slow charge. A point that reads the same value
-        (the very object), GOOD and for the same reason as its sample in the image keeps
-        that sample, stamped with this poll's time once every board has been read (the
-        scan's input copy then only moves its tag's source time, ``scan/engine.py``); the
-        samples returned are the new ones.
-        """
-        samples: dict[str, Sample] = {}
-        again: list[tuple[Sample, float]] = []
+    def _read_points(
+        self, board: _Board, reply: bytes, t: float, samples: dict[str, Sample]
+    ) -> _Kept:
+        """The voltage, current and charging points of ``board`` read at ``t`` after
+        ``reply`` (:meth:`poll_now`), point by point: a new sample into ``samples``, or
+        the image's own one kept when it reads the same value object, GOOD, for the same
+        reason. Returns the three samples (with what they were read for), to be stamped
+        with ``t``; the board keeps them as its memo (``_Board.kept``) if all are GOOD."""
         image = self._image
-        transfer = self._bus.transfer
-        now = self.clock.now
-        probe = self._temperature_probe
-        good, none = Quality.GOOD, Reason.NONE
-        for board in self._boards.values():
-            address = board.address
-            try:
-                reply = transfer(address, Chip.ADC, ADC_READ)
-            except OSError as exc:
-                raise DeviceIOError(self.name, f"board {address} ADC: {exc}") from exc
-            if reply != board.last_adc_reply:
-                if len(reply) != len(ADC_READ):
-                    self.raw_log.append(f"b{address} ADC >{ADC_READ.hex()} <{reply.hex()}")
-                    raise ProtocolError(
-                        self.name,
-                        f"board {address} ADC: {len(reply)} bytes back for {len(ADC_READ)} sent",
-                        reply,
-                    )
-                code = decode_adc_reply(reply)
-                board.last_adc_reply = reply
-                board.last_adc_line = f"b{address} ADC >{ADC_READ.hex()} <{reply.hex()}"
-                board.last_adc_code = code
-                if code < ADC_MAX_CODE:
-                    board.last_adc_voltage_v = adc_code_to_voltage_v(code, board.cal)
-            self.raw_log.append(board.last_adc_line)
-            code = board.last_adc_code
-            t = now()
-            # The same test for each point, written out (a call per point cost more than
-            # the sample it saves).
-            if code >= ADC_MAX_CODE or board.sensor_failed:
-                samples[board.voltage_point] = self._voltage_sample(board, code, t)
-            else:
-                value = board.last_adc_voltage_v
-                s = image.get(board.voltage_point)
-                if s is not None and s.value is value and s.quality is good and s.reason is none:
-                    again.append((s, t))
-                else:
-                    samples[board.voltage_point] = Sample(value, good, none, t)
-            # ``board.current_echo_a()``: its cached answer while the DAC code, the relay
-            # and the calibration are the very ones it was computed for.
-            key = board.last_current_key
-            if (
-                key is not None
-                and key[0] == board.dac_a_code
-                and key[1] is board.charging
-                and key[2] is board.cal
+        code = board.last_adc_code
+        # The same test for each point, written out (a call per point cost more than
+        # the sample it saves).
+        if code >= ADC_MAX_CODE or board.sensor_failed:
+            voltage = samples[board.voltage_point] = self._voltage_sample(board, code, t)
+            good = False
+        else:
+            value = board.last_adc_voltage_v
+            voltage = image[board.voltage_point]
+            if not (
+                voltage.value is value and voltage.quality is _GOOD and voltage.reason is _NONE
             ):
-                value = board.last_current_a
-            else:
-                value = board.current_echo_a()
-            reason = Reason.CLAMPED if board.clamped else none
-            s = image.get(board.current_point)
-            if s is not None and s.value is value and s.quality is good and s.reason is reason:
-                again.append((s, t))
-            else:
-                samples[board.current_point] = Sample(value, good, reason, t)
-            charging = board.charging
-            s = image.get(board.charging_point)
-            if s is not None and s.value is charging and s.quality is good and s.reason is none:
-                again.append((s, t))
-            else:
-                samples[board.charging_point] = Sample(charging, good, none, t)
-            if probe is not None:
-                temp = probe(address)  # a new reading (a new float) every poll
-                samples[board.temperature_point] = (
-                    Sample(None, Quality.BAD, Reason.SENSOR_FAILURE, t)
-                    if temp is None
-                    else Sample(temp, good, none, t)
-                )
-        for s, t in again:  # every board read: nothing can fail any more
-            s.t = t
-        return samples
+                voltage = samples[board.voltage_point] = Sample(value, _GOOD, _NONE, t)
+            good = True
+        # ``board.current_echo_a()``: its cached answer while the DAC code, the relay
+        # and the calibration are the very ones it was computed for.
+        key = board.last_current_key
+        if (
+            key is not None
+            and key[0] == board.dac_a_code
+            and key[1] is board.charging
+            and key[2] is board.cal
+        ):
+            value = board.last_current_a
+        else:
+            value = board.current_echo_a()
+        reason = Reason.CLAMPED if board.clamped else _NONE
+        current = image[board.current_point]
+        if not (current.value is value and current.quality is _GOOD and current.reason is reason):
+            current = samples[board.current_point] = Sample(value, _GOOD, reason, t)
+        charging = image[board.charging_point]
+        if not (
+            charging.value is board.charging
+            and charging.quality is _GOOD
+            and charging.reason is _NONE
+        ):
+            charging = samples[board.charging_point] = Sample(board.charging, _GOOD, _NONE, t)
+        kept = (
+            (reply, board.dac_a_code, board.charging, board.clamped),
+            voltage,
+            current,
+            charging,
+        )
+        board.kept = kept if good else None
+        return kept
 
     async def _write(self, point: str, value: Value) -> None:
         address, kind = self._outputs[point]

@@ -223,6 +223,35 @@ def voltage_to_adc_code(voltage_v: float) -> int:
     return code if code < ADC_MAX_CODE else ADC_MAX_CODE
 
 
+def adc_code_span_v(code: int) -> tuple[float, float]:
+    """The lowest and the highest input voltage :func:`voltage_to_adc_code` maps to
+    ``code`` (``-inf`` for code 0, ``inf`` for full scale), found by asking it.
+
+    That code never falls as the voltage rises (a division by a positive constant and a
+    rounding, both monotonic, between clamps), so every voltage between the two gets
+    ``code`` and every other voltage another code: the simulator keeps its last code
+    while its ADC input stays in this span (a cell moves by one code every few minutes
+    of a slow charge; test_chadeche_protocol.py).
+    """
+    if not 0 <= code <= ADC_MAX_CODE:
+        raise ValueError(f"ADC code must be 0..{ADC_MAX_CODE}, got {code}")
+    low = -math.inf if code == 0 else math.nextafter(_highest_adc_input_v(code - 1), math.inf)
+    high = math.inf if code == ADC_MAX_CODE else _highest_adc_input_v(code)
+    return low, high
+
+
+def _highest_adc_input_v(code: int) -> float:
+    """The highest voltage :func:`voltage_to_adc_code` maps to ``code`` or below (``code``
+    below full scale): the rounding's edge, searched from its nominal value one float at
+    a time (it is within a few)."""
+    v = (code + 0.5) * ADC_LSB_V
+    while voltage_to_adc_code(v) > code:
+        v = math.nextafter(v, -math.inf)
+    while voltage_to_adc_code(up := math.nextafter(v, math.inf)) <= code:
+        v = up
+    return v
+
+
 # --- relay latch (74HC74) -----------------------------------------------------------------
 LATCH_CHARGE_LEVEL: Final = 1
 """UNVERIFIED. The seed (§II.C.2) says the relay is driven by a 74HC74 D flip-flop clocked
