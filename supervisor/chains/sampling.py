@@ -28,6 +28,16 @@ class LogRules:
             )
             for s in program.steps
         )
+        # Per step, for the running chain's steady scan (``ChainRunner.run``): the right-hand
+        # side of ``reason``'s period test (the period less float noise, the same float
+        # every scan; None: no period), and whether the step has a ΔV or ΔI rule (then the
+        # chain asks ``reason``, which needs the readings).
+        self.due_after_s: tuple[float | None, ...] = tuple(
+            period - EPS_S if period is not None else None for period, _, _ in self._rules
+        )
+        self.on_deltas: tuple[bool, ...] = tuple(
+            dv is not None or di is not None for _, dv, di in self._rules
+        )
 
     def reason(
         self, step_index: int, now: float, run: RunState, v: float | None, i: float | None
