@@ -51,6 +51,7 @@ class ConditionValues:
         and ``observed_values`` compute those, the names the conditions read and the step
         time."""
         self._port = port
+        self._voltage = port.voltage
         self._db = db
         self._parameters = program.parameters
         self._initial_charge_ah = program.initial_charge_ah
@@ -225,8 +226,7 @@ class ConditionValues:
         in one call and reading the voltage once: the running chain's steady scan (issue
         13). The dV/dt window is kept only when the program reads dv_dt (nothing else the
         running chain asks reads it)."""
-        port = self._port
-        vt = port.voltage
+        vt = self._voltage
         if vt.quality is _GOOD:
             x = vt.value
             reading = x if type(x) is float else vt.as_float()
@@ -246,13 +246,13 @@ class ConditionValues:
         values = self._read_values
         values["voltage"] = v
         if self._reads_current:
-            i = port.current
+            i = self._port.current
             x = i.value
             values["current"] = (
                 (x if type(x) is float else i.as_float()) if i.quality is _GOOD else None
             )
         if self._reads_temperature:
-            t = port.temperature
+            t = self._port.temperature
             x = t.value
             values["temperature"] = (
                 (x if type(x) is float else t.as_float()) if t.quality is _GOOD else None

@@ -80,6 +80,7 @@ still see every scan's value."""
 
 _GOOD = Quality.GOOD
 _NONE = Reason.NONE
+_RUNNING = State.RUNNING
 EPS_S = 1e-9
 CHAIN_FIELDS = (
     "state",
@@ -410,7 +411,7 @@ class ChainRunner:
         port, r = self.port, self._r
         if not (
             self._fast
-            and self.state is State.RUNNING
+            and self.state is _RUNNING
             and not self._cmd.value
             and not port.fault.value
             and port.mode.value == port.auto_mode
@@ -423,8 +424,11 @@ class ChainRunner:
             self._scan(now, dt)
             return
         index = r.step
+        program = self.program
+        assert program is not None
+        step = program.steps[index]
         try:
-            steady = self._steady_running(now, r, index)
+            steady = self._steady_running(now, r, step)
         except Exception as exc:  # as in ``_scan``: an exception in logic is an alarm
             log.exception("%s: chain failed", self.name)
             self._alarm(f"internal error: {exc}")
@@ -434,9 +438,6 @@ class ChainRunner:
             self._outputs()
             self._publish(now)
             return
-        program = self.program
-        assert program is not None
-        step = program.steps[index]
         behaviour = self._behaviours[index]
         db = self.db
         stamp, update = db.stamp, db.update
@@ -484,11 +485,13 @@ class ChainRunner:
         update(t_step_time, now - r.t_step0)
         elapsed_s = now - r.t_test0
         update(t_test_time, elapsed_s)
-        # ``Progress.shown`` for an active test, inline (same expressions, same order).
+        # ``Progress.shown`` for an active test, inline (the same expressions; they cannot
+        # raise, so computing the ETA after writing the progress changes nothing).
+        t_progress, t_eta = self._progress_tags
         est = self.progress.estimated_duration_s
-        shown: tuple[float, float | None] | None = None
         if est:
-            shown = min(1.0, elapsed_s / est), max(0.0, est - elapsed_s)
+            update(t_progress, min(1.0, elapsed_s / est))
+            update(t_eta, max(0.0, est - elapsed_s))
         else:
             step_current_a = behaviour.progress_current_a
             capacity_ah = program.capacity_ah
@@ -496,13 +499,12 @@ class ChainRunner:
                 charge = port.charge_ah
                 x = charge.value
                 moved = abs((x if type(x) is float else charge.as_float()) - r.step_q0)
+                update(t_progress, min(1.0, moved / capacity_ah))
                 amps_a = abs(step_current_a)
-                eta = max(0.0, (capacity_ah - moved) * 3600.0 / amps_a) if amps_a > 0 else None
-                shown = min(1.0, moved / capacity_ah), eta
-        if shown is not None:
-            t_progress, t_eta = self._progress_tags
-            update(t_progress, shown[0])
-            update(t_eta, shown[1])
+                update(
+                    t_eta,
+                    max(0.0, (capacity_ah - moved) * 3600.0 / amps_a) if amps_a > 0 else None,
+                )
         if self.samplers:
             rec: Record | None = None
             for sampler in self.samplers:
@@ -514,13 +516,12 @@ class ChainRunner:
                     except Exception:
                         log.exception("%s: sampler failed", self.name)
 
-    def _steady_running(self, now: float, r: RunState, index: int) -> bool:
-        """``_running`` in a steady scan (see ``run``; its checks in the same order, those
-        a steady step cannot need left out): True when the step simply goes on, False
-        when something happened (an alarm, a transition, a record)."""
-        program, conditions = self.program, self._conditions
-        assert program is not None and conditions is not None
-        step = program.steps[index]
+    def _steady_running(self, now: float, r: RunState, step: CompiledStep) -> bool:
+        """``_running`` in a steady scan of ``step`` (see ``run``; its checks in the same
+        order, those a steady step cannot need left out): True when the step simply goes
+        on, False when something happened (an alarm, a transition, a record)."""
+        conditions = self._conditions
+        assert conditions is not None
         values = conditions.observed_values(now, r)
         st = values["step_time"]
         assert isinstance(st, float)
@@ -529,7 +530,7 @@ class ChainRunner:
         why = ""
         if self.port.armed.value is True:
             for name, lo, hi in self._limit_bounds:
-                x = values.get(name)
+                x = values[name]  # a reading: always in the dict
                 if isinstance(x, float) and (x < lo or x > hi):
                     why = self._limit_violation(values, step, ())
                     break
@@ -563,7 +564,11 @@ class ChainRunner:
             else:
                 self.db.update(tag, "")
         for tr in step.transitions:
-            if tr.condition.evaluate(values) is True:
+            try:  # ``tr.condition.evaluate(values)``, without the method call
+                hit = tr.condition.fn(values)
+            except ArithmeticError:
+                hit = None
+            if hit is True:
                 self._act(tr.action, f"until #{tr.index}: {tr.text}", now)
                 return False
         if step.duration_s is not None and st >= step.duration_s - EPS_S:
@@ -572,6 +577,7 @@ class ChainRunner:
         # ``_record(now, step)``: by the period, due when ``LogRules.reason`` says so; by a
         # ΔV or ΔI rule, ``_record`` tells (and does nothing when none is due).
         if self.recorders:
+            index = step.index
             due_s = self._due_after_s[index]
             if (due_s is not None and now - r.last_rec_t >= due_s) or self._on_deltas[index]:
                 return not self._record(now, step)

@@ -20,6 +20,7 @@ from supervisor.chains.compiler import compile_recipe
 from supervisor.chains.conditions import ConditionValues
 from supervisor.chains.engine import ChainRunner
 from supervisor.chains.port import ChannelPort
+from supervisor.chains.program import CompiledStep
 from supervisor.chains.run import RunState
 from supervisor.channels import Channel, ChannelLimits, Mode
 from supervisor.config.recipe import load_recipe_text
@@ -412,9 +413,9 @@ def test_a_quiet_run_takes_the_steady_way_and_stamps_the_tags_that_hold(
     taken: list[float] = []
     original = ChainRunner._steady_running
 
-    def spy(self: ChainRunner, now: float, r: RunState, index: int) -> bool:
+    def spy(self: ChainRunner, now: float, r: RunState, step: CompiledStep) -> bool:
         taken.append(now)
-        return original(self, now, r, index)
+        return original(self, now, r, step)
 
     monkeypatch.setattr(ChainRunner, "_steady_running", spy)
     step = bench.db["ch0.chain.step"]
