@@ -15,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from supervisor.app import dryrun
+from supervisor.app.bench import build_bench
 from supervisor.app.dryrun import dry_run
 from supervisor.chains.compiler import compile_recipe
 from supervisor.chains.conditions import ConditionValues
@@ -120,7 +121,7 @@ RECIPES_TEXT = {"steady": STEADY_RECIPE, "more": READS_MORE_RECIPE, "odd": ODD_R
 
 # Tags a disturbance may force, unforce, set the quality of or write: the chain's and the
 # port's request tags (those the steady scan stamps when unchanged) and a clock.
-POKED = {
+POKED: dict[str, str | int | float | bool] = {
     "ch0.chain.step": "charge",
     "ch0.chain.step_index": 1,
     "ch0.chain.cycle": 1,
@@ -223,7 +224,7 @@ class Bench:
         bit for bit, NaN included)."""
         db, runner = self.db, self.runner
         return (
-            tuple(state(t) for t in db),
+            tuple(tag_state(t) for t in db),
             db.version,
             tuple(t.name for t in db.changed_since(0)),
             runner.state,
@@ -249,10 +250,11 @@ class EveryFewScans:
         self.out.append(rec)
 
 
-def state(t: Tag) -> tuple[Any, ...]:
+def tag_state(t: Tag) -> tuple[Any, ...]:
     return (t.name, repr(t.value), t.quality, t.reason, t.source_t, t.server_t, t.version, t.forced)
 
 
+POKES = ["force", "unforce", "quality", "uncertain", "explained", "write"]
 reading = st.one_of(
     st.tuples(st.just("voltage"), st.floats(1.0, 1.8), st.just(True)),
     st.tuples(st.just("voltage"), st.floats(0.6, 2.1), st.booleans()),
@@ -270,10 +272,7 @@ disturbance = st.one_of(
     st.tuples(st.just("fault"), st.sampled_from(["", "trip"]), st.sampled_from(["hold", "abort"])),
     st.tuples(st.just("mode"), st.sampled_from([Mode.AUTO.value, Mode.MANUAL.value])),
     st.tuples(st.sampled_from(["command", "direct"]), command),
-    st.tuples(
-        st.sampled_from(["force", "unforce", "quality", "uncertain", "explained", "write"]),
-        st.sampled_from(sorted(POKED)),
-    ),
+    st.tuples(st.sampled_from(POKES), st.sampled_from(sorted(POKED))),
     st.tuples(st.just("estimate"), st.sampled_from([None, 10.0, 60.0, 3600.0])),
 )
 # A script: stretches of quiet scans (the cell drifting by a few mV a scan, charge moving)
@@ -291,9 +290,9 @@ segments = st.lists(
 Script = list[tuple[list[tuple[Any, ...]], int, float, float]]
 
 
-def compare(bench: Callable[[bool], Bench], script: Script) -> None:
-    """The script on a fast and a plain bench: the same after every scan."""
-    fast, plain = bench(True), bench(False)
+def compare(make: Callable[[bool], Bench], script: Script) -> None:
+    """The script on a fast and a plain bench (``make(fast)``): the same after every scan."""
+    fast, plain = make(True), make(False)
     assert fast.seen() == plain.seen()
     for ops, quiet, dt_s, drift_v in script:
         for bench in (fast, plain):
@@ -324,7 +323,6 @@ def test_the_steady_scan_leaves_every_tag_record_and_event_as_the_plain_scan_doe
     compare(lambda fast: Bench(recipe, fast, estimate_s, meddles), script)
 
 
-POKES = ["force", "unforce", "quality", "uncertain", "explained", "write"]
 poke = st.tuples(st.sampled_from(POKES), st.sampled_from(sorted(POKED)))
 pokes = st.lists(
     st.tuples(
@@ -464,8 +462,7 @@ def test_observed_values_are_an_observation_then_the_values_read(
 
 
 # --- the shipped recipes, scan by scan ------------------------------------------------------
-BUILD_BENCH = dryrun.build_bench
-Changes = list[tuple[tuple[str, str, Any, Any, float, float], ...]]
+Changes = list[tuple[Any, ...]]
 
 
 async def changes_per_scan(
@@ -498,7 +495,7 @@ async def changes_per_scan(
             )
 
     def watched(*args: Any, **kw: Any) -> Any:
-        bench = BUILD_BENCH(*args, **kw)
+        bench = build_bench(*args, **kw)
         bench.engine.publishers.append(Watch())
         return bench
 
@@ -513,6 +510,7 @@ async def changes_per_scan(
         ("nimh-25h-slow-cycle.yaml", 0.5),
         ("capacity-test.yaml", 0.5),
         ("liion-cccv-cycle.yaml", 0.3),
+        ("nimh-fast-charge-dv.yaml", 1.0),
     ],
 )
 async def test_a_dry_run_changes_the_same_tags_the_same_way_each_scan_as_the_plain_chain(
