@@ -448,7 +448,7 @@ class ChainRunner:
             amps_now = self._setpoints[index]
             amps = self.setpoint() if amps_now is None else amps_now
         cv = behaviour.cv_target_v
-        active = True
+        active = True  # ``_outputs``'s ``running``: Running, no alarm latched
         tag = port.auto_current
         if amps == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
             stamp(tag)
@@ -485,8 +485,8 @@ class ChainRunner:
         update(t_step_time, now - r.t_step0)
         elapsed_s = now - r.t_test0
         update(t_test_time, elapsed_s)
-        # ``Progress.shown`` for an active test, inline (the same expressions; they cannot
-        # raise, so computing the ETA after writing the progress changes nothing).
+        # ``self.progress.shown`` for an active test, inline (the same expressions; they
+        # cannot raise, so computing the ETA after writing the progress changes nothing).
         t_progress, t_eta = self._progress_tags
         est = self.progress.estimated_duration_s
         if est:
@@ -575,7 +575,9 @@ class ChainRunner:
             self._act(Action(ActionKind.NEXT), "duration elapsed", now)
             return False
         # ``_record(now, step)``: by the period, due when ``LogRules.reason`` says so; by a
-        # ΔV or ΔI rule, ``_record`` tells (and does nothing when none is due).
+        # ΔV or ΔI rule, ``_record`` tells (and does nothing when none is due). A record
+        # calls out to the recorders, which may act on the chain: the plain outputs and
+        # tags follow it.
         if self.recorders:
             index = step.index
             due_s = self._due_after_s[index]
