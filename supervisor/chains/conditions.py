@@ -227,19 +227,19 @@ class ConditionValues:
         13). The dV/dt window is kept only when the program reads dv_dt (nothing else the
         running chain asks reads it)."""
         vt = self._voltage
+        v: float | None
         if vt.quality is _GOOD:
             x = vt.value
-            reading = x if type(x) is float else vt.as_float()
-            if self._keeps_window:  # observe(now, reading), inline
+            v = x if type(x) is float else vt.as_float()
+            if self._keeps_window:  # observe(now, v), inline
                 ts, vs = self._dv_t, self._dv_v
                 ts.append(now)
-                vs.append(reading)
+                vs.append(v)
                 while ts and now - ts[0] > DV_DT_WINDOW_S:
                     ts.popleft()
                     vs.popleft()
             peak = self.peak_v
-            self.peak_v = peak = reading if peak is None or reading > peak else peak
-            v: float | None = reading
+            self.peak_v = peak = v if peak is None or v > peak else peak
         else:
             v = None
             peak = self.peak_v

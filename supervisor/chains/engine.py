@@ -143,12 +143,11 @@ class ChainRunner:
         self._limits: tuple[LimitCheck, ...] = ()
         self._limit_delay = OnDelay(0.0)
         # For the steady scan (``run``), set at load: per step, whether its scans can be
-        # steady, when a record is due and whether ΔV/ΔI rules apply; the recipe limits as
-        # (name, low, high) with a missing bound infinite; whether the limits' on-delay was
-        # last told of a violation (else telling it of none changes nothing).
+        # steady and from when a record may be due (``LogRules.may_be_due_s``); the recipe
+        # limits as (name, low, high) with a missing bound infinite; whether the limits'
+        # on-delay was last told of a violation (else telling it of none changes nothing).
         self._steady: tuple[bool, ...] = ()
-        self._due_after_s: tuple[float | None, ...] = ()
-        self._on_deltas: tuple[bool, ...] = ()
+        self._may_be_due_s: tuple[float, ...] = ()
         self._limit_bounds: tuple[tuple[str, float, float], ...] = ()
         self._limit_timing = False
         n = port.name
@@ -251,8 +250,7 @@ class ChainRunner:
             readings |= {"voltage", "current"}
         self._conditions = ConditionValues(self.port, self.db, program, readings)
         self._log_rules = log_rules = LogRules(program)
-        self._due_after_s = log_rules.due_after_s
-        self._on_deltas = log_rules.on_deltas
+        self._may_be_due_s = log_rules.may_be_due_s
         # A steady scan runs a step that is not instant, in no group, and whose behaviour
         # has no limits, scan work or end of its own: what ``_steady_running`` checks.
         self._steady = tuple(
@@ -409,6 +407,7 @@ class ChainRunner:
         tag by tag, against the plain scan (``_fast`` False).
         """
         port, r = self.port, self._r
+        index = r.step
         if not (
             self._fast
             and self.state is _RUNNING
@@ -419,11 +418,10 @@ class ChainRunner:
             and not self._pending_advance
             and r.sleep_until_t is None
             and r.step_count
-            and self._steady[r.step]
+            and self._steady[index]
         ):
             self._scan(now, dt)
             return
-        index = r.step
         program = self.program
         assert program is not None
         step = program.steps[index]
@@ -574,15 +572,11 @@ class ChainRunner:
         if step.duration_s is not None and st >= step.duration_s - EPS_S:
             self._act(Action(ActionKind.NEXT), "duration elapsed", now)
             return False
-        # ``_record(now, step)``: by the period, due when ``LogRules.reason`` says so; by a
-        # ΔV or ΔI rule, ``_record`` tells (and does nothing when none is due). A record
-        # calls out to the recorders, which may act on the chain: the plain outputs and
-        # tags follow it.
-        if self.recorders:
-            index = step.index
-            due_s = self._due_after_s[index]
-            if (due_s is not None and now - r.last_rec_t >= due_s) or self._on_deltas[index]:
-                return not self._record(now, step)
+        # ``_record(now, step)`` once a record may be due (it does nothing when none is).
+        # A record calls out to the recorders, which may act on the chain: the plain
+        # outputs and tags follow it.
+        if self.recorders and now - r.last_rec_t >= self._may_be_due_s[step.index]:
+            return not self._record(now, step)
         return True
 
     def _scan(self, now: float, dt: float) -> None:

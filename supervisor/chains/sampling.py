@@ -6,6 +6,8 @@ per step or for the whole recipe, and always at a step change and at the end.
 
 from __future__ import annotations
 
+import math
+
 from supervisor.chains.port import ChannelPort
 from supervisor.chains.program import CompiledStep, Program
 from supervisor.chains.run import RunState
@@ -28,15 +30,19 @@ class LogRules:
             )
             for s in program.steps
         )
-        # Per step, for the running chain's steady scan (``ChainRunner.run``): the right-hand
-        # side of ``reason``'s period test (the period less float noise, the same float
-        # every scan; None: no period), and whether the step has a ΔV or ΔI rule (then the
-        # chain asks ``reason``, which needs the readings).
-        self.due_after_s: tuple[float | None, ...] = tuple(
-            period - EPS_S if period is not None else None for period, _, _ in self._rules
-        )
-        self.on_deltas: tuple[bool, ...] = tuple(
-            dv is not None or di is not None for _, dv, di in self._rules
+        # Per step, for the running chain's steady scan (``ChainRunner.run``): the time
+        # since the last record from which a record may be due, so that ``reason`` is asked
+        # only then. With a period only, the right-hand side of ``reason``'s period test
+        # (the period less float noise, the same float every scan): due exactly when that
+        # test says so. With a ΔV or ΔI rule, -inf: asked every scan (the readings tell).
+        # Without any rule, +inf: ``reason`` never finds one anyway.
+        self.may_be_due_s: tuple[float, ...] = tuple(
+            -math.inf
+            if dv is not None or di is not None
+            else math.inf
+            if period is None
+            else period - EPS_S
+            for period, dv, di in self._rules
         )
 
     def reason(
