@@ -9,6 +9,7 @@ an unknown condition never fires).
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterable
 
 from supervisor.chains.compiler import CHANNEL_VARIABLES
 from supervisor.chains.port import ChannelPort
@@ -16,6 +17,8 @@ from supervisor.chains.program import Program
 from supervisor.chains.run import RunState
 from supervisor.core.quality import Quality
 from supervisor.tags import Tag, TagDB
+
+_GOOD = Quality.GOOD
 
 # dV/dt over the last minute, once it spans at least 10 s (shorter spans are noise).
 DV_DT_WINDOW_S = 60.0
@@ -36,8 +39,19 @@ def names_read(program: Program) -> set[str]:
 
 
 class ConditionValues:
-    def __init__(self, port: ChannelPort, db: TagDB, program: Program) -> None:
+    def __init__(
+        self,
+        port: ChannelPort,
+        db: TagDB,
+        program: Program,
+        readings: Iterable[str] = ("voltage", "current", "temperature"),
+    ) -> None:
+        """``readings``: the channel readings the chain looks at besides those its
+        conditions name (the limits, a behaviour's own limits or scan); ``values_read``
+        and ``observed_values`` compute those, the names the conditions read and the step
+        time."""
         self._port = port
+        self._voltage = port.voltage
         self._db = db
         self._parameters = program.parameters
         self._initial_charge_ah = program.initial_charge_ah
@@ -59,12 +73,18 @@ class ConditionValues:
             k: v for k, v in self._parameters.items() if k in CHANNEL_VALUE_NAMES
         }
         # ``read``: the values the running chain reads (``values_read``): those its
-        # conditions name, the three readings the limits and behaviours look at and the
-        # step time. The others are not computed there (issue 13: a 25 h dry run computes
-        # the dict 87 000 times and reads three or four of its fifteen channel values).
-        read = names_read(program) | {"voltage", "current", "temperature", "step_time"}
+        # conditions name, the readings it looks at itself and the step time. The others
+        # are not computed there (issue 13: a 25 h dry run computes the dict 87 000 times
+        # and reads three or four of its fifteen channel values).
+        read = names_read(program) | {"voltage", "step_time", *readings}
         self.read = frozenset(read)
-        self._read_values: Values = {}
+        self._read_values: Values = {**dict.fromkeys(CHANNEL_VALUE_NAMES), **self._parameters}
+        self._reads_current = "current" in read
+        self._reads_temperature = "temperature" in read
+        self._reads_peak = "delta_peak" in read or "peak_voltage" in read
+        # The dV/dt window is kept by ``observed_values`` only for a program that reads
+        # dv_dt (``observe`` keeps it always: ``values`` and ``dv_dt`` read it).
+        self._keeps_window = "dv_dt" in read
         self._need = tuple(
             name in read
             for name in (
@@ -77,10 +97,10 @@ class ConditionValues:
                 "test_time",
                 "cycle",
                 "dv_dt",
-                "delta_peak",
-                "peak_voltage",
             )
         )
+        # Anything read beyond the readings, the step time and the peak: ``_fill_more``.
+        self._reads_more = any(self._need) or bool(self._parameters_over or self._tag_names)
 
     def restart(self) -> None:
         """A step starts: its peak and its dV/dt window start again."""
@@ -175,22 +195,81 @@ class ConditionValues:
         The same dict every scan, filled again: read it before the next scan, never keep
         it."""
         port = self._port
-        good = Quality.GOOD
-        vt, i, t = port.voltage, port.current, port.temperature
+        vt = port.voltage
         x = vt.value
-        v = (x if type(x) is float else vt.as_float()) if vt.quality is good else None
+        v = (x if type(x) is float else vt.as_float()) if vt.quality is _GOOD else None
         values = self._read_values
-        if not values:
-            values.update(dict.fromkeys(CHANNEL_VALUE_NAMES))
-            values.update(self._parameters)
         values["voltage"] = v
-        x = i.value
-        values["current"] = (x if type(x) is float else i.as_float()) if i.quality is good else None
-        x = t.value
-        values["temperature"] = (
-            (x if type(x) is float else t.as_float()) if t.quality is good else None
-        )
+        if self._reads_current:
+            i = port.current
+            x = i.value
+            values["current"] = (
+                (x if type(x) is float else i.as_float()) if i.quality is _GOOD else None
+            )
+        if self._reads_temperature:
+            t = port.temperature
+            x = t.value
+            values["temperature"] = (
+                (x if type(x) is float else t.as_float()) if t.quality is _GOOD else None
+            )
         values["step_time"] = now - run.t_step0
+        if self._reads_peak:
+            peak = self.peak_v
+            values["delta_peak"] = (peak - v) if (peak is not None and v is not None) else None
+            values["peak_voltage"] = peak
+        if self._reads_more:
+            self._fill_more(values, now, run)
+        return values
+
+    def observed_values(self, now: float, run: RunState) -> Values:
+        """:meth:`observe` of this scan's voltage when it is GOOD, then :meth:`values_read`,
+        in one call and reading the voltage once: the running chain's steady scan (issue
+        13). The dV/dt window is kept only when the program reads dv_dt (nothing else the
+        running chain asks reads it)."""
+        vt = self._voltage
+        v: float | None
+        if vt.quality is _GOOD:
+            x = vt.value
+            v = x if type(x) is float else vt.as_float()
+            if self._keeps_window:  # observe(now, v), inline
+                ts, vs = self._dv_t, self._dv_v
+                ts.append(now)
+                vs.append(v)
+                while ts and now - ts[0] > DV_DT_WINDOW_S:
+                    ts.popleft()
+                    vs.popleft()
+            peak = self.peak_v
+            self.peak_v = peak = v if peak is None or v > peak else peak
+        else:
+            v = None
+            peak = self.peak_v
+        values = self._read_values
+        values["voltage"] = v
+        if self._reads_current:
+            i = self._port.current
+            x = i.value
+            values["current"] = (
+                (x if type(x) is float else i.as_float()) if i.quality is _GOOD else None
+            )
+        if self._reads_temperature:
+            t = self._port.temperature
+            x = t.value
+            values["temperature"] = (
+                (x if type(x) is float else t.as_float()) if t.quality is _GOOD else None
+            )
+        values["step_time"] = now - run.t_step0
+        if self._reads_peak:
+            values["delta_peak"] = (peak - v) if (peak is not None and v is not None) else None
+            values["peak_voltage"] = peak
+        if self._reads_more:
+            self._fill_more(values, now, run)
+        return values
+
+    def _fill_more(self, values: Values, now: float, run: RunState) -> None:
+        """The values read beyond the readings, the step time and the peak: the counters,
+        the other clocks, dV/dt, the parameters named like a channel value (they win) and
+        the bench tags."""
+        port = self._port
         (
             power,
             charge,
@@ -201,14 +280,12 @@ class ConditionValues:
             test_time,
             cycle,
             dv_dt,
-            delta_peak,
-            peak_voltage,
         ) = self._need
         if power:
             p = port.power
             x = p.value
             values["power"] = (
-                (x if type(x) is float else p.as_float()) if p.quality is good else None
+                (x if type(x) is float else p.as_float()) if p.quality is _GOOD else None
             )
         if charge or step_charge:
             q = _as_float(port.charge_ah)
@@ -235,11 +312,6 @@ class ConditionValues:
                 values["dv_dt"] = (vs[-1] - vs[0]) / (ts[-1] - ts[0])
             else:
                 values["dv_dt"] = None
-        if delta_peak:
-            peak = self.peak_v
-            values["delta_peak"] = (peak - v) if (peak is not None and v is not None) else None
-        if peak_voltage:
-            values["peak_voltage"] = self.peak_v
         if self._parameters_over:
             values.update(self._parameters_over)
         if self._tag_names:
@@ -254,7 +326,6 @@ class ConditionValues:
                     if isinstance(tv, int)
                     else None
                 )
-        return values
 
 
 CHANNEL_VALUE_NAMES = (

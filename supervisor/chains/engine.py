@@ -21,6 +21,7 @@ publishers of those (``supervisor.publish``).
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections import deque
 from collections.abc import Callable
@@ -50,7 +51,7 @@ from supervisor.config.limits import MAX_TRANSITIONS_PER_SCAN
 from supervisor.core.clock import Clock
 from supervisor.core.delay import OnDelay
 from supervisor.core.errors import OperatorError
-from supervisor.core.quality import Quality
+from supervisor.core.quality import Quality, Reason
 from supervisor.core.records import ChainEvent, Record, Sampler
 from supervisor.tags import Access, Tag, TagDB, TagSpec
 from supervisor.tags.spec import HistorySettings
@@ -78,6 +79,8 @@ of 130 in issue 13's load case), 64 points a second of straight lines; screens a
 still see every scan's value."""
 
 _GOOD = Quality.GOOD
+_NONE = Reason.NONE
+_RUNNING = State.RUNNING
 EPS_S = 1e-9
 CHAIN_FIELDS = (
     "state",
@@ -103,8 +106,9 @@ class ChainRunner:
 
     _fast = True
     """The running scan computes only the condition values the program reads and asks a
-    behaviour only what it answers differently from a rest step (docs/adr/0018, "Dry
-    run"); False only in the tests that check it against asking everything every scan."""
+    behaviour only what it answers differently from a rest step, and a steady scan (see
+    ``run``) takes its short way (docs/adr/0018, "Dry run"); False only in the tests that
+    check it against asking everything every scan."""
 
     def __init__(self, port: ChannelPort, db: TagDB, clock: Clock) -> None:
         self.port = port
@@ -138,6 +142,14 @@ class ChainRunner:
         self._log_rules: LogRules | None = None
         self._limits: tuple[LimitCheck, ...] = ()
         self._limit_delay = OnDelay(0.0)
+        # For the steady scan (``run``), set at load: per step, whether its scans can be
+        # steady and from when a record may be due (``LogRules.may_be_due_s``); the recipe
+        # limits as (name, low, high) with a missing bound infinite; whether the limits'
+        # on-delay was last told of a violation (else telling it of none changes nothing).
+        self._steady: tuple[bool, ...] = ()
+        self._may_be_due_s: tuple[float, ...] = ()
+        self._limit_bounds: tuple[tuple[str, float, float], ...] = ()
+        self._limit_timing = False
         n = port.name
         db.add(
             TagSpec(
@@ -205,16 +217,15 @@ class ChainRunner:
     def _install(self, program: Program) -> None:
         self.program = program
         # Each step's behaviour is chosen once, here: the scan never looks at a kind name.
-        self._behaviours = behaviours_for(program.steps)
+        behaviours = self._behaviours = behaviours_for(program.steps)
         self._instant = tuple(step.instant for step in program.steps)
         # A behaviour whose setpoint is a constant: asked once, here (``_outputs``).
         self._setpoints = tuple(
-            None if b.setpoint_varies else b.setpoint(0.0, None) for b in self._behaviours
+            None if b.setpoint_varies else b.setpoint(0.0, None) for b in behaviours
         )
-        self._conditions = ConditionValues(self.port, self.db, program)
-        self._log_rules = LogRules(program)
         lim = program.limits
         self._limit_delay = OnDelay(lim.delay_s)
+        self._limit_timing = False
         # Only the limits with a bound: one without either never finds a violation.
         self._limits = tuple(
             check
@@ -224,6 +235,27 @@ class ChainRunner:
                 ("temperature", lim.temperature_c, "degC"),
             )
             if check[1] != (None, None)
+        )
+        # ``x < lo or x > hi`` with a missing bound infinite is the plain test's answer
+        # for every float x (NaN included: no comparison with it holds).
+        self._limit_bounds = tuple(
+            (name, -math.inf if lo is None else lo, math.inf if hi is None else hi)
+            for name, (lo, hi), _ in self._limits
+        )
+        # The readings the running scan looks at besides the conditions' names.
+        readings = {"voltage", *(name for name, _, _ in self._limits)}
+        if any(b.has_limits for b in behaviours):
+            readings |= {"voltage", "current", "temperature"}
+        if any(b.has_scan for b in behaviours):
+            readings |= {"voltage", "current"}
+        self._conditions = ConditionValues(self.port, self.db, program, readings)
+        self._log_rules = log_rules = LogRules(program)
+        self._may_be_due_s = log_rules.may_be_due_s
+        # A steady scan runs a step that is not instant, in no group, and whose behaviour
+        # has no limits, scan work or end of its own: what ``_steady_running`` checks.
+        self._steady = tuple(
+            not (step.instant or step.groups or b.has_limits or b.has_scan or b.has_done)
+            for step, b in zip(program.steps, behaviours, strict=True)
         )
 
     # --- retained state (DESIGN.md "Safety": a restart brings the test back Held) -------
@@ -362,6 +394,193 @@ class ChainRunner:
 
     # --- the scan phase ------------------------------------------------------------------
     def run(self, now: float, dt: float) -> None:
+        """One scan: the command, the running step's checks, the outputs, the tags.
+
+        A steady scan — running, nothing commanded, no fault and no latched alarm, in
+        Auto, no sleep or advance pending, in a step whose scans can be steady
+        (``_steady``) — takes a short way (issue 13: nearly every scan of a test is one):
+        the step's checks in one call (``_steady_running``), then the outputs and tags
+        as ``_outputs`` and ``_publish`` write them, with an unchanged tag only stamped,
+        as its update would leave it (``TagDB.stamp``: a GOOD, reason-less tag holding
+        the same value). Whatever happens in the step (an alarm, a transition, a record)
+        ends the scan the plain way. ``tests/unit/test_chain_steady_scan.py`` checks it,
+        tag by tag, against the plain scan (``_fast`` False).
+        """
+        port, r = self.port, self._r
+        index = r.step
+        if not (
+            self._fast
+            and self.state is _RUNNING
+            and not self._cmd.value
+            and not port.fault.value
+            and port.mode.value == port.auto_mode
+            and not self._alarm_latched
+            and not self._pending_advance
+            and r.sleep_until_t is None
+            and r.step_count
+            and self._steady[index]
+        ):
+            self._scan(now, dt)
+            return
+        program = self.program
+        assert program is not None
+        step = program.steps[index]
+        try:
+            steady = self._steady_running(now, r, step)
+        except Exception as exc:  # as in ``_scan``: an exception in logic is an alarm
+            log.exception("%s: chain failed", self.name)
+            self._alarm(f"internal error: {exc}")
+            self._set_state(State.ABORTING, "internal error")
+            steady = False
+        if not steady:
+            self._outputs()
+            self._publish(now)
+            return
+        behaviour = self._behaviours[index]
+        db = self.db
+        stamp, update = db.stamp, db.update
+        # ``_outputs`` of a running step: its setpoint unless its interlock holds it back,
+        # then ``port.request(amps, cv, True)``.
+        amps = 0.0
+        if not self._interlock_tag.value:
+            amps_now = self._setpoints[index]
+            amps = self.setpoint() if amps_now is None else amps_now
+        cv = behaviour.cv_target_v
+        active = True  # ``_outputs``'s ``running``: Running, no alarm latched
+        tag = port.auto_current
+        if amps == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+            stamp(tag)
+        else:
+            update(tag, amps)
+        tag = port.auto_active
+        if active == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+            stamp(tag)
+        else:
+            update(tag, active)
+        tag = port.auto_voltage
+        if cv == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+            stamp(tag)
+        else:
+            update(tag, cv)
+        # ``_publish`` of a running step: the step, its number and the cycle (the same
+        # but after an event, which leaves the steady way), the clocks, the progress.
+        t_step, t_index, t_cycle, t_step_time, t_test_time = self._publish_tags
+        step_id = step.id
+        if step_id == t_step.value and t_step.quality is _GOOD and t_step.reason is _NONE:
+            stamp(t_step)
+        else:
+            update(t_step, step_id)
+        number = step.index + 1
+        if number == t_index.value and t_index.quality is _GOOD and t_index.reason is _NONE:
+            stamp(t_index)
+        else:
+            update(t_index, number)
+        cycle = r.cycle
+        if cycle == t_cycle.value and t_cycle.quality is _GOOD and t_cycle.reason is _NONE:
+            stamp(t_cycle)
+        else:
+            update(t_cycle, cycle)
+        update(t_step_time, now - r.t_step0)
+        elapsed_s = now - r.t_test0
+        update(t_test_time, elapsed_s)
+        # ``self.progress.shown`` for an active test, inline (the same expressions; they
+        # cannot raise, so computing the ETA after writing the progress changes nothing).
+        t_progress, t_eta = self._progress_tags
+        est = self.progress.estimated_duration_s
+        if est:
+            update(t_progress, min(1.0, elapsed_s / est))
+            update(t_eta, max(0.0, est - elapsed_s))
+        else:
+            step_current_a = behaviour.progress_current_a
+            capacity_ah = program.capacity_ah
+            if step_current_a is not None and capacity_ah:
+                charge = port.charge_ah
+                x = charge.value
+                moved = abs((x if type(x) is float else charge.as_float()) - r.step_q0)
+                update(t_progress, min(1.0, moved / capacity_ah))
+                amps_a = abs(step_current_a)
+                update(
+                    t_eta,
+                    max(0.0, (capacity_ah - moved) * 3600.0 / amps_a) if amps_a > 0 else None,
+                )
+        if self.samplers:
+            rec: Record | None = None
+            for sampler in self.samplers:
+                if sampler.due(now):
+                    if rec is None:  # built once, for every sampler due in this scan
+                        rec = self._build(now, step, "sample")
+                    try:
+                        sampler.on_sample(rec)
+                    except Exception:
+                        log.exception("%s: sampler failed", self.name)
+
+    def _steady_running(self, now: float, r: RunState, step: CompiledStep) -> bool:
+        """``_running`` in a steady scan of ``step`` (see ``run``; its checks in the same
+        order, those a steady step cannot need left out): True when the step simply goes
+        on, False when something happened (an alarm, a transition, a record)."""
+        conditions = self._conditions
+        assert conditions is not None
+        values = conditions.observed_values(now, r)
+        st = values["step_time"]
+        assert isinstance(st, float)
+        # Recipe limits, armed once the power path is closed: a violation is described by
+        # ``_limit_violation`` (which finds the same first one).
+        why = ""
+        if self.port.armed.value is True:
+            for name, lo, hi in self._limit_bounds:
+                x = values[name]  # a reading: always in the dict
+                if isinstance(x, float) and (x < lo or x > hi):
+                    why = self._limit_violation(values, step, ())
+                    break
+        if why or self._limit_timing:
+            self._limit_timing = bool(why)
+            if self._limit_delay.update(bool(why), now):
+                self._alarm(why)
+                self._set_state(State.HOLDING, why)
+                return False
+        if (
+            step.max_time_s is not None
+            and r.max_time_acked != r.step_count
+            and st > step.max_time_s
+        ):
+            why = f"supervision: step {step.id} exceeded {step.max_time_s:g} s"
+            self._alarm(why)
+            self._set_state(State.HOLDING, why)
+            return False
+        if step.error is not None and step.error.evaluate(values) is True:
+            why = f"supervision: {step.error.text}"
+            self._alarm(why)
+            self._set_state(State.HOLDING, why)
+            return False
+        if step.interlock is not None:
+            ok = step.interlock.evaluate(values)
+            self._set("interlock", "" if ok is True else f"interlock: {step.interlock.text}")
+        else:
+            tag = self._interlock_tag
+            if tag.value == "" and tag.quality is _GOOD and tag.reason is _NONE:
+                self.db.stamp(tag)
+            else:
+                self.db.update(tag, "")
+        for tr in step.transitions:
+            try:  # ``tr.condition.evaluate(values)``, without the method call
+                hit = tr.condition.fn(values)
+            except ArithmeticError:
+                hit = None
+            if hit is True:
+                self._act(tr.action, f"until #{tr.index}: {tr.text}", now)
+                return False
+        if step.duration_s is not None and st >= step.duration_s - EPS_S:
+            self._act(Action(ActionKind.NEXT), "duration elapsed", now)
+            return False
+        # ``_record(now, step)`` once a record may be due (it does nothing when none is).
+        # A record calls out to the recorders, which may act on the chain: the plain
+        # outputs and tags follow it.
+        if self.recorders and now - r.last_rec_t >= self._may_be_due_s[step.index]:
+            return not self._record(now, step)
+        return True
+
+    def _scan(self, now: float, dt: float) -> None:
+        """``run``'s plain way: every case."""
         cmd = self._cmd.value
         if cmd:
             self.db.update(self._cmd, "")
@@ -441,6 +660,7 @@ class ChainRunner:
             why = self._limit_violation(values, step, ())
         else:
             why = ""
+        self._limit_timing = bool(why)
         if self._limit_delay.update(bool(why), now):
             self._alarm(why)
             self._set_state(State.HOLDING, why)
@@ -699,9 +919,11 @@ class ChainRunner:
             cv = self._behaviours[index].cv_target_v
         self.port.request(amps, cv, running)
 
-    def _record(self, now: float, step: CompiledStep, reason: str = "") -> None:
+    def _record(self, now: float, step: CompiledStep, reason: str = "") -> bool:
+        """A record to the recorders when ``reason`` is given or a logging rule says one is
+        due; whether one went out."""
         if not self.recorders or self.program is None:
-            return
+            return False
         assert self._log_rules is not None
         r, port = self._r, self.port
         vt, it = port.voltage, port.current
@@ -713,7 +935,7 @@ class ChainRunner:
         if not reason:
             reason = self._log_rules.reason(step.index, now, r, v, i)
             if not reason:
-                return
+                return False
         r.last_rec_t, r.last_rec_v, r.last_rec_i = now, v, i
         rec = self._build(now, step, reason)
         for rec_fn in self.recorders:
@@ -721,6 +943,7 @@ class ChainRunner:
                 rec_fn(rec)
             except Exception:
                 log.exception("%s: result recorder failed", self.name)
+        return True
 
     def _build(self, now: float, step: CompiledStep, reason: str) -> Record:
         assert self._conditions is not None

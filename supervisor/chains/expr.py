@@ -95,18 +95,20 @@ class Signature:
 class Expr:
     """A compiled expression: call :meth:`evaluate` with the current values."""
 
-    __slots__ = ("_fn", "dim", "names", "text")
+    __slots__ = ("dim", "fn", "names", "text")
 
     def __init__(self, text: str, dim: Dim, names: frozenset[str], fn: _Fn) -> None:
         self.text = text
         self.dim = dim
         self.names = names
-        self._fn = fn
+        self.fn = fn
+        """The compiled closure: :meth:`evaluate` is it with an ArithmeticError taken as
+        unknown (the running chain's steady scan calls it so, without the method call)."""
 
     def evaluate(self, values: Mapping[str, float | bool | None]) -> float | bool | None:
         """The value for ``values`` (base units); None when unknown (a BAD input)."""
         try:
-            return self._fn(values)
+            return self.fn(values)
         except ArithmeticError:  # e.g. huge integers given as values
             return None
 

@@ -6,6 +6,8 @@ per step or for the whole recipe, and always at a step change and at the end.
 
 from __future__ import annotations
 
+import math
+
 from supervisor.chains.port import ChannelPort
 from supervisor.chains.program import CompiledStep, Program
 from supervisor.chains.run import RunState
@@ -27,6 +29,20 @@ class LogRules:
                 s.log.delta_i if s.log.delta_i is not None else base.delta_i,
             )
             for s in program.steps
+        )
+        # Per step, for the running chain's steady scan (``ChainRunner.run``): the time
+        # since the last record from which a record may be due, so that ``reason`` is asked
+        # only then. With a period only, the right-hand side of ``reason``'s period test
+        # (the period less float noise, the same float every scan): due exactly when that
+        # test says so. With a ΔV or ΔI rule, -inf: asked every scan (the readings tell).
+        # Without any rule, +inf: ``reason`` never finds one anyway.
+        self.may_be_due_s: tuple[float, ...] = tuple(
+            -math.inf
+            if dv is not None or di is not None
+            else math.inf
+            if period is None
+            else period - EPS_S
+            for period, dv, di in self._rules
         )
 
     def reason(
