@@ -438,7 +438,8 @@ class ChainRunner:
             return
         behaviour = self._behaviours[index]
         db = self.db
-        stamp, update = db.stamp, db.update
+        # A tag that holds is stamped inline (``db.stamp``, without the call).
+        scan_t, update = db.scan_t, db.update
         # ``_outputs`` of a running step: its setpoint unless its interlock holds it back,
         # then ``port.request(amps, cv, True)``.
         amps = 0.0
@@ -449,17 +450,20 @@ class ChainRunner:
         active = True  # ``_outputs``'s ``running``: Running, no alarm latched
         tag = port.auto_current
         if amps == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-            stamp(tag)
+            if not tag.forced:
+                tag.source_t = scan_t
         else:
             update(tag, amps)
         tag = port.auto_active
         if active == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-            stamp(tag)
+            if not tag.forced:
+                tag.source_t = scan_t
         else:
             update(tag, active)
         tag = port.auto_voltage
         if cv == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-            stamp(tag)
+            if not tag.forced:
+                tag.source_t = scan_t
         else:
             update(tag, cv)
         # ``_publish`` of a running step: the step, its number and the cycle (the same
@@ -467,17 +471,20 @@ class ChainRunner:
         t_step, t_index, t_cycle, t_step_time, t_test_time = self._publish_tags
         step_id = step.id
         if step_id == t_step.value and t_step.quality is _GOOD and t_step.reason is _NONE:
-            stamp(t_step)
+            if not t_step.forced:
+                t_step.source_t = scan_t
         else:
             update(t_step, step_id)
         number = step.index + 1
         if number == t_index.value and t_index.quality is _GOOD and t_index.reason is _NONE:
-            stamp(t_index)
+            if not t_index.forced:
+                t_index.source_t = scan_t
         else:
             update(t_index, number)
         cycle = r.cycle
         if cycle == t_cycle.value and t_cycle.quality is _GOOD and t_cycle.reason is _NONE:
-            stamp(t_cycle)
+            if not t_cycle.forced:
+                t_cycle.source_t = scan_t
         else:
             update(t_cycle, cycle)
         update(t_step_time, now - r.t_step0)
@@ -558,7 +565,8 @@ class ChainRunner:
         else:
             tag = self._interlock_tag
             if tag.value == "" and tag.quality is _GOOD and tag.reason is _NONE:
-                self.db.stamp(tag)
+                if not tag.forced:  # ``db.stamp(tag)``, inline
+                    tag.source_t = self.db.scan_t
             else:
                 self.db.update(tag, "")
         for tr in step.transitions:

@@ -257,7 +257,7 @@ class Channel:
                     # only the source time moves, as the update would (issue 13: most
                     # scans). ``db.stamp(power)``, inline.
                     if not power.forced:
-                        power.source_t = now
+                        power.source_t = db.scan_t
                 else:
                     update(power, p)
                 self._prev_p = p
@@ -270,7 +270,7 @@ class Channel:
     def drive(self, now: float, dt: float) -> None:
         """Setpoint selection, clamping to what safety allows, the output commands."""
         try:
-            self._drive(now)
+            self._drive()
         except Exception as exc:
             self._failed(exc)
         else:
@@ -290,8 +290,7 @@ class Channel:
         # The safety phase trips the channel on it (latched, until reset).
         self.db.update(self.logic_error, f"{type(exc).__name__}: {exc}")
 
-    def _drive(self, now: float) -> None:
-        """``now``: the scan's time, which the database stamps (``TagDB.set_scan_time``)."""
+    def _drive(self) -> None:
         db = self.db
         if self.fault.value:
             request, active = 0.0, False
@@ -307,10 +306,10 @@ class Channel:
         # The command, the clamp flag and the state are the same most scans: then only
         # their source time moves, as their updates would (issue 13; the command is a
         # finite number when it equals a GOOD float tag's value). ``db.stamp``, inline.
-        cmd, tag = self._clamp(request, now), self.current_cmd
+        cmd, tag = self._clamp(request), self.current_cmd
         if cmd == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
             if not tag.forced:
-                tag.source_t = now
+                tag.source_t = db.scan_t
         else:
             db.update(tag, cmd)
         if self.voltage_cmd is not None:
@@ -332,7 +331,7 @@ class Channel:
         tag = self.state
         if state == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
             if not tag.forced:
-                tag.source_t = now
+                tag.source_t = db.scan_t
         else:
             db.update(tag, state)
 
@@ -374,7 +373,7 @@ class Channel:
             (x if type(x) is float else current.as_float()) if current.quality is _GOOD else None
         )
 
-    def _clamp(self, request: float, now: float) -> float:
+    def _clamp(self, request: float) -> float:
         """Into the hard current limits, and into what the safety phase allows this scan
         (nothing towards a crossed voltage limit, less near a BMS cell limit)."""
         lo, hi = self.limits.current_a
@@ -403,7 +402,7 @@ class Channel:
         tag = self.clamped
         if clamped is tag.value and tag.quality is _GOOD and tag.reason is _NONE:
             if not tag.forced:  # unchanged: as its update would (``db.stamp``, inline)
-                tag.source_t = now
+                tag.source_t = self.db.scan_t
         else:
             self.db.update(tag, clamped)
         return allowed

@@ -246,7 +246,8 @@ class ChannelGuard:
         # moves, as their update would (an unforced GOOD tag without a reason holding the
         # value: the update would change nothing else; issue 13).
         if fast and closed == armed.value and armed.quality is _GOOD and armed.reason is _NONE:
-            db.stamp(armed)
+            if not armed.forced:  # ``db.stamp(armed)``, inline
+                armed.source_t = db.scan_t
         else:
             db.update(armed, closed)
         # Every check skipped while none of their tags changed since they all settled and no
@@ -283,7 +284,8 @@ class ChannelGuard:
             self._admission_version = db.version
         for tag, value in self._limits_a:
             if fast and value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-                db.stamp(tag)
+                if not tag.forced:  # ``db.stamp(tag)``, inline
+                    tag.source_t = db.scan_t
             else:
                 db.update(tag, value)
         # The count at the start: after an evaluation that wrote an alarm (a trip, a reset),
@@ -389,7 +391,8 @@ class ChannelGuard:
             self._trips_writes = writes
         for tag, value in self._trips_out:
             if fast and value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-                db.stamp(tag)
+                if not tag.forced:  # ``db.stamp(tag)``, inline
+                    tag.source_t = db.scan_t
             else:
                 db.update(tag, value)
 

@@ -664,7 +664,6 @@ class ScanEngine:
         period_s = self.period_s
         stats = self.stats
         stall_tag = self._stats_tags["scan.stall_s"]
-        monotonic = time.monotonic
         next_poll = self._next_poll
         # A virtual clock of another kind sleeps its own way, every scan. Ours is read and
         # moved through its attribute (``VirtualClock.t_s``): three reads and a move a scan,
@@ -701,11 +700,10 @@ class ScanEngine:
             late = (now_of() if virtual is None else virtual.t_s) - scheduled
             # A scan is late only when something moved the clock between two scans: what
             # a held loop looks like in virtual time. ``note_start`` when it has anything
-            # to do (``late`` within the limit and ``scan.stall_s`` at 0: only the time).
+            # to do (``late`` within the limit and ``scan.stall_s`` at 0: nothing but
+            # ``last_scan_mono``, which only the real clock's stall watch reads).
             if late > self.stall_after_s or stall_tag.value != 0.0:
                 self.note_start(late if late > 0.0 else 0.0)  # max(0.0, late), no call
-            else:
-                self.last_scan_mono = monotonic()
             gate = self.gate
             if gate is None:
                 scan_once()

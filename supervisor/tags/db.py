@@ -74,7 +74,11 @@ class TagDB:
         # ``move_to_end`` is O(1) and allocates nothing, where a log of (version, tag)
         # tuples kept 65 536 small objects alive for the collector to walk (issue 13).
         self._order: OrderedDict[int, Tag] = OrderedDict()
-        self._now = 0.0
+        self.scan_t = 0.0
+        """This scan's time (:meth:`set_scan_time`): the server time of its changes and the
+        source time of what it stamps. Read-only but for ``set_scan_time``; public so that
+        the scan's hot paths stamp a tag that holds without a call (``tag.source_t =
+        db.scan_t`` unless forced: :meth:`stamp`, inline; issue 13)."""
 
     # --- declaration -----------------------------------------------------------
     def add(self, spec: TagSpec) -> Tag:
@@ -111,7 +115,7 @@ class TagDB:
     # --- time ------------------------------------------------------------------
     def set_scan_time(self, t: float) -> None:
         """Server timestamp given to every change in this scan (``Clock.now()`` axis)."""
-        self._now = t
+        self.scan_t = t
 
     # --- updates ---------------------------------------------------------------
     def update(
@@ -145,12 +149,12 @@ class TagDB:
                 else:
                     if value - value != 0.0:
                         quality, reason = Quality.BAD, Reason.OUT_OF_RANGE
-        tag.source_t = self._now if source_t is None else source_t
+        tag.source_t = self.scan_t if source_t is None else source_t
         if value != tag.value or quality is not tag.quality or reason is not tag.reason:
             tag.value = value
             tag.quality = quality
             tag.reason = reason
-            tag.server_t = self._now
+            tag.server_t = self.scan_t
             self.version = version = self.version + 1
             tag.version = version
             self._order.move_to_end(tag.index)
@@ -164,7 +168,7 @@ class TagDB:
         caller that knows nothing else changed: a third of an update's work (issue 13:
         half the updates of a dry run's scan changed only the source time)."""
         if not tag.forced:
-            tag.source_t = self._now if source_t is None else source_t
+            tag.source_t = self.scan_t if source_t is None else source_t
 
     def set_quality(self, tag: Tag, quality: Quality, reason: Reason) -> bool:
         return self.update(tag, tag.value, quality, reason, tag.source_t)

@@ -140,7 +140,7 @@ def test_an_exception_in_channel_logic_makes_the_channel_safe_not_the_scan_crash
     r.db.write("ch0.manual_current", 0.3)
     r.scan(1)
 
-    def broken(request: float, now: float) -> float:
+    def broken(request: float) -> float:
         raise RuntimeError("corrupted request")
 
     monkeypatch.setattr(r.ch, "_clamp", broken)
