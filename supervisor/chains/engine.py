@@ -440,53 +440,29 @@ class ChainRunner:
         db = self.db
         # A tag that holds is stamped inline (``db.stamp``, without the call).
         scan_t, update = db.scan_t, db.update
-        # ``_outputs`` of a running step: its setpoint unless its interlock holds it back,
-        # then ``port.request(amps, cv, True)``.
+        # ``_outputs`` of a running step: its setpoint unless its interlock holds it back.
         amps = 0.0
         if not self._interlock_tag.value:
             amps_now = self._setpoints[index]
             amps = self.setpoint() if amps_now is None else amps_now
-        cv = behaviour.cv_target_v
-        active = True  # ``_outputs``'s ``running``: Running, no alarm latched
-        tag = port.auto_current
-        if amps == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-            if not tag.forced:
-                tag.source_t = scan_t
-        else:
-            update(tag, amps)
-        tag = port.auto_active
-        if active == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-            if not tag.forced:
-                tag.source_t = scan_t
-        else:
-            update(tag, active)
-        tag = port.auto_voltage
-        if cv == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-            if not tag.forced:
-                tag.source_t = scan_t
-        else:
-            update(tag, cv)
-        # ``_publish`` of a running step: the step, its number and the cycle (the same
-        # but after an event, which leaves the steady way), the clocks, the progress.
+        # Then, in their order, what ``port.request(amps, cv, True)`` writes (Running, no
+        # alarm latched: active) and what ``_publish`` of a running step writes: the step,
+        # its number and the cycle (the same but after an event, which leaves the steady
+        # way), the clocks, the progress.
         t_step, t_index, t_cycle, t_step_time, t_test_time = self._publish_tags
-        step_id = step.id
-        if step_id == t_step.value and t_step.quality is _GOOD and t_step.reason is _NONE:
-            if not t_step.forced:
-                t_step.source_t = scan_t
-        else:
-            update(t_step, step_id)
-        number = step.index + 1
-        if number == t_index.value and t_index.quality is _GOOD and t_index.reason is _NONE:
-            if not t_index.forced:
-                t_index.source_t = scan_t
-        else:
-            update(t_index, number)
-        cycle = r.cycle
-        if cycle == t_cycle.value and t_cycle.quality is _GOOD and t_cycle.reason is _NONE:
-            if not t_cycle.forced:
-                t_cycle.source_t = scan_t
-        else:
-            update(t_cycle, cycle)
+        for tag, value in (
+            (port.auto_current, amps),
+            (port.auto_active, True),
+            (port.auto_voltage, behaviour.cv_target_v),
+            (t_step, step.id),
+            (t_index, step.index + 1),
+            (t_cycle, r.cycle),
+        ):
+            if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+                if not tag.forced:
+                    tag.source_t = scan_t
+            else:
+                update(tag, value)
         update(t_step_time, now - r.t_step0)
         elapsed_s = now - r.t_test0
         update(t_test_time, elapsed_s)
