@@ -470,9 +470,13 @@ class ChainRunner:
         # cannot raise, so computing the ETA after writing the progress changes nothing).
         t_progress, t_eta = self._progress_tags
         est = self.progress.estimated_duration_s
+        # ``min(1.0, x)`` and ``max(0.0, x)`` as expressions (the same answers, NaN
+        # included): ``min`` and ``max`` parse keywords at every call.
         if est:
-            update(t_progress, min(1.0, elapsed_s / est))
-            update(t_eta, max(0.0, est - elapsed_s))
+            fraction = elapsed_s / est
+            update(t_progress, fraction if fraction < 1.0 else 1.0)
+            left_s = est - elapsed_s
+            update(t_eta, left_s if left_s > 0.0 else 0.0)
         else:
             step_current_a = behaviour.progress_current_a
             capacity_ah = program.capacity_ah
@@ -480,12 +484,14 @@ class ChainRunner:
                 charge = port.charge_ah
                 x = charge.value
                 moved = abs((x if type(x) is float else charge.as_float()) - r.step_q0)
-                update(t_progress, min(1.0, moved / capacity_ah))
+                fraction = moved / capacity_ah
+                update(t_progress, fraction if fraction < 1.0 else 1.0)
                 amps_a = abs(step_current_a)
-                update(
-                    t_eta,
-                    max(0.0, (capacity_ah - moved) * 3600.0 / amps_a) if amps_a > 0 else None,
-                )
+                if amps_a > 0:
+                    left_s = (capacity_ah - moved) * 3600.0 / amps_a
+                    update(t_eta, left_s if left_s > 0.0 else 0.0)
+                else:
+                    update(t_eta, None)
         if self.samplers:
             rec: Record | None = None
             for sampler in self.samplers:

@@ -385,7 +385,9 @@ class Channel:
         if out > 0:
             limit = self.charge_limit
             x = limit.value
-            allowed = min(out, x if type(x) is float else limit.as_float(hi))
+            allowed = x if type(x) is float else limit.as_float(hi)
+            # ``min(out, allowed)`` as an expression: ``min`` parses keywords every call.
+            allowed = allowed if allowed < out else out
         else:
             allowed = out
         if allowed < 0:
