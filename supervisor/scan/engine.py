@@ -218,6 +218,12 @@ class ScanEngine:
         """Virtual clock: let the event loop's other tasks run every this many scans (a
         dry run, with no other task to wait for, sets it high: a turn of the loop per scan
         was a tenth of its time, issue 13). 1: every scan, as a real sleep would."""
+        self.measure_durations = True
+        """Each scan's wall-clock duration measured: ``scan.duration_s``,
+        ``scan.duration_max_s``, ``scan.overruns`` and ``stats.durations_s``. A dry run
+        turns it off (its scans run back to back in virtual time: its speed is measured as
+        a whole, simulated over wall time, and nothing reads a scan's; issue 13). They then
+        keep their last values."""
         self.stall_after_s = stall_after_s(period_s)
         self.last_scan_mono: float | None = None
         """``time.monotonic()`` at the start of the last scan (read by :class:`StallWatch`)."""
@@ -364,7 +370,7 @@ class ScanEngine:
 
     def scan_once(self) -> None:
         """Inputs, logic, outputs, publish — synchronous: the scan never awaits I/O."""
-        t0 = _perf_counter()
+        t0 = _perf_counter() if self.measure_durations else None
         now = self.clock.now()
         last_t = self._last_t
         dt = 0.0 if last_t is None else now - last_t
@@ -385,18 +391,19 @@ class ScanEngine:
                 pub.on_scan(db, now)
             except Exception:
                 log.exception("scan: publisher %r failed", pub.name)
-        duration = _perf_counter() - t0
         st = self.stats
         st.count += 1
-        st.durations_s.append(duration)
-        if duration > self.period_s:
-            st.overruns += 1
         update = db.update
-        update(self._duration_tag, duration)
-        if duration > (self._duration_max_tag.value or 0.0):  # type: ignore[operator]
-            update(self._duration_max_tag, duration)
-        if self._overruns_tag.value != st.overruns:  # rare: no update call per scan
-            update(self._overruns_tag, st.overruns)
+        if t0 is not None:
+            duration = _perf_counter() - t0
+            st.durations_s.append(duration)
+            if duration > self.period_s:
+                st.overruns += 1
+            update(self._duration_tag, duration)
+            if duration > (self._duration_max_tag.value or 0.0):  # type: ignore[operator]
+                update(self._duration_max_tag, duration)
+            if self._overruns_tag.value != st.overruns:  # rare: no update call per scan
+                update(self._overruns_tag, st.overruns)
         update(self._count_tag, st.count)
         if self._logic_errors_tag.value != st.logic_errors:
             update(self._logic_errors_tag, st.logic_errors)

@@ -5,7 +5,9 @@ from __future__ import annotations
 import asyncio
 import itertools
 import time
+from pathlib import Path
 
+from supervisor.app.dryrun import dry_run
 from supervisor.core.clock import VirtualClock
 from supervisor.core.driver import Sample
 from supervisor.core.quality import Quality, Reason
@@ -186,3 +188,38 @@ async def test_a_dry_run_engine_gives_other_tasks_a_turn_less_often_and_computes
     assert writes_25 == writes_1 and end_25 == end_1
     assert turns_1 >= 100  # a turn every scan, as a real sleep gives
     assert turns_25 <= 10  # a turn every 25 scans
+
+
+async def test_each_scans_wall_duration_is_measured_unless_the_run_measures_itself() -> None:
+    """A dry run measures its speed as a whole (simulated over wall time): its engine does
+    not time each scan (the duration tags keep what they held); it still counts them."""
+    for measured in (True, False):
+        clock, db, dev, inputs, outputs = make()
+        engine = ScanEngine(clock, db, 0.1, [dev], inputs, outputs)
+        engine.measure_durations = measured
+        timed = [db[name] for name in ("scan.duration_s", "scan.duration_max_s")]
+        before = [(t.value, t.version) for t in timed]
+        await engine.run_for(0.5)
+        assert db["scan.count"].value == 5
+        if measured:
+            assert len(engine.stats.durations_s) == 5
+            assert all(isinstance(t.value, float) and t.value > 0.0 for t in timed)
+        else:
+            assert len(engine.stats.durations_s) == 0
+            assert [(t.value, t.version) for t in timed] == before
+
+
+async def test_a_dry_run_does_not_time_its_scans(root: Path) -> None:
+    seen: list[bool] = []
+    original = ScanEngine.scan_once
+
+    def spy(self: ScanEngine) -> None:
+        seen.append(self.measure_durations)
+        original(self)
+
+    from pytest import MonkeyPatch
+
+    with MonkeyPatch.context() as mp:
+        mp.setattr(ScanEngine, "scan_once", spy)
+        await dry_run(root / "recipes" / "nimh-ds2710.yaml", max_hours=0.01)
+    assert seen and seen[-1] is False
