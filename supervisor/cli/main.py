@@ -733,6 +733,18 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from supervisor.app import benchsuite
 
         return benchsuite.run(args)
+    if args.what == "dry-run" and args.bytecodes:
+        from supervisor.app.dryruncost import scan_cost
+
+        cost = scan_cost(args.recipe)
+        _out(
+            f"dry run of {args.recipe}: {cost.bytecodes:,.0f} bytecodes and {cost.calls:.1f}"
+            f" Python calls a scan (the difference of two traced runs, {cost.scans} scans)"
+        )
+        _out(f"{'bytecodes':>10} {'calls':>6}  function")
+        for where, ops, calls in cost.by_function[:30]:
+            _out(f"{ops:10.1f} {calls:6.2f}  {where}")
+        return EXIT_OK
     if args.what == "dry-run":
         from supervisor.app.dryrun import dry_run, format_report
 
@@ -959,6 +971,12 @@ def build_parser() -> argparse.ArgumentParser:
         choices=range(1, 101),
         metavar="1..100",
         help="dry-run: runs in this process, the median ratio recorded",
+    )
+    b.add_argument(
+        "--bytecodes",
+        action="store_true",
+        help="dry-run: instead of the speed, one scan's Python bytecodes and calls by function"
+        " (a figure the machine's load does not move; traced: slow)",
     )
     b.add_argument("--tags", type=int, default=1000, help="scan, historian: number of tags")
     b.add_argument(

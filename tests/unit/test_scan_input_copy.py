@@ -146,7 +146,7 @@ def play(events: list[tuple[str, int, Value | None, Quality, float]], reference:
             drv.samples[point] = Sample(old.value, old.quality, old.reason, old.t)
         elif what == "again" and point in drv.samples:
             # A poll that read what the sample says: the same object, stamped again in
-            # place with the poll's time (devices/chadeche/driver.py::_read_direct).
+            # place with the poll's time (devices/chadeche/driver.py::ChadecheDriver.poll_now).
             drv.samples[point].t = clock.now()
         elif what == "link":  # the device lost or back, a failed poll counted
             drv.connected = not drv.connected
