@@ -493,15 +493,7 @@ class ChainRunner:
                 else:
                     update(t_eta, None)
         if self.samplers:
-            rec: Record | None = None
-            for sampler in self.samplers:
-                if sampler.due(now):
-                    if rec is None:  # built once, for every sampler due in this scan
-                        rec = self._build(now, step, "sample")
-                    try:
-                        sampler.on_sample(rec)
-                    except Exception:
-                        log.exception("%s: sampler failed", self.name)
+            self._sample(now, step)
 
     def _steady_running(self, now: float, r: RunState, step: CompiledStep) -> bool:
         """``_running`` in a steady scan of ``step`` (see ``run``; its checks in the same
@@ -984,15 +976,19 @@ class ChainRunner:
             update(t_progress, shown[0])
             update(t_eta, shown[1])
         if active and step is not None and self.samplers:
-            rec: Record | None = None
-            for sampler in self.samplers:
-                if sampler.due(now):
-                    if rec is None:  # built once, for every sampler due in this scan
-                        rec = self._build(now, step, "sample")
-                    try:
-                        sampler.on_sample(rec)
-                    except Exception:
-                        log.exception("%s: sampler failed", self.name)
+            self._sample(now, step)
+
+    def _sample(self, now: float, step: CompiledStep) -> None:
+        """The samplers due at ``now`` get the active step's sample, built once."""
+        rec: Record | None = None
+        for sampler in self.samplers:
+            if sampler.due(now):
+                if rec is None:  # built once, for every sampler due in this scan
+                    rec = self._build(now, step, "sample")
+                try:
+                    sampler.on_sample(rec)
+                except Exception:
+                    log.exception("%s: sampler failed", self.name)
 
     def _alarm(self, text: str) -> None:
         self._alarm_latched = True

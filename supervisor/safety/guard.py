@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 from supervisor.config.models import ChannelConfig
 from supervisor.core.delay import OnDelay
+from supervisor.core.driver import Value
 from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.safety.alarms import Alarm, AlarmManager, Severity
@@ -282,12 +283,7 @@ class ChannelGuard:
             charge, discharge = self._admission()
             self._limits_a = ((self._charge_limit, charge), (self._discharge_limit, discharge))
             self._admission_version = db.version
-        for tag, value in self._limits_a:
-            if fast and value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-                if not tag.forced:  # ``db.stamp(tag)``, inline
-                    tag.source_t = db.scan_t
-            else:
-                db.update(tag, value)
+        self._write(self._limits_a)
         # The count at the start: after an evaluation that wrote an alarm (a trip, a reset),
         # the next scan's pass checks each alarm against its check again.
         self._alarm_writes = writes
@@ -372,7 +368,7 @@ class ChannelGuard:
         return done
 
     def _publish_trips(self) -> None:
-        alarms, db = self.alarms, self.db
+        alarms = self.alarms
         fast = self._gated
         # The trips are a function of the alarms (their state, and which are declared):
         # found again only when one was written since (``AlarmManager.writes``).
@@ -389,9 +385,17 @@ class ChannelGuard:
                 (self._first_out, first_out),
             )
             self._trips_writes = writes
-        for tag, value in self._trips_out:
+        self._write(self._trips_out)
+
+    def _write(self, outputs: tuple[tuple[Tag, Value], ...]) -> None:
+        """Each tag its value: a tag that already holds it, GOOD and without a reason, only
+        stamped, as its update would leave it (``db.stamp``, inline; issue 13); every tag
+        updated on the plain path (``_gated`` False)."""
+        db = self.db
+        fast = self._gated
+        for tag, value in outputs:
             if fast and value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-                if not tag.forced:  # ``db.stamp(tag)``, inline
+                if not tag.forced:
                     tag.source_t = db.scan_t
             else:
                 db.update(tag, value)
