@@ -14,6 +14,7 @@ figure.
 from __future__ import annotations
 
 import asyncio
+import gc
 import sys
 from collections import Counter
 from collections.abc import Callable
@@ -63,12 +64,20 @@ def _traced(run: Callable[[], Any]) -> tuple[Counter[str], Counter[str]]:
 
         return on_opcode
 
+    # The garbage others left (another thread's, an earlier test's) collected first, and no
+    # automatic collection while traced: its finalizers would be counted, whenever the
+    # allocations of any thread set one off.
+    gc.collect()
+    enabled = gc.isenabled()
+    gc.disable()
     previous = sys.gettrace()
     sys.settrace(on_call)
     try:
         run()
     finally:
         sys.settrace(previous)
+        if enabled:
+            gc.enable()
     return ops, calls
 
 
