@@ -13,8 +13,8 @@ from supervisor.cli.main import main
 
 def test_a_scans_cost_is_the_difference_of_two_runs_and_the_same_each_time(root: Path) -> None:
     recipe = root / "recipes" / "nimh-25h-slow-cycle.yaml"
-    # Run after the tests before it in one process, whose garbage (transports, tasks with
-    # finalizers) the collector frees when allocations say: never counted in a scan.
+    # In one process after other tests, whose garbage (transports, tasks with finalizers)
+    # the collector may free at any allocation: never counted in a scan's cost.
     first = scan_cost(recipe, hours=0.01)
     second = scan_cost(recipe, hours=0.01)
     assert first.scans == 36
