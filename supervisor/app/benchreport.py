@@ -23,7 +23,9 @@ from typing import Any, Final
 __all__ = [
     "ENV",
     "JITTER_UNCHANGED_MS",
+    "CpuTicks",
     "Figure",
+    "cpu_ticks",
     "jitter_change",
     "machine",
     "met",
@@ -74,6 +76,44 @@ def jitter_change(alone_ms: float, loaded_ms: float) -> tuple[float, str]:
         f"without {alone_ms:.3f} ms, with {loaded_ms:.3f} ms (ratio {ratio});"
         f" unchanged: a rise of at most {JITTER_UNCHANGED_MS:g} ms"
     )
+
+
+@dataclass(frozen=True, slots=True)
+class CpuTicks:
+    """All CPUs' time so far, in clock ticks (``/proc/stat``'s ``cpu`` line): ``steal`` is
+    the time the hypervisor gave this virtual machine's CPUs to others while they had work,
+    ``total`` everything (user, nice, system, idle, iowait, irq, softirq, steal). A thread
+    at a real-time priority cannot run while its CPU is stolen: what a benchmark's share of
+    steal was tells the machine's noise from the code's (issue 13's jitter rows)."""
+
+    steal: int
+    total: int
+
+    def steal_share(self, later: CpuTicks) -> float:
+        """The share of the CPUs' time stolen between this reading and ``later`` (0 to 1;
+        0 when no tick passed)."""
+        total = later.total - self.total
+        return (later.steal - self.steal) / total if total > 0 else 0.0
+
+
+def cpu_ticks(stat_text: str | None = None) -> CpuTicks | None:
+    """The machine's CPU ticks now (``stat_text``: the text of ``/proc/stat``, read when
+    None); None where there is no such file or line (not Linux) or it has no steal
+    column (a kernel older than 2.6.11)."""
+    if stat_text is None:
+        try:
+            stat_text = Path("/proc/stat").read_text(encoding="ascii")
+        except OSError:
+            return None
+    for line in stat_text.splitlines():
+        fields = line.split()
+        if fields and fields[0] == "cpu":
+            # guest and guest_nice (fields 9-10) are already counted in user and nice.
+            ticks = [int(x) for x in fields[1:9]]
+            if len(ticks) < 8:
+                return None
+            return CpuTicks(steal=ticks[7], total=sum(ticks))
+    return None
 
 
 def met(measured: float, target: str) -> bool | None:

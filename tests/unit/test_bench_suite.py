@@ -125,6 +125,31 @@ def test_a_target_is_judged_by_its_operator(
     assert benchreport.met(measured, target) is verdict
 
 
+STAT_BEFORE = """cpu  100 20 30 800 5 1 2 40 7 0
+cpu0 50 10 15 400 2 0 1 20 3 0
+intr 12345
+"""
+STAT_AFTER = """cpu  160 20 50 900 5 1 2 60 9 0
+cpu0 80 10 25 450 2 0 1 30 4 0
+"""
+
+
+def test_the_steal_share_is_the_stolen_ticks_over_all_ticks_of_all_cpus() -> None:
+    before, after = benchreport.cpu_ticks(STAT_BEFORE), benchreport.cpu_ticks(STAT_AFTER)
+    assert before == benchreport.CpuTicks(steal=40, total=998)
+    assert after is not None
+    # 20 of 200 ticks stolen; the guest ticks (7 -> 9) are inside user's, not counted again
+    assert before.steal_share(after) == pytest.approx(0.1)
+    assert before.steal_share(before) == 0.0
+
+
+@pytest.mark.parametrize("text", ["", "cpu0 1 2 3 4 5 6 7 8\n", "cpu  1 2 3 4 5 6 7\n"])
+def test_no_steal_is_reported_without_the_machine_wide_line_or_its_steal_column(
+    text: str,
+) -> None:
+    assert benchreport.cpu_ticks(text) is None
+
+
 def test_the_growth_is_the_least_squares_slope() -> None:
     assert slope_per_s([(0, 10.0), (10, 11.0), (20, 12.0)]) == pytest.approx(0.1)
     assert slope_per_s([(0, 10.0)]) == 0.0
@@ -182,6 +207,10 @@ def test_the_load_benchmark_runs_the_load_case_with_its_clients_and_records_its_
     (jitter,) = [f for f in figures if "snapshots" in f.figure]
     assert (jitter.unit, jitter.target) == ("ms", "<= 0.1")
     assert "without" in jitter.reference and "with" in jitter.reference
+    # The machine's own noise in the same run: what the hypervisor took in each kind of block.
+    (overall,) = [f for f in figures if f.figure.startswith("scan start jitter")]
+    for row in (jitter, overall):
+        assert "hypervisor steal" in row.reference and "% of the CPUs' time" in row.reference
 
 
 def test_jitter_unchanged_is_a_rise_of_at_most_a_tenth_of_the_jitter_target() -> None:
