@@ -218,8 +218,8 @@ async def _measure(
         blocks: list[tuple[str, float, float]] = []
         latencies: list[float] = []
         size = 0
-        # The hypervisor's steal, block by block: ticks stolen and ticks passed by kind.
-        stolen: dict[str, list[int]] = {}
+        # The CPUs' ticks at each block's start and end, by kind (the hypervisor's steal).
+        ticks: dict[str, list[tuple[benchreport.CpuTicks, benchreport.CpuTicks]]] = {}
         for kind, block_s in block_plan(seconds):
             t0 = time.time()
             ticks0 = benchreport.cpu_ticks()
@@ -231,9 +231,7 @@ async def _measure(
             ticks1 = benchreport.cpu_ticks()
             blocks.append((kind, t0, time.time()))
             if ticks0 is not None and ticks1 is not None:
-                both = stolen.setdefault(kind, [0, 0])
-                both[0] += ticks1.steal - ticks0.steal
-                both[1] += ticks1.total - ticks0.total
+                ticks.setdefault(kind, []).append((ticks0, ticks1))
         d1 = await asyncio.to_thread(sup.get, "/api/diagnostics")
         chains = _chain_states(await asyncio.to_thread(sup.get, "/api/tags"))
         answer = await asyncio.to_thread(sup.get, "/api/alarms?limit=0")
@@ -249,7 +247,7 @@ async def _measure(
     return {
         "tags": n_tags,
         "blocks": blocks,
-        "steal": {kind: st / total for kind, (st, total) in stolen.items() if total > 0},
+        "steal": {kind: benchreport.steal_share(spans) for kind, spans in ticks.items()},
         "diag": (d0, d1),
         "latencies": latencies,
         "snapshot_bytes": size,
@@ -388,10 +386,11 @@ def load_benchmark(
     steal = res["steal"]
     # The machine's own noise, block by block (a virtual machine's CPUs given to others):
     # a scan at a real-time priority waits for it like anyone else.
+    quiet, snapshots = steal.get("quiet"), steal.get("snapshots")
     noise = (
-        f"hypervisor steal {steal['quiet'] * 100:.2f} % of the CPUs' time without,"
-        f" {steal['snapshots'] * 100:.2f} % with"
-        if {"quiet", "snapshots"} <= steal.keys()
+        f"hypervisor steal {quiet * 100:.2f} % of the CPUs' time without,"
+        f" {snapshots * 100:.2f} % with"
+        if quiet is not None and snapshots is not None
         else "hypervisor steal not known (no /proc/stat)"
     )
     _say(

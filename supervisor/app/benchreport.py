@@ -15,7 +15,7 @@ import os
 import platform
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -31,6 +31,7 @@ __all__ = [
     "met",
     "read",
     "record",
+    "steal_share",
     "write_report",
 ]
 
@@ -89,11 +90,15 @@ class CpuTicks:
     steal: int
     total: int
 
-    def steal_share(self, later: CpuTicks) -> float:
-        """The share of the CPUs' time stolen between this reading and ``later`` (0 to 1;
-        0 when no tick passed)."""
-        total = later.total - self.total
-        return (later.steal - self.steal) / total if total > 0 else 0.0
+
+def steal_share(spans: Iterable[tuple[CpuTicks, CpuTicks]]) -> float | None:
+    """The share of the CPUs' time stolen over the spans (each a reading at its start and
+    one at its end), 0 to 1; None when no tick passed in any."""
+    stolen = total = 0
+    for start, end in spans:
+        stolen += end.steal - start.steal
+        total += end.total - start.total
+    return stolen / total if total > 0 else None
 
 
 def cpu_ticks(stat_text: str | None = None) -> CpuTicks | None:

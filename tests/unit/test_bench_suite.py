@@ -139,8 +139,15 @@ def test_the_steal_share_is_the_stolen_ticks_over_all_ticks_of_all_cpus() -> Non
     assert before == benchreport.CpuTicks(steal=40, total=998)
     assert after is not None
     # 20 of 200 ticks stolen; the guest ticks (7 -> 9) are inside user's, not counted again
-    assert before.steal_share(after) == pytest.approx(0.1)
-    assert before.steal_share(before) == 0.0
+    assert benchreport.steal_share([(before, after)]) == pytest.approx(0.1)
+    # Over several blocks: their ticks added up (20 + 0 of 200 + 800), not their shares'
+    # mean; no tick at all: not known.
+    idle = benchreport.CpuTicks(steal=0, total=800)
+    assert benchreport.steal_share(
+        [(before, after), (benchreport.CpuTicks(0, 0), idle)]
+    ) == pytest.approx(0.02)
+    assert benchreport.steal_share([(before, before)]) is None
+    assert benchreport.steal_share([]) is None
 
 
 @pytest.mark.parametrize("text", ["", "cpu0 1 2 3 4 5 6 7 8\n", "cpu  1 2 3 4 5 6 7\n"])
