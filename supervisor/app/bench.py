@@ -75,6 +75,8 @@ class Bench:
     results: dict[str, ResultCollector] = field(default_factory=dict)
     displays: dict[str, ChadecheDisplay] = field(default_factory=dict)
     recipes: dict[str, RecipeSource] = field(default_factory=dict)
+    results_roots: dict[str, Path] = field(default_factory=dict)
+    """Per channel, the folder its tests' result folders go in (given at load)."""
     retention: Retention | None = None
     historian: Historian | None = None
     influx: InfluxWriter | None = None
@@ -178,18 +180,12 @@ class Bench:
         channel, program = prepared.channel, prepared.program
         runner = self.runners[channel]
         runner.load(program, test_id)
-        folder = (results_dir or Path(self.cfg.state_dir) / "results") / runner.test_id
-        c = self.cfg.channels[[c.name for c in self.cfg.channels].index(channel)]
+        root = results_dir or Path(self.cfg.state_dir) / "results"
+        self.results_roots[channel] = root
         # No file yet: the collector creates them when the test starts.
-        collector = ResultCollector(
-            channel,
-            program.name,
-            runner.test_id,
-            folder,
-            dba=c.source.board or 0,
-            writer=self.summaries,
-            rows=self.rows,
-        )
+        collector = self.new_collector(channel, program.name, runner.test_id, root / runner.test_id)
+        folder = collector.folder
+        assert folder is not None
         self.attach_results(channel, collector)
         # Compiled from the text read then, which is what the retained state keeps: a
         # restart recompiles the same recipe even if the file changed or moved since.
@@ -197,6 +193,22 @@ class Bench:
             prepared.file, prepared.text, dict(prepared.parameters), str(folder.resolve())
         )
         return runner
+
+    def new_collector(
+        self, channel: str, recipe: str, test_id: str, folder: Path | None
+    ) -> ResultCollector:
+        """The result files of test ``test_id`` of ``channel`` in ``folder`` (the one place
+        a test's collector is made: a new test, a test resumed after a restart)."""
+        c = next(c for c in self.cfg.channels if c.name == channel)
+        return ResultCollector(
+            channel,
+            recipe,
+            test_id,
+            folder,
+            dba=c.source.board or 0,
+            writer=self.summaries,
+            rows=self.rows,
+        )
 
     def attach_results(self, channel: str, collector: ResultCollector) -> None:
         """Feed ``channel``'s chain events and records to ``collector`` (instead of the

@@ -410,16 +410,7 @@ class Retention:
     def _collector(
         self, channel: str, snap: ChainSnapshot, folder: Path | None, away_s: float
     ) -> ResultCollector:
-        c = next(c for c in self.bench.cfg.channels if c.name == channel)
-        collector = ResultCollector(
-            channel,
-            snap.recipe,
-            snap.test_id,
-            folder,
-            dba=c.source.board or 0,
-            writer=self.bench.summaries,
-            rows=self.bench.rows,
-        )
+        collector = self.bench.new_collector(channel, snap.recipe, snap.test_id, folder)
         # Test time 0 on this process's clock axis: the time away counts as test time.
         collector.resume(self.bench.clock.now() - (snap.test_time_s + away_s))
         return collector
