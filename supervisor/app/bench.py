@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 
 from supervisor.app.events import EventFeed
@@ -84,6 +86,8 @@ class Bench:
     events: EventFeed = field(default_factory=EventFeed)
     """Chain steps, alarms and operator commands for the publishers that record events."""
     _started: bool = False
+    _test_ids: set[str] = field(default_factory=set)
+    """Test ids given out by this process (``new_test_id``)."""
     changes: SharedChanges | None = None
     """The change feed the historian and the InfluxDB writer share (``change_reader``)."""
     summaries: SummaryWriter | None = field(init=False, default=None)
@@ -115,6 +119,7 @@ class Bench:
         )
         for name, runner in self.runners.items():
             runner.command_handler = self._command_tag(name)
+            runner.new_test_id = partial(self.new_test_id, name)
 
     def change_reader(self) -> ChangeReader | None:
         """A reader of the shared change feed for a publisher attached before the first
@@ -179,9 +184,17 @@ class Bench:
         may have run in a worker thread, ``CommandPath.execute_async``)."""
         channel, program = prepared.channel, prepared.program
         runner = self.runners[channel]
-        runner.load(program, test_id)
         root = results_dir or Path(self.cfg.state_dir) / "results"
+        previous_root = self.results_roots.get(channel)
         self.results_roots[channel] = root
+        try:
+            runner.load(program, test_id)
+        except BaseException:
+            if previous_root is None:
+                self.results_roots.pop(channel, None)
+            else:
+                self.results_roots[channel] = previous_root
+            raise
         # No file yet: the collector creates them when the test starts.
         collector = self.new_collector(channel, program.name, runner.test_id, root / runner.test_id)
         folder = collector.folder
@@ -210,14 +223,59 @@ class Bench:
             rows=self.rows,
         )
 
+    def new_test_id(self, channel: str) -> str:
+        """A new test id for ``channel``: ``<UTC date>-<UTC time>-<channel>``, with ``-2``,
+        ``-3``… when that folder exists already or the id was given out in this process
+        (two tests started in the same second: a reset and a start are quick)."""
+        runner = self.runners[channel]
+        wall = self.clock.to_wall(self.clock.now())
+        base = time.strftime("%Y%m%d-%H%M%S", time.gmtime(wall)) + f"-{channel}"
+        root = self.results_roots.get(channel, Path(self.cfg.state_dir) / "results")
+        n, test_id = 1, base
+        while test_id in self._test_ids or (root / test_id).exists() or test_id == runner.test_id:
+            n += 1
+            test_id = f"{base}-{n}"
+        self._test_ids.add(test_id)
+        return test_id
+
+    def _begin_test(self, channel: str) -> ResultCollector:
+        """The chain started a new test (a start after a reset): its own collector and
+        folder, beside the previous test's (which ended and closed its files)."""
+        runner = self.runners[channel]
+        assert runner.program is not None
+        root = self.results_roots.get(channel, Path(self.cfg.state_dir) / "results")
+        folder = root / runner.test_id
+        collector = self.new_collector(channel, runner.program.name, runner.test_id, folder)
+        self.attach_results(channel, collector)
+        src = self.recipes.get(channel)
+        if src is not None:
+            # What the retained state keeps: a restart resumes this test in its folder.
+            self.recipes[channel] = replace(src, folder=str(folder.resolve()))
+        log.info("%s: test %s started; results in %s", channel, runner.test_id, folder)
+        return collector
+
     def attach_results(self, channel: str, collector: ResultCollector) -> None:
         """Feed ``channel``'s chain events and records to ``collector`` (instead of the
         previous test's): the summary is rewritten at every timeline event, final when
-        the test ends."""
+        the test ends. A start that makes a new test (``ChainRunner.new_test_id``) gets
+        a collector of its own (``_begin_test``)."""
         self.detach_results(channel)
         runner = self.runners[channel]
 
         def on_event(ev: ChainEvent) -> None:
+            if collector.test_id != runner.test_id:
+                if collector.closed or collector.first_t is None:
+                    if runner.state in ACTIVE and self.results.get(channel) is collector:
+                        self._begin_test(channel).on_event(ev)
+                    return
+                # Never reached: a test under way keeps its id until it ends.
+                log.error(
+                    "%s: test %s under way while the chain runs %s; results kept in %s",
+                    channel,
+                    collector.test_id,
+                    runner.test_id,
+                    collector.folder,
+                )
             if collector.first_t is None and runner.state not in ACTIVE:
                 return  # not this test's yet (e.g. the next recipe being loaded)
             collector.on_event(ev)

@@ -129,6 +129,12 @@ class ChainRunner:
         self.command_handler: Callable[[str], None] | None = None
         self.progress = Progress()
         self._r = RunState()
+        # Whether the loaded test (``_r.test_id``) has been started: a later start (after
+        # a reset) is a new test with a new id, never the old one reopened (issue 26).
+        self._test_started = False
+        # Set by the composition root: a new test id for this channel, unique among its
+        # result folders. The default serves a chain without result files (unit tests).
+        self.new_test_id: Callable[[], str] = self._default_test_id
         self._alarm_latched = False
         self._pending_advance = False
         # The steps started in the scan at ``_scan_t`` (bounded: MAX_TRANSITIONS_PER_SCAN).
@@ -209,7 +215,8 @@ class ChainRunner:
         drives the channel in Manual)."""
         check_load(self.name, self.state, self.port.manual_driven)
         self._install(program)
-        self._r = RunState(test_id=test_id or time.strftime("%Y%m%d-%H%M%S") + f"-{self.name}")
+        self._r = RunState(test_id=test_id or self.new_test_id())
+        self._test_started = False
         self._set("recipe", program.name)
         self._set("test_id", self._r.test_id)
         self._set_state(State.IDLE, f"recipe {program.name} loaded")
@@ -306,6 +313,7 @@ class ChainRunner:
         self._install(program)
         now = self.clock.now()
         self._r, away_s = RunState.thaw(snapshot, now, self.clock.to_wall(now))
+        self._test_started = True  # the same test goes on: a later start is a new one
         r = self._r
         assert self._conditions is not None
         self._conditions.restart()
@@ -363,6 +371,8 @@ class ChainRunner:
             return
         if cmd == "reset":
             if self.program is not None:
+                # The ended test keeps its id (its files are closed); the next start makes
+                # a new one (``_start``).
                 self._r = RunState(test_id=self._r.test_id)
             # The test is over: the channel goes back to the operator, Manual, disabled, at
             # 0 A (an explicit, recorded part of the reset, never left in Auto).
@@ -382,6 +392,13 @@ class ChainRunner:
         assert self.program is not None
         now = self.clock.now()
         r = self._r
+        if self._test_started:
+            # Start after a reset: a new test, with a new id and its own result files;
+            # the previous one stays as it ended (issue 26: a second run was recorded
+            # nowhere, its rows dropped by the first test's closed files).
+            r.test_id = self.new_test_id()
+            self._set("test_id", r.test_id)
+        self._test_started = True
         r.t_test0 = r.t_cycle0 = now
         r.q0_ah = self.port.charge_ah.as_float()
         r.test0 = self.port.counters()
@@ -1045,7 +1062,9 @@ class ChainRunner:
         self._set("last_event", text)
         if not quiet:
             log.info("%s: %s", self.name, text)
-        for fn in self.listeners:
+        # A copy: a listener may replace listeners (a start after a reset attaches the
+        # new test's result files), and every listener of now hears this event once.
+        for fn in tuple(self.listeners):
             try:
                 fn(ev)
             except Exception:
@@ -1056,6 +1075,11 @@ class ChainRunner:
 
     def _get(self, field_: str) -> object:
         return self._tags[field_].value
+
+    def _default_test_id(self) -> str:
+        """``<UTC date>-<UTC time>-<channel>`` at the clock's wall time."""
+        wall = self.clock.to_wall(self.clock.now())
+        return time.strftime("%Y%m%d-%H%M%S", time.gmtime(wall)) + f"-{self.name}"
 
     @property
     def end_reason(self) -> str:

@@ -461,3 +461,35 @@ async def test_the_periodic_saves_of_the_channels_are_spread_over_the_period(
         times = [t for t, key in saves if key == f"channel:ch{a}"]
         gaps = [t1 - t0 for t0, t1 in itertools.pairwise(times)]
         assert len(times) >= 4 and max(gaps) <= 1.0 + 1e-6, (a, times)
+
+
+@pytest.mark.parametrize("command", ["stop", "abort"])
+async def test_a_restored_test_then_ended_closes_its_files_and_the_next_start_is_a_new_test(
+    tmp_path: Path, command: str
+) -> None:
+    b1 = new_bench(tmp_path / "var")
+    folder = await started(b1, tmp_path)
+    await b1.engine.run_for(100.0)
+    die(b1)
+
+    b2 = new_bench(tmp_path / "var", wall_of(b1) + AWAY_S)
+    b2.retain()
+    runner = b2.runners["ch0"]
+    assert runner.state is State.HELD
+    runner.command(command, actor="dora")
+    await b2.engine.run_for(5.0)
+    s = summary(folder)
+    verb = "stopped" if command == "stop" else "aborted"
+    assert (s["complete"], s["end_reason"]) == (True, f"{verb}: {command} by dora")
+    assert [e for e in s["timeline"] if "supervisor restarted" in e["text"]]
+
+    # Reset and start again: a new test in a folder of its own, the restored one untouched.
+    before = (folder / "t1.bdf.csv").read_bytes()
+    runner.command("reset", actor="dora")
+    runner.command("start", actor="dora")
+    await b2.engine.run_for(30.0)
+    assert runner.test_id != "t1"
+    new_folder = folder.parent / runner.test_id
+    assert (new_folder / f"{runner.test_id}.bdf.csv").exists()
+    assert (folder / "t1.bdf.csv").read_bytes() == before
+    assert b2.recipes["ch0"].folder == str(new_folder.resolve())  # what a restart resumes
