@@ -429,6 +429,7 @@ class Retention:
             snap.test_id,
             folder,
             dba=c.source.board or 0,
+            aux_columns=self.bench.record_columns.get(channel, ()),
             writer=self.bench.summaries,
             rows=self.bench.rows,
         )
