@@ -61,9 +61,8 @@ def record_columns(cfg: BenchConfig, ch: ChannelConfig) -> list[RecordColumn]:
 def _column(cfg: BenchConfig, ch: ChannelConfig, tag: str) -> RecordColumn:
     """A tag's column headed the BDF way: ``<tag> / <unit>`` (the tag's name, unknown to
     BDF, tells the reader which measurement it is), a channel tag by its field."""
-    own = (
-        CHANNEL_RECORDABLE.get(tag.removeprefix(f"{ch.name}.")) if tag.startswith(ch.name) else None
-    )
+    prefix = f"{ch.name}."
+    own = CHANNEL_RECORDABLE.get(tag.removeprefix(prefix)) if tag.startswith(prefix) else None
     if own is not None:
         return RecordColumn(tag=tag, label=own)
     unit = next((t.unit for t in cfg.tags if t.name == tag), "")
