@@ -27,6 +27,7 @@ from supervisor.commands import (
     compile_recipe_file,
 )
 from supervisor.commands.force import bench_safety_tags
+from supervisor.config.bench import record_columns
 from supervisor.config.models import BenchConfig, LinearScaling, TagMapping
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver, DType
@@ -79,6 +80,8 @@ class Bench:
     recipes: dict[str, RecipeSource] = field(default_factory=dict)
     results_roots: dict[str, Path] = field(default_factory=dict)
     """Per channel, the folder its tests' result folders go in (given at load)."""
+    record_columns: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    """Per channel, the headers of its result files' auxiliary columns (``record:``)."""
     retention: Retention | None = None
     historian: Historian | None = None
     influx: InfluxWriter | None = None
@@ -219,6 +222,7 @@ class Bench:
             test_id,
             folder,
             dba=c.source.board or 0,
+            aux_columns=self.record_columns.get(channel, ()),
             writer=self.summaries,
             rows=self.rows,
         )
@@ -528,9 +532,14 @@ def build_bench(
         channels[c.name] = ch
 
     # The chain sees its channel through the channel's tags only (chains/port.py).
+    recorded = {c.name: record_columns(cfg, c) for c in cfg.channels}
     runners = {
         name: ChainRunner(
-            ChannelPort.from_tags(db, name, Mode.AUTO.value, Mode.MANUAL.value), db, clock
+            ChannelPort.from_tags(
+                db, name, Mode.AUTO.value, Mode.MANUAL.value, tuple(r.tag for r in recorded[name])
+            ),
+            db,
+            clock,
         )
         for name in channels
     }
@@ -576,6 +585,7 @@ def build_bench(
         alarms=alarms,
         displays=displays,
         influx=influx,
+        record_columns={n: tuple(r.label for r in cols) for n, cols in recorded.items()},
     )
     bench.changes = changes
     if influx is not None:

@@ -46,6 +46,7 @@ log = logging.getLogger(__name__)
 WRITE_ALARM = "retain.write"
 RESTORE_ALARM = "retain.restore"
 ACTIVE_VALUES = frozenset(s.value for s in ACTIVE)
+_EPS_S = 1e-9
 
 
 @dataclass(frozen=True)
@@ -139,6 +140,10 @@ class Retention:
         self._dirty: set[str] = set(bench.runners)
         self._alarms_dirty = True
         self._last_save_t = -math.inf
+        # A periodic save is put one scan before its period is over: the worker commits it
+        # after that scan (milliseconds), so a SIGKILL finds counters on disk at most one
+        # ``period_s`` old (README "Retained state"), not a period plus the write.
+        self._write_margin_s = bench.cfg.scan.period_s
         # Per channel: when its next periodic save and test summary are due (``_stagger``).
         self._save_due: dict[str, float] = {}
         self._summary_due: dict[str, float] = {}
@@ -196,13 +201,14 @@ class Retention:
         if len(save_due) != len(self.bench.runners):
             self._stagger(t)
         channels = self._dirty
+        every_s = self._save_every_s()
         for ch, due_t in save_due.items():
-            if t >= due_t:
+            if t >= due_t - _EPS_S:  # the scan due, not the next one by float noise
                 channels.add(ch)
                 # Its own grid, which a save on a change does not move (or they would all
                 # line up again after a change saved every channel at once).
-                nxt = due_t + self.period_s
-                save_due[ch] = nxt if nxt > t else t + self.period_s
+                nxt = due_t + every_s
+                save_due[ch] = nxt if nxt > t else t + every_s
         for ch in sorted(channels):
             store.put(f"channel:{ch}", self.channel_document(ch))
         periodic = t - self._last_save_t >= self.period_s
@@ -224,6 +230,12 @@ class Retention:
             runner = self.bench.runners[ch]
             if collector is not None and runner.state in ACTIVE and not collector.closed:
                 collector.checkpoint(runner.state.value, now=t)
+
+    def _save_every_s(self) -> float:
+        """The periodic saves' interval: ``period_s`` less one scan (the write's time, see
+        ``_write_margin_s``), never below half of ``period_s``."""
+        period = self.period_s
+        return max(period - self._write_margin_s, period / 2)
 
     def _stagger(self, t: float) -> None:
         """Each channel's next periodic save and summary, spread over their periods."""

@@ -44,18 +44,34 @@ class ChannelPort:
     auto_voltage: Tag
     auto_active: Tag
     manual_mode: str = "manual"  # the value of ``chN.mode`` that gives it to the operator
+    # Read into every result record after the BDF columns (the I/O map's ``record:``): the
+    # BMS's cells, the other measurements of the pack. Empty: a record costs nothing more.
+    record: tuple[Tag, ...] = ()
 
     @classmethod
     def from_tags(
-        cls, db: TagDB, channel: str, auto_mode: str, manual_mode: str = "manual"
+        cls,
+        db: TagDB,
+        channel: str,
+        auto_mode: str,
+        manual_mode: str = "manual",
+        record: tuple[str, ...] = (),
     ) -> ChannelPort:
-        """The port of channel ``channel`` from its ``<channel>.<field>`` tags."""
+        """The port of channel ``channel`` from its ``<channel>.<field>`` tags; ``record``:
+        the tags its result records carry besides (by name)."""
         tags = {
             f.name: db[f"{channel}.{f.name}"]
             for f in fields(cls)
-            if f.name not in ("name", "db", "auto_mode", "manual_mode")
+            if f.name not in ("name", "db", "auto_mode", "manual_mode", "record")
         }
-        return cls(name=channel, db=db, auto_mode=auto_mode, manual_mode=manual_mode, **tags)
+        return cls(
+            name=channel,
+            db=db,
+            auto_mode=auto_mode,
+            manual_mode=manual_mode,
+            record=tuple(db[n] for n in record),
+            **tags,
+        )
 
     @property
     def in_auto(self) -> bool:

@@ -85,6 +85,7 @@ def build_record(
     charged_wh = port.charged_wh.as_float()
     discharged_wh = port.discharged_wh.as_float()
     st = now - run.t_step0
+    aux = port.record
     return Record(
         t=now,
         wall=clock.to_wall(now),
@@ -114,4 +115,6 @@ def build_record(
         reason=reason,
         current_cmd_a=port.current_cmd.as_float(),
         last_voltage_v=v.as_float(),
+        # Read in the scan of V and I; raw values (formatted on the row writer's thread).
+        aux=tuple([t.value if t.good else None for t in aux]) if aux else (),
     )

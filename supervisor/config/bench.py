@@ -9,13 +9,64 @@ from __future__ import annotations
 from pathlib import Path
 
 from supervisor.config.limits import MAX_IO_MAP_TAGS, TooLarge
-from supervisor.config.models import BenchConfig, ChannelConfig, SimPoint, SourceSpec
+from supervisor.config.models import (
+    BenchConfig,
+    ChannelConfig,
+    RecordColumn,
+    SimPoint,
+    SourceSpec,
+)
 from supervisor.config.yamlpos import Positions, load_yaml, load_yaml_text, validate
 from supervisor.core.driver import PointInfo
 from supervisor.core.errors import ConfigError, ConfigErrors
 
 DEVICE_STATUS_SUFFIXES = ("connected", "comm_failures")
 RESERVED_PREFIXES = ("scan.", "bench.", "influx.")
+
+
+CHANNEL_RECORDABLE = {"fault": "Fault", "first_out": "First Out", "clamped": "Clamped"}
+"""A channel's own tags (``<channel>.<field>``) a ``record:`` list may name, with the
+header each gets (the others are in the BDF columns already, or are commands)."""
+
+
+def record_columns(cfg: BenchConfig, ch: ChannelConfig) -> list[RecordColumn]:
+    """The auxiliary columns of ``ch``'s result files, in order: its ``record:`` list, or
+    by default every measurement (a tag with a unit, on an input point) of the devices that
+    serve it — its source, the devices of its voltage, current, temperature and contactor
+    tags and of its BMS and voltage-check tags — but those in the BDF columns already, in
+    the order of ``tags:``; then its trip text when it has a BMS (this BMS reports no fault
+    bits: the supervisor's verdict on its values is the channel's trip)."""
+    if ch.record is not None:
+        return [e if isinstance(e, RecordColumn) else _column(cfg, ch, e) for e in ch.record]
+    by_name = {t.name: t for t in cfg.tags}
+    refs = [ch.voltage_tag, ch.current_tag, ch.temperature_tag, ch.contactor_tag]
+    refs += [vc.tag for vc in ch.voltage_checks]
+    if ch.bms is not None:
+        refs += [ch.bms.cell_max_tag, ch.bms.cell_min_tag, ch.bms.temperature_tag]
+    devices = {ch.source.device} | {by_name[r].device for r in refs if r in by_name}
+    main = {ch.voltage_tag, ch.current_tag, ch.temperature_tag}
+    out = []
+    for t in cfg.tags:
+        if t.device not in devices or t.name in main or not t.unit or t.threshold is not None:
+            continue
+        dev = cfg.devices.get(t.device)
+        info = dev.points().get(t.point) if dev is not None else None
+        if info is not None and info.direction == "in":
+            out.append(_column(cfg, ch, t.name))
+    if ch.bms is not None:
+        out.append(_column(cfg, ch, f"{ch.name}.fault"))
+    return out
+
+
+def _column(cfg: BenchConfig, ch: ChannelConfig, tag: str) -> RecordColumn:
+    """A tag's column headed the BDF way: ``<tag> / <unit>`` (the tag's name, unknown to
+    BDF, tells the reader which measurement it is), a channel tag by its field."""
+    prefix = f"{ch.name}."
+    own = CHANNEL_RECORDABLE.get(tag.removeprefix(prefix)) if tag.startswith(prefix) else None
+    if own is not None:
+        return RecordColumn(tag=tag, label=own)
+    unit = next((t.unit for t in cfg.tags if t.name == tag), "")
+    return RecordColumn(tag=tag, label=f"{tag} / {unit}" if unit else tag)
 
 
 def load_bench(path: str | Path, model: type[BenchConfig]) -> BenchConfig:
@@ -253,6 +304,35 @@ class _Checker:
                 ref = getattr(ch.bms, field)
                 if ref is not None:
                     self._declared(("channels", i, "bms", field), ref)
+        self._record(i, ch)
+
+    def _record(self, i: int, ch: ChannelConfig) -> None:
+        """A ``record:`` list names declared tags (or the channel's own recordable ones),
+        each once, under headers that differ."""
+        labels: set[str] = set()
+        tags: set[str] = set()
+        own = {f"{ch.name}.{f}" for f in CHANNEL_RECORDABLE}
+        for k, entry in enumerate(ch.record or []):
+            at: Path_ = ("channels", i, "record", k)
+            tag = entry.tag if isinstance(entry, RecordColumn) else entry
+            if isinstance(entry, RecordColumn):
+                at = (*at, "tag")
+            if tag not in self.tag_index and tag not in own:
+                allowed = ", ".join(sorted(own))
+                self.err(
+                    at,
+                    f"record: {tag!r} is not a tag declared under tags: (nor one of the"
+                    f" channel's own: {allowed})",
+                )
+                continue
+            if tag in tags:
+                self.err(at, f"record: {tag!r} is listed twice")
+                continue
+            tags.add(tag)
+            label = _column(self.cfg, ch, tag).label if isinstance(entry, str) else entry.label
+            if label in labels:
+                self.err(("channels", i, "record", k), f"record: header {label!r} used twice")
+            labels.add(label)
 
     def _declared(self, path: Path_, ref: str) -> bool:
         if ref in self.tag_index:

@@ -443,6 +443,18 @@ class BmsLimits(Strict):
         return self
 
 
+class RecordColumn(Strict):
+    """A tag recorded in a column of the channel's result files, with its header."""
+
+    tag: str = Field(pattern=TAG_PATTERN)
+    label: str = Field(
+        min_length=1,
+        max_length=80,
+        pattern=r"^[^\r\n,\"]+$",
+        description="BDF header, 'Name / unit' (e.g. 'Ambient Temperature / degC')",
+    )
+
+
 class ChannelConfig(Strict):
     name: str = Field(pattern=NAME_PATTERN)
     description: str = ""
@@ -475,6 +487,13 @@ class ChannelConfig(Strict):
         [], description="other measurements of the same voltage that must agree with it"
     )
     bms: BmsLimits | None = Field(None, description="BMS-reported limits that clamp setpoints")
+    record: list[str | RecordColumn] | None = Field(
+        None,
+        description="tags recorded in the result files' auxiliary columns, in this order (a"
+        " tag name, headed '<tag> / <unit>', or {tag, label}); default: the measurements"
+        " (tags with a unit) of the devices serving the channel, and its trip text when it"
+        " has a bms: block",
+    )
 
 
 # --- safety (DESIGN.md "Safety") --------------------------------------------------------------

@@ -66,6 +66,9 @@ class Record:
     # The voltage tag's last value whatever its quality (0.0 when it has none): the
     # Chadèche display (seed 000 §III.E.1) shows it; ``voltage_v`` is None when not GOOD.
     last_voltage_v: float = 0.0
+    # The values of the channel's recorded tags (``ChannelPort.record``) at this scan, in
+    # its order, None for one that is not GOOD: the result files' auxiliary columns.
+    aux: tuple[object, ...] = ()
 
 
 class Sampler(Protocol):

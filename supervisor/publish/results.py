@@ -95,6 +95,18 @@ def _f(x: float | None, digits: int = 6) -> str:
     return "" if x is None else f"{x:.{digits}g}"
 
 
+def _aux_cell(x: object) -> object:
+    """An auxiliary column's cell: a number as the BDF columns write theirs, a boolean as
+    1 or 0 (a column a spreadsheet can sum), a text as it is, "" for a value not GOOD."""
+    if x is None:
+        return ""
+    if isinstance(x, bool):
+        return int(x)
+    if isinstance(x, float):
+        return _f(x)
+    return x
+
+
 def chadeche_line(rec: Record, dba: int) -> str:
     """``C;01;07;0; 50; 17520; 159; 17520; 21;1.373;1302.4;Mon May 22 03:21:43 2017``."""
     amps = rec.setpoint_a
@@ -378,6 +390,9 @@ class ResultCollector:
     test_id: str
     folder: Path | None = None
     dba: int = 0
+    aux_columns: tuple[str, ...] = ()
+    """Headers of the auxiliary columns after ``BDF_COLUMNS``, one per value of a
+    record's ``aux`` (the channel's ``record:`` tags), fixed at the test's start."""
     records: int = 0
     timeline: list[dict[str, Any]] = field(default_factory=list)
     """The timeline when ``events_kept`` is None (else empty: see ``kept_timeline``)."""
@@ -394,6 +409,9 @@ class ResultCollector:
     _timeline_file: IO[str] | None = None
     _cycles_file: IO[str] | None = None
     _resumed: bool = False
+    _aux_order: tuple[int | None, ...] | None = None
+    """A resumed file's auxiliary columns as indexes into a record's ``aux`` (None: the
+    same columns; an index None: a column no longer recorded, left empty)."""
     events_kept: int | None = LIVE_EVENTS_KEPT
     cycles_kept: int | None = LIVE_CYCLES_KEPT
     _events: FirstAndLast[dict[str, Any]] | None = None
@@ -451,14 +469,36 @@ class ResultCollector:
         assert bdf is not None and cha is not None
         self.folder.mkdir(parents=True, exist_ok=True)
         fresh = not bdf.exists() or bdf.stat().st_size == 0
+        if not fresh:
+            self._resume_columns(bdf)
         self._bdf = bdf.open("a", newline="", encoding="utf-8")
         self._bdf_writer = csv.writer(self._bdf)
         if fresh:
-            self._bdf_writer.writerow(BDF_COLUMNS)
+            self._bdf_writer.writerow(BDF_COLUMNS + self.aux_columns)
             self._bdf.flush()
         self._cha = cha.open("a", encoding="utf-8")
         self._open_timeline()
         self._open_cycles_file()
+
+    def _resume_columns(self, bdf: Path) -> None:
+        """The columns of a file this test started stay its columns (its header): if the
+        I/O map's ``record:`` changed meanwhile, each row fills them from this one."""
+        try:
+            with bdf.open(encoding="utf-8", newline="") as f:
+                header = tuple(next(csv.reader(f), ()))
+        except OSError:
+            return
+        had = header[len(BDF_COLUMNS) :]
+        if had != self.aux_columns:
+            log.warning(
+                "%s: %s has the columns %s; the channel records %s now (the file's kept)",
+                self.channel,
+                bdf,
+                list(had),
+                list(self.aux_columns),
+            )
+            index = {c: k for k, c in enumerate(self.aux_columns)}
+            self._aux_order = tuple(index.get(c) for c in had)
 
     def _open_timeline(self) -> None:
         """The timeline file, and the events that waited for it written."""
@@ -594,11 +634,18 @@ class ResultCollector:
                 _f(rec.cycle_charged_ah),
                 _f(rec.cycle_discharged_ah),
                 _f(rec.temperature_c),
+                *self._aux_cells(rec.aux),
             )
         )
         self._bdf.flush()
         self._cha.write(chadeche_line(rec, self.dba) + "\n")
         self._cha.flush()
+
+    def _aux_cells(self, aux: tuple[object, ...]) -> list[object]:
+        order = self._aux_order
+        if order is None:
+            return [_aux_cell(x) for x in aux]
+        return [_aux_cell(aux[k]) if k is not None and k < len(aux) else "" for k in order]
 
     # --- the summary -------------------------------------------------------------------
     def test_time_s(self, now: float | None = None) -> float:

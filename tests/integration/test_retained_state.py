@@ -493,3 +493,34 @@ async def test_a_restored_test_then_ended_closes_its_files_and_the_next_start_is
     assert (new_folder / f"{runner.test_id}.bdf.csv").exists()
     assert (folder / "t1.bdf.csv").read_bytes() == before
     assert b2.recipes["ch0"].folder == str(new_folder.resolve())  # what a restart resumes
+
+
+async def test_a_running_channel_is_saved_one_scan_before_its_period_is_over(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A SIGKILL loses at most one ``retain.period_s`` of the counters (README "Retained
+    state"): the store's worker commits a save after the scan that put it, so the periodic
+    saves are put at most one period less one scan apart; a save put a whole period after
+    the last one would be on disk a period plus its write after it."""
+    data = bench_data(tmp_path / "var")
+    data["scan"]["period_s"] = 0.1
+    data["devices"]["chadeche"]["poll_period_s"] = 0.1
+    b = build_bench(bench_from_data(data), VirtualClock(wall_epoch_s=EPOCH))
+    _OPEN.append(b)
+    await started(b, tmp_path)  # logging every 10 s: nearly every save is a periodic one
+    assert b.retention is not None
+    store = b.retention.store
+    saves: list[float] = []
+    real_put = store.put
+
+    def put(key: str, document: Any) -> None:
+        if key == "channel:ch0":
+            saves.append(b.clock.now())
+        real_put(key, document)
+
+    monkeypatch.setattr(store, "put", put)
+    await b.engine.run_for(30.0)
+    assert b.db["ch0.chain.state"].value == "Running"
+    gaps = [t1 - t0 for t0, t1 in itertools.pairwise(saves)]
+    assert len(saves) >= 30
+    assert max(gaps) <= b.cfg.retain.period_s - b.cfg.scan.period_s + 1e-6, gaps

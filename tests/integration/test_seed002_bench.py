@@ -285,3 +285,48 @@ async def test_supervisor_sim_serves_the_devices_for_a_supervisor_started_withou
     # A clean stop says nothing alarming (python-can warned of a CAN bus "not properly
     # shut down" at every stop: the socketcand server's).
     assert "not properly shut down" not in log_path.read_text()
+
+
+async def test_the_ea_channels_result_file_holds_every_measurement_of_the_pack(
+    bench: Bench, tmp_path: Path
+) -> None:
+    """Seed 002 §2.3 "Save Data": voltage, current, temperature, BMS faults, cell voltages
+    and cell temperatures; here in BDF's auxiliary columns after its own, with the pack's
+    three voltage readings (the voltage board is ``Voltage / V``) and its three currents."""
+    import csv
+
+    recipe = tmp_path / "charge.yaml"
+    recipe.write_text(
+        "recipe: aux\nlogging: {period: 0.5 s}\nsteps:\n  - {id: c, charge: 5 A, duration: 3 s}\n",
+        encoding="utf-8",
+    )
+    runner = bench.load_recipe("ch4", recipe, results_dir=tmp_path)
+    runner.command("start")
+    await wait_until(lambda: runner.state.value == "Complete", "the charge complete", 30.0)
+    folder = tmp_path / runner.test_id
+    with (folder / f"{runner.test_id}.bdf.csv").open(encoding="utf-8", newline="") as f:
+        rows = list(csv.DictReader(f))
+    aux = [
+        "pack.current / A",
+        "room.temp / degC",
+        "ea.voltage / V",
+        "bms.voltage / V",
+        "bms.current / A",
+        "bms.cell_min / V",
+        "bms.cell_max / V",
+        "bms.temp_min / degC",
+        "bms.temp_max / degC",
+        "Fault",
+    ]
+    assert list(rows[0])[-len(aux) :] == aux
+    charging = [r for r in rows if float(r["Current / A"] or 0) > 4.5]
+    assert charging, rows
+    for r in charging:
+        pack_v = float(r["Voltage / V"])
+        assert float(r["bms.voltage / V"]) == pytest.approx(pack_v, abs=0.3)
+        assert float(r["ea.voltage / V"]) == pytest.approx(pack_v, abs=0.5)
+        assert 3.0 < float(r["bms.cell_min / V"]) <= float(r["bms.cell_max / V"]) < 4.2
+        assert float(r["bms.cell_max / V"]) == pytest.approx(pack_v / 4, abs=0.1)
+        assert float(r["bms.temp_min / degC"]) <= float(r["bms.temp_max / degC"])
+        assert float(r["pack.current / A"]) == pytest.approx(5.0, abs=0.3)
+        assert r["Fault"] == ""  # no trip: an empty cell
