@@ -225,7 +225,6 @@ class Bench:
         if src is None:
             return None
         program = self.runners[channel].program
-        c = next(c for c in self.cfg.channels if c.name == channel)
         return Provenance(
             bench=self.cfg.bench,
             channel=channel,
@@ -237,10 +236,10 @@ class Bench:
             parameters_resolved=dict(program.parameters) if program is not None else {},
             io_map_file=self.cfg.source_file,
             io_map_sha256=self.cfg.source_sha256,
-            io_map_channel=self._channel_section(c.name),
+            io_map_channel=self.channel_section(channel),
         )
 
-    def _channel_section(self, channel: str) -> dict[str, object]:
+    def channel_section(self, channel: str) -> dict[str, object]:
         """The I/O map's part that makes ``channel``'s measurements: its section (limits,
         tags), its source device (with its calibration) and the mappings (scaling) of the
         tags it names."""

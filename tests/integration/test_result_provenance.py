@@ -16,6 +16,7 @@ import pytest
 
 from supervisor.app import Bench, build_bench
 from supervisor.chains.states import State
+from supervisor.cli.main import main
 from supervisor.commands import Command, Verb
 from supervisor.core.clock import VirtualClock
 from supervisor.devices.registry import REGISTRY
@@ -216,3 +217,25 @@ async def test_a_resumed_test_keeps_its_metadata_and_its_provenance_as_written(
     assert len(again.restarts) == 1
     again.close("done", "Complete")
     assert (folder / PROVENANCE_NAME).read_bytes() == prov_before
+
+
+async def test_results_verify_exits_0_when_verified_1_when_not_and_2_on_a_bad_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    b = await sim_bench(tmp_path, monkeypatch)
+    ok(b, "ch1", Verb.LOAD, recipe=str(RECIPE))
+    test_id = ok(b, "ch1", Verb.START)
+    await run_to_end(b, "ch1")
+    folder = folder_of(b, "ch1")
+    assert main(["results", "verify", str(folder)]) == 0
+    assert "OK, complete and unmodified" in capsys.readouterr().out
+    with (folder / f"{test_id}.chadeche.csv").open("a", encoding="utf-8") as f:
+        f.write("C;01;01;0;300; 1; 1; 1; 0;1.300;0.0;Mon May 22 03:21:43 2017\n")
+    assert main(["results", "verify", str(folder)]) == 1
+    out = capsys.readouterr().out
+    assert "NOT verified" in out and f"{test_id}.chadeche.csv: modified" in out
+    assert main(["results", "verify", str(tmp_path / "nowhere")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"supervisor results verify: {tmp_path / 'nowhere'}: not a folder\n"
+    assert main(["results", "verify", str(tmp_path)]) == 2
+    assert "not a test" in capsys.readouterr().err
