@@ -270,6 +270,14 @@ class Bench:
         collector = self.results.get(channel)
         if collector is not None and collector.first_t is None and not collector.closed:
             collector.metadata = md
+            self._publish_cell(channel, md.cell_id)
+
+    def _publish_cell(self, channel: str, cell_id: str) -> None:
+        """``chN.chain.cell_id``: the cell of the channel's test (historian, InfluxDB's
+        ``cell_id`` tag, OPC UA), like ``chN.chain.test_id``."""
+        tag = self.db.get(f"{channel}.chain.cell_id")
+        if tag is not None and tag.value != cell_id:
+            self.db.update(tag, cell_id)
 
     def cell_under_test(self, cell_id: str, channel: str) -> tuple[str, str] | None:
         """The channel and test other than ``channel`` under way with cell ``cell_id``."""
@@ -300,6 +308,7 @@ class Bench:
         def on_record(rec: Record) -> None:
             collector.on_record(rec)
 
+        self._publish_cell(channel, collector.metadata.cell_id)
         on_event._results = True  # type: ignore[attr-defined]
         on_record._results = True  # type: ignore[attr-defined]
         runner.listeners.append(on_event)

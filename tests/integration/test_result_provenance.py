@@ -83,6 +83,7 @@ async def test_a_test_records_its_cell_comment_and_operator_in_its_summary_and_b
         "comment": "after storage",
     }
     assert summary["started_utc"].endswith("Z") and summary["ended_utc"].endswith("Z")
+    assert b.db["ch1.chain.cell_id"].value == "NIMH-0042"  # historian, InfluxDB, OPC UA
     sidecar = json.loads((folder / f"{test_id}.bdf.metadata.json").read_text(encoding="utf-8"))
     assert sidecar["battery"]["identifier"] == "NIMH-0042"
     assert (sidecar["creator"], sidecar["description"]) == ("hmi:alice", "after storage")
