@@ -215,8 +215,8 @@ def utc_iso(unix_s: float) -> str:
 
 
 def software_version() -> dict[str, str]:
-    """The package's version as installed (no git at run time: an installed bench has none;
-    a commit is given when the build recorded one in ``SUPERVISOR_COMMIT``, not guessed)."""
+    """The package's version as installed (``importlib.metadata``); no git commit: a
+    deployed bench has no repository, and git is not a run-time dependency (ADR 0025)."""
     from importlib import metadata
 
     try:
