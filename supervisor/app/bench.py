@@ -9,6 +9,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 from supervisor.app.events import EventFeed
 from supervisor.app.history import attach_historian
@@ -42,6 +43,7 @@ from supervisor.publish.changes import ChangeReader, SharedChanges
 from supervisor.publish.display import ChadecheDisplay
 from supervisor.publish.historian import Historian
 from supervisor.publish.influx import InfluxWriter
+from supervisor.publish.provenance import Provenance, TestMetadata
 from supervisor.publish.results import TIMELINE_KINDS, ResultCollector, SummaryWriter
 from supervisor.publish.rows import RowWriter
 from supervisor.safety import AlarmManager, SafetyPhase, build_safety
@@ -82,6 +84,9 @@ class Bench:
     """Per channel, the folder its tests' result folders go in (given at load)."""
     record_columns: dict[str, tuple[str, ...]] = field(default_factory=dict)
     """Per channel, the headers of its result files' auxiliary columns (``record:``)."""
+    test_metadata: dict[str, TestMetadata] = field(default_factory=dict)
+    """Per channel, the metadata of its next test (given at load and at start: the cell,
+    the comment...; the operator is the start's actor); ``new_collector`` takes them."""
     retention: Retention | None = None
     historian: Historian | None = None
     influx: InfluxWriter | None = None
@@ -198,16 +203,16 @@ class Bench:
             else:
                 self.results_roots[channel] = previous_root
             raise
-        # No file yet: the collector creates them when the test starts.
-        collector = self.new_collector(channel, program.name, runner.test_id, root / runner.test_id)
-        folder = collector.folder
-        assert folder is not None
-        self.attach_results(channel, collector)
+        folder = root / runner.test_id
         # Compiled from the text read then, which is what the retained state keeps: a
         # restart recompiles the same recipe even if the file changed or moved since.
+        # Set first: the collector's provenance names it.
         self.recipes[channel] = RecipeSource(
             prepared.file, prepared.text, dict(prepared.parameters), str(folder.resolve())
         )
+        # No file yet: the collector creates them when the test starts.
+        collector = self.new_collector(channel, program.name, runner.test_id, folder)
+        self.attach_results(channel, collector)
         return runner
 
     def new_collector(
@@ -225,6 +230,8 @@ class Bench:
             aux_columns=self.record_columns.get(channel, ()),
             writer=self.summaries,
             rows=self.rows,
+            metadata=self.test_metadata.get(channel, TestMetadata()),
+            provenance=self.provenance(channel, recipe, test_id),
         )
 
     def new_test_id(self, channel: str) -> str:
@@ -257,6 +264,77 @@ class Bench:
             self.recipes[channel] = replace(src, folder=str(folder.resolve()))
         log.info("%s: test %s started; results in %s", channel, runner.test_id, folder)
         return collector
+
+    def provenance(self, channel: str, recipe: str, test_id: str) -> Provenance | None:
+        """What produces test ``test_id`` of ``channel``: its recipe as loaded (None when
+        none is, e.g. a test resumed whose ``provenance.json`` was written at its start),
+        the I/O map and the channel's section of it."""
+        src = self.recipes.get(channel)
+        if src is None:
+            return None
+        program = self.runners[channel].program
+        return Provenance(
+            bench=self.cfg.bench,
+            channel=channel,
+            test_id=test_id,
+            recipe_name=recipe,
+            recipe_file=src.file,
+            recipe_text=src.text,
+            parameters_given=dict(src.parameters),
+            parameters_resolved=dict(program.parameters) if program is not None else {},
+            io_map_file=self.cfg.source_file,
+            io_map_sha256=self.cfg.source_sha256,
+            io_map_channel=self.channel_section(channel),
+        )
+
+    def channel_section(self, channel: str) -> dict[str, object]:
+        """The I/O map's part that makes ``channel``'s measurements: its section (limits,
+        tags), its source device (with its calibration) and the mappings (scaling) of the
+        tags it names."""
+        c = next(c for c in self.cfg.channels if c.name == channel)
+        named = {
+            t
+            for t in (c.voltage_tag, c.current_tag, c.temperature_tag, c.contactor_tag)
+            if t is not None
+        }
+        tags = [
+            m.model_dump(mode="json")
+            for m in self.cfg.tags
+            if m.name in named or m.name.startswith(f"{channel}.")
+        ]
+        return {
+            "channel": c.model_dump(mode="json"),
+            "source_device": self.cfg.devices[c.source.device].model_dump(mode="json"),
+            "tags": tags,
+        }
+
+    def set_test_metadata(self, channel: str, given: dict[str, Any], replace: bool) -> None:
+        """The metadata of ``channel``'s next test: ``given`` (checked fields) over the
+        pending ones (``replace``: instead of them, a new load). A collector made already
+        whose test has not begun (the recipe was loaded before) takes them too."""
+        base = TestMetadata() if replace else self.test_metadata.get(channel, TestMetadata())
+        md = base.updated(given)
+        self.test_metadata[channel] = md
+        collector = self.results.get(channel)
+        if collector is not None and collector.first_t is None and not collector.closed:
+            collector.metadata = md
+            self._publish_cell(channel, md.cell_id)
+
+    def _publish_cell(self, channel: str, cell_id: str) -> None:
+        """``chN.chain.cell_id``: the cell of the channel's test (historian, InfluxDB's
+        ``cell_id`` tag, OPC UA), like ``chN.chain.test_id``."""
+        tag = self.db.get(f"{channel}.chain.cell_id")
+        if tag is not None and tag.value != cell_id:
+            self.db.update(tag, cell_id)
+
+    def cell_under_test(self, cell_id: str, channel: str) -> tuple[str, str] | None:
+        """The channel and test other than ``channel`` under way with cell ``cell_id``."""
+        for name, collector in self.results.items():
+            if name == channel or collector.closed or collector.metadata.cell_id != cell_id:
+                continue
+            if self.runners[name].state in ACTIVE:
+                return name, collector.test_id
+        return None
 
     def attach_results(self, channel: str, collector: ResultCollector) -> None:
         """Feed ``channel``'s chain events and records to ``collector`` (instead of the
@@ -292,6 +370,7 @@ class Bench:
         def on_record(rec: Record) -> None:
             collector.on_record(rec)
 
+        self._publish_cell(channel, collector.metadata.cell_id)
         on_event._results = True  # type: ignore[attr-defined]
         on_record._results = True  # type: ignore[attr-defined]
         runner.listeners.append(on_event)

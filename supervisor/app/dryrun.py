@@ -29,6 +29,7 @@ from supervisor.chains.compiler import compile_recipe
 from supervisor.chains.engine import State
 from supervisor.chains.program import Program
 from supervisor.chains.run import ChainSnapshot
+from supervisor.commands.recipes import read_recipe_text
 from supervisor.config.limits import DRY_RUN_CYCLES_KEPT, DRY_RUN_EVENTS_KEPT
 from supervisor.config.models import BenchConfig
 from supervisor.config.recipe import load_recipe, load_recipe_text
@@ -37,6 +38,7 @@ from supervisor.core.heap import settle_after_start
 from supervisor.core.records import Record
 from supervisor.core.units import parse_quantity
 from supervisor.devices.registry import bench_from_data
+from supervisor.publish.provenance import Provenance, TestMetadata
 from supervisor.publish.results import FirstAndLast, ResultCollector
 
 TERMINAL = (State.COMPLETE, State.STOPPED, State.ABORTED, State.HELD)
@@ -234,6 +236,22 @@ async def dry_run(
         results_dir / runner.test_id if results_dir else None,
         events_kept=DRY_RUN_EVENTS_KEPT,
         cycles_kept=DRY_RUN_CYCLES_KEPT,
+        metadata=TestMetadata(chemistry=recipe.chemistry or "", operator="dry-run"),
+        # What a real run's folder says, without an I/O map: the dry-run bench is built
+        # in code (dry_run_config), its channel section stands for it.
+        provenance=Provenance(
+            bench=bench.cfg.bench,
+            channel="ch0",
+            test_id=runner.test_id,
+            recipe_name=program.name,
+            recipe_file=str(recipe_path),
+            recipe_text=text if text is not None else read_recipe_text(recipe_path),
+            parameters_given=dict(params or {}),
+            parameters_resolved=dict(program.parameters),
+            io_map_file="",
+            io_map_sha256="",
+            io_map_channel=bench.channel_section("ch0"),
+        ),
     )
     runner.listeners.append(collector.on_event)
     runner.recorders.append(collector.on_record)

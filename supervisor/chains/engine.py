@@ -172,6 +172,12 @@ class ChainRunner:
             TagSpec(f"{n}.chain.state_code", dtype="int", initial=OPCUA_CODE[State.IDLE]),
             TagSpec(f"{n}.chain.recipe", dtype="str", initial=""),
             TagSpec(f"{n}.chain.test_id", dtype="str", initial=""),
+            TagSpec(
+                f"{n}.chain.cell_id",
+                dtype="str",
+                initial="",
+                description="The cell (or sample) of the test (its metadata; '' when not given)",
+            ),
             TagSpec(f"{n}.chain.step", dtype="str", initial=""),
             TagSpec(f"{n}.chain.step_index", dtype="int", initial=0),
             TagSpec(f"{n}.chain.cycle", dtype="int", initial=0),

@@ -141,6 +141,11 @@ def add_parser(sub: Any) -> None:
     st.add_argument(
         "-p", "--param", action="append", default=[], metavar="NAME=VALUE", help="a parameter"
     )
+    # The test's metadata (README "Test records"): the server checks them.
+    st.add_argument("--cell", default="", metavar="ID", help="the cell or sample tested")
+    st.add_argument("--chemistry", default="", help="the cell's chemistry (e.g. nimh)")
+    st.add_argument("--capacity", default="", help="the cell's nominal capacity (e.g. 2.5 Ah)")
+    st.add_argument("--comment", default="", help="a free comment")
     for verb in COMMANDS:
         if verb not in ("start", "ack"):
             what.add_parser(verb, help=f"{COMMANDS[verb]} a channel").add_argument("channel")
@@ -540,6 +545,9 @@ async def _do(bench: Bench, args: argparse.Namespace) -> int:
             ua.Variant(args.recipe, ua.VariantType.String),
             ua.Variant(list(args.param), ua.VariantType.String),
         ]
+        metadata = (args.cell, args.chemistry, args.capacity, args.comment)
+        if any(metadata):  # only then: a server older than the metadata takes two
+            call_args += [ua.Variant(m, ua.VariantType.String) for m in metadata]
     ok, text, code = await bench.call(args.channel, COMMANDS[args.what], *call_args)
     if not ok:
         raise CtlError(f"{args.channel}: {args.what} refused ({code}): {text}", EXIT_REFUSED)

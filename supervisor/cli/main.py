@@ -941,6 +941,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ou.set_defaults(func=cmd_opcua)
 
+    rs = sub.add_parser("results", help="result folders: verify DIR (complete and unmodified)")
+    rs.add_argument("action", choices=["verify"])
+    rs.add_argument("folders", nargs="+", metavar="DIR", help="a test's result folder")
+    rs.set_defaults(func=cmd_results)
+
     ctl.add_parser(sub)
 
     b = sub.add_parser("bench", help="benchmarks that print figures")
@@ -1029,6 +1034,31 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", default="var/bench", help="report: folder of results.json|md")
     b.set_defaults(func=cmd_bench)
     return p
+
+
+def cmd_results(args: argparse.Namespace) -> int:
+    """``results verify DIR...``: 0 when every folder is complete and unmodified, 1 when one
+    is not (each problem said), 2 when a path is not a test's result folder."""
+    from supervisor.publish.provenance import NotAResultFolder, verify
+
+    code = EXIT_OK
+    for folder in args.folders:
+        try:
+            v = verify(Path(folder))
+        except NotAResultFolder as exc:
+            _err(f"supervisor results verify: {exc}")
+            return EXIT_USAGE
+        except OSError as exc:
+            _err(f"supervisor results verify: {folder}: cannot read: {exc.strerror or exc}")
+            return EXIT_USAGE
+        if v.ok:
+            _out(f"{folder}: OK, complete and unmodified ({len(v.checked)} checks)")
+        else:
+            code = EXIT_FAIL
+            _out(f"{folder}: NOT verified")
+            for problem in v.problems:
+                _out(f"  {problem}")
+    return code
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -63,6 +63,7 @@ from supervisor.commands.worker import WorkerTimeout, run_in_worker
 from supervisor.config.limits import RECIPE_COMPILE_TIMEOUT_S
 from supervisor.core.clock import Clock
 from supervisor.core.errors import ConfigError, ConfigErrors, OperatorError
+from supervisor.publish.provenance import METADATA_ARGUMENTS, MetadataError, metadata_from_arguments
 from supervisor.safety import AlarmManager, ChannelGuard
 from supervisor.tags import Access, TagDB
 from supervisor.tags.spec import clipped_repr, finite_float
@@ -70,6 +71,8 @@ from supervisor.tags.spec import clipped_repr, finite_float
 log = logging.getLogger(__name__)
 
 LOG_LENGTH = 1000
+RECIPE_ARGUMENTS = ("recipe", "parameters", *METADATA_ARGUMENTS)
+"""What a load or a start may be given: the recipe, its parameters and the test's metadata."""
 """Commands kept in memory (the chain events and the result files keep theirs)."""
 
 # A channel's operator tags that are commands: their writes take the command's checks.
@@ -199,7 +202,7 @@ class CommandPath:
         try:
             if self.roles.refuses(command):
                 return None
-            _only(command, "recipe", "parameters")
+            _only(command, *RECIPE_ARGUMENTS)
             recipe, parameters = _text(a, "recipe"), _parameters(a)
         except Refusal:
             return None
@@ -235,10 +238,13 @@ class CommandPath:
             ok = ", ".join(x.value for x in CHANNEL_VERBS)
             raise Refusal(ResultKind.NOT_FOUND, f"a channel has no command {v.value} ({ok})")
         if v is Verb.LOAD:
-            _only(c, "recipe", "parameters")
-            return self._load(name, _text(a, "recipe"), _parameters(a))
+            _only(c, *RECIPE_ARGUMENTS)
+            metadata = _metadata(a)
+            result = self._load(name, _text(a, "recipe"), _parameters(a))
+            self._set_metadata(name, metadata, replace=True)
+            return result
         if v is Verb.START:
-            _only(c, "recipe", "parameters")
+            _only(c, *RECIPE_ARGUMENTS)
             return self._start(name, runner, a, c.actor)
         if v in CHAIN_VERBS:
             _only(c)
@@ -305,12 +311,37 @@ class CommandPath:
         self._interlocks(name, runner, "start")
         if runner.port.manual_driven:
             raise Refusal(ResultKind.REFUSED, f"{name}: cannot start while {MANUAL_DRIVEN}")
+        metadata = _metadata(a)
+        loader = self.loader
+        before = loader.test_metadata.get(name) if loader is not None else None
+        cell = metadata.get("cell_id", before.cell_id if before is not None else "")
+        if cell and loader is not None:
+            # One cell is on one channel: a second test of it elsewhere is a wiring or a
+            # typing mistake, and two records of one cell at once could not both be right.
+            busy = loader.cell_under_test(cell, name)
+            if busy is not None:
+                raise Refusal(
+                    ResultKind.REFUSED,
+                    f"{name}: cell {cell!r} is under test on {busy[0]} (test {busy[1]});"
+                    " end that test first or give another cell_id",
+                )
         loaded = ""
         if a.get("recipe") is not None:
             self._load(name, _text(a, "recipe"), _parameters(a))
+            self._set_metadata(name, metadata, replace=True)
             loaded = f"recipe {runner.program.name if runner.program else ''} loaded, "
+            before = loader.test_metadata.get(name) if loader is not None else None
         was_auto = runner.port.in_auto
-        self._run_chain(runner, "start", actor)
+        # The test takes its metadata when it starts: set before, put back if refused.
+        self._set_metadata(name, {**metadata, "operator": actor}, replace=False)
+        try:
+            self._run_chain(runner, "start", actor)
+        except Refusal:
+            if loader is not None:
+                loader.test_metadata.pop(name, None)
+                if before is not None:
+                    loader.test_metadata[name] = before
+            raise
         mode = "" if was_auto else " (mode manual → auto)"
         return Result.ok(
             f"{name}: {loaded}test {runner.test_id} started: the step chain drives the "
@@ -319,6 +350,10 @@ class CommandPath:
             test_id=runner.test_id,
             state=runner.state.value,
         )
+
+    def _set_metadata(self, name: str, given: dict[str, Any], replace: bool) -> None:
+        if self.loader is not None:
+            self.loader.set_test_metadata(name, given, replace)
 
     def _chain(self, name: str, runner: ChainRunner, verb: Verb, actor: str) -> Result:
         if verb is Verb.RESUME:
@@ -640,6 +675,14 @@ class _RecipeJob:
 
 
 # --- arguments ------------------------------------------------------------------------------
+def _metadata(a: Mapping[str, Any]) -> dict[str, Any]:
+    """The test metadata among a load's or a start's arguments, checked."""
+    try:
+        return metadata_from_arguments(a)
+    except MetadataError as exc:
+        raise Refusal(ResultKind.BAD_ARGUMENT, str(exc)) from None
+
+
 def _only(c: Command, *allowed: str) -> None:
     """Unknown arguments are errors (STYLE.md: never silently drop an entry)."""
     unknown = sorted(set(c.args) - set(allowed))

@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 from supervisor.chains.compiler import Target, compile_recipe
 from supervisor.chains.engine import ChainRunner
@@ -24,6 +24,7 @@ from supervisor.config.limits import MAX_YAML_BYTES, read_limited
 from supervisor.config.recipe import load_recipe_text
 from supervisor.config.text import decode_yaml
 from supervisor.core.errors import ConfigError, ConfigErrors
+from supervisor.publish.provenance import TestMetadata
 
 __all__ = ["PreparedRecipe", "RecipeLoader", "compile_recipe_file", "read_recipe_text"]
 
@@ -51,6 +52,19 @@ class RecipeLoader(Protocol):
     def install_recipe(self, prepared: PreparedRecipe) -> ChainRunner:
         """Load ``prepared`` on its channel (quick; on the event loop). Raises
         ``OperatorError`` when the channel's state refuses it."""
+        ...
+
+    @property
+    def test_metadata(self) -> dict[str, TestMetadata]:
+        """Per channel, the metadata of its next test."""
+        ...
+
+    def set_test_metadata(self, channel: str, given: dict[str, Any], replace: bool) -> None:
+        """``given`` (checked fields) over the next test's metadata (``replace``: instead)."""
+        ...
+
+    def cell_under_test(self, cell_id: str, channel: str) -> tuple[str, str] | None:
+        """The other channel and its test under way with cell ``cell_id``, if any."""
         ...
 
 

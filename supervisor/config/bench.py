@@ -6,6 +6,7 @@ device have that point? is a board owned twice?). Every error names file:line:co
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 from supervisor.config.limits import MAX_IO_MAP_TAGS, TooLarge
@@ -16,7 +17,8 @@ from supervisor.config.models import (
     SimPoint,
     SourceSpec,
 )
-from supervisor.config.yamlpos import Positions, load_yaml, load_yaml_text, validate
+from supervisor.config.text import decode_yaml
+from supervisor.config.yamlpos import Positions, load_yaml_text, read_yaml_bytes, validate
 from supervisor.core.driver import PointInfo
 from supervisor.core.errors import ConfigError, ConfigErrors
 
@@ -73,10 +75,14 @@ def load_bench(path: str | Path, model: type[BenchConfig]) -> BenchConfig:
     """Load and fully check a bench file against ``model`` (the registry's bench model);
     raises ConfigErrors listing every problem."""
     try:
-        data, pos = load_yaml(path)
+        raw = read_yaml_bytes(path)
+        data, pos = load_yaml_text(decode_yaml(raw, str(path)).text, str(path))
     except ConfigError as exc:
         raise ConfigErrors([exc]) from None
-    return _checked(data, pos, str(path), model)
+    cfg = _checked(data, pos, str(path), model)
+    # What each test's provenance names: the bytes loaded, not the file as it is later.
+    cfg.set_source(str(Path(path).resolve()), hashlib.sha256(raw).hexdigest())
+    return cfg
 
 
 def load_bench_text(text: str, file: str, model: type[BenchConfig]) -> BenchConfig:

@@ -24,6 +24,7 @@ from pydantic import (
     ConfigDict,
     Discriminator,
     Field,
+    PrivateAttr,
     Tag,
     create_model,
     field_validator,
@@ -808,6 +809,22 @@ class BenchConfig(Strict):
 
     device_kinds: ClassVar[tuple[type[DeviceConfig], ...]] = ()
     """The device models this bench model accepts (set by ``bench_model``)."""
+    _source_file: str = PrivateAttr("")
+    _source_sha256: str = PrivateAttr("")
+
+    def set_source(self, file: str, sha256: str) -> None:
+        """The file this I/O map was loaded from and the SHA-256 of its bytes as loaded
+        (each test's ``provenance.json`` names them)."""
+        self._source_file, self._source_sha256 = file, sha256
+
+    @property
+    def source_file(self) -> str:
+        """The I/O map's file ("" when built in code)."""
+        return self._source_file
+
+    @property
+    def source_sha256(self) -> str:
+        return self._source_sha256
 
     @field_validator("devices")
     @classmethod

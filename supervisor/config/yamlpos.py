@@ -210,6 +210,12 @@ def load_yaml(path: str | Path) -> tuple[Any, Positions]:
     parse it; see :func:`load_yaml_text`. A file over ``MAX_YAML_BYTES`` is refused before
     it is read in full (``supervisor.config.limits``)."""
     file = str(path)
+    return load_yaml_text(decode_yaml(read_yaml_bytes(path), file).text, file)
+
+
+def read_yaml_bytes(path: str | Path) -> bytes:
+    """The bytes of a recipe or an I/O map (``load_yaml``'s reading, its refusals)."""
+    file = str(path)
     try:
         data = read_limited(path, MAX_YAML_BYTES, "a recipe or an I/O map")
     except FileNotFoundError as exc:
@@ -220,7 +226,7 @@ def load_yaml(path: str | Path) -> tuple[Any, Positions]:
         raise ConfigError("cannot read file: permission denied", file) from exc
     except OSError as exc:
         raise ConfigError(f"cannot read file: {exc.strerror or exc}", file) from exc
-    return load_yaml_text(decode_yaml(data, file).text, file)
+    return data
 
 
 def load_yaml_text(text: str, file: str = "<string>") -> tuple[Any, Positions]:

@@ -41,6 +41,12 @@ from supervisor.chains.engine import ChainRunner
 from supervisor.chains.states import ACTIVE
 from supervisor.core.clock import Clock
 from supervisor.hmi.recipes_api import _dumps, cycle_json, timeline_json
+from supervisor.publish.provenance import (
+    BDF_METADATA_SUFFIX,
+    PROVENANCE_NAME,
+    MetadataError,
+    check_cell_id,
+)
 from supervisor.publish.results import (
     CYCLES_SUFFIX,
     SUMMARY_NAME,
@@ -61,7 +67,11 @@ CONTENT_TYPES: Final = {
     "summary": "application/json",
     "timeline": "application/x-ndjson",
     "cycles": "application/x-ndjson",
+    "bdf-metadata": "application/json",
+    "provenance": "application/json",
 }
+LIST_QUERY: Final = ("cell",)
+"""What ``GET /api/tests`` may be asked (anything else is refused: 400)."""
 
 
 def valid_id(name: str) -> bool:
@@ -79,6 +89,10 @@ def file_kind(name: str) -> str:
         return "cycles"
     if name == SUMMARY_NAME:
         return "summary"
+    if name.endswith(BDF_METADATA_SUFFIX):
+        return "bdf-metadata"
+    if name == PROVENANCE_NAME:
+        return "provenance"
     return "other"
 
 
@@ -204,6 +218,7 @@ class TestsApi:
             "running": live is not None,
             "complete": complete,
             "duration_s": duration,
+            "metadata": summary.get("metadata") or {},
             "files": files,
         }
         if detail:
@@ -246,6 +261,7 @@ class TestsApi:
                     "recipe": collector.recipe,
                     "duration_s": round(collector.test_time_s(now), 3),
                     "channel": channel,
+                    "metadata": collector.metadata.as_dict(),
                 }
             )
             started = self.clock.to_wall(collector.first_t)
@@ -254,8 +270,23 @@ class TestsApi:
 
     # --- handlers -----------------------------------------------------------------------
     async def list(self, request: web.Request) -> web.Response:
+        """Every test, newest first; ``?cell=ID``: every test of that cell."""
+        unknown = sorted(set(request.query) - set(LIST_QUERY))
+        if unknown:
+            return _error(
+                400, f"unknown query {', '.join(unknown)} (expected: {', '.join(LIST_QUERY)})"
+            )
+        cell = None
+        if "cell" in request.query:
+            try:
+                cell = check_cell_id(request.query["cell"])
+            except MetadataError as exc:
+                return _error(400, str(exc))
         live = self._live()
-        return _json({"tests": await asyncio.to_thread(self._listing, live)})
+        tests = await asyncio.to_thread(self._listing, live)
+        if cell is not None:
+            tests = [t for t in tests if t["metadata"].get("cell_id") == cell]
+        return _json({"tests": tests})
 
     def _id(self, request: web.Request) -> str | None:
         test_id = request.match_info["id"]

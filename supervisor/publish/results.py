@@ -35,11 +35,22 @@ import time
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from datetime import datetime
 from functools import partial
 from pathlib import Path
 from typing import IO, Any, Generic, TypeVar
 
 from supervisor.core.records import ChainEvent, Record
+from supervisor.publish.provenance import (
+    BDF_METADATA_SUFFIX,
+    PROVENANCE_NAME,
+    Provenance,
+    TestMetadata,
+    bdf_metadata,
+    manifest,
+    utc_iso,
+    write_once,
+)
 from supervisor.publish.rows import RowWriter, ThreadWriter
 
 log = logging.getLogger(__name__)
@@ -301,6 +312,10 @@ def write_summary(path: Path, channel: str, summary: dict[str, Any]) -> None:
         log.exception("%s: cannot write %s", channel, path)
 
 
+PAUSES_KEPT = 100
+"""Pauses and restarts a summary lists (the first and the latest halves; every one of them
+is in the timeline file)."""
+
 PENDING_EVENTS_MAX = 32
 """Timeline events that may wait for the first record before the timeline file is opened
 anyway (a test held before its first step, an operator's commands meanwhile)."""
@@ -427,6 +442,16 @@ class ResultCollector:
     """Checkpoints go through it, off the caller's thread (None: written at once)."""
     rows: RowWriter | None = None
     """Rows go through it, off the caller's thread (None: written at once)."""
+    metadata: TestMetadata = field(default_factory=TestMetadata)
+    """The cell, its chemistry and capacity, the operator, the comment (summary, sidecar)."""
+    provenance: Provenance | None = None
+    """What produced the test: ``provenance.json``, written when the files are opened."""
+    started_wall: float | None = None  # Unix time of test time 0
+    last_wall: float | None = None  # Unix time of the latest event or record
+    pauses: FirstAndLast[dict[str, Any]] = field(default_factory=lambda: FirstAndLast(PAUSES_KEPT))
+    """Every hold and resume (state changes into or out of Held), first and latest ones."""
+    restarts: FirstAndLast[str] = field(default_factory=lambda: FirstAndLast(PAUSES_KEPT))
+    """When the test was resumed after a restart of the supervisor (UTC)."""
 
     def __post_init__(self) -> None:
         if self.events_kept is not None:
@@ -456,6 +481,41 @@ class ResultCollector:
         return None if self.folder is None else self.folder / SUMMARY_NAME
 
     @property
+    def bdf_metadata_path(self) -> Path | None:
+        return None if self.folder is None else self.folder / f"{self.test_id}{BDF_METADATA_SUFFIX}"
+
+    def data_files(self) -> list[str]:
+        """The files the final summary's manifest lists (those that exist)."""
+        paths = (
+            self.bdf_path,
+            self.chadeche_path,
+            self.timeline_path,
+            self.cycles_path,
+            self.bdf_metadata_path,
+            None if self.folder is None else self.folder / PROVENANCE_NAME,
+        )
+        return [p.name for p in paths if p is not None]
+
+    def _write_origin(self) -> None:
+        """``provenance.json`` and the BDF metadata sidecar, once, at the test's start (a
+        resumed test's stay as they were written: they describe how it began)."""
+        if self.folder is None or self.started_wall is None:
+            return
+        try:
+            if self.provenance is not None:
+                doc = self.provenance.document(self.started_wall)
+                write_once(self.folder / PROVENANCE_NAME, doc)
+            path = self.bdf_metadata_path
+            assert path is not None
+            bench = self.provenance.bench if self.provenance is not None else ""
+            write_once(
+                path,
+                bdf_metadata(self.test_id, self.channel, bench, self.metadata, self.started_wall),
+            )
+        except OSError:
+            log.exception("%s: cannot write the provenance of %s", self.channel, self.folder)
+
+    @property
     def kept_timeline(self) -> list[dict[str, Any]]:
         """The timeline events the summary shows (all of them when ``events_kept`` is None)."""
         return list(self.timeline) if self._events is None else self._events.items()
@@ -477,6 +537,7 @@ class ResultCollector:
             self._bdf_writer.writerow(BDF_COLUMNS + self.aux_columns)
             self._bdf.flush()
         self._cha = cha.open("a", encoding="utf-8")
+        self._write_origin()
         self._open_timeline()
         self._open_cycles_file()
 
@@ -560,7 +621,14 @@ class ResultCollector:
             return
         if self.first_t is None:
             self.first_t = ev.t  # the start event (the first record sets it exactly)
+        if self.started_wall is None:
+            self.started_wall = ev.wall
         self.last_t = ev.t if self.last_t is None else max(self.last_t, ev.t)
+        self.last_wall = ev.wall if self.last_wall is None else max(self.last_wall, ev.wall)
+        if ev.kind == "state" and "Held" in ev.text:
+            # "Running → Held (cause)", "Held → Running (resume by …)": a pause or its end.
+            at_s = round(ev.t - self.first_t, 3)
+            self.pauses.append({"test_time_s": at_s, "utc": utc_iso(ev.wall), "text": ev.text})
         entry = {
             "test_time_s": round(ev.t - self.first_t, 3),
             "kind": ev.kind,
@@ -582,6 +650,8 @@ class ResultCollector:
         if self.last_rec is None and not self._resumed:
             # Test time 0 is the chain's, whatever the first event's time was.
             self.first_t = rec.t - rec.test_time_s
+            self.started_wall = rec.wall - rec.test_time_s
+        self.last_wall = rec.wall if self.last_wall is None else max(self.last_wall, rec.wall)
         self._open_files()
         self.records += 1
         self.last_rec = rec
@@ -680,6 +750,14 @@ class ResultCollector:
             "records": self.records,
             "cycles": self._cycle_dicts(why_open),
             "timeline": self.kept_timeline,
+            "metadata": self.metadata.as_dict(),
+            "started_utc": None if self.started_wall is None else utc_iso(self.started_wall),
+            "ended_utc": (
+                utc_iso(self.last_wall) if complete and self.last_wall is not None else None
+            ),
+            "pauses": self.pauses.items(),
+            "pauses_omitted": self.pauses.omitted,
+            "restarts": self.restarts.items(),
         }
         if self._events is not None:
             out["timeline_omitted"] = self._events.omitted
@@ -743,6 +821,10 @@ class ResultCollector:
                 for n in sorted(self._open_cycles):
                     if n in self.cycles:
                         self._cycle_over(self.cycles[n], why_open)
+                # The data files are final: their hashes go in the final summary, for
+                # ``supervisor results verify`` (provenance.verify).
+                self._close_files()
+                s["manifest"] = manifest(self.folder, self.data_files())
             self._write(s)
         self._close_files()
         self.closed = True
@@ -793,6 +875,7 @@ class ResultCollector:
         self.first_t = first_t
         self.last_t = None
         self._resumed = True
+        self.restarts.append(utc_iso(time.time()))
         old: dict[str, Any] = {}
         path = self.summary_path
         if path is not None and path.exists():
@@ -803,6 +886,7 @@ class ResultCollector:
                 log.warning(
                     "%s: summary %s unreadable (%s); starting a new one", self.channel, path, exc
                 )
+        self._resume_record(old)
         try:
             self._resume_timeline(old)
             self._resume_cycles(old)
@@ -817,6 +901,25 @@ class ResultCollector:
         if bdf is not None and bdf.exists():
             with contextlib.suppress(OSError), bdf.open(encoding="utf-8") as f:
                 self.records = max(0, sum(1 for _ in f) - 1)  # minus the header
+
+    def _resume_record(self, old: dict[str, Any]) -> None:
+        """The metadata, the start time, the pauses and the restarts the last summary had
+        (the metadata given at the start hold for the whole test)."""
+        if old.get("metadata") and self.metadata == TestMetadata():
+            self.metadata = TestMetadata.from_dict(old["metadata"])
+        started = old.get("started_utc")
+        if isinstance(started, str) and self.started_wall is None:
+            with contextlib.suppress(ValueError):
+                self.started_wall = datetime.fromisoformat(started).timestamp()
+        earlier = self.restarts.items()
+        self.restarts = FirstAndLast(PAUSES_KEPT)
+        for key, kept in (("pauses", self.pauses), ("restarts", self.restarts)):
+            items = old.get(key)
+            if isinstance(items, list):
+                for item in items:
+                    kept.append(item)
+        for item in earlier:
+            self.restarts.append(item)
 
     def _resume_timeline(self, old: dict[str, Any]) -> None:
         path = self.timeline_path

@@ -103,6 +103,27 @@ async def test_start_passes_its_parameters(
     assert rig.bench.db["ch0.chain.step"].value == "r"  # above the cell: the step ended at once
 
 
+async def test_start_gives_the_tests_cell_and_comment_through_the_opcua_start_method(
+    rig: Rig, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    argv = ("start", "ch0", recipe(tmp_path), "--cell", "NIMH-9", "--comment", "second life")
+    code, _, err = await ctl(rig, capsys, *argv, "--capacity", "1300 mAh", user="alice")
+    assert (code, err) == (0, [])
+    await rig.scans(3)
+    md = rig.bench.results["ch0"].metadata
+    assert (md.cell_id, md.comment, md.operator) == ("NIMH-9", "second life", "opcua:alice")
+    assert md.nominal_capacity_ah == pytest.approx(1.3)
+    assert rig.bench.db["ch0.chain.cell_id"].value == "NIMH-9"
+
+
+async def test_start_with_a_bad_cell_id_exits_2_naming_the_field(
+    rig: Rig, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    argv = ("start", "ch0", recipe(tmp_path), "--cell", "a;b")
+    code, _, err = await ctl(rig, capsys, *argv, user="alice")
+    assert code == 2 and "cell_id 'a;b' has ';'" in err[0], err
+
+
 async def test_a_refused_command_exits_2_with_the_server_s_reason(
     rig: Rig, capsys: pytest.CaptureFixture[str]
 ) -> None:

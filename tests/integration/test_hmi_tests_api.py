@@ -121,8 +121,17 @@ async def test_a_finished_test_has_its_files_and_capacity_and_efficiency_per_cyc
     assert test["ended"] == pytest.approx(test["started"] + test["duration_s"])
     assert test["duration_s"] == pytest.approx(240.0, abs=2.0)
     files = {f["kind"]: f for f in test["files"]}
-    # ADR 0022: the timeline and the cycles have files of their own, every row in them.
-    assert sorted(files) == ["bdf", "chadeche", "cycles", "summary", "timeline"]
+    # ADR 0022: the timeline and the cycles have files of their own, every row in them;
+    # ADR 0025: the BDF metadata sidecar and the provenance.
+    assert sorted(files) == [
+        "bdf",
+        "bdf-metadata",
+        "chadeche",
+        "cycles",
+        "provenance",
+        "summary",
+        "timeline",
+    ]
     assert files["timeline"]["name"] == f"{test_id}.timeline.jsonl"
     assert files["bdf"]["name"] == f"{test_id}.bdf.csv"
     for f in files.values():
@@ -193,3 +202,25 @@ async def test_no_path_leaves_the_results_directory(
     status, _, data = await client.download(path.replace("{id}", test_id))
     assert status in (400, 404), status
     assert b"safety" not in data and b"SQLite" not in data  # nothing of bench.yaml, state
+
+
+async def test_the_tests_of_a_cell_are_found_by_its_id(client: Client, tmp_path: Path) -> None:
+    status, body = await client.call(
+        "POST",
+        "/channels/ch0/commands/start",
+        {"recipe": recipe(tmp_path, TWO_CYCLES), "cell_id": "NIMH 7", "comment": "first"},
+    )
+    assert status == 200, body
+    await run_to_the_end(client)
+    first = client.bench.runners["ch0"].test_id
+    status, body = await client.call("GET", "/tests?cell=NIMH%207")
+    assert status == 200 and [t["id"] for t in body["tests"]] == [first]
+    assert body["tests"][0]["metadata"]["comment"] == "first"
+    assert await client.call("GET", "/tests?cell=OTHER") == (200, {"tests": []})
+
+
+async def test_a_bad_cell_query_or_an_unknown_one_is_400(client: Client) -> None:
+    status, body = await client.call("GET", "/tests?cell=" + "x" * 65)
+    assert status == 400 and "cell is 65 characters long, at most 64" in body["reason"]
+    status, body = await client.call("GET", "/tests?channel=ch0")
+    assert (status, body["reason"]) == (400, "unknown query channel (expected: cell)")

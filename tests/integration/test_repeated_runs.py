@@ -16,6 +16,8 @@ from asyncua import ua
 from hmirig import hmi_bench
 from opcuarig import call, opcua_rig, text
 
+from supervisor.cli.main import main
+
 pytestmark = pytest.mark.integration
 
 SHORT = (
@@ -30,7 +32,8 @@ DURATION_S = 3
 
 
 def assert_complete(folder: Path) -> None:
-    """A final summary, the BDF rows it counts, a record every logging period."""
+    """A final summary, the BDF rows it counts, a record every logging period, and
+    ``supervisor results verify`` finds the folder complete and unmodified."""
     summary: dict[str, Any] = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
     assert (summary["state"], summary["complete"]) == ("Complete", True), folder.name
     assert summary["duration_s"] == pytest.approx(DURATION_S, abs=0.2)
@@ -39,6 +42,7 @@ def assert_complete(folder: Path) -> None:
     assert len(rows) == summary["records"], folder.name
     times = {round(float(r["Test Time / s"])) for r in rows}
     assert times == set(range(DURATION_S + 1)), folder.name
+    assert main(["results", "verify", str(folder)]) == 0, folder.name
 
 
 async def test_twenty_runs_through_the_http_api_are_twenty_complete_tests(

@@ -47,6 +47,18 @@ def test_a_channel_tag_is_a_field_of_the_channel_measurement_tagged_with_its_tes
     assert ts == timestamp_ns(WALL)
 
 
+def test_a_channel_point_is_tagged_with_the_cell_of_its_test() -> None:
+    lines = encoder().encode([sample("ch0.voltage", 1.25)], {"ch0": ("T-0002", "r", "NIMH-42")})
+    _, tags, _, _ = parse_line(lines["channel"][0])
+    assert tags == {
+        "bench": "b1",
+        "channel": "ch0",
+        "test_id": "T-0002",
+        "recipe": "r",
+        "cell_id": "NIMH-42",
+    }
+
+
 def test_a_device_point_goes_to_device_and_the_supervisors_own_tags_to_diagnostics() -> None:
     out = encoder().encode(
         [

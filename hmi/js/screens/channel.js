@@ -87,6 +87,7 @@ export async function render({ root, app, params }) {
       ${value("last transition", `${p}chain.last_event`, 'data-empty="none" id="ch-last-event" class="wrap"')}
       ${value("interlock", `${p}chain.interlock`, 'data-empty="none" data-abn="nonempty"')}
       ${value("trip", `${p}fault`, 'data-empty="none" data-abn="nonempty"')}
+      ${value("cell", `${p}chain.cell_id`, 'data-empty="none" id="ch-cell"')}
       ${value("power", `${p}power`, 'data-fmt="n3"')}
       ${value("charged", `${p}charged_ah`, 'data-fmt="n3"')}
       ${value("discharged", `${p}discharged_ah`, 'data-fmt="n3"')}
@@ -103,6 +104,10 @@ export async function render({ root, app, params }) {
         <datalist id="recipe-list"></datalist>
         <label for="load-params">Parameters <small class="muted">(name = value, one a line)</small></label>
         <textarea id="load-params" rows="3" spellcheck="false"></textarea>
+        <label for="load-cell">Cell id <small class="muted">(up to 64 of A–Z a–z 0–9 space . _ : / + -; sent with Load and Start)</small></label>
+        <input id="load-cell" maxlength="64" pattern="[A-Za-z0-9 ._:/+\-]*" autocomplete="off" spellcheck="false">
+        <label for="load-comment">Comment <small class="muted">(up to 500 characters)</small></label>
+        <textarea id="load-comment" rows="2" maxlength="500"></textarea>
         <button type="submit" id="cmd-load">Load recipe</button>
       </form>
       <div class="buttons" role="group" aria-label="Chain commands">
@@ -153,7 +158,17 @@ export async function render({ root, app, params }) {
     showResult(out, answer);
     return answer;
   };
-  for (const b of $$("[data-verb]", root)) b.addEventListener("click", () => command(b.dataset.verb));
+  // The test's metadata (README "Test records"): given fields only; the server checks them.
+  const metadata = () => {
+    const out = {};
+    const cell = $("#load-cell", root).value.trim();
+    const comment = $("#load-comment", root).value.trim();
+    if (cell) out.cell_id = cell;
+    if (comment) out.comment = comment;
+    return out;
+  };
+  for (const b of $$("[data-verb]", root))
+    b.addEventListener("click", () => command(b.dataset.verb, b.dataset.verb === "start" ? metadata() : {}));
   for (const b of $$("[data-mode]", root))
     b.addEventListener("click", () => command("mode", { value: b.dataset.mode }));
   for (const b of $$("[data-enable]", root))
@@ -177,6 +192,7 @@ export async function render({ root, app, params }) {
     const answer = await put(`/api/channels/${encodeURIComponent(name)}/recipe`, {
       file: recipeInput.value.trim(),
       parameters,
+      ...metadata(),
     });
     showResult(out, answer, "recipe loaded");
     if (answer.ok) loadProgram();

@@ -24,25 +24,37 @@ export async function render({ root, app, params }) {
       ${id ? `<section class="panel" aria-label="Test ${esc(id)}" id="test-detail"><p class="muted">…</p></section>` : ""}
     </div>`;
   const plots = [];
-  const answer = await get("/api/tests");
   const listEl = $("#test-list", root);
-  if (!answer.ok) {
-    listEl.innerHTML = `<p class="muted">${esc(answer.data.reason || answer.data.error || `HTTP ${answer.status}`)}</p>`;
-  } else {
-    const rows = answer.data.tests || [];
-    listEl.innerHTML = rows.length
-      ? `<table class="grid" id="test-table"><thead><tr><th>test</th><th>channel</th><th>recipe</th><th>state</th><th>started</th><th>ended</th><th>end</th><th>files</th></tr></thead><tbody>
+  let answer = null;
+  // ``cell``: every test of that cell (GET /api/tests?cell=ID), else every test.
+  const showList = async (cell) => {
+    answer = await get(cell ? `/api/tests?cell=${encodeURIComponent(cell)}` : "/api/tests");
+    const form = `<form id="cell-form" class="load"><label for="cell-filter">Tests of cell</label>
+      <input id="cell-filter" maxlength="64" value="${esc(cell)}" autocomplete="off" spellcheck="false">
+      <button type="submit" id="cell-find">Find</button></form>`;
+    if (!answer.ok) {
+      listEl.innerHTML = `${form}<p class="refused" role="status">${esc(answer.data.reason || answer.data.error || `HTTP ${answer.status}`)}</p>`;
+    } else {
+      const rows = answer.data.tests || [];
+      listEl.innerHTML = form + (rows.length
+        ? `<table class="grid" id="test-table"><thead><tr><th>test</th><th>channel</th><th>cell</th><th>recipe</th><th>state</th><th>started</th><th>ended</th><th>end</th><th>files</th></tr></thead><tbody>
         ${rows
           .map(
             (t) => `<tr class="${t.state === "running" ? "running" : ""}${t.id === id ? " selected" : ""}">
-            <td><a href="#/tests/${encodeURIComponent(t.id)}">${esc(t.id)}</a></td><td>${esc(t.channel)}</td><td>${esc(t.recipe)}</td>
+            <td><a href="#/tests/${encodeURIComponent(t.id)}">${esc(t.id)}</a></td><td>${esc(t.channel)}</td><td>${esc(t.metadata?.cell_id || "")}</td><td>${esc(t.recipe)}</td>
             <td>${esc(t.state)}</td><td>${esc(typeof t.started === "number" ? fmtTime(t.started) : t.started || "")}</td>
             <td>${esc(typeof t.ended === "number" ? fmtTime(t.ended) : t.ended || "")}</td><td>${esc(t.end_reason || "")}</td>
             <td>${(t.files || []).map((f) => `<a href="${fileUrl(t.id, f.name)}" download="${esc(f.name)}" class="dl">${esc(f.name)}</a>`).join(" ")}</td></tr>`,
           )
           .join("")}</tbody></table>`
-      : '<p class="muted">No tests yet.</p>';
-  }
+        : `<p class="muted">${cell ? `No test of cell ${esc(cell)}.` : "No tests yet."}</p>`);
+    }
+    $("#cell-form", listEl).addEventListener("submit", (ev) => {
+      ev.preventDefault();
+      showList($("#cell-filter", listEl).value.trim());
+    });
+  };
+  await showList("");
   if (id) {
     const d = await get(`/api/tests/${encodeURIComponent(id)}`);
     const el = $("#test-detail", root);
@@ -58,6 +70,13 @@ export async function render({ root, app, params }) {
           .filter(([k, v]) => !skip.has(k) && (typeof v !== "object" || v === null))
           .map(([k, v]) => `<tr><th>${esc(k)}</th><td>${esc(TIMES.has(k) && typeof v === "number" ? fmtTime(v) : typeof v === "number" && !Number.isInteger(v) ? v.toFixed(4) : v)}</td></tr>`)
           .join("")}</tbody></table>
+        ${
+          t.metadata && Object.values(t.metadata).some((v) => v !== "" && v !== null)
+            ? `<h3>Cell and operator</h3><table class="grid kvt" id="test-metadata"><tbody>${Object.entries(t.metadata)
+                .map(([k, v]) => `<tr><th>${esc(k)}</th><td class="wrap">${esc(v ?? "")}</td></tr>`)
+                .join("")}</tbody></table>`
+            : ""
+        }
         <h3>Files</h3><ul class="links" id="test-files">${files
           .map((f) => `<li><a href="${fileUrl(id, f.name)}" download="${esc(f.name)}" class="dl">${esc(f.name)}</a> <small class="muted">${esc(f.kind || "")} ${fmtBytes(f.bytes)}</small></li>`)
           .join("")}</ul>

@@ -4,7 +4,8 @@ Built as strings, not with influxdb-client's ``Point`` (about 4× slower: its se
 is the bottleneck, ``../shared/reference/ecosystem.md``). The schema (everyone follows it,
 the dashboards query it):
 
-- ``channel``: tags ``bench``, ``channel``, ``recipe``, ``test_id``; one field per tag of the
+- ``channel``: tags ``bench``, ``channel``, ``recipe``, ``test_id``, ``cell_id`` (the test's
+  cell, when given; issue 26); one field per tag of the
   channel, named by the tag name after ``<ch>.`` with dots replaced by ``_``
   (``ch0.chain.state`` → ``chain_state``);
 - ``device``: tags ``bench``, ``device`` (the tag name before its first dot); fields the same
@@ -209,7 +210,7 @@ class LineEncoder:
         self.dtype_of = dtype_of
         self._bench_tag = f"bench={escape_tag(bench)}" if bench else ""
         self._routes: dict[str, _Route] = {}
-        self._channel_prefixes: dict[tuple[str, str, str], str] = {}
+        self._channel_prefixes: dict[tuple[str, str, str, str], str] = {}
         # The timestamps each series was given lately: a line of a series at an instant it
         # already has (a value written between two scans carries the last scan's time,
         # several alarms are raised in one scan) would overwrite that point on the server.
@@ -217,10 +218,10 @@ class LineEncoder:
 
     # --- samples ----------------------------------------------------------------------
     def encode(
-        self, samples: Iterable[Sample], tests: Mapping[str, tuple[str, str]] | None = None
+        self, samples: Iterable[Sample], tests: Mapping[str, tuple[str, ...]] | None = None
     ) -> dict[str, list[str]]:
-        """Lines by measurement. ``tests``: each channel's current (test id, recipe), the
-        ``test_id`` and ``recipe`` tags of its points."""
+        """Lines by measurement. ``tests``: each channel's current (test id, recipe, cell
+        id), the ``test_id``, ``recipe`` and ``cell_id`` tags of its points."""
         # The scan's thread runs this for every change: plain locals, one dict lookup per
         # sample, the float case (almost every sample) without a call.
         groups: dict[tuple[str, int], tuple[str, list[str]]] = {}
@@ -247,8 +248,8 @@ class LineEncoder:
             if channel:
                 prefix = prefixes.get(channel)
                 if prefix is None:
-                    test_id, recipe = (tests or {}).get(channel, ("", ""))
-                    prefix = prefixes[channel] = self.channel_prefix(channel, test_id, recipe)
+                    test = (tests or {}).get(channel, ())
+                    prefix = prefixes[channel] = self.channel_prefix(channel, *test)
             else:
                 prefix = route.prefix
             key = (prefix, round(s.wall * 1e9))  # timestamp_ns, inline
@@ -282,12 +283,15 @@ class LineEncoder:
             seen.discard(order.popleft())
         return ts
 
-    def channel_prefix(self, channel: str, test_id: str = "", recipe: str = "") -> str:
-        key = (channel, test_id, recipe)
+    def channel_prefix(
+        self, channel: str, test_id: str = "", recipe: str = "", cell_id: str = ""
+    ) -> str:
+        key = (channel, test_id, recipe, cell_id)
         prefix = self._channel_prefixes.get(key)
         if prefix is None:
             prefix = self._prefix(
-                CHANNEL, {"channel": channel, "test_id": test_id, "recipe": recipe}
+                CHANNEL,
+                {"channel": channel, "test_id": test_id, "recipe": recipe, "cell_id": cell_id},
             )
             if len(self._channel_prefixes) > MAX_SERIES:  # bounded: test ids come and go
                 self._channel_prefixes.clear()

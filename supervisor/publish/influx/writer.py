@@ -439,11 +439,16 @@ class InfluxWriter:
             tag = self._tags[spec.name] = db.get(spec.name) or db.add(spec)
             db.update(tag, initial[spec.dtype])  # never None, before the first scan too
         self._tests = {
-            ch: (db.get(f"{ch}.chain.test_id"), db.get(f"{ch}.chain.recipe")) for ch in channels
+            ch: (
+                db.get(f"{ch}.chain.test_id"),
+                db.get(f"{ch}.chain.recipe"),
+                db.get(f"{ch}.chain.cell_id"),
+            )
+            for ch in channels
         }
         # Each channel's (test id, recipe) as its points were last tagged: a change starts
         # new series, which get every field of the channel once (``_new_test_samples``).
-        self._tagged: dict[str, tuple[str, str]] = self._current_tests()
+        self._tagged: dict[str, tuple[str, ...]] = self._current_tests()
         self._alarms: dict[str, tuple[bool, str]] = {}
         self._alarms_active: tuple[bool, ...] = (False,) * 5  # as the last scan saw them
         self._status_t = float("-inf")  # the scan time the status tags were last set
@@ -525,17 +530,15 @@ class InfluxWriter:
             self._status_t = t
             self._publish_status(db)
 
-    def _current_tests(self) -> dict[str, tuple[str, str]]:
+    def _current_tests(self) -> dict[str, tuple[str, ...]]:
+        """Per channel (test id, recipe, cell id): the tags of its points."""
         return {
-            ch: (
-                str(tid.value) if tid is not None and tid.value else "",
-                str(rec.value) if rec is not None and rec.value else "",
-            )
-            for ch, (tid, rec) in self._tests.items()
+            ch: tuple(str(t.value) if t is not None and t.value else "" for t in tags)
+            for ch, tags in self._tests.items()
         }
 
     def _new_test_samples(
-        self, db: TagDB, tests: dict[str, tuple[str, str]], samples: list[Sample], t: float
+        self, db: TagDB, tests: dict[str, tuple[str, ...]], samples: list[Sample], t: float
     ) -> list[Sample]:
         """Every current field of each channel whose test id or recipe changed, at this
         scan's time: the change feed only carries what changed, so a test's series would

@@ -39,6 +39,8 @@ class Method:
     verb: str  # the command path's verb
     description: str
     args: tuple[Arg, ...] = ()
+    optional: int = 0
+    """The last ``optional`` arguments may be left out (added later: older callers work)."""
 
 
 RECIPE = Arg(
@@ -53,8 +55,26 @@ PARAMETERS = Arg(
     array_ok=True,
 )
 
+# The test's metadata (issue 26): optional, empty is not given; checked by the command path.
+METADATA_ARGS: Final = (
+    (
+        "CellId",
+        "cell_id",
+        "The cell or sample tested (at most 64 of A-Z a-z 0-9 space . _ : / + -)",
+    ),
+    ("Chemistry", "chemistry", "The cell's chemistry (e.g. nimh, liion)"),
+    ("NominalCapacity", "nominal_capacity", "The cell's nominal capacity, e.g. 2.5 Ah or 1300 mAh"),
+    ("Comment", "comment", "A free comment (at most 500 characters; newlines allowed)"),
+)
+
 METHODS: Final[tuple[Method, ...]] = (
-    Method("Start", "start", "Load a recipe (if given) and start its test", (RECIPE, PARAMETERS)),
+    Method(
+        "Start",
+        "start",
+        "Load a recipe (if given) and start its test",
+        (RECIPE, PARAMETERS, *(Arg(n, d, (VT.String,)) for n, _, d in METADATA_ARGS)),
+        optional=len(METADATA_ARGS),
+    ),
     Method("Hold", "hold", "Hold the running test (ISA-88 Hold): current to 0 A"),
     Method("Resume", "resume", "Resume a held test where it was"),
     Method("Advance", "advance", "Leave the current step now (Chadèche CTRL-Z)"),
@@ -144,8 +164,8 @@ def _type_name(v: ua.Variant) -> str:
 def check(method: Method, args: Sequence[ua.Variant]) -> Invalid | None:
     """Why these arguments are not what ``method`` declares (None when they are)."""
     want, got = len(method.args), len(args)
-    if got < want:
-        names = ", ".join(a.name for a in method.args[got:])
+    if got < want - method.optional:
+        names = ", ".join(a.name for a in method.args[got : want - method.optional])
         return Invalid(S.BadArgumentsMissing, f"{method.name}: missing argument {names}")
     if got > want:
         return Invalid(
@@ -154,7 +174,7 @@ def check(method: Method, args: Sequence[ua.Variant]) -> Invalid | None:
         )
     results: list[int] = []
     wrong: list[str] = []
-    for a, v in zip(method.args, args, strict=True):
+    for a, v in zip(method.args, args, strict=False):
         is_list = v.is_array or isinstance(v.Value, list)
         ok = v.VariantType in a.types and (not is_list or a.array_ok)
         if ok and is_list:
@@ -206,6 +226,11 @@ def request(
             parameters = parse_parameters(params if params is not None else "")
         except ValueError as exc:
             return Invalid(S.BadInvalidArgument, f"Start: {exc}", (S.Good, S.BadInvalidArgument))
+        metadata: dict[str, object] = {
+            key: values[i]
+            for i, (_, key, _) in enumerate(METADATA_ARGS, start=2)
+            if i < len(values) and values[i] not in (None, "")
+        }
         if not recipe:
             if parameters:
                 return Invalid(
@@ -213,10 +238,14 @@ def request(
                     "Start: parameters are given with a recipe (the loaded one has its own)",
                     (S.Good, S.BadInvalidArgument),
                 )
-            return Request("channel", channel, "start", {}, actor)
+            return Request("channel", channel, "start", metadata, actor)
         path = resolve_recipe(recipe, recipes_dir)
         return Request(
-            "channel", channel, "start", {"recipe": path, "parameters": parameters}, actor
+            "channel",
+            channel,
+            "start",
+            {"recipe": path, "parameters": parameters, **metadata},
+            actor,
         )
     if method.verb == "mode":
         mode = str(values[0])
