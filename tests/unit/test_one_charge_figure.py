@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 
 from supervisor.app import Bench, build_bench
-from supervisor.cli.ctl import FIELDS, status_table, watch_line
 from supervisor.channels.activity import activity_label, chain_label
+from supervisor.cli.ctl import FIELDS, status_table, watch_line
 from supervisor.core.clock import VirtualClock
 from supervisor.devices.registry import load_bench
 from supervisor.hmi.layout import Layout
@@ -97,7 +97,7 @@ async def test_every_display_shows_the_recipe_s_charge_that_the_charge_condition
         assert mah == pytest.approx(seen["the charge condition"], abs=0.1), (where, seen)
 
 
-async def test_the_test_charge_is_empty_before_a_load_the_initial_charge_at_load_and_kept_after_the_end(
+async def test_the_test_charge_is_empty_until_a_load_the_initial_charge_then_kept_after_the_end(
     bench: Bench, tmp_path: Path
 ) -> None:
     db = bench.db
