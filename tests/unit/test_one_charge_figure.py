@@ -4,7 +4,7 @@ recipe's ``initial_charge`` (what a step's ``charge`` condition tests), read by 
 display; and what a channel does shown apart from its step chain's state.
 
 The servers themselves (OPC UA, HTTP, ``supervisor ctl``) show the same figure at the same
-moment in tests/integration/test_one_charge_figure.py."""
+moment in tests/integration/test_charge_on_every_display.py."""
 
 from __future__ import annotations
 
