@@ -98,6 +98,7 @@ CHAIN_FIELDS = (
     "progress",
     "eta_s",
     "internal_resistance",
+    "charge_ah",
 )
 
 
@@ -189,6 +190,18 @@ class ChainRunner:
             TagSpec(f"{n}.chain.progress", unit="1", initial=0.0, history=CLOCK_HISTORY),
             TagSpec(f"{n}.chain.eta_s", unit="s", initial=None, history=CLOCK_HISTORY),
             TagSpec(f"{n}.chain.internal_resistance", unit="ohm", initial=None),
+            # The test's charge (README "Tags"): what the ``charge`` condition tests.
+            TagSpec(
+                f"{n}.chain.charge_ah",
+                unit="Ah",
+                initial=None,
+                description=(
+                    "The test's charge: the recipe's initial_charge plus the net charge"
+                    " since the start (what a step's `charge` condition tests); none before"
+                    " a recipe is loaded, the final figure kept after the end"
+                ),
+                history=CLOCK_HISTORY,
+            ),
         ):
             db.add(spec)
         for t in db:
@@ -206,6 +219,10 @@ class ChainRunner:
         )
         self._interlock_tag = tags["interlock"]
         self._progress_tags = (tags["progress"], tags["eta_s"])
+        self._charge_tag = tags["charge_ah"]
+        # Whether ``chN.chain.charge_ah`` follows the counter: from a start (or a restored
+        # test) until the scan after the test ends, which writes the final figure.
+        self._charge_live = False
 
     @property
     def estimated_duration_s(self) -> float | None:
@@ -225,6 +242,8 @@ class ChainRunner:
         self._test_started = False
         self._set("recipe", program.name)
         self._set("test_id", self._r.test_id)
+        self._charge_live = False
+        self._set("charge_ah", program.initial_charge_ah)
         self._set_state(State.IDLE, f"recipe {program.name} loaded")
 
     def _install(self, program: Program) -> None:
@@ -340,6 +359,7 @@ class ChainRunner:
         self.state = State.HELD
         self._set("state", State.HELD.value)
         self._set("state_code", OPCUA_CODE[State.HELD])
+        self._charge_live = True
         self._publish(now)
         self._emit(
             "state",
@@ -407,6 +427,8 @@ class ChainRunner:
         self._test_started = True
         r.t_test0 = r.t_cycle0 = now
         r.q0_ah = self.port.charge_ah.as_float()
+        self._charge_live = True
+        self._set("charge_ah", self.program.initial_charge_ah)
         r.test0 = self.port.counters()
         r.cycle = 1
         # Start hands the channel to its chain: Auto mode, the manual enable dropped.
@@ -515,6 +537,16 @@ class ChainRunner:
                     update(t_eta, left_s if left_s > 0.0 else 0.0)
                 else:
                     update(t_eta, None)
+        if self._charge_live:
+            # ``_publish``'s test charge (``ConditionValues.charge_ah``), inline.
+            charge = port.charge_ah
+            x = charge.value
+            update(
+                self._charge_tag,
+                program.initial_charge_ah
+                + (x if type(x) is float else charge.as_float())
+                - r.q0_ah,
+            )
         if self.samplers:
             self._sample(now, step)
 
@@ -998,6 +1030,13 @@ class ChainRunner:
             t_progress, t_eta = self._progress_tags
             update(t_progress, shown[0])
             update(t_eta, shown[1])
+        if self._charge_live and self._conditions is not None:
+            # The test's charge as the ``charge`` condition and the display line compute
+            # it (one definition: ``ConditionValues.charge_ah``), until the scan after the
+            # end, whose figure stays until the next load or start.
+            update(self._charge_tag, self._conditions.charge_ah(r))
+            if state in LOADABLE:
+                self._charge_live = False
         if active and step is not None and self.samplers:
             self._sample(now, step)
 

@@ -102,11 +102,27 @@ class Channel:
         self._contactor = db[contactor_tag] if contactor_tag else None
         # Derived values.
         self.power = add(_spec(f"{n}.power", unit="W", history=hist_fast))
+        # Counters of the channel, kept across tests and restarts: the test's charge (from
+        # the recipe's initial_charge) is ``chN.chain.charge_ah``.
         self.charge_ah = add(
-            _spec(f"{n}.charge_ah", unit="Ah", retain=True, description="Net charge (+ in)")
+            _spec(
+                f"{n}.charge_ah",
+                unit="Ah",
+                retain=True,
+                description="Net charge counter (+ in); the test's charge is chain.charge_ah",
+            )
         )
-        self.charged_ah = add(_spec(f"{n}.charged_ah", unit="Ah", retain=True))
-        self.discharged_ah = add(_spec(f"{n}.discharged_ah", unit="Ah", retain=True))
+        self.charged_ah = add(
+            _spec(f"{n}.charged_ah", unit="Ah", retain=True, description="Charge-side counter")
+        )
+        self.discharged_ah = add(
+            _spec(
+                f"{n}.discharged_ah",
+                unit="Ah",
+                retain=True,
+                description="Discharge-side counter",
+            )
+        )
         self.energy_wh = add(_spec(f"{n}.energy_wh", unit="Wh", retain=True))
         self.charged_wh = add(_spec(f"{n}.charged_wh", unit="Wh", retain=True))
         self.discharged_wh = add(_spec(f"{n}.discharged_wh", unit="Wh", retain=True))

@@ -32,6 +32,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
+from supervisor.channels.activity import activity_label
+
 if TYPE_CHECKING:
     from asyncua import Client
 
@@ -86,7 +88,9 @@ FIELDS: Final = (
     "chain.test_time",
     "voltage",
     "current",
-    "charge_ah",
+    "chain.charge_ah",
+    "state",
+    "current_cmd",
 )
 ALARM_FIELDS: Final = ("State", "Active", "Acked", "Severity", "Message")
 
@@ -134,7 +138,10 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--cert", type=Path, default=None, help="this client's certificate (DER/PEM)")
     p.add_argument("--key", type=Path, default=None, help="its private key (PEM)")
     what = p.add_subparsers(dest="what", required=True)
-    what.add_parser("status", help="a table of the channels: state, step, V, I, Ah")
+    what.add_parser(
+        "status",
+        help="a table of the channels: what each does, its chain's state, step, V, I, charge",
+    )
     st = what.add_parser("start", help="load a recipe and start its test")
     st.add_argument("channel")
     st.add_argument("recipe", help="a recipe file as the server sees it, or its name")
@@ -564,8 +571,11 @@ def _text(value: Any) -> str:
 
 
 def status_table(channels: Sequence[str], rows: Sequence[dict[str, Any]]) -> list[str]:
-    """One line per channel: state, mode, recipe, step (number and id), V, I, Ah."""
-    head = ("channel", "state", "mode", "recipe", "step", "V", "I (A)", "Ah")
+    """One line per channel: what the channel does (``charging 20.000 A, manual``:
+    supervisor/channels/activity.py), its chain's state, recipe, step (number and id), V, I,
+    and the test's charge (``chN.chain.charge_ah``, the figure the display line and the
+    screens show; the raw counters are not the test's charge)."""
+    head = ("channel", "channel state", "chain", "recipe", "step", "V", "I (A)", "charge (Ah)")
     body = []
     for ch, v in zip(channels, rows, strict=True):
         index = v["chain.step_index"]
@@ -574,13 +584,13 @@ def status_table(channels: Sequence[str], rows: Sequence[dict[str, Any]]) -> lis
         body.append(
             (
                 ch,
+                activity_label(v["state"], v["current_cmd"], v["mode"]),
                 _text(v["chain.state"]),
-                _text(v["mode"]),
                 _text(v["chain.recipe"]),
                 step,
                 _num(v["voltage"], ".3f"),
                 _num(v["current"], "+.3f"),
-                _num(v["charge_ah"], ".4f"),
+                _num(v["chain.charge_ah"], ".4f"),
             )
         )
     widths = [max(len(r[i]) for r in (head, *body)) for i in range(len(head))]
@@ -596,11 +606,13 @@ def status_table(channels: Sequence[str], rows: Sequence[dict[str, Any]]) -> lis
 def watch_line(channel: str, v: dict[str, Any], wall: float) -> str:
     """A channel's line in the Chadèche display's shape (supervisor/publish/display.py:
     C|D/cycle/step, mA, step and test time, V, mAh, the date), with its state and step id;
-    what a remote client cannot see (the commanded current, step time left) is left out."""
+    what a remote client cannot see (step time left) is left out. ``mAh`` is the test's
+    charge (``chN.chain.charge_ah``), the display line's figure."""
     amps = v["current"] or 0.0
     index = v["chain.step_index"]
     step = index or 0  # 1-based, 0 before the first step
-    mah = "—" if v["charge_ah"] is None else f"{v['charge_ah'] * 1000:.1f}"
+    charge_ah = v["chain.charge_ah"]
+    mah = "—" if charge_ah is None else f"{charge_ah * 1000:.1f}"
     date = time.strftime("%a %b %d %H:%M:%S %Y", time.localtime(wall))
     return (
         f"{channel} {'C' if amps >= 0 else 'D'}/{v['chain.cycle'] or 0:02d}/{step:02d}"

@@ -36,7 +36,10 @@ CHANNEL_TAGS: dict[str, str] = {
     "current": "current",
     "temperature": "temperature",
     "power": "power",
-    "charge": "charge_ah",
+    # The test's charge (what the display line, ``ctl`` and OPC UA ``Charge`` show); the
+    # net counter beside it is labelled as a counter.
+    "charge": "chain.charge_ah",
+    "charge_counter": "charge_ah",
     "charged": "charged_ah",
     "discharged": "discharged_ah",
     "energy": "energy_wh",
@@ -46,10 +49,11 @@ CHANNEL_TAGS: dict[str, str] = {
     "current_cmd": "current_cmd",
     "output": "output_fb",
     "clamped": "clamped",
+    "channel_state": "state",
     "fault": "fault",
     "first_out": "first_out",
     "armed": "armed",
-    "state": "chain.state",
+    "state": "chain.state",  # the step chain's; what the channel does is channel_state
     "recipe": "chain.recipe",
     "test_id": "chain.test_id",
     "step": "chain.step",

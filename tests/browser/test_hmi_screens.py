@@ -346,6 +346,43 @@ def test_the_diagnostics_screen_shows_devices_scan_and_publishers(
     screenshot(page, "diagnostics")
 
 
+def test_a_channel_driven_in_manual_shows_what_it_does_and_its_chain_s_state_apart(
+    as_operator: Any, bench: Supervisor
+) -> None:
+    """Issue 26, finding 3: ch4 in Manual at 20 A with its contactor closed was shown
+    "Idle manual" (its step chain's state) on its tile and its channel screen."""
+    page = as_operator
+    for tag, value in (("ch4.manual_current", 20.0), ("ch4.enable", True)):
+        status, body = bench.call("PUT", f"/api/tags/{tag}", {"value": value})
+        assert status == 200, body
+    try:
+        wait_for("ch4 charging", lambda: bench.tag("ch4.state") == "charging")
+        wait_for("the contactor closed", lambda: bench.tag("contactor.fb") is True)
+        amps = bench.tag("ch4.current_cmd")
+        assert amps > 0
+        label = f"charging {amps:.3f} A, manual"
+        page.wait_for_function(
+            "t => document.querySelector('#tile-ch4 .activity').textContent === t", arg=label
+        )
+        assert page.text_content("#tile-ch4 .chain-state") == "chain: Idle"
+        screenshot(page, "overview-manual-charging")
+        page.click("#tile-ch4")
+        page.wait_for_selector("#ch-activity")
+        page.wait_for_function(
+            "t => document.querySelector('#ch-activity').textContent === t", arg=label
+        )
+        assert page.text_content("#ch-state") == "Idle"
+        assert page.text_content(".channel-head .chain-state") == "chain: Idle"
+        screenshot(page, "channel-manual-charging")
+    finally:
+        bench.call("PUT", "/api/tags/ch4.enable", {"value": False})
+        bench.call("PUT", "/api/tags/ch4.manual_current", {"value": 0.0})
+    wait_for("ch4 idle", lambda: bench.tag("ch4.state") == "idle")
+    page.wait_for_function(
+        "() => document.querySelector('#ch-activity').textContent === 'idle, manual'"
+    )
+
+
 def test_the_simulated_estop_shows_the_alarm_which_is_acknowledged_then_reset(
     as_operator: Any, bench: Supervisor
 ) -> None:

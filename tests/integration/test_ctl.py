@@ -64,12 +64,17 @@ async def ctl(
 async def test_status_shows_every_channel(rig: Rig, capsys: pytest.CaptureFixture[str]) -> None:
     code, out, err = await ctl(rig, capsys, "status")
     assert (code, err) == (0, [])
-    assert out[0].split() == ["channel", "state", "mode", "recipe", "step", "V", "I", "(A)", "Ah"]
+    # Issue 26: what the channel does and its chain's state in two columns (the mode in
+    # the first), and the test's charge (none before a recipe is loaded).
+    assert re.split(r"\s{2,}", out[0]) == [
+        "channel", "channel state", "chain", "recipe", "step", "V", "I (A)", "charge (Ah)",
+    ]  # fmt: skip
     channels = [c.name for c in rig.bench.cfg.channels]
     assert [line.split()[0] for line in out[1:]] == channels
-    ch0 = out[1].split()
-    assert ch0[1:3] == ["Idle", "manual"]
+    ch0 = re.split(r"\s{2,}", out[1])
+    assert ch0[1:3] == ["idle, manual", "Idle"]
     assert ch0[-3] == f"{rig.bench.db['ch0.voltage'].value:.3f}"
+    assert ch0[-1] == "—"
 
 
 async def test_start_runs_the_recipe_and_status_shows_its_step(
@@ -81,9 +86,10 @@ async def test_start_runs_the_recipe_and_status_shows_its_step(
     await rig.scans(3)
     code, out, _ = await ctl(rig, capsys, "status")
     assert code == 0
-    ch0 = out[1].split()
-    assert ch0[:5] == ["ch0", "Running", "auto", "d", "1"] and ch0[5] == "d"
+    ch0 = re.split(r"\s{2,}", out[1])
+    assert ch0[:5] == ["ch0", "discharging 0.200 A, auto", "Running", "d", "1 d"]
     assert float(ch0[-2]) == pytest.approx(-0.2, abs=0.01)  # discharging 200 mA
+    assert float(ch0[-1]) == pytest.approx(0.0, abs=0.001)  # the test's charge, from 0
     command = rig.bench.commands.log[-1]
     assert (command.actor, command.accepted) == ("opcua:alice", True)
 
@@ -443,7 +449,7 @@ async def test_ack_on_a_channel_acknowledges_its_chain_alarm_so_it_may_resume(
 
 # --- watch --every S --count N -----------------------------------------------------------
 DISPLAY_LINE = re.compile(
-    r"ch0 C/00/00 mA=  0 SET= 0 TET= 0 V=\d+\.\d{3} mAh=0\.0 Idle —,"
+    r"ch0 C/00/00 mA=  0 SET= 0 TET= 0 V=\d+\.\d{3} mAh=— Idle —,"  # no recipe, no charge
     r" \w{3} \w{3} \d\d \d\d:\d\d:\d\d \d{4}"
 )
 

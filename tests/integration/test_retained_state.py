@@ -209,6 +209,29 @@ async def test_a_held_step_and_the_time_away_do_not_count_as_step_time(tmp_path:
     assert b2.db["ch0.chain.step_time"].value == pytest.approx(chain["step_time_s"] + 9, abs=1.5)
 
 
+async def test_a_restored_test_shows_the_test_charge_it_had_and_goes_on_from_it(
+    tmp_path: Path,
+) -> None:
+    """Issue 26: ``chN.chain.charge_ah`` after a restart is the held test's charge (from
+    the recipe's initial_charge), not empty nor the channel's counter."""
+    b1 = new_bench(tmp_path / "var")
+    await started(b1, tmp_path, RECIPE.replace("steps:", "initial_charge: 1000 mAh\nsteps:"))
+    await b1.engine.run_for(100.0)
+    b1.runners["ch0"].command("hold")
+    await b1.engine.run_for(5.0)
+    held = b1.db["ch0.chain.charge_ah"].as_float()
+    assert held == pytest.approx(1.0 + 0.3 * 100 / 3600, abs=2e-4)
+    die(b1)
+
+    b2 = new_bench(tmp_path / "var", wall_of(b1) + AWAY_S)
+    b2.retain()
+    assert b2.runners["ch0"].state is State.HELD
+    assert b2.db["ch0.chain.charge_ah"].as_float() == pytest.approx(held, abs=1e-6)
+    b2.runners["ch0"].command("resume")
+    await b2.engine.run_for(10.0)
+    assert b2.db["ch0.chain.charge_ah"].as_float() == pytest.approx(held + 0.3 * 9 / 3600, abs=2e-4)
+
+
 async def test_a_test_that_had_ended_comes_back_idle_with_its_files_closed(
     tmp_path: Path,
 ) -> None:

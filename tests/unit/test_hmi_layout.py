@@ -42,7 +42,9 @@ def test_the_bench_layout_names_each_channel_s_tags(layout: Layout) -> None:
     }
     assert set(ch0["tags"]) == set(CHANNEL_TAGS)
     assert ch0["tags"]["voltage"] == "ch0.voltage"
-    assert ch0["tags"]["charge"] == "ch0.charge_ah"
+    assert ch0["tags"]["charge"] == "ch0.chain.charge_ah"  # the test's charge (issue 26)
+    assert ch0["tags"]["charge_counter"] == "ch0.charge_ah"
+    assert ch0["tags"]["channel_state"] == "ch0.state"
     assert ch0["tags"]["state"] == "ch0.chain.state"
     assert ch0["tags"]["eta"] == "ch0.chain.eta_s"
     assert ch0["tags"]["output"] is None  # a Chadèche board has no output switch

@@ -64,8 +64,8 @@ export async function render({ root, app, params }) {
   root.innerHTML = `
   <div class="channel-head tile" id="tile-${esc(name)}">
     <h1>${esc(name)} <small class="muted">${esc(ch.description || "")}</small></h1>
-    <span class="state big" data-tag="${esc(t.state)}" id="ch-state"></span>
-    <span class="mode" data-tag="${esc(t.mode)}" id="ch-mode"></span>
+    <span class="activity big" id="ch-activity"></span>
+    <span class="chain-state">chain: <span class="state" data-tag="${esc(t.state)}" id="ch-state"></span></span>
     <span class="muted">recipe <b data-tag="${p}chain.recipe" data-empty="none"></b></span>
     <span class="muted">test <b data-tag="${p}chain.test_id" data-empty="none"></b></span>
     <div class="progress"><div class="bar" role="progressbar" aria-label="progress" aria-valuemin="0" aria-valuemax="100"><div class="fill"></div></div>
@@ -78,7 +78,7 @@ export async function render({ root, app, params }) {
         <div><span class="big" data-tag="${esc(t.voltage)}" data-fmt="n3"></span><small>voltage</small></div>
         <div><span class="big" data-tag="${esc(t.current)}" data-fmt="n3"></span><small>current</small></div>
         <div><span class="big" data-tag="${esc(t.temperature)}" data-fmt="n1"></span><small>temperature</small></div>
-        <div><span class="big" data-tag="${esc(t.charge)}" data-fmt="n3"></span><small>charge</small></div>
+        <div><span class="big" data-tag="${esc(t.charge)}" data-fmt="n4" id="ch-charge"></span><small>charge</small></div>
       </div>
       ${value("step", t.step, 'data-empty="none" id="ch-step"')}
       ${value("cycle", `${p}chain.cycle`)}
@@ -89,8 +89,9 @@ export async function render({ root, app, params }) {
       ${value("trip", `${p}fault`, 'data-empty="none" data-abn="nonempty"')}
       ${value("cell", `${p}chain.cell_id`, 'data-empty="none" id="ch-cell"')}
       ${value("power", `${p}power`, 'data-fmt="n3"')}
-      ${value("charged", `${p}charged_ah`, 'data-fmt="n3"')}
-      ${value("discharged", `${p}discharged_ah`, 'data-fmt="n3"')}
+      ${value("net charge counter", `${p}charge_ah`, 'data-fmt="n3"')}
+      ${value("charged counter", `${p}charged_ah`, 'data-fmt="n3"')}
+      ${value("discharged counter", `${p}discharged_ah`, 'data-fmt="n3"')}
       ${value("current command", `${p}current_cmd`, 'data-fmt="n3"')}
       ${value("manual setpoint", `${p}manual_current`, 'data-fmt="n3" id="ch-manual-current"')}
       ${value("output enabled", `${p}enable`, 'data-true="yes" data-false="no"')}

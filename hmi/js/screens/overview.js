@@ -15,19 +15,31 @@ const row = (label, tag, attrs = "") =>
     ? `<div class="kv"><span>${esc(label)}</span><b data-tag="${esc(tag)}" ${attrs}></b></div>`
     : "";
 
+/** What the channel does, from its state (chN.state), commanded current and mode:
+ * "charging 20.000 A, manual", "idle, auto" (supervisor/channels/activity.py writes the
+ * same for `supervisor ctl status`). The step chain's state is shown beside it, never
+ * in its place: a channel driven in Manual is charging while its chain is Idle. */
+export function activityLabel(state, currentCmd, mode) {
+  let text = state === null || state === undefined || state === "" ? "—" : String(state);
+  if ((text === "charging" || text === "discharging") && typeof currentCmd === "number")
+    text += ` ${Math.abs(currentCmd).toFixed(3)} A`;
+  if (mode !== null && mode !== undefined && mode !== "") text += `, ${mode}`;
+  return text;
+}
+
 export function channelTile(ch) {
   const t = ch.tags;
   return `<a class="tile" href="#/channel/${esc(ch.name)}" id="tile-${esc(ch.name)}" data-channel="${esc(ch.name)}">
     <div class="tile-head"><span class="tile-name">${esc(ch.name)}</span>
-      <span class="state" data-tag="${esc(t.state)}"></span>
-      <span class="mode" data-tag="${esc(t.mode)}"></span></div>
+      <span class="activity"></span>
+      <span class="chain-state">chain: <span class="state" data-tag="${esc(t.state)}"></span></span></div>
     <div class="tile-desc muted">${esc(ch.description || "")}</div>
     <div class="step">step <span data-tag="${esc(t.step)}" data-empty="none"></span></div>
     <div class="nums">
       <div><span class="big" data-tag="${esc(t.voltage)}" data-fmt="n3"></span><small>voltage</small></div>
       <div><span class="big" data-tag="${esc(t.current)}" data-fmt="n3"></span><small>current</small></div>
       <div><span class="big" data-tag="${esc(t.temperature)}" data-fmt="n1"></span><small>temperature</small></div>
-      <div><span class="big" data-tag="${esc(t.charge)}" data-fmt="n3"></span><small>charge</small></div>
+      <div><span class="big" data-tag="${esc(t.charge)}" data-fmt="n4"></span><small>charge</small></div>
     </div>
     <div class="progress"><div class="bar" role="progressbar" aria-label="${esc(ch.name)} progress" aria-valuemin="0" aria-valuemax="100"><div class="fill"></div></div>
       <span class="eta">ETA <span class="eta-text">—</span></span></div>
@@ -35,9 +47,15 @@ export function channelTile(ch) {
   </a>`;
 }
 
-/** Repaint what is not a single tag: the progress bar, ETA and the alarm colour. */
+/** Repaint what is not a single tag: what the channel does, the progress bar, ETA and
+ * the alarm colour. */
 export function paintTile(el, ch, live) {
   const t = ch.tags;
+  $(".activity", el).textContent = activityLabel(
+    live.value(t.channel_state),
+    live.value(t.current_cmd),
+    live.value(t.mode),
+  );
   const progress = Number(live.value(t.progress)) || 0;
   const pct = Math.max(0, Math.min(100, progress * 100));
   const bar = $(".bar", el);

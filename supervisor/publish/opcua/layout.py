@@ -37,7 +37,8 @@ CHANNEL_NAMES: Final[dict[str, str]] = {
     "current": "Current",
     "temperature": "Temperature",
     "power": "Power",
-    "charge_ah": "Charge",
+    "chain.charge_ah": "Charge",  # the test's charge (the display line's figure)
+    "charge_ah": "ChargeCounter",  # the net counter, not the test's charge
     "energy_wh": "Energy",
     "chain.state_code": "State",
     "chain.state": "StateName",
