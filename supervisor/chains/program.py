@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from supervisor.chains.expr import Expr
+from supervisor.core.errors import ConfigError
 
 
 class ActionKind(StrEnum):
@@ -141,3 +142,6 @@ class Program:
     initial_charge_ah: float
     log: LogRule
     description: str = ""
+    # What compiled but is likely a mistake, located (a parameter nothing reads):
+    # ``supervisor check`` prints them.
+    warnings: tuple[ConfigError, ...] = ()
