@@ -102,7 +102,9 @@ class CompiledStep:
         """BDF step type label."""
         if self.kind in ("rest", "sleep", "sleep_until"):
             return "REST"
-        if self.kind in ("charge", "discharge", "pulse"):
+        if self.kind in ("charge", "discharge"):  # the kind says it, even at 0 A
+            return "CC_CHG" if self.kind == "charge" else "CC_DCH"
+        if self.kind == "pulse":
             return "CC_CHG" if self.current_a > 0 else "CC_DCH"
         return {
             "cv": "CV_CHG",
