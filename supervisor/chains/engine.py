@@ -930,6 +930,10 @@ class ChainRunner:
             reason = self._log_rules.reason(step.index, now, r, v, i)
             if not reason:
                 return False
+        elif reason == "end" and r.last_rec_t == now:
+            # The end of the last cycle wrote its record at this very instant: the file
+            # ends with it, not with a copy of it (issue 26, 6c: the last row twice).
+            return False
         r.last_rec_t, r.last_rec_v, r.last_rec_i = now, v, i
         rec = self._build(now, step, reason)
         for rec_fn in self.recorders:
