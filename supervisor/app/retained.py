@@ -37,6 +37,7 @@ from supervisor.publish.results import TIMELINE_KINDS, ResultCollector
 from supervisor.publish.retain import STATE_NAME, Document, RetainStore
 from supervisor.safety import AlarmEvent, Severity
 from supervisor.tags import TagDB, TagSpec
+from supervisor.tags.spec import shown
 
 if TYPE_CHECKING:
     from supervisor.app.bench import Bench
@@ -72,17 +73,28 @@ class RecipeSource:
 
     @classmethod
     def from_dict(cls, data: Any) -> RecipeSource:
+        """The source of ``as_dict``; ValueError naming the field and what it holds when
+        it is not what ``as_dict`` writes (texts, parameters as texts)."""
         if not isinstance(data, dict):
-            raise ValueError("recipe: not a mapping")
+            raise ValueError(f"recipe: {shown(data)} is not a mapping")
+        unknown = sorted(set(data) - {"file", "text", "parameters", "folder"})
+        if unknown:
+            raise ValueError(f"recipe: unknown field {', '.join(map(repr, unknown))}")
+        if not isinstance(data.get("text"), str):
+            raise ValueError(f"recipe field text: {shown(data.get('text'))} is not a text")
+        for key in ("file", "folder"):
+            if not isinstance(data.get(key, ""), str):
+                raise ValueError(f"recipe field {key}: {shown(data.get(key))} is not a text")
         params = data.get("parameters", {})
-        if not isinstance(data.get("text"), str) or not isinstance(params, dict):
-            raise ValueError("recipe: no source text")
-        return cls(
-            str(data.get("file", "")),
-            data["text"],
-            {str(k): str(v) for k, v in params.items()},
-            str(data.get("folder", "")),
-        )
+        if not isinstance(params, dict) or not all(
+            isinstance(k, str) and isinstance(v, str) for k, v in params.items()
+        ):
+            raise ValueError(
+                f"recipe field parameters: {shown(params)} is not a mapping of texts to texts"
+                if not isinstance(params, dict)
+                else "recipe field parameters: a name or value is not a text"
+            )
+        return cls(data.get("file", ""), data["text"], dict(params), data.get("folder", ""))
 
 
 def recipe_program(bench: Bench, channel: str, src: RecipeSource) -> Any:
@@ -137,6 +149,7 @@ class Retention:
         db.update(self._error_tag, "")
         db.update(self._restore_tag, "")
         self.report: list[str] = []  # what the restore did, one line each
+        self._aside: str | None = None  # where a copy of a refused state file went
         self._dirty: set[str] = set(bench.runners)
         self._alarms_dirty = True
         self._last_save_t = -math.inf
@@ -304,9 +317,11 @@ class Retention:
         docs = loaded.documents
         try:
             self._restore_alarms(docs.get("alarms"))
-            self._restore_tags(docs.get("tags", {}).get("tags", {}))
+            self._restore_tags(self._tag_values("tags", (docs.get("tags") or {}).get("tags")))
         except (ValueError, TypeError, AttributeError, KeyError) as exc:
-            self._problem(f"retained alarms or tags unreadable ({exc}); not restored")
+            self._problem(
+                f"retained alarms or tags unreadable ({exc}); not restored; {self._copy_aside()}"
+            )
         for key, doc in sorted(docs.items()):
             if not key.startswith("channel:"):
                 continue
@@ -317,8 +332,21 @@ class Retention:
             try:
                 self._restore_channel(channel, doc)
             except (ValueError, TypeError, AttributeError, KeyError) as exc:
-                self._problem(f"{channel}: retained state unreadable ({exc}); starts Idle")
+                self._problem(
+                    f"{channel}: retained state unreadable ({exc}); starts Idle, its test"
+                    f" not resumed; {self._copy_aside()}"
+                )
         return self.report
+
+    def _copy_aside(self) -> str:
+        """A copy of the state file as it was read, beside it, once per start-up (the
+        refused document is overwritten by the next save): where it is, as a sentence."""
+        if self._aside is None:
+            try:
+                self._aside = f"the state file as it was is kept as {self.store.copy_aside()}"
+            except OSError as exc:
+                self._aside = f"no copy of the state file kept ({exc})"
+        return self._aside
 
     def _problem(self, text: str) -> None:
         log.error("%s", text)
@@ -330,6 +358,29 @@ class Retention:
         self.bench.alarms.set(self.restore_alarm, False)
         shown = str(self._restore_tag.value or "")
         self.bench.db.update(self._restore_tag, f"{shown}; {text}" if shown else text)
+
+    def _tag_values(self, where: str, values: Any) -> dict[str, Any]:
+        """The retained tags' values of a document, each checked against its tag's type
+        (a counter is a finite number): ValueError naming the tag and what it holds. A tag
+        this bench does not retain (any more) is left out, said in the log."""
+        if values is None:
+            return {}
+        if not isinstance(values, dict):
+            raise ValueError(f"{where}: {shown(values)} is not a mapping of tags")
+        db = self.bench.db
+        out: dict[str, Any] = {}
+        for name, value in values.items():
+            tag = db.get(name)
+            if tag is None or not tag.spec.retain:
+                log.warning("retained tag %s: not retained on this bench; dropped", name)
+                continue
+            try:
+                out[name] = None if value is None else tag.spec.coerce(value)
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"{where}.{name}: {shown(value)} is not a {tag.spec.dtype} value"
+                ) from None
+        return out
 
     def _restore_tags(self, values: dict[str, Any]) -> None:
         db = self.bench.db
@@ -344,7 +395,12 @@ class Retention:
         alarms = self.bench.alarms
         assert alarms is not None
         now = self.bench.clock.now()
-        for rec in doc["alarms"]:
+        records = doc.get("alarms")
+        if not isinstance(records, list):
+            raise ValueError(f"alarms: {shown(records)} is not a list")
+        for rec in records:
+            _check_alarm(rec)
+        for rec in records:
             alarm_id = str(rec["id"])
             if alarm_id not in alarms:
                 log.warning("retained alarm %s: not declared on this bench; dropped", alarm_id)
@@ -365,18 +421,27 @@ class Retention:
     def _restore_channel(self, channel: str, doc: Document) -> None:
         bench = self.bench
         db = bench.db
-        self._restore_tags(doc.get("tags") or {})
+        # The whole document checked before anything of it is used (issue 26, finding 5):
+        # a field that is not what the save writes refuses it, named with what it holds.
+        unknown = sorted(set(doc) - {"channel", "chain", "recipe", "tags", "mode"})
+        if unknown:
+            raise ValueError(f"unknown field {', '.join(map(repr, unknown))}")
+        if doc.get("channel", channel) != channel:
+            raise ValueError(f"field channel: {shown(doc.get('channel'))} is not {channel!r}")
+        tags = self._tag_values("tags", doc.get("tags"))
+        mode_tag = db[f"{channel}.mode"]
         mode = doc.get("mode")
-        if isinstance(mode, str):
-            try:
-                db.update(db[f"{channel}.mode"], mode)
-            except Exception:
-                log.warning("%s: retained mode %r not restored", channel, mode)
+        choices = mode_tag.spec.choices or ()
+        if mode is not None and mode not in choices:
+            raise ValueError(f"field mode: {shown(mode)} is not one of {', '.join(choices)}")
         chain = doc.get("chain")
-        if chain is None:
-            return
-        snap = ChainSnapshot.from_dict(chain)
+        snap = None if chain is None else ChainSnapshot.from_dict(chain)
         src = RecipeSource.from_dict(doc.get("recipe")) if doc.get("recipe") else None
+        self._restore_tags(tags)
+        if mode is not None:
+            db.update(mode_tag, mode)
+        if snap is None:
+            return
         folder = Path(src.folder) if src is not None and src.folder else None
         away_s = max(0.0, bench.clock.wall() - snap.wall)
         if snap.state not in ACTIVE_VALUES:
@@ -467,6 +532,28 @@ class Retention:
         if not self.store.flush():
             log.error("retained state %s: last save failed: %s", self.store.path, self.store.error)
         self.store.close()
+
+
+def _check_alarm(rec: Any) -> None:
+    """One saved alarm as ``alarms_document`` writes it; ValueError naming the field."""
+    if not isinstance(rec, dict):
+        raise ValueError(f"alarms: {shown(rec)} is not an alarm record")
+    for key in ("id", "message"):
+        if not isinstance(rec.get(key), str):
+            raise ValueError(f"alarms field {key}: {shown(rec.get(key))} is not a text")
+    if not isinstance(rec.get("acked_by", ""), str):
+        raise ValueError(f"alarms field acked_by: {shown(rec.get('acked_by'))} is not a text")
+    for key in ("active", "acked", "tripped", "first_out"):
+        if not isinstance(rec.get(key), bool):
+            raise ValueError(f"alarms field {key}: {shown(rec.get(key))} is not true or false")
+    since = rec.get("since_s")
+    if since is not None and (
+        isinstance(since, bool)
+        or not isinstance(since, int | float)
+        or not math.isfinite(since)
+        or since < 0
+    ):
+        raise ValueError(f"alarms field since_s: {shown(since)} is not null or a time in s")
 
 
 __all__ = ["RESTORE_ALARM", "TIMELINE_KINDS", "WRITE_ALARM", "RecipeSource", "Retention"]

@@ -34,7 +34,7 @@ from supervisor.chains.program import (
 )
 from supervisor.chains.zerotime import describe, zero_time_loops
 from supervisor.config.limits import MAX_INITIAL_CHARGE_AH
-from supervisor.config.recipe import HHMM, LogSettings, ProfileSpec, Recipe, Step
+from supervisor.config.recipe import HHMM, PARAMETER_NAME, LogSettings, ProfileSpec, Recipe, Step
 from supervisor.config.yamlpos import Positions
 from supervisor.core.errors import ConfigError, ConfigErrors
 from supervisor.core.units import Dim, Quantity, UnitError, parse_quantity
@@ -120,6 +120,10 @@ class _Compiler:
         self.overrides = overrides
         self.errors: list[ConfigError] = []
         self.ids = {s.id: i for i, s in enumerate(recipe.steps)}
+        # The parameters something reads (a condition, a setpoint, initial_charge): one
+        # declared and read by nothing is warned of (issue 26, finding 6: capacity-test's
+        # i_discharge was given on the command line and changed nothing).
+        self.used: set[str] = set()
 
     # --- errors --------------------------------------------------------------------
     def err(
@@ -163,6 +167,7 @@ class _Compiler:
         self._check_termination(steps, groups)
         init: Quantity | None = None
         if isinstance(r.initial_charge, str) and r.initial_charge in params:
+            self.used.add(r.initial_charge)
             init = Quantity(*params[r.initial_charge])
             if init.dim is not Dim.CHARGE:
                 self.err(("initial_charge",), f"parameter {r.initial_charge!r} is not a charge")
@@ -181,6 +186,22 @@ class _Compiler:
             self._time(r.limits.delay, ("limits", "delay")) or 0.0,
         )
         self._check_windows(limits)
+        # A warning, not a refusal: a recipe imported from a Chadèche sequence declares the
+        # seed's command-line values (-m -M -c -C) whether its rows read them or not.
+        warnings = []
+        for name in r.parameters:
+            if name not in self.used:
+                m = self.pos.key(("parameters", name)) or self.pos.nearest(("parameters", name))
+                warnings.append(
+                    ConfigError(
+                        f"parameter {name!r} is declared but nothing reads it (a condition,"
+                        f" a setpoint such as 'discharge: {name}', or initial_charge): giving"
+                        " it changes nothing; use it or remove it",
+                        self.file,
+                        m.line,
+                        m.col,
+                    )
+                )
         if self.errors:
             self.errors.sort(key=lambda e: (e.line or 0, e.col or 0))
             raise ConfigErrors(self.errors)
@@ -196,6 +217,7 @@ class _Compiler:
             initial_charge_ah=init.value if init is not None else 0.0,
             log=self._log(r.logging, ("logging",)) or LogRule(period_s=120.0),
             description=r.description,
+            warnings=tuple(warnings),
         )
 
     def _parameters(self) -> dict[str, tuple[float, Dim]]:
@@ -242,6 +264,21 @@ class _Compiler:
         return q.value, q.dim
 
     def _current(self, v: object, path: tuple[str | int, ...]) -> float:
+        if isinstance(v, str) and v.strip() in self.params:
+            # A parameter's name: its value as given (a C-rate already made a current).
+            name = v.strip()
+            self.used.add(name)
+            amps, dim = self.params[name]
+            if dim is not Dim.CURRENT:
+                self.err(path, f"parameter {name!r} is a {dim}, not a current")
+                return 0.0
+            return amps
+        if isinstance(v, str) and PARAMETER_NAME.match(v.strip()):
+            close = difflib.get_close_matches(v.strip(), list(self.params), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            known = ", ".join(sorted(self.params)) or "none"
+            self.err(path, f"unknown parameter {v.strip()!r}{hint}; this recipe has: {known}")
+            return 0.0
         q = self.q(v, path, Dim.CURRENT, Dim.C_RATE)
         if q is None:
             return 0.0
@@ -279,7 +316,9 @@ class _Compiler:
     # --- expressions and actions -------------------------------------------------------
     def cond(self, text: str, path: tuple[str | int, ...], at_key: bool = False) -> Expr | None:
         try:
-            return compile_condition(text, self.sig)
+            expr = compile_condition(text, self.sig)
+            self.used.update(expr.names & self.params.keys())
+            return expr
         except ExprError as exc:
             msg = exc.message if text in exc.message else f"{exc.message} (in {text!r})"
             self.err(path, msg, at_key=at_key, offset=exc.offset)
@@ -472,8 +511,21 @@ class _Compiler:
         self, s: Step, written: str | float | int, path: tuple[str | int, ...]
     ) -> float:
         """A CV target, within the channel's voltage limits (not checked where the step
-        cannot run at all: the capability refusal says enough)."""
-        volts = parse_quantity(written).value
+        cannot run at all: the capability refusal says enough); a parameter's name is its
+        value."""
+        name = written.strip() if isinstance(written, str) else ""
+        if PARAMETER_NAME.match(name):
+            if name not in self.params:
+                known = ", ".join(sorted(self.params)) or "none"
+                self.err(path, f"unknown parameter {name!r}; this recipe has: {known}")
+                return 0.0
+            self.used.add(name)
+            volts, dim = self.params[name]
+            if dim is not Dim.VOLTAGE:
+                self.err(path, f"parameter {name!r} is a {dim}, not a voltage")
+                return 0.0
+        else:
+            volts = parse_quantity(written).value
         lim = self.target.voltage_limits_v
         if lim is not None and s.kind in self.target.capabilities:
             lo, hi = lim

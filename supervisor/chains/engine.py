@@ -330,6 +330,18 @@ class ChainRunner:
                 f"{self.name}: step {snapshot.step + 1} is beyond the {len(program.steps)}"
                 f" steps of recipe {program.name}"
             )
+        # A sleep wakes up into a step of the program, or past its last (the end).
+        if snapshot.sleep_then is not None and snapshot.sleep_then > len(program.steps):
+            raise ValueError(
+                f"{self.name}: the saved sleep goes on to step {snapshot.sleep_then + 1},"
+                f" beyond the {len(program.steps)} steps of recipe {program.name}"
+            )
+        groups = [int(g) for g in snapshot.group_time_s]
+        if any(g >= len(program.groups) for g in groups):
+            raise ValueError(
+                f"{self.name}: the saved group times name group {max(groups) + 1}, beyond the"
+                f" {len(program.groups)} groups of recipe {program.name}"
+            )
         if snapshot.step_id and program.steps[snapshot.step].id != snapshot.step_id:
             raise ValueError(
                 f"{self.name}: step {snapshot.step + 1} of recipe {program.name} is"
@@ -973,6 +985,10 @@ class ChainRunner:
             reason = self._log_rules.reason(step.index, now, r, v, i)
             if not reason:
                 return False
+        elif reason == "end" and r.last_rec_t == now:
+            # The end of the last cycle wrote its record at this very instant: the file
+            # ends with it, not with a copy of it (issue 26, 6c: the last row twice).
+            return False
         r.last_rec_t, r.last_rec_v, r.last_rec_i = now, v, i
         rec = self._build(now, step, reason)
         for rec_fn in self.recorders:

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from supervisor.chains.expr import Expr
+from supervisor.core.errors import ConfigError
 
 
 class ActionKind(StrEnum):
@@ -101,7 +102,9 @@ class CompiledStep:
         """BDF step type label."""
         if self.kind in ("rest", "sleep", "sleep_until"):
             return "REST"
-        if self.kind in ("charge", "discharge", "pulse"):
+        if self.kind in ("charge", "discharge"):  # the kind says it, even at 0 A
+            return "CC_CHG" if self.kind == "charge" else "CC_DCH"
+        if self.kind == "pulse":
             return "CC_CHG" if self.current_a > 0 else "CC_DCH"
         return {
             "cv": "CV_CHG",
@@ -141,3 +144,6 @@ class Program:
     initial_charge_ah: float
     log: LogRule
     description: str = ""
+    # What compiled but is likely a mistake, located (a parameter nothing reads):
+    # ``supervisor check`` prints them.
+    warnings: tuple[ConfigError, ...] = ()

@@ -10,8 +10,12 @@ restart, DESIGN.md "Safety", seed 001's context save) can put it back on its own
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any
+
+from supervisor.chains.states import State
+from supervisor.tags.spec import shown
 
 SNAPSHOT_FORMAT = 1
 """Version of ``ChainSnapshot.as_dict``; a stored snapshot of another version is refused."""
@@ -182,16 +186,105 @@ class ChainSnapshot:
         """The snapshot of ``as_dict``; ValueError when the format or a field is wrong."""
         if not isinstance(data, dict):
             raise ValueError("a chain snapshot is a mapping")
-        if data.get("format") != SNAPSHOT_FORMAT:
+        fmt = data.get("format")
+        if type(fmt) is not int or fmt != SNAPSHOT_FORMAT:  # first: other fields, other meaning
             raise ValueError(
-                f"chain snapshot format {data.get('format')!r}, expected {SNAPSHOT_FORMAT}"
+                f"chain snapshot field format: format {shown(fmt)}, expected {SNAPSHOT_FORMAT}"
             )
-        try:
-            return cls(**data)
-        except TypeError as exc:
-            raise ValueError(f"chain snapshot fields: {exc}") from None
+        # Every field checked before any is used (issue 26, finding 5: a state edited to
+        # "Xunning" was taken for an ended test and closed it as complete, silently): a
+        # field unknown, missing or not what ``freeze`` writes refuses the whole snapshot,
+        # naming the field and what was received.
+        unknown = sorted(set(data) - set(_SNAPSHOT_FIELDS))
+        if unknown:
+            raise ValueError(f"chain snapshot fields: unknown {', '.join(map(repr, unknown))}")
+        missing = [name for name in _SNAPSHOT_FIELDS if name not in data]
+        if missing:
+            raise ValueError(f"chain snapshot fields: {', '.join(missing)} missing")
+        for name, (ok, expected) in _SNAPSHOT_CHECKS.items():
+            value = data[name]
+            if not ok(value):
+                raise ValueError(f"chain snapshot field {name}: {shown(value)} is not {expected}")
+        return cls(**data)
 
 
 _SNAPSHOT_FIELDS = tuple(f.name for f in fields(ChainSnapshot))
 _SNAPSHOT_DICTS = ("group_time_s", "test0", "cycle0")
 """The fields of a snapshot that are dicts (copied by ``as_dict``, as ``asdict`` does)."""
+
+STATES = tuple(s.value for s in State)
+COUNTER_NAMES = ("charged_ah", "discharged_ah", "charged_wh", "discharged_wh")
+"""The keys of ``test0`` / ``cycle0`` (``ChannelPort.counters``)."""
+TEXT_MAX_CHARS = 4096
+"""A saved text longer than this was not written by ``freeze`` (names, reasons, alarms)."""
+
+
+def _int(x: object, low: int) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool) and x >= low
+
+
+def _number(x: object, low: float = -math.inf) -> bool:
+    """A finite number (a boolean is not one), at least ``low``."""
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) and x >= low
+
+
+def _text(x: object) -> bool:
+    return isinstance(x, str) and len(x) <= TEXT_MAX_CHARS and "\x00" not in x
+
+
+def _name(x: object) -> bool:
+    """One line of text (a test id names a folder, a step id a step)."""
+    return _text(x) and isinstance(x, str) and x.isprintable()
+
+
+def _counters(x: object) -> bool:
+    return (
+        isinstance(x, dict)
+        and set(x) <= set(COUNTER_NAMES)
+        and all(_number(v, 0.0) for v in x.values())
+    )
+
+
+def _group_times(x: object) -> bool:
+    return isinstance(x, dict) and all(
+        isinstance(k, str) and k.isdigit() and len(k) <= 6 and _number(v, 0.0) for k, v in x.items()
+    )
+
+
+_SNAPSHOT_CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "format": (lambda x: type(x) is int and x == SNAPSHOT_FORMAT, f"format {SNAPSHOT_FORMAT}"),
+    "state": (lambda x: x in STATES, f"an ISA-88 state ({', '.join(STATES)})"),
+    "recipe": (_name, "a recipe name (one line of text)"),
+    "test_id": (_name, "a test id (one line of text)"),
+    "step": (lambda x: _int(x, 0), "a step index (an integer >= 0)"),
+    "step_id": (_name, "a step id (one line of text)"),
+    "cycle": (lambda x: _int(x, 1), "a cycle number (an integer >= 1)"),
+    "step_count": (lambda x: _int(x, 0), "a count of steps started (an integer >= 0)"),
+    "test_time_s": (lambda x: _number(x, 0.0), "a time in s (a finite number >= 0)"),
+    "cycle_time_s": (lambda x: _number(x, 0.0), "a time in s (a finite number >= 0)"),
+    "step_time_s": (lambda x: _number(x, 0.0), "a time in s (a finite number >= 0)"),
+    "group_time_s": (_group_times, "group index -> time in s (finite numbers >= 0)"),
+    "sleep_until_wall": (
+        lambda x: x is None or _number(x, 0.0),
+        "null or a Unix time (a finite number >= 0)",
+    ),
+    "sleep_then": (lambda x: x is None or _int(x, 0), "null or a step index (an integer >= 0)"),
+    "q0_ah": (_number, "a charge in Ah (a finite number)"),
+    "step_q0_ah": (_number, "a charge in Ah (a finite number)"),
+    "step_e0_wh": (_number, "an energy in Wh (a finite number)"),
+    "test0": (_counters, f"counters ({', '.join(COUNTER_NAMES)}: finite numbers >= 0)"),
+    "cycle0": (_counters, f"counters ({', '.join(COUNTER_NAMES)}: finite numbers >= 0)"),
+    "since_record_s": (
+        lambda x: x is None or _number(x, 0.0),
+        "null or a time in s (a finite number >= 0)",
+    ),
+    "last_rec_v": (lambda x: x is None or _number(x), "null or a voltage (a finite number)"),
+    "last_rec_i": (lambda x: x is None or _number(x), "null or a current (a finite number)"),
+    "end_reason": (_text, "a text"),
+    "max_time_acked": (lambda x: isinstance(x, bool), "true or false"),
+    "alarm": (_text, "a text"),
+    "peak_v": (lambda x: x is None or _number(x), "null or a voltage (a finite number)"),
+    "wall": (lambda x: _number(x, 0.0), "a Unix time (a finite number >= 0)"),
+}
+"""What each field of a saved snapshot must be (``freeze`` writes nothing else)."""
+assert set(_SNAPSHOT_CHECKS) == set(_SNAPSHOT_FIELDS), "every snapshot field has its check"

@@ -143,6 +143,10 @@ class Channel:
                 unit="A",
                 access=Access.OPERATOR,
                 initial=0.0,
+                # The hard limits as the tag's range: the command path refuses a setpoint
+                # beyond them (and OPC UA clients read them as its EURange); one inside
+                # them is still clamped each scan to what the safety phase allows.
+                range=(lo, hi),
                 description="Manual setpoint, + charge / - discharge; clamped to limits",
             )
         )

@@ -400,7 +400,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 # --- check ---------------------------------------------------------------------------
-def _check_one(path: Path) -> list[ConfigError]:
+def _check_one(path: Path) -> tuple[list[ConfigError], tuple[ConfigError, ...]]:
+    """The errors of one file, and a recipe's warnings (a parameter nothing reads)."""
     from supervisor.chains.compiler import compile_recipe
     from supervisor.config.recipe import load_recipe
     from supervisor.config.yamlpos import load_yaml
@@ -410,20 +411,21 @@ def _check_one(path: Path) -> list[ConfigError]:
         data, _ = load_yaml(path)
         if isinstance(data, dict) and "recipe" in data:
             recipe, pos = load_recipe(path)
-            compile_recipe(recipe, pos, str(path))
-        else:
-            load_bench(path)
+            return [], compile_recipe(recipe, pos, str(path)).warnings
+        load_bench(path)
     except ConfigErrors as exc:
-        return exc.errors
+        return exc.errors, ()
     except ConfigError as exc:
-        return [exc]
-    return []
+        return [exc], ()
+    return [], ()
 
 
 def cmd_check(args: argparse.Namespace) -> int:
     bad = 0
     for f in args.files:
-        errors = _check_one(Path(f))
+        errors, warnings = _check_one(Path(f))
+        for w in warnings:
+            _err(f"warning: {w.location_message()}")
         for e in errors:
             _err(e.location_message())
         if errors:

@@ -171,6 +171,9 @@ class ResultKind(StrEnum):
     FORBIDDEN = "forbidden"  # a read-only tag, or the actor's role does not permit it
     NOT_FOUND = "not found"  # unknown tag, channel, alarm, recipe file or verb
     REFUSED = "refused"  # not in this state, or an interlock (trip, alarm) forbids it
+    # A value of the right type beyond what the channel may ever do (its hard limits):
+    # refused like a state (409), and told apart over OPC UA (Bad_OutOfRange).
+    OUT_OF_RANGE = "out of range"
     INVALID_RECIPE = "invalid recipe"  # the recipe was read and refused (file:line:col)
     TIMEOUT = "timeout"  # reading and compiling a recipe took longer than its time limit
     INTERNAL = "internal error"  # a bug: logged with its traceback
@@ -182,6 +185,7 @@ HTTP_STATUS: Mapping[ResultKind, int] = {
     ResultKind.FORBIDDEN: 403,
     ResultKind.NOT_FOUND: 404,
     ResultKind.REFUSED: 409,
+    ResultKind.OUT_OF_RANGE: 409,
     ResultKind.INVALID_RECIPE: 422,
     ResultKind.TIMEOUT: 503,  # the server could not do it in time; the request was valid
     ResultKind.INTERNAL: 500,

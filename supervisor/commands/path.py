@@ -35,6 +35,7 @@ back to the loop. ``execute`` does the same in one go where no scan runs (tests,
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
@@ -437,9 +438,39 @@ class CommandPath:
         port = runner.port
         if port.in_auto:
             raise Refusal(ResultKind.REFUSED, IN_AUTO.format(ch=name))
+        # Beyond the hard limits (the I/O map's limits.current_a, the tag's range): refused,
+        # never accepted and silently clamped — an answer must say what will flow.
+        hard = port.manual_current.spec.range
+        if hard is not None and not hard[0] <= amps <= hard[1]:
+            lo, hi = hard
+            raise Refusal(
+                ResultKind.OUT_OF_RANGE,
+                f"{name}: manual setpoint {amps:g} A is beyond the channel's hard limit of"
+                f" {hi if amps > hi else lo:g} A (range {lo:g} … {hi:g} A); refused",
+            )
         self.db.update(port.manual_current, amps)
         off = "" if port.enable.value is True else " (enable is off: nothing flows yet)"
-        return Result.ok(f"{name}: manual setpoint {amps:g} A{off}", tag=port.manual_current.name)
+        clamp = self._safety_clamp(name, amps)
+        return Result.ok(
+            f"{name}: manual setpoint {amps:g} A{clamp}{off}", tag=port.manual_current.name
+        )
+
+    def _safety_clamp(self, name: str, amps: float) -> str:
+        """What the safety phase's limits of this scan (``chN.limit.charge_a`` /
+        ``discharge_a``: a crossed voltage limit, a BMS derating, a trip) make of a setpoint
+        inside the hard limits, as the channel will clamp it: "" when it passes whole."""
+        which = "charge_a" if amps > 0 else "discharge_a" if amps < 0 else None
+        limit = self.db.get(f"{name}.limit.{which}") if which is not None else None
+        if limit is None or not isinstance(limit.value, int | float):
+            return ""
+        allowed = abs(float(limit.value))
+        if abs(amps) <= allowed:
+            return ""
+        flows = math.copysign(allowed, amps)
+        return (
+            f", clamped to {flows:g} A by the safety limit {limit.name} = {allowed:g} A"
+            f" as it stands (shown in {name}.clamped while it clamps)"
+        )
 
     def _enable(self, name: str, runner: ChainRunner, on: bool) -> Result:
         port = runner.port

@@ -82,6 +82,10 @@ def quantity(v: str | float | int, dims: Dim | tuple[Dim, ...] | None = None) ->
     return q
 
 
+PARAMETER_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+"""A step's current given as a parameter's name (``discharge: i_discharge``), not a value."""
+
+
 def _q(v: Q | None, *dims: Dim) -> Q | None:
     if v is None:
         return None
@@ -90,6 +94,13 @@ def _q(v: Q | None, *dims: Dim) -> Q | None:
     except UnitError as exc:
         raise ValueError(str(exc)) from None
     return v
+
+
+def _q_or_name(v: Q | None, *dims: Dim) -> Q | None:
+    """A quantity, or a parameter's name (``voltage: v_charge``) the compiler resolves."""
+    if isinstance(v, str) and PARAMETER_NAME.match(v.strip()):
+        return v
+    return _q(v, *dims)
 
 
 def _q_nonnegative(v: Q | None, *dims: Dim, what: str = "a duration") -> Q | None:
@@ -183,12 +194,12 @@ class CvSpec(Strict):
     @field_validator("voltage")
     @classmethod
     def _v(cls, v: Q) -> Q | None:
-        return _q(v, Dim.VOLTAGE)
+        return _q_or_name(v, Dim.VOLTAGE)
 
     @field_validator("current_limit")
     @classmethod
     def _i(cls, v: Q) -> Q | None:
-        return _q(v, Dim.CURRENT, Dim.C_RATE)
+        return _q_or_name(v, Dim.CURRENT, Dim.C_RATE)
 
 
 class CccvSpec(Strict):
@@ -198,12 +209,12 @@ class CccvSpec(Strict):
     @field_validator("voltage")
     @classmethod
     def _v(cls, v: Q) -> Q | None:
-        return _q(v, Dim.VOLTAGE)
+        return _q_or_name(v, Dim.VOLTAGE)
 
     @field_validator("current")
     @classmethod
     def _i(cls, v: Q) -> Q | None:
-        return _q(v, Dim.CURRENT, Dim.C_RATE)
+        return _q_or_name(v, Dim.CURRENT, Dim.C_RATE)
 
 
 class PulseSpec(Strict):
@@ -314,6 +325,8 @@ class Step(Strict):
     @field_validator("charge", "discharge")
     @classmethod
     def _current(cls, v: Q | None) -> Q | None:
+        if isinstance(v, str) and PARAMETER_NAME.match(v.strip()):
+            return v  # a parameter's name: the compiler resolves it (and says if unknown)
         q = _q(v, Dim.CURRENT, Dim.C_RATE)
         if v is not None and parse_quantity(v).value < 0:
             raise ValueError("give a positive magnitude; the step kind says the direction")

@@ -121,7 +121,10 @@ def _aux_cell(x: object) -> object:
 def chadeche_line(rec: Record, dba: int) -> str:
     """``C;01;07;0; 50; 17520; 159; 17520; 21;1.373;1302.4;Mon May 22 03:21:43 2017``."""
     amps = rec.setpoint_a
-    cd = "C" if amps >= 0 else "D"
+    # The step's direction, not the sign of its setpoint: a discharge row at 0 mA is a
+    # "D" row (the seed's letter sets the relay), which 0 ≥ 0 made "C" (issue 26, 6b).
+    kind = rec.step_type
+    cd = "D" if "DCH" in kind else "C" if "CHG" in kind else "C" if amps >= 0 else "D"
     sta = max(0.0, rec.step_remaining_s) if rec.step_remaining_s is not None else 0.0
     date = time.strftime("%a %b %d %H:%M:%S %Y", time.localtime(rec.wall))
     v = rec.voltage_v if rec.voltage_v is not None else 0.0

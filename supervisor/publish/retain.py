@@ -141,13 +141,37 @@ class RetainStore:
         finally:
             conn.close()
 
-    def _move_aside(self) -> Path:
+    def copy_aside(self) -> Path:
+        """Keep a copy of the file as it is now beside it (``state.sqlite.corrupt-<time>``):
+        a document the owner refused (a field it does not know) is overwritten by the next
+        saves, while the others stay in use; the copy is what a person looks at. SQLite's
+        backup, so that what the WAL holds is in the copy. OSError when it cannot be made."""
+        target = self._aside_name()
+        try:
+            src = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+            try:
+                dst = sqlite3.connect(target)
+                try:
+                    src.backup(dst)
+                finally:
+                    dst.close()
+            finally:
+                src.close()
+        except sqlite3.Error as exc:
+            raise OSError(f"cannot copy {self.path} to {target}: {exc}") from None
+        return target
+
+    def _aside_name(self) -> Path:
         stamp = time.strftime("%Y%m%dT%H%M%S", time.localtime(self._wall()))
         target = self.path.with_name(f"{self.path.name}.corrupt-{stamp}")
         n = 1
         while target.exists():
             n += 1
             target = self.path.with_name(f"{self.path.name}.corrupt-{stamp}-{n}")
+        return target
+
+    def _move_aside(self) -> Path:
+        target = self._aside_name()
         self.path.replace(target)
         for suffix in ("-wal", "-shm"):
             side = self.path.with_name(self.path.name + suffix)

@@ -16,16 +16,20 @@ from typing import Any
 
 import aiohttp
 import pytest
+import yaml
 from commandrig import CV_ON_CHADECHE, DISCHARGE, recipe, started_bench
 
-from supervisor.app import Bench
+from supervisor.app import Bench, build_bench
 from supervisor.chains.states import State
+from supervisor.core.clock import VirtualClock
 from supervisor.core.quality import Quality, Reason
+from supervisor.devices.registry import load_bench
 from supervisor.hmi import HttpApi
 from supervisor.tags import Access, TagSpec
 from supervisor.testing import run_scans
 
 pytestmark = pytest.mark.integration
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @dataclass
@@ -382,3 +386,55 @@ async def test_a_non_finite_value_from_a_device_is_sent_as_null_with_quality_bad
     assert (tags["ch0.voltage"]["value"], tags["ch0.voltage"]["quality"]) == (None, "BAD")
     async with lab_tags.session.get(lab_tags.api.url + "/tags/lab.setpoint") as resp:
         assert strict_json(await resp.text())["value"] is None
+
+
+# --- issue 26, finding 4: a setpoint is answered with what will flow -------------------------
+def seed002_in_process(tmp: Path) -> Path:
+    """io_maps/sim.yaml whole (ch4: the seed 002 bench, ±20 A), its HTTP clients not logging
+    in, its state in ``tmp``, no OPC UA server (its port is not this test's)."""
+    data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
+    data["hmi"]["login"] = False
+    data.pop("opcua", None)
+    data["state_dir"] = str(tmp / "state")
+    path = tmp / "sim.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    return path
+
+
+@pytest.fixture
+async def sim_client(tmp_path: Path) -> AsyncIterator[Client]:
+    bench = build_bench(load_bench(seed002_in_process(tmp_path)), VirtualClock(), in_process=True)
+    await bench.start()
+    await run_scans(bench.engine, 20)  # every device connected, first images in
+    api = HttpApi(bench.db, bench.clock, "127.0.0.1", 0, commands=bench.commands)
+    await api.start()
+    try:
+        async with aiohttp.ClientSession() as session:
+            yield Client(bench, api, session)
+    finally:
+        await api.stop()
+        await bench.shutdown()
+
+
+async def test_issue26_finding_4_500_a_on_ch4_is_refused_409_naming_its_20_a_hard_limit(
+    sim_client: Client,
+) -> None:
+    c = sim_client
+    assert (await c.put_tag("ch4.enable", True))[0] == 200
+    status, body = await c.put_tag("ch4.manual_current", 500)
+    assert status == 409, body
+    assert body["accepted"] is False and body["kind"] == "out of range"
+    assert body["reason"] == (
+        "ch4: manual setpoint 500 A is beyond the channel's hard limit of 20 A"
+        " (range -20 … 20 A); refused"
+    )
+    assert body["tag"]["value"] == 0.0  # nothing staged: the screen shows what is asked
+    status, body = await c.command("ch4", "manual_current", value=-25)
+    assert status == 409 and "hard limit of -20 A" in body["reason"], body
+    await c.scans(20)
+    assert c.value("ch4.manual_current") == 0.0 and c.value("ch4.current_cmd") == 0.0
+    # Inside the hard limits: accepted, and what flows is what was asked.
+    status, body = await c.put_tag("ch4.manual_current", 2)
+    assert (status, body["reason"]) == (200, "ch4: manual setpoint 2 A"), body
+    await c.scans(20)
+    assert c.value("ch4.current_cmd") == 2.0 and c.value("ch4.clamped") is False

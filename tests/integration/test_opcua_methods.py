@@ -274,3 +274,25 @@ async def test_an_engineer_writes_engineer_tags_an_operator_may_not(tmp_path: Pa
                     S.BadUserAccessDenied if user == "alice" else S.BadOutOfRange
                 )
         assert rig.bench.db["ch0.limit_set.voltage_max"].value == 1.7
+
+
+async def test_issue26_finding_4_a_setpoint_beyond_the_hard_limits_is_bad_out_of_range(
+    rig: Rig,
+) -> None:
+    async with rig.client("alice") as c:
+        ns = await rig.ns(c)
+        ch1 = Channel(c, ns, "ch1")
+        res = await ch1("SetManualCurrent", ua.Variant(5.0, VT.Double))
+        assert res.StatusCode.value == S.BadOutOfRange
+        assert text(res) == (
+            "ch1: manual setpoint 5 A is beyond the channel's hard limit of 0.4 A"
+            " (range -0.4 … 0.4 A); refused"
+        )
+        node = c.get_node(ua.NodeId("ch1.manual_current", ns))
+        with pytest.raises(ua.uaerrors.BadOutOfRange):
+            await node.write_value(ua.DataValue(ua.Variant(-5.0, VT.Double)))
+        # The hard limits are the variable's EURange: a client can know them beforehand.
+        eu = await c.get_node(ua.NodeId("ch1.manual_current.EURange", ns)).read_value()
+        assert (eu.Low, eu.High) == (-0.4, 0.4)
+        assert (await ch1("SetManualCurrent", ua.Variant(0.4, VT.Double))).StatusCode.is_good()
+    assert rig.bench.db["ch1.manual_current"].value == 0.4

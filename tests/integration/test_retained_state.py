@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import itertools
 import json
+import logging
 import re
 import sqlite3
 from collections.abc import AsyncIterator
@@ -20,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from snapshot_cases import BAD_VALUES
 
 from supervisor.app import Bench, build_bench
 from supervisor.app.retained import RESTORE_ALARM, WRITE_ALARM
@@ -27,6 +29,7 @@ from supervisor.chains.states import State
 from supervisor.core.clock import VirtualClock
 from supervisor.devices.registry import bench_from_data
 from supervisor.publish.retain import STATE_NAME, RetainStore
+from supervisor.tags.spec import shown
 
 pytestmark = pytest.mark.integration
 
@@ -547,3 +550,106 @@ async def test_a_running_channel_is_saved_one_scan_before_its_period_is_over(
     gaps = [t1 - t0 for t0, t1 in itertools.pairwise(saves)]
     assert len(saves) >= 30
     assert max(gaps) <= b.cfg.retain.period_s - b.cfg.scan.period_s + 1e-6, gaps
+
+
+# --- issue 26, finding 5: a corrupt saved test is refused, never taken for an ended one -----
+def corrupt(state_dir: Path, edit: Any) -> None:
+    """Edit ch0's saved document in place, as a person (or a bad disk) would."""
+    with sqlite3.connect(state_dir / STATE_NAME) as conn:
+        (text,) = conn.execute("SELECT document FROM retained WHERE key = 'channel:ch0'").fetchone()
+        doc = json.loads(text)
+        edit(doc)
+        conn.execute(
+            "UPDATE retained SET document = ? WHERE key = 'channel:ch0'", (json.dumps(doc),)
+        )
+    conn.close()
+
+
+async def a_saved_test_corrupted(tmp_path: Path, edit: Any) -> tuple[Bench, Path, list[str]]:
+    """A test under way on ch0, the supervisor killed, its saved document edited, a new
+    supervisor started on it: that bench, the test's folder and the restore's report."""
+    b1 = new_bench(tmp_path / "var")
+    folder = await started(b1, tmp_path)
+    await b1.engine.run_for(30.0)
+    die(b1)
+    corrupt(tmp_path / "var", edit)
+    b2 = new_bench(tmp_path / "var", wall_of(b1) + AWAY_S)
+    return b2, folder, b2.retain()
+
+
+def assert_refused_and_said(
+    b: Bench, folder: Path, report: list[str], says: list[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """Not resumed and not ended: Idle, the test's record left as it was (not completed),
+    the alarm raised, a log line and the report saying what was wrong, a copy of the file
+    as it was kept beside it."""
+    runner = b.runners["ch0"]
+    assert runner.state is State.IDLE and runner.program is None
+    s = summary(folder)
+    assert s["complete"] is False and s["state"] not in ("Complete", "Stopped", "Aborted"), s
+    assert len(report) == 1, report
+    for text in ["ch0: retained state unreadable", "starts Idle", *says]:
+        assert text in report[0], report[0]
+    assert b.alarms is not None
+    alarm = b.alarms[RESTORE_ALARM]
+    assert alarm.in_alarm and not alarm.acked and alarm.message == report[0]
+    assert b.db["retain.restore"].value == report[0]
+    errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+    assert report[0] in errors
+    assert b.retention is not None
+    state_dir = b.retention.store.path.parent
+    copies = sorted(state_dir.glob(f"{STATE_NAME}.corrupt-*"))
+    assert len(copies) == 1 and f"the state file as it was is kept as {copies[0]}" in report[0]
+    assert "channel:ch0" in RetainStore(copies[0]).read()
+
+
+@pytest.mark.parametrize("name", sorted(BAD_VALUES))
+async def test_a_wrong_value_in_any_field_of_the_saved_test_is_refused_with_the_alarm(
+    tmp_path: Path, name: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    bad = BAD_VALUES[name][0]  # "Xunning" for the state: the finding itself
+
+    def edit(doc: dict[str, Any]) -> None:
+        doc["chain"][name] = bad
+
+    caplog.set_level(logging.ERROR)
+    b, folder, report = await a_saved_test_corrupted(tmp_path, edit)
+    assert_refused_and_said(b, folder, report, [f"field {name}", shown(bad)], caplog)
+    # Nothing of it was restored, and the channel saves its true state from now on.
+    await b.engine.run_for(3.0)
+    assert b.retention is not None and b.retention.store.flush()
+    assert RetainStore(tmp_path / "var" / STATE_NAME).read()["channel:ch0"]["chain"] is None
+
+
+@pytest.mark.parametrize(
+    ("edit", "says"),
+    [
+        (lambda d: d.update(mode="sideways"), "field mode: 'sideways' is not one of manual, auto"),
+        (lambda d: d["tags"].update({"ch0.charged_ah": "lots"}), "tags.ch0.charged_ah: 'lots'"),
+        (lambda d: d["recipe"].update(text=None), "recipe field text: null is not a text"),
+        (lambda d: d["recipe"].update(parameters=[]), "recipe field parameters: an empty list"),
+        (lambda d: d.update(speed=3), "unknown field 'speed'"),
+        (lambda d: d.update(chain=[]), "chain snapshot is a mapping"),
+    ],
+    ids=["mode", "counter", "recipe-text", "recipe-parameters", "unknown", "chain-shape"],
+)
+async def test_a_wrong_value_anywhere_in_the_channels_document_is_refused_with_the_alarm(
+    tmp_path: Path, edit: Any, says: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.ERROR)
+    b, folder, report = await a_saved_test_corrupted(tmp_path, edit)
+    assert_refused_and_said(b, folder, report, [says], caplog)
+    assert b.db["ch0.mode"].value == "manual"  # nothing of the document was applied
+    assert b.db["ch0.charged_ah"].value == 0.0
+
+
+async def test_a_saved_sleep_or_group_beyond_the_recipe_is_not_resumed_and_says_why(
+    tmp_path: Path,
+) -> None:
+    b, folder, report = await a_saved_test_corrupted(
+        tmp_path, lambda d: d["chain"].update(group_time_s={"3": 10.0})
+    )
+    assert b.runners["ch0"].state is State.IDLE
+    assert "the saved group times name group 4, beyond the 0 groups of recipe cycle" in report[0]
+    s = summary(folder)
+    assert s["state"] == "Aborted" and "not resumed after a restart" in s["end_reason"]

@@ -80,7 +80,9 @@ async def test_300_ma_charge_raises_the_cell_voltage_and_the_ah_counter_matches_
 
 async def test_an_out_of_range_manual_setpoint_is_clamped_before_it_reaches_the_board() -> None:
     _clock, bench = sim_bench()
-    bench.db.write("ch2.manual_current", 1.0)  # ch2 is limited to 0.2 A in sim.yaml
+    # ch2 is limited to 0.2 A in sim.yaml; the command path refuses 1 A, so written past it
+    # as a process value: the channel's clamp still holds.
+    bench.db.update(bench.db["ch2.manual_current"], 1.0)
     bench.db.write("ch2.enable", True)
     await bench.engine.run_for(2.0)
     assert bench.channels["ch2"].clamped.value is True

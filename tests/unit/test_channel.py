@@ -36,11 +36,13 @@ def test_manual_setpoint_reaches_the_command_only_when_enabled() -> None:
 def test_an_out_of_range_setpoint_is_clamped_to_the_hard_limit_and_reported() -> None:
     db, ch = make()
     db.write("ch0.enable", True)
-    db.write("ch0.manual_current", 5.0)
+    # Past the command path (which refuses it, and TagDB.write too: the tag's range is the
+    # hard limits), the channel's clamp still holds: written as a process value.
+    db.update(ch.manual_current, 5.0)
     scan(ch, 1)
     assert ch.current_cmd.value == 0.4
     assert ch.clamped.value is True
-    db.write("ch0.manual_current", -5.0)
+    db.update(ch.manual_current, -5.0)
     scan(ch, 1)
     assert ch.current_cmd.value == -0.4
     db.write("ch0.manual_current", 0.1)

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from supervisor.chains.compiler import compile_recipe
+from supervisor.config.recipe import load_recipe_text
 from supervisor.core.records import ChainEvent, Record
 from supervisor.publish.display import ChadecheDisplay, display_line
 from supervisor.publish.results import BDF_COLUMNS, CycleSummary, ResultCollector, chadeche_line
@@ -96,6 +98,36 @@ def test_the_chadeche_result_line_uses_the_chains_setpoint() -> None:
     assert chadeche_line(REC, dba=0) == (
         "C;01;07;0; 50; 17520; 159; 17520; 21;1.373;1302.4;Mon May 22 03:21:43 2017"
     )
+
+
+@pytest.mark.parametrize(
+    ("step_type", "setpoint_a", "letter"),
+    [
+        ("CC_DCH", 0.0, "D"),  # issue 26, 6b: a discharge row at 0 mA is a D row
+        ("CC_DCH", -0.0, "D"),
+        ("CC_DCH", -0.2, "D"),
+        ("CC_CHG", 0.0, "C"),
+        ("CCCV_CHG", 0.05, "C"),
+        ("REST", 0.0, "C"),
+        ("PROFILE", -0.1, "D"),  # no direction of its own: the setpoint's sign
+        ("PROFILE", 0.1, "C"),
+    ],
+)
+def test_the_chadeche_line_letter_is_the_steps_direction_even_at_0_ma(
+    step_type: str, setpoint_a: float, letter: str
+) -> None:
+    line = chadeche_line(replace(REC, step_type=step_type, setpoint_a=setpoint_a), dba=0)
+    assert line.startswith(f"{letter};01;07;0;")
+
+
+def test_a_charge_or_discharge_step_at_0_ma_keeps_its_bdf_step_type() -> None:
+    text = (
+        "recipe: r\nsteps:\n  - {id: c, charge: 0 mA, duration: 1 min}\n"
+        "  - {id: d, discharge: 0 mA, duration: 1 min}\n"
+    )
+    recipe, pos = load_recipe_text(text, "r.yaml")
+    program = compile_recipe(recipe, pos, "r.yaml")
+    assert [s.step_type for s in program.steps] == ["CC_CHG", "CC_DCH"]
 
 
 def test_result_files_are_written_from_events_and_records(tmp_path: Path) -> None:

@@ -93,6 +93,7 @@ export async function render({ root, app, params }) {
       ${value("charged counter", `${p}charged_ah`, 'data-fmt="n3"')}
       ${value("discharged counter", `${p}discharged_ah`, 'data-fmt="n3"')}
       ${value("current command", `${p}current_cmd`, 'data-fmt="n3"')}
+      ${value("clamped by a limit", `${p}clamped`, 'data-true="yes: less than asked flows" data-false="no" data-abn="true" id="ch-clamped"')}
       ${value("manual setpoint", `${p}manual_current`, 'data-fmt="n3" id="ch-manual-current"')}
       ${value("output enabled", `${p}enable`, 'data-true="yes" data-false="no"')}
     </section>

@@ -90,7 +90,8 @@ METHODS: Final[tuple[Method, ...]] = (
     Method(
         "SetManualCurrent",
         "manual_current",
-        "The Manual setpoint in A (+ charges); clamped to the channel's limits",
+        "The Manual setpoint in A (+ charges): Bad_OutOfRange beyond the channel's hard limits"
+        " (its EURange), clamped within them to what the safety phase allows",
         (Arg("Current", "Current in A (+ charges)", (VT.Double, VT.Float)),),
     ),
     Method(

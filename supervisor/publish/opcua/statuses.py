@@ -81,6 +81,7 @@ REFUSAL_STATUS: Final[Mapping[str, int]] = {
     "forbidden": S.BadUserAccessDenied,
     "not found": S.BadNotFound,
     "refused": S.BadInvalidState,
+    "out of range": S.BadOutOfRange,  # beyond a channel's hard limits
     "invalid recipe": S.BadConfigurationError,
     "timeout": S.BadTimeout,
     "internal error": S.BadInternalError,
