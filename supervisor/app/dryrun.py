@@ -265,12 +265,15 @@ async def dry_run(
             sequence.append((ev.step_id, cause))
 
     runner.listeners.append(steps)
+    # The run's speed is measured as a whole (simulated over wall time), not scan by scan;
+    # from the first scan on: a timed scan takes a branch by its wall duration (a new
+    # longest scan), which made a dry run's bytecodes differ from run to run
+    # (tests/unit/test_dry_run_cost.py).
+    bench.engine.measure_durations = False
     await bench.engine.run_for(3 * period_s)  # first images in
     runner.command("start", actor="dry-run")
     # Nothing else runs on this loop during a chunk (should_stop is asked between chunks).
     bench.engine.yield_every_scans = DRY_RUN_YIELD_SCANS
-    # The run's speed is measured as a whole (simulated over wall time), not scan by scan.
-    bench.engine.measure_durations = False
     with settled_heap():
         t0 = time.perf_counter()
         sim0 = clock.now()
