@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from supervisor.config import users as users_module
 from supervisor.config.users import UserStore, add_user
 from supervisor.core.logins import ADDRESS, FORGET_S, PAIR, USER, LoginThrottle
 
@@ -131,13 +132,22 @@ def users(tmp_path: Path) -> UserStore:
     return UserStore(path)
 
 
-def test_an_unknown_user_costs_the_same_password_hash_as_a_known_one(users: UserStore) -> None:
+def test_an_unknown_user_costs_the_same_password_hash_as_a_known_one(
+    users: UserStore, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    runs: list[int] = []
+    scrypt = users_module._scrypt
+
+    def counted(password: str, salt: bytes, n: int, r: int, p: int) -> bytes:
+        runs.append(n)
+        return scrypt(password, salt, n, r, p)
+
+    monkeypatch.setattr(users_module, "_scrypt", counted)
+    users.authenticate("nobody", "warm-up")  # the first unknown name also makes the dummy
+    runs.clear()
     assert users.authenticate("otto", "wrong") is None
-    known = users.checks
+    known = list(runs)
+    runs.clear()
     assert users.authenticate("mallory", "wrong") is None
-    assert users.checks - known == known == 1
-    assert users.authenticate("mallory", "wrong") is None
-    assert users.checks == 3
-    # The dummy hash has the parameters of the file's hashes (the same work).
-    assert users._dummy is not None
-    assert users._dummy.split("$")[1:4] == users._users["otto"].password.split("$")[1:4]
+    assert runs == known == [users_module.SCRYPT_N]  # one scrypt each, the same parameters
+    assert users.checks == 3  # the store's own count: one hash per unknown or wrong try
