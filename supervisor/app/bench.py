@@ -34,6 +34,7 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver, DType
 from supervisor.core.errors import OperatorError
 from supervisor.core.gate import ScanGate
+from supervisor.core.logins import LoginThrottle
 from supervisor.core.realtime import RealtimePriority
 from supervisor.core.records import ChainEvent, Record
 from supervisor.core.units import UNITS, Dim
@@ -107,6 +108,9 @@ class Bench:
     """Real clock: the publishers' threads keep out of the scan's way (``core/gate.py``)."""
     commands: CommandPath = field(init=False)
     """The one path of operator commands (HTTP, command line, the ``chN.command`` tags)."""
+    logins: LoginThrottle | None = field(init=False, default=None)
+    """Failed-login counts shared by HTTP and OPC UA (``app/logins.py``: made by the first
+    server that checks passwords)."""
 
     def __post_init__(self) -> None:
         if not self.clock.virtual:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from supervisor.app.bench import Bench
 from supervisor.app.events import EventFeed
+from supervisor.app.logins import login_throttle
 from supervisor.config.models import HmiConfig
 from supervisor.config.users import UserStore
 from supervisor.hmi import HttpApi
@@ -31,7 +32,9 @@ def build_screens(
     (tests)."""
     cfg = cfg or bench.cfg.hmi
     users = UserStore(OpcUaSettings.of(bench.cfg).users_file) if cfg.login else None
-    screens = install_screens(api, cfg, users, bench, root, queue_size)
+    # Failed logins are counted with OPC UA's: one throttle per bench.
+    throttle = login_throttle(bench) if cfg.login else None
+    screens = install_screens(api, cfg, users, bench, root, queue_size, throttle)
     bench.engine.publishers.append(screens.live)
     events = EventFeed()
     events.sinks.append(screens.live)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from supervisor.app.bench import Bench
 from supervisor.app.events import EventFeed
+from supervisor.app.logins import login_throttle
 from supervisor.commands import Command, Target, Verb
 from supervisor.core.clock import Clock
 from supervisor.publish.opcua import (
@@ -39,6 +40,7 @@ def build_opcua(
     bad users file."""
     settings = settings or OpcUaSettings.of(bench.cfg)
     users = UserStore(settings.users_file)
+    throttle = login_throttle(bench)  # declares its alarm: before the layout is planned
     feed = OpcUaFeed(bench.db)  # declares opcua.*: before the layout is planned
     bench.engine.publishers.append(feed)
     alarms = bench.alarms
@@ -76,6 +78,7 @@ def build_opcua(
         threaded=threaded,
         history=history,
         gate=bench.gate if threaded else None,  # on the scan's own loop it needs none
+        throttle=throttle,
     )
     events = EventFeed()
     events.sinks.append(feed)

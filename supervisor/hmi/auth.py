@@ -11,7 +11,14 @@ The users are the OPC UA users (``supervisor.config.users.UserStore``, one file)
 - A session expires after ``hmi.session_timeout_s`` without a request (ISA-101 panels are
   shared: a shift left logged in must not command the next one's bench).
 - A wrong user and a wrong password get the same answer (401, "wrong user name or
-  password"): the answer never tells which part was wrong.
+  password") after the same work (an unknown user is checked against a dummy hash): the
+  answer never tells which part was wrong, nor does its time.
+- Failed logins are throttled per user and per client address by the bench's one
+  ``LoginThrottle`` (``supervisor.core.logins``, shared with OPC UA): past the limit a try
+  is refused before its password is checked with 429, ``Retry-After`` and the reason.
+- At most ``MAX_SESSIONS_PER_USER`` sessions per user (a new one closes that user's own
+  oldest) and ``MAX_SESSIONS`` in all (then 503): one user's logins never close another's
+  session.
 - Without a session a GET answers as an anonymous viewer when ``hmi.anonymous_read``, else
   401; a write or command always 401. A viewer's command is refused by the command path's
   role hook (``HmiRoles``): 403 with "viewer may not ...". The actor of a command is
@@ -26,6 +33,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import secrets
 from collections import OrderedDict
 from collections.abc import Awaitable, Callable
@@ -37,6 +45,7 @@ from aiohttp import web
 from supervisor.commands import Command, Verb
 from supervisor.commands.roles import Roles
 from supervisor.config.users import ANONYMOUS, ROLE_ACCESS, ROLES, Role, User, UserStore
+from supervisor.core.logins import LoginThrottle
 from supervisor.hmi.server import ACTOR_KEY, json_dumps
 from supervisor.tags import Access
 
@@ -47,8 +56,12 @@ ACTOR_PREFIX: Final = "hmi:"
 LOGIN_OFF_ACTOR: Final = "operator"
 """The actor of every command when ``hmi.login`` is false (what the API always used)."""
 MAX_SESSIONS: Final = 1000
-"""Open sessions kept at most; past it the least recently used goes (a script logging in
-in a loop must not grow the process)."""
+"""Open sessions kept at most (a script logging in in a loop must not grow the process);
+past it a new login is refused (503), never another user's session closed."""
+MAX_SESSIONS_PER_USER: Final = 8
+"""Open sessions of one user at most (a few panels and browsers); a new login past it
+closes that user's own least recently used session, nobody else's (issue 27: a viewer
+logging in 1001 times evicted every other session, the operator's included)."""
 MAX_CREDENTIAL_CHARS: Final = 1024
 LOGIN_CHECKS: Final = 2
 """Password checks (scrypt, ~50 ms of one core each) running at once at most."""
@@ -84,24 +97,46 @@ ANONYMOUS_VIEWER: Final = Principal(ANONYMOUS, "viewer", ACTOR_PREFIX + ANONYMOU
 LOGIN_OFF: Final = Principal(ANONYMOUS, "operator", LOGIN_OFF_ACTOR)
 
 
+class SessionsFull(Exception):
+    """No room for one more session: the table is full of other users' live sessions."""
+
+
 class Sessions:
     """The open sessions, expiring ``timeout_s`` after their last use (``now``: the clock's
-    ``now``, so that a test moves it)."""
+    ``now``, so that a test moves it). At most ``per_user`` per user (a new one closes the
+    user's own least recently used) and ``max_sessions`` in all (``open`` raises
+    ``SessionsFull`` rather than close another user's live session)."""
 
     def __init__(
-        self, timeout_s: float, now: Callable[[], float], max_sessions: int = MAX_SESSIONS
+        self,
+        timeout_s: float,
+        now: Callable[[], float],
+        max_sessions: int = MAX_SESSIONS,
+        per_user: int = MAX_SESSIONS_PER_USER,
     ) -> None:
         self.timeout_s = timeout_s
         self._now = now
         self._max = max_sessions
+        self._per_user = per_user
         self._open: OrderedDict[str, Session] = OrderedDict()
 
     def open(self, user: User) -> Session:
+        now = self._now()
+        # Least recently used first: the order the table keeps.
+        own = [t for t, s in self._open.items() if s.user == user.name]
+        for token in own[: max(0, len(own) - self._per_user + 1)]:
+            del self._open[token]
+        if len(self._open) >= self._max:
+            for token in [t for t, s in self._open.items() if now - s.last_t >= self.timeout_s]:
+                del self._open[token]
+        if len(self._open) >= self._max:
+            raise SessionsFull(
+                f"{len(self._open)} sessions are open, the most this bench keeps: try again"
+                " when one is closed or expired"
+            )
         token = secrets.token_urlsafe(32)
-        session = Session(token, user.name, user.role, self._now())
+        session = Session(token, user.name, user.role, now)
         self._open[token] = session
-        while len(self._open) > self._max:
-            self._open.popitem(last=False)
         return session
 
     def get(self, token: str | None, touch: bool = True) -> Session | None:
@@ -222,6 +257,7 @@ class HmiAccess:
         sessions: Sessions,
         login: bool,
         anonymous_read: bool,
+        throttle: LoginThrottle,
     ) -> None:
         if login and users is None:
             raise ValueError("login needs a user store")
@@ -229,6 +265,7 @@ class HmiAccess:
         self.sessions = sessions
         self.login = login
         self.anonymous_read = anonymous_read
+        self.throttle = throttle
         self._checks = asyncio.Semaphore(LOGIN_CHECKS)
 
     def install(self, app: web.Application) -> None:
@@ -313,14 +350,41 @@ class HmiAccess:
                 400,
             )
         assert self.users is not None
+        name, address = body["user"], request.remote or ""
         # scrypt: about 50 ms of CPU, never on the scan's event loop, and at most
-        # LOGIN_CHECKS at a time (a burst of logins must not take every core).
+        # LOGIN_CHECKS at a time (a burst of logins must not take every core). The
+        # throttle is asked once the turn has come: tries queued together are counted.
+        user: User | None = None
         async with self._checks:
-            user = await asyncio.to_thread(self.users.authenticate, body["user"], body["password"])
+            refusal = self.throttle.refusal(name, address)
+            if refusal is None:
+                user = await asyncio.to_thread(self.users.authenticate, name, body["password"])
+        if refusal is not None:
+            # The password is not checked, the right one is refused too: else the delay
+            # would slow no guesser. Logged at debug: a flood must not fill the log (the
+            # burst raises ``security.login_burst``).
+            log.debug("hmi: login for %r from %s refused: %s", name[:64], address, refusal.reason)
+            retry_after_s = max(1, math.ceil(refusal.retry_after_s))
+            resp = _answer(
+                {
+                    "error": "too many failed logins",
+                    "reason": refusal.reason,
+                    "retry_after_s": retry_after_s,
+                },
+                429,
+            )
+            resp.headers["Retry-After"] = str(retry_after_s)
+            return resp
         if user is None:
-            log.warning("hmi: failed login for %r from %s", body["user"][:64], request.remote)
+            self.throttle.failed(name, address)
+            log.warning("hmi: failed login for %r from %s", name[:64], address)
             return _answer({"error": "login failed", "reason": WRONG_CREDENTIALS}, 401)
-        session = self.sessions.open(user)
+        self.throttle.succeeded(name, address)
+        try:
+            session = self.sessions.open(user)
+        except SessionsFull as exc:
+            log.warning("hmi: login of %s refused: %s", user.name, exc)
+            return _answer({"error": "too many sessions", "reason": str(exc)}, 503)
         log.info("hmi: %s logged in (%s) from %s", user.name, user.role, request.remote)
         p = Principal(user.name, user.role, ACTOR_PREFIX + user.name, session)
         resp = _answer(self._session_json(p), 200)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from supervisor.config.models import HmiConfig
 from supervisor.config.users import UserStore
+from supervisor.core.logins import LoginThrottle
 from supervisor.hmi.auth import HmiAccess, HmiRoles, Sessions
 from supervisor.hmi.layout import BenchView, Layout
 from supervisor.hmi.live import QUEUE_SIZE, LiveHub
@@ -36,12 +37,15 @@ def install_screens(
     bench: BenchView | None = None,
     root: Path = DEFAULT_ROOT,
     queue_size: int = QUEUE_SIZE,
+    throttle: LoginThrottle | None = None,
 ) -> Screens:
     """Add login, ``/api/ws``, ``/api/bench|diagnostics``, a channel's program and the
     static files to ``api``; the command path's role hook learns the HMI's users. The
-    caller gives ``screens.live`` to the scan (a publisher) and to the bench's events."""
+    caller gives ``screens.live`` to the scan (a publisher) and to the bench's events.
+    ``throttle``: the bench's failed-login counts, shared with OPC UA (else its own)."""
     sessions = Sessions(cfg.session_timeout_s, api.clock.now)
-    access = HmiAccess(users, sessions, cfg.login, cfg.anonymous_read)
+    throttle = throttle or LoginThrottle(api.clock.now)
+    access = HmiAccess(users, sessions, cfg.login, cfg.anonymous_read, throttle)
     access.install(api.app)
     api.commands.roles = HmiRoles(users, api.commands.roles)
     live = LiveHub(api.db, api.clock, cfg.publish_period_s, api.commands.alarms, queue_size)

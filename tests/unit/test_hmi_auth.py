@@ -23,6 +23,7 @@ from supervisor.hmi.auth import (
     HmiRoles,
     Principal,
     Sessions,
+    SessionsFull,
     refuse_unless,
 )
 from supervisor.tags import Access
@@ -67,14 +68,29 @@ def test_tokens_are_unguessable_and_unknown_ones_find_nothing() -> None:
     assert sessions.get("guess") is None and sessions.get(None) is None and sessions.get("") is None
 
 
-def test_sessions_are_bounded_the_least_recently_used_goes() -> None:
-    sessions = Sessions(timeout_s=60.0, now=Now(), max_sessions=2)
+def test_sessions_are_bounded_a_full_table_of_other_users_refuses_rather_than_evicts() -> None:
+    now = Now()
+    sessions = Sessions(timeout_s=60.0, now=now, max_sessions=2)
     first = sessions.open(User("a", "viewer"))
-    second = sessions.open(User("b", "viewer"))
-    sessions.get(first.token)  # used: now the most recent
-    sessions.open(User("c", "viewer"))
-    assert sessions.get(second.token) is None
-    assert sessions.get(first.token) is first
+    second = sessions.open(User("b", "operator"))
+    with pytest.raises(SessionsFull, match="2 sessions are open, the most this bench keeps"):
+        sessions.open(User("c", "viewer"))
+    assert sessions.get(first.token) is first and sessions.get(second.token) is second
+    now.t += 30.0
+    sessions.get(second.token)
+    now.t += 30.0  # the first expired: its room is taken back
+    third = sessions.open(User("c", "viewer"))
+    assert sessions.get(third.token) is third and sessions.get(second.token) is second
+
+
+def test_a_user_past_their_session_limit_closes_their_own_oldest_never_another_users() -> None:
+    sessions = Sessions(timeout_s=60.0, now=Now(), max_sessions=10, per_user=3)
+    operator = sessions.open(User("otto", "operator"))
+    opened = [sessions.open(User("vera", "viewer")) for _ in range(1001)]
+    assert sessions.get(operator.token) is operator
+    assert [sessions.get(s.token) for s in opened[-3:]] == opened[-3:]
+    assert all(sessions.get(s.token) is None for s in opened[:-3])
+    assert len(sessions) == 4
 
 
 @pytest.fixture

@@ -23,6 +23,7 @@ import contextvars
 import hashlib
 import logging
 import socket
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final, Protocol
@@ -34,11 +35,13 @@ from asyncua.crypto.permission_rules import ADMIN_TYPES, USER_TYPES, PermissionR
 from asyncua.crypto.permission_rules import User as UaUser
 from asyncua.crypto.truststore import TrustStore
 from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
+from asyncua.server.internal_session import InternalSession
 from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from supervisor.config.users import ANONYMOUS, ROLE_ACCESS, UserStore
+from supervisor.core.logins import LoginThrottle
 from supervisor.tags import Access
 
 log = logging.getLogger(__name__)
@@ -87,12 +90,39 @@ class SessionRules(PermissionRuleset):  # type: ignore[misc]
         return action_type_id in self._allowed and action_type_id not in self._never
 
 
-class PasswordUsers:
-    """asyncua's user manager: users of the users file, and anonymous sessions if allowed."""
+def _peer_address() -> str:
+    """The client address of the session being activated ("" when not found).
 
-    def __init__(self, store: UserStore, anonymous: bool) -> None:
+    asyncua hands its user manager neither the session nor the connection; the session
+    (whose ``name`` is the connection's peer address) is ``self`` of the
+    ``activate_session`` frame that calls it, a few frames up."""
+    frame = sys._getframe(1)
+    for _ in range(8):
+        frame = frame.f_back  # type: ignore[assignment]
+        if frame is None:
+            break
+        found = frame.f_locals.get("self")
+        if isinstance(found, InternalSession):
+            name = found.name
+            if isinstance(name, tuple | list) and name:
+                return str(name[0])
+            return str(name or "")
+    return ""
+
+
+class PasswordUsers:
+    """asyncua's user manager: users of the users file, and anonymous sessions if allowed.
+
+    Password tries go through the bench's ``LoginThrottle`` (shared with the HMI): past the
+    limit for the user or the client's address a try is refused (Bad_UserAccessDenied)
+    without its password being checked, the right one too, until the delay is over."""
+
+    def __init__(
+        self, store: UserStore, anonymous: bool, throttle: LoginThrottle | None = None
+    ) -> None:
         self.store = store
         self.anonymous = anonymous
+        self.throttle = throttle
 
     def get_user(
         self,
@@ -107,10 +137,24 @@ class PasswordUsers:
             if not self.anonymous:
                 return None
             return SessionUser(role=UserRole.Anonymous, name=None, access_role="viewer")
+        address = _peer_address()
+        if self.throttle is not None:
+            refusal = self.throttle.refusal(username, address)
+            if refusal is not None:
+                # Logged at debug: a flood must not fill the log (the burst raises
+                # ``security.login_burst``). OPC UA has no field for the reason.
+                log.debug(
+                    "OPC UA login of %r from %s refused: %s", username[:64], address, refusal.reason
+                )
+                return None
         user = self.store.authenticate(username, password or "")
         if user is None:
-            log.warning("OPC UA login refused for user %r", username)
+            if self.throttle is not None:
+                self.throttle.failed(username, address)
+            log.warning("OPC UA login refused for user %r from %s", username[:64], address)
             return None
+        if self.throttle is not None:
+            self.throttle.succeeded(username, address)
         return SessionUser(role=UserRole.User, name=user.name, access_role=user.role)
 
 

@@ -41,6 +41,7 @@ from supervisor.config.models import BenchConfig
 from supervisor.config.users import ROLE_ACCESS, UserStore
 from supervisor.core.clock import Clock
 from supervisor.core.gate import ScanGate
+from supervisor.core.logins import LoginThrottle
 from supervisor.core.loops import HookedLoop
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
@@ -158,8 +159,11 @@ class OpcUaServer:
         threaded: bool = True,
         history: HistoryQuery | None = None,
         gate: ScanGate | None = None,
+        throttle: LoginThrottle | None = None,
     ) -> None:
         self.settings = settings
+        self.throttle = throttle or LoginThrottle(clock.now)
+        """Failed logins, counted with the HMI's (``supervisor.core.logins``)."""
         self.gate = gate
         """On its own thread: each turn of its event loop waits while a scan runs."""
         self.history = history
@@ -342,7 +346,7 @@ class OpcUaServer:
         if logging.getLogger("asyncua").level == logging.NOTSET:
             # asyncua logs every request at INFO; the bench's own log says what matters.
             logging.getLogger("asyncua").setLevel(logging.WARNING)
-        server = Server(user_manager=PasswordUsers(self.users, s.anonymous))
+        server = Server(user_manager=PasswordUsers(self.users, s.anonymous, self.throttle))
         # ConditionRefresh replays the retained alarm conditions (asyncua keeps them).
         server.iserver.bind_condition_methods = True
         self._server = server
