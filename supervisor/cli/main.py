@@ -400,8 +400,10 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 # --- check ---------------------------------------------------------------------------
-def _check_one(path: Path) -> list[ConfigError]:
+def _check_one(path: Path, warnings: list[str] | None = None) -> list[ConfigError]:
+    """The file's errors; an I/O map's network exposure appended to ``warnings``."""
     from supervisor.chains.compiler import compile_recipe
+    from supervisor.config.exposure import exposure_warnings
     from supervisor.config.recipe import load_recipe
     from supervisor.config.yamlpos import load_yaml
     from supervisor.devices.registry import load_bench
@@ -412,7 +414,9 @@ def _check_one(path: Path) -> list[ConfigError]:
             recipe, pos = load_recipe(path)
             compile_recipe(recipe, pos, str(path))
         else:
-            load_bench(path)
+            cfg = load_bench(path)
+            if warnings is not None:
+                warnings.extend(exposure_warnings(cfg))
     except ConfigErrors as exc:
         return exc.errors
     except ConfigError as exc:
@@ -423,9 +427,12 @@ def _check_one(path: Path) -> list[ConfigError]:
 def cmd_check(args: argparse.Namespace) -> int:
     bad = 0
     for f in args.files:
-        errors = _check_one(Path(f))
+        warnings: list[str] = []
+        errors = _check_one(Path(f), warnings)
         for e in errors:
             _err(e.location_message())
+        for w in warnings:  # a warning, not an error: the exit code stays 0
+            _err(f"{f}: warning: {w}")
         if errors:
             bad += 1
         else:
