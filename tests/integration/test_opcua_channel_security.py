@@ -162,3 +162,21 @@ async def test_a_request_with_another_sessions_token_is_refused(tmp_path: Path) 
             ("opcua:alice", True),
             ("opcua:bob", False),
         ]
+
+
+async def test_a_session_never_activated_is_replaced_by_the_next_one(tmp_path: Path) -> None:
+    async with opcua_rig(tmp_path) as rig:
+        c = Client(rig.server.endpoint, timeout=10)
+        await c.connect_socket()
+        try:
+            await c.send_hello()
+            await c.open_secure_channel()
+            await c.create_session()  # then no ActivateSession: a login given up
+            await c.create_session()
+            await c.activate_session("alice", PASSWORDS["alice"])
+            res = await set_manual_current(rig, c, 0.1)
+            assert res.StatusCode.is_good(), text(res)
+            await c.close_session()
+        finally:
+            c.disconnect_socket()
+        assert [(e.actor, e.accepted) for e in rig.bench.commands.log] == [("opcua:alice", True)]

@@ -88,7 +88,10 @@ class SessionBoundProcessor(UaProcessor):  # type: ignore[misc]
                     "this secure channel already has an activated session: open another"
                     " connection for another session (one session per connection here)",
                 )
-            # Never activated (a refused login being retried): it has no user to lose.
+            # Never activated (a refused login being retried): it has no user to lose. Its
+            # watchdog goes with it (asyncua starts one per CreateSession).
+            if self._session_watchdog_task is not None:
+                self._session_watchdog_task.cancel()
             await session.close_session(True)
         elif (
             typeid not in SESSIONLESS
