@@ -400,9 +400,13 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 # --- check ---------------------------------------------------------------------------
-def _check_one(path: Path) -> tuple[list[ConfigError], tuple[ConfigError, ...]]:
-    """The errors of one file, and a recipe's warnings (a parameter nothing reads)."""
+def _check_one(
+    path: Path, warnings: list[str] | None = None
+) -> tuple[list[ConfigError], tuple[ConfigError, ...]]:
+    """The errors of one file, a recipe's warnings (a parameter nothing reads); an I/O
+    map's network exposure appended to ``warnings``."""
     from supervisor.chains.compiler import compile_recipe
+    from supervisor.config.exposure import exposure_warnings
     from supervisor.config.recipe import load_recipe
     from supervisor.config.yamlpos import load_yaml
     from supervisor.devices.registry import load_bench
@@ -412,7 +416,9 @@ def _check_one(path: Path) -> tuple[list[ConfigError], tuple[ConfigError, ...]]:
         if isinstance(data, dict) and "recipe" in data:
             recipe, pos = load_recipe(path)
             return [], compile_recipe(recipe, pos, str(path)).warnings
-        load_bench(path)
+        cfg = load_bench(path)
+        if warnings is not None:
+            warnings.extend(exposure_warnings(cfg))
     except ConfigErrors as exc:
         return exc.errors, ()
     except ConfigError as exc:
@@ -423,11 +429,14 @@ def _check_one(path: Path) -> tuple[list[ConfigError], tuple[ConfigError, ...]]:
 def cmd_check(args: argparse.Namespace) -> int:
     bad = 0
     for f in args.files:
-        errors, warnings = _check_one(Path(f))
+        exposure: list[str] = []
+        errors, warnings = _check_one(Path(f), exposure)
         for w in warnings:
             _err(f"warning: {w.location_message()}")
         for e in errors:
             _err(e.location_message())
+        for x in exposure:  # a warning, not an error: the exit code stays 0
+            _err(f"{f}: warning: {x}")
         if errors:
             bad += 1
         else:

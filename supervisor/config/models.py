@@ -141,11 +141,13 @@ class OpcUaConfig(Strict):
     enabled: bool = Field(False, description="Serve OPC UA while the bench runs.")
     host: str = Field("127.0.0.1", description="Address the OPC UA server listens on.")
     port: int = Field(4840, ge=1, le=65535, description="TCP port (4840 is OPC UA's own).")
-    security: list[OpcUaSecurity] = Field(
-        ["none", "sign", "sign_and_encrypt"],
+    security: list[OpcUaSecurity] | None = Field(
+        None,
         min_length=1,
-        description="Endpoints offered: leave out none to refuse unsecured sessions;"
-        " sign and sign_and_encrypt are Basic256Sha256 with a certificate made on first start.",
+        description="Endpoints offered: none (unsigned, in clear: passwords are still"
+        " encrypted with the server's certificate), sign and sign_and_encrypt (Basic256Sha256"
+        " with a certificate made on first start). Default: all three when host is loopback,"
+        " sign and sign_and_encrypt otherwise (a client then needs a trusted certificate).",
     )
     anonymous: bool = Field(True, description="Anonymous sessions may read (never write or call).")
     users_file: str | None = Field(
@@ -173,10 +175,20 @@ class OpcUaConfig(Strict):
 
     @field_validator("security")
     @classmethod
-    def _distinct(cls, v: list[str]) -> list[str]:
-        if len(set(v)) != len(v):
+    def _distinct(cls, v: list[str] | None) -> list[str] | None:
+        if v is not None and len(set(v)) != len(v):
             raise ValueError("each security mode once")
         return v
+
+    @property
+    def security_modes(self) -> tuple[OpcUaSecurity, ...]:
+        """The endpoints offered: ``security``, or by default None only on loopback (off it,
+        a None channel is unsigned and readable by anyone on the network; issue 27)."""
+        if self.security is not None:
+            return tuple(self.security)
+        if is_loopback(self.host):
+            return ("none", "sign", "sign_and_encrypt")
+        return ("sign", "sign_and_encrypt")
 
 
 # --- scaling, alarms, history ---------------------------------------------------------

@@ -60,6 +60,7 @@ from supervisor.publish.opcua.security import (
     actor_of,
     current_user,
 )
+from supervisor.publish.opcua.sessions import BenchServer
 from supervisor.publish.opcua.shelf import ensure_shelf
 from supervisor.publish.opcua.space import Built, build_space
 from supervisor.publish.opcua.statuses import NO_VALUE, quality_status, refusal_status
@@ -113,7 +114,7 @@ class OpcUaSettings:
             description=cfg.description,
             host=o.host,
             port=o.port,
-            security=tuple(o.security),
+            security=o.security_modes,
             anonymous=o.anonymous,
             users_file=Path(o.users_file) if o.users_file else base / "users.yaml",
             pki_dir=Path(o.pki_dir) if o.pki_dir else base / "pki",
@@ -346,7 +347,9 @@ class OpcUaServer:
         if logging.getLogger("asyncua").level == logging.NOTSET:
             # asyncua logs every request at INFO; the bench's own log says what matters.
             logging.getLogger("asyncua").setLevel(logging.WARNING)
-        server = Server(user_manager=PasswordUsers(self.users, s.anonymous, self.throttle))
+        # asyncua's server, but no password in clear and each request run as the session
+        # whose token it carries (``sessions.py``).
+        server = BenchServer(user_manager=PasswordUsers(self.users, s.anonymous, self.throttle))
         # ConditionRefresh replays the retained alarm conditions (asyncua keeps them).
         server.iserver.bind_condition_methods = True
         self._server = server
@@ -365,14 +368,14 @@ class OpcUaServer:
         server.set_security_policy(
             [POLICIES[p] for p in s.security], permission_ruleset=SessionRules()
         )
+        # The server's certificate even with only the None policy: a password is encrypted
+        # with it on every endpoint that does not encrypt the channel (issue 27).
+        pki = Pki(s.pki_dir)
+        await pki.ensure(self.namespace, s.bench)
+        await server.load_certificate(pki.cert)
+        await server.load_private_key(pki.key)
         if any(p != "none" for p in s.security):
-            pki = Pki(s.pki_dir)
-            await pki.ensure(self.namespace, s.bench)
-            await server.load_certificate(pki.cert)
-            await server.load_private_key(pki.key)
             server.set_certificate_validator(TrustList(pki))
-        elif len(self.users):
-            log.warning("OPC UA: no secure endpoint, passwords travel in clear (security: [none])")
         idx = await server.register_namespace(self.namespace)
         built = await build_space(
             server, idx, self.layout, s.sampling_interval_s or s.scan_period_s, self._historised()
