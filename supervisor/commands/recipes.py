@@ -12,7 +12,7 @@ turn (``CommandPath.execute``); the HTTP API awaits the first in its thread
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -24,8 +24,104 @@ from supervisor.config.limits import MAX_YAML_BYTES, read_limited
 from supervisor.config.recipe import load_recipe_text
 from supervisor.config.text import decode_yaml
 from supervisor.core.errors import ConfigError, ConfigErrors
+from supervisor.tags.spec import clipped_repr
 
-__all__ = ["PreparedRecipe", "RecipeLoader", "compile_recipe_file", "read_recipe_text"]
+__all__ = [
+    "PreparedRecipe",
+    "RecipeFolders",
+    "RecipeLoader",
+    "RecipeNotFound",
+    "RecipeOutside",
+    "compile_recipe_file",
+    "read_recipe_text",
+]
+
+RECIPE_SUFFIXES = (".yaml", ".yml")
+
+
+class RecipeOutside(Exception):
+    """A recipe asked for outside the recipe folders (the message names them, never the
+    file's content: it is never opened)."""
+
+
+class RecipeNotFound(Exception):
+    """No such recipe in the recipe folders."""
+
+
+@dataclass(frozen=True)
+class RecipeFolders:
+    """The path policy of recipes asked for over the network (HTTP, OPC UA, ``supervisor
+    ctl``, the screens' recipe editor; docs/adr/0026-threat-model.md): a recipe loads only
+    when its real path — every symbolic link followed — is inside the real path of one of
+    ``folders``. Anything else is refused before it is opened, whether it exists or not,
+    so that a refusal tells nothing of a file outside (neither its content nor that it is
+    there). The one place this is decided: the command path asks it for every load, the
+    recipe editor for every read."""
+
+    folders: tuple[Path, ...]
+    """As configured (relative to the working directory, like ``state_dir``)."""
+
+    @classmethod
+    def of(cls, folders: Sequence[str | Path]) -> RecipeFolders:
+        if not folders:
+            raise ValueError("recipe folders: at least one")
+        return cls(tuple(Path(f) for f in folders))
+
+    def describe(self) -> str:
+        return ", ".join(f"{f}/" for f in self.folders)
+
+    def _roots(self) -> list[Path]:
+        # Resolved at each use: a folder made (or re-linked) after start-up counts as it is.
+        roots = []
+        for f in self.folders:
+            try:
+                roots.append(f.resolve())
+            except (OSError, RuntimeError, ValueError):  # a link loop: no folder there
+                continue
+        return roots
+
+    def inside(self, path: str | Path) -> bool:
+        """Whether ``path``'s real location is inside one of the folders."""
+        roots = self._roots()
+        try:
+            real = Path(path).resolve()
+        except (OSError, RuntimeError, ValueError):  # a link loop, a NUL byte
+            return False
+        return any(real.is_relative_to(r) for r in roots)
+
+    def locate(self, recipe: str) -> Path:
+        """The file of ``recipe``: a name (``slow``: ``<folder>/slow.yaml`` in the first
+        folder that has it), a path relative to the working directory or to a folder, or an
+        absolute path. ``RecipeOutside`` when it is not inside a folder, ``RecipeNotFound``
+        when it is but is not there. The path returned is as given (error messages name
+        the file as the operator wrote it)."""
+        given = Path(recipe)
+        if "/" not in recipe and not recipe.endswith(RECIPE_SUFFIXES):
+            candidates = [f / f"{recipe}.yaml" for f in self.folders]  # a name
+        elif given.is_absolute():
+            candidates = [given]
+        else:
+            candidates = [given, *(f / given for f in self.folders)]
+        roots = self._roots()
+        missing: Path | None = None
+        for c in candidates:
+            try:
+                real = c.resolve()
+            except (OSError, RuntimeError, ValueError):  # a link loop, a NUL byte
+                continue
+            if not any(real.is_relative_to(r) for r in roots):
+                continue
+            # Not "is a file": a device (/dev/zero) or a pipe is read to its size limit,
+            # and refused there with the limit named (README: Input limits).
+            if real.exists():
+                return c
+            missing = missing or c
+        if missing is not None:
+            raise RecipeNotFound(f"{missing}: no such recipe in {self.describe()}")
+        raise RecipeOutside(
+            f"{clipped_repr(recipe)} is outside the recipe folders: recipes load only from"
+            f" {self.describe()} (the I/O map's recipes: folders)"
+        )
 
 
 @dataclass(frozen=True)

@@ -94,7 +94,7 @@ async def test_start_with_a_recipe_runs_it_and_the_step_change_event_arrives(
 
 
 async def test_start_finds_a_recipe_by_name_and_takes_its_parameters(rig: Rig) -> None:
-    folder = rig.settings.recipes_dir
+    folder = rig.tmp / "recipes"  # inside the rig's recipe folder (commandrig.io_map)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "low.yaml").write_text(WITH_PARAMETER, encoding="utf-8")
     async with rig.client("alice") as c:

@@ -98,7 +98,6 @@ class OpcUaSettings:
     anonymous: bool
     users_file: Path
     pki_dir: Path
-    recipes_dir: Path
     scan_period_s: float
     sampling_interval_s: float = 0.0
     """How often the scan hands changed tags to the server (``OpcUaFeed``); 0: every scan."""
@@ -116,7 +115,6 @@ class OpcUaSettings:
             anonymous=o.anonymous,
             users_file=Path(o.users_file) if o.users_file else base / "users.yaml",
             pki_dir=Path(o.pki_dir) if o.pki_dir else base / "pki",
-            recipes_dir=Path(o.recipes_dir),
             scan_period_s=cfg.scan.period_s,
             sampling_interval_s=sampling_interval_s(cfg.scan.period_s, o.sampling_interval_s),
         )
@@ -584,7 +582,7 @@ class OpcUaServer:
             if bad is None and method.verb in ("force", "unforce"):
                 return await self._force(method, args, actor)
             if bad is None:
-                req = methods.request(method, channel, args, actor, self.settings.recipes_dir)
+                req = methods.request(method, channel, args, actor)
             else:
                 req = bad
             if isinstance(req, methods.Invalid):
@@ -610,7 +608,7 @@ class OpcUaServer:
         variable = self.layout.variables.get(name)
         if variable is None:
             return _result(S.BadNodeIdUnknown, f"{method.name}: unknown tag {name!r}", n)
-        req = methods.request(method, "", args, actor, self.settings.recipes_dir)
+        req = methods.request(method, "", args, actor)
         assert isinstance(req, Request)
         if method.verb == "force":
             text = str(args[1].Value)
