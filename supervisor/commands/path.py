@@ -178,8 +178,11 @@ class CommandPath:
             target = self.loader.target(job.channel)  # a snapshot, taken on the loop
             self._loading[job.channel] = job.recipe
             try:
+                folders = None if command.local else self.recipe_folders
                 ready = await run_in_worker(
-                    lambda: compile_recipe_file(job.channel, job.recipe, target, job.parameters),
+                    lambda: compile_recipe_file(
+                        job.channel, job.recipe, target, job.parameters, folders
+                    ),
                     self.compile_timeout_s,
                     f"loading {job.recipe} on {job.channel}",
                 )
@@ -302,7 +305,9 @@ class CommandPath:
             if isinstance(ready, Exception):
                 raise ready
             if ready is None:  # no worker: compiled here (no scan is running)
-                ready = compile_recipe_file(name, recipe, loader.target(name), parameters)
+                folders = None if local else self.recipe_folders
+                target = loader.target(name)
+                ready = compile_recipe_file(name, recipe, target, parameters, folders)
             test_id = loader.install_recipe(ready).test_id
         except ConfigErrors as exc:
             details = tuple(e.location_message() for e in exc.errors)

@@ -89,6 +89,16 @@ class RecipeFolders:
             return False
         return any(real.is_relative_to(r) for r in roots)
 
+    def refuse_file(self, path: Path) -> str | None:
+        """Why a file a recipe reads (a load profile) may not be read — outside the
+        folders — or None (``compile_recipe``'s ``files``)."""
+        if self.inside(path):
+            return None
+        return (
+            f"{clipped_repr(str(path))} is outside the recipe folders: a recipe reads files"
+            f" only from {self.describe()}"
+        )
+
     def locate(self, recipe: str) -> Path:
         """The file of ``recipe``: a name (``slow``: ``<folder>/slow.yaml`` in the first
         folder that has it), a path relative to the working directory or to a folder, or an
@@ -103,7 +113,7 @@ class RecipeFolders:
         else:
             candidates = [given, *(f / given for f in self.folders)]
         roots = self._roots()
-        missing: Path | None = None
+        missing = False
         for c in candidates:
             try:
                 real = c.resolve()
@@ -115,9 +125,9 @@ class RecipeFolders:
             # and refused there with the limit named (README: Input limits).
             if real.exists():
                 return c
-            missing = missing or c
-        if missing is not None:
-            raise RecipeNotFound(f"{missing}: no such recipe in {self.describe()}")
+            missing = True
+        if missing:
+            raise RecipeNotFound(f"{recipe}: no such recipe in {self.describe()}")
         raise RecipeOutside(
             f"{clipped_repr(recipe)} is outside the recipe folders: recipes load only from"
             f" {self.describe()} (the I/O map's recipes: folders)"
@@ -173,15 +183,21 @@ def read_recipe_text(path: str | Path) -> str:
 
 
 def compile_recipe_file(
-    channel: str, file: str | Path, target: Target, parameters: Mapping[str, str] | None = None
+    channel: str,
+    file: str | Path,
+    target: Target,
+    parameters: Mapping[str, str] | None = None,
+    folders: RecipeFolders | None = None,
 ) -> PreparedRecipe:
     """Read, parse and compile ``file`` for ``channel`` (``ConfigErrors`` with
-    file:line:col when refused). Touches nothing but the file: safe in a worker thread."""
+    file:line:col when refused). Touches nothing but the file: safe in a worker thread.
+    ``folders``: the files the recipe reads (a load profile) must be inside them too."""
     overrides = dict(parameters or {})
     text = read_recipe_text(file)
     recipe, pos = load_recipe_text(text, str(file))
+    files = folders.refuse_file if folders is not None else None
     try:
-        program = compile_recipe(recipe, pos, str(file), target, overrides)
+        program = compile_recipe(recipe, pos, str(file), target, overrides, files)
     finally:
         del recipe
         pos.release_gradually()

@@ -174,13 +174,16 @@ def check_recipe_text(
     file: str,
     target: Target | None = None,
     overrides: Mapping[str, str] | None = None,
+    folders: RecipeFolders | None = None,
 ) -> Checked:
     """Parse and compile ``text`` as ``supervisor check`` does the file ``file``
     (``ConfigErrors`` with the same messages); ``target``: also against a channel;
-    ``overrides``: parameter values given for a run."""
+    ``overrides``: parameter values given for a run; ``folders``: a file the recipe reads
+    (a load profile) only from them (ADR 0026)."""
     recipe, pos = load_recipe_text(text, file)
+    files = folders.refuse_file if folders is not None else None
     try:
-        program = compile_recipe(recipe, pos, file, target, overrides)
+        program = compile_recipe(recipe, pos, file, target, overrides, files)
         return Checked(program, {k: str(v) for k, v in recipe.parameters.items()})
     finally:
         del recipe
@@ -528,7 +531,7 @@ class RecipesApi:
         timeout_s = self.config.validate_timeout_s
         try:
             return await run_in_worker(
-                lambda: check_recipe_text(text, file, target, overrides),
+                lambda: check_recipe_text(text, file, target, overrides, self.folders),
                 timeout_s,
                 f"validating {file}",
             )

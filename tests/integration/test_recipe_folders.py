@@ -237,3 +237,34 @@ async def test_opc_ua_start_outside_the_folders_is_access_denied_without_its_con
         assert res.StatusCode.is_good(), text(res)
     assert_no_secret(json.dumps([e.as_json() for e in rig.bench.commands.log]))
     assert_no_secret(str(rig.bench.db["ch1.chain.last_event"].value))
+
+
+def profile_recipe(csv: Path | str) -> str:
+    return f"recipe: p\nsteps:\n  - id: a\n    profile: {{file: {csv}}}\n"
+
+
+async def test_a_load_profile_outside_the_folders_is_never_read(
+    client: Client, tmp_path: Path, elsewhere: Path
+) -> None:
+    # A CSV whose second row the profile reader of old quoted ("time '...' is not a number").
+    (elsewhere / "leak.csv").write_text(f"t,i\n{SECRET},1\n", encoding="utf-8")
+    for csv in (elsewhere / "leak.csv", "/etc/passwd", f"../{elsewhere.name}/leak.csv"):
+        # Loaded from a recipe in the folder that names it.
+        file = recipe(tmp_path, profile_recipe(csv), "profile.yaml")
+        status, body = await client.load(file)
+        assert status == 422, body
+        assert "is outside the recipe folders: a recipe reads files only from" in body["reason"]
+        assert body["details"][0].startswith(f"{file}:4:"), body  # where the recipe names it
+        assert_no_secret(json.dumps(body))
+        # Validated by the recipe editor (any logged-in user may validate).
+        status, body = await client.call(
+            "POST", "/recipes/validate", {"text": profile_recipe(csv), "name": "p"}
+        )
+        assert status == 422, body
+        assert "outside the recipe folders" in body["errors"][0]["message"]
+        assert_no_secret(json.dumps(body))
+    assert_no_secret(await client.everything_kept())
+    # A profile beside the recipe, in the folder, is read.
+    (tmp_path / "ok.csv").write_text("t,i\n0,0.1\n10,0.2\n", encoding="utf-8")
+    status, body = await client.load(recipe(tmp_path, profile_recipe("ok.csv"), "ok.yaml"))
+    assert status == 200, body

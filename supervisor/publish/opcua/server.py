@@ -581,10 +581,7 @@ class OpcUaServer:
             bad = methods.check(method, args)
             if bad is None and method.verb in ("force", "unforce"):
                 return await self._force(method, args, actor)
-            if bad is None:
-                req = methods.request(method, channel, args, actor)
-            else:
-                req = bad
+            req = methods.request(method, channel, args, actor) if bad is None else bad
             if isinstance(req, methods.Invalid):
                 log.warning(
                     "OPC UA %s.%s by %s refused: %s", channel, method.name, actor, req.reason
