@@ -367,9 +367,11 @@ async def _sim(args: argparse.Namespace) -> int:
     if sim is None or not sim.served:
         _err(f"{args.io_map}: no device has sim: true; nothing to serve")
         return EXIT_USAGE
-    control = HttpApi(
-        TagDB(), clock, "127.0.0.1", args.control_port, estop=sim.press_estop, sim_state=sim.state
-    )
+    # The map's port (default 0: a free one, printed below), unless --control-port says.
+    port = args.control_port
+    if port is None:
+        port = cfg.simulation.control_port if cfg.simulation is not None else 0
+    control = HttpApi(TagDB(), clock, "127.0.0.1", port, estop=sim.press_estop, sim_state=sim.state)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -857,7 +859,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     sm = sub.add_parser("sim", help="serve the simulated devices of an I/O map, alone")
     sm.add_argument("io_map", nargs="?", default=str(DEFAULT_IO_MAP))
-    sm.add_argument("--control-port", type=int, default=8081, help="e-stop button API port")
+    sm.add_argument(
+        "--control-port",
+        type=int,
+        default=None,
+        help="e-stop button API port (default: the map's simulation.control_port; 0 picks a"
+        " free one, printed)",
+    )
     sm.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
     sm.set_defaults(func=cmd_sim)
 

@@ -569,6 +569,14 @@ class SimWatchdogRelay(SimPoint):
 class SimulationConfig(Strict):
     """The simulated seed-002 plant: one pack behind the EA supply, seen by ADAM and BMS."""
 
+    control_port: int = Field(
+        0,
+        ge=0,
+        le=65535,
+        description="`supervisor sim`'s control API (the e-stop button, the plant's state)"
+        " on 127.0.0.1; 0 (default): a free port, printed at start (two simulated benches"
+        " never clash).",
+    )
     pack: SimCell = SimCell(model="liion-pack", capacity_ah=10.0, soc=0.5, cells_series=4)
     ambient_c: float = 25.0
     lem_current: SimPoint | None = None
