@@ -97,8 +97,7 @@ def bench_map(workdir: Path, **hmi: Any) -> Path:
     for src in [*(ROOT / "recipes").glob("*.yaml"), SHORT_RECIPE]:
         shutil.copy(src, recipes / src.name)
     data["opcua"] = {"enabled": False}
-    # The tests also load the short cycle from the working folder by its path.
-    data["recipes"] = {"folders": [str(recipes), str(workdir)]}
+    data["recipes"] = {"folders": [str(recipes)]}
     data["state_dir"] = str(workdir / "state")
     path = workdir / "sim.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")

@@ -21,6 +21,7 @@ from typing import Any
 
 import aiohttp
 import pytest
+import yaml
 from asyncua import ua
 from commandrig import DISCHARGE, io_map, recipe
 from opcuarig import Rig, call, opcua_rig, text
@@ -28,6 +29,7 @@ from opcuarig import Rig, call, opcua_rig, text
 from supervisor.app import Bench, build_bench
 from supervisor.commands import Command, ResultKind, Verb
 from supervisor.core.clock import VirtualClock
+from supervisor.core.errors import ConfigErrors
 from supervisor.devices.registry import load_bench
 from supervisor.hmi import HttpApi
 from supervisor.hmi.recipes_api import RecipesConfig
@@ -268,3 +270,20 @@ async def test_a_load_profile_outside_the_folders_is_never_read(
     (tmp_path / "ok.csv").write_text("t,i\n0,0.1\n10,0.2\n", encoding="utf-8")
     status, body = await client.load(recipe(tmp_path, profile_recipe("ok.csv"), "ok.yaml"))
     assert status == 200, body
+
+
+def test_the_recipe_folders_are_one_setting_of_the_map_and_the_old_key_its_alias(
+    tmp_path: Path,
+) -> None:
+    path = Path(io_map(tmp_path))
+    data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    del data["recipes"]
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    assert load_bench(path).recipe_folders == ["recipes"]  # beside the working directory
+    data["opcua"]["recipes_dir"] = "old"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    assert load_bench(path).recipe_folders == ["old"]
+    data["recipes"] = {"folders": ["new"]}
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    with pytest.raises(ConfigErrors, match="disagree"):
+        load_bench(path)
