@@ -141,6 +141,12 @@ async def test_a_recipe_outside_the_folders_is_forbidden_and_none_of_it_is_shown
     )
     assert status == 403 and body["kind"] == "forbidden", body
     assert client.bench.runners["ch0"].program is None
+    # A client cannot claim to be the local shell: "local" is an unknown argument.
+    status, body = await client.call(
+        "PUT", "/channels/ch0/recipe", {"file": str(elsewhere / ".env"), "local": True}
+    )
+    assert status in (400, 403) and body["accepted"] is False, body
+    assert_no_secret(json.dumps(body))
     assert_no_secret(await client.everything_kept())
 
 
