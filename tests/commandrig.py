@@ -37,6 +37,8 @@ def io_map(tmp: Path) -> Path:
     data["channels"] = [c for c in data["channels"] if c["source"]["device"] == "chadeche"]
     data["safety"] = {"estop": {"tag": "estop.ok"}}
     data["state_dir"] = str(tmp / "state")
+    # The tests' recipes are written in their temporary folder (``recipe``).
+    data["recipes"] = {"folders": [str(tmp)]}
     path = tmp / "bench.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     return path
@@ -53,6 +55,7 @@ def chadeche_map(tmp: Path) -> str:
     data.pop("safety", None)  # the seed-002 e-stop and its tags are not in this bench
     data.pop("opcua", None)  # `supervisor run` on it must not take 4840
     data["state_dir"] = str(tmp / "state")
+    data["recipes"] = {"folders": [str(tmp)]}
     path = tmp / "chadeche.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     return str(path)

@@ -70,13 +70,19 @@ class Hmi:
 
 @asynccontextmanager
 async def hmi_bench(
-    tmp: Path, cfg: HmiConfig | None = None, root: Path | None = None, queue_size: int = 256
+    tmp: Path,
+    cfg: HmiConfig | None = None,
+    root: Path | None = None,
+    queue_size: int = 256,
+    estop: bool = False,
 ) -> AsyncIterator[Hmi]:
+    """``estop``: with the simulated e-stop button (``PUT /api/sim/estop``)."""
     bench = await started_bench(tmp)
     users_file = OpcUaSettings.of(bench.cfg).users_file
     for user, role in USERS.items():
         add_user(users_file, user, role, password(user))
-    api = HttpApi(bench.db, bench.clock, "127.0.0.1", 0, commands=bench.commands)
+    press = bench.sim.press_estop if estop and bench.sim is not None else None
+    api = HttpApi(bench.db, bench.clock, "127.0.0.1", 0, commands=bench.commands, estop=press)
     screens = build_screens(
         bench,
         api,

@@ -208,9 +208,7 @@ async def opcua_rig(
     running: asyncio.Task[None] | None = None
     if prepare is not None:
         prepare(bench)
-    settings = dataclasses.replace(
-        OpcUaSettings.of(bench.cfg), port=free_tcp_port(), recipes_dir=tmp / "recipes"
-    )
+    settings = dataclasses.replace(OpcUaSettings.of(bench.cfg), port=free_tcp_port())
     if change is not None:
         settings = change(settings)
     _users_file(settings.users_file)

@@ -28,6 +28,7 @@ from supervisor.commands import (
     compile_recipe_file,
 )
 from supervisor.commands.force import bench_safety_tags
+from supervisor.commands.recipes import RecipeFolders
 from supervisor.config.bench import record_columns
 from supervisor.config.models import BenchConfig, LinearScaling, TagMapping
 from supervisor.core.clock import Clock
@@ -128,6 +129,7 @@ class Bench:
             self.alarms,
             loader=self,
             protected=bench_safety_tags(self.cfg),  # what a force may never touch
+            recipe_folders=RecipeFolders.of(self.cfg.recipe_folders),  # ADR 0026
         )
         for name, runner in self.runners.items():
             runner.command_handler = self._command_tag(name)

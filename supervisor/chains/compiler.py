@@ -13,7 +13,7 @@ from __future__ import annotations
 import difflib
 import re
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
@@ -100,8 +100,15 @@ def compile_recipe(
     file: str,
     target: Target | None = None,
     overrides: Mapping[str, str] | None = None,
+    files: FilePolicy | None = None,
 ) -> Program:
-    return _Compiler(recipe, pos, file, target or Target(), overrides or {}).run()
+    """``files``: asked about every other file the recipe reads (a load profile's CSV)
+    before it is opened (the recipe folders' path policy, ADR 0026); None: any file."""
+    return _Compiler(recipe, pos, file, target or Target(), overrides or {}, files).run()
+
+
+FilePolicy = Callable[[Path], "str | None"]
+"""Why a file may not be read (the reason, naming what may), or None when it may."""
 
 
 class _Compiler:
@@ -112,8 +119,10 @@ class _Compiler:
         file: str,
         target: Target,
         overrides: Mapping[str, str],
+        files: FilePolicy | None = None,
     ) -> None:
         self.r = recipe
+        self.files = files
         self.pos = pos
         self.file = file
         self.target = target
@@ -648,6 +657,10 @@ class _Compiler:
             )
         assert p.file is not None
         csv_path = Path(self.file).parent / p.file
+        refused = self.files(csv_path) if self.files is not None else None
+        if refused is not None:  # never opened: not a byte of it in the message
+            self.err((*path, "file"), refused)
+            return ()
         try:
             return read_profile_csv(csv_path)
         except ConfigError as exc:

@@ -10,6 +10,7 @@ import argparse
 import asyncio
 import atexit
 import contextlib
+import dataclasses
 import faulthandler
 import io
 import logging
@@ -162,11 +163,11 @@ async def _serve(
         # compiled in a worker thread with its time limit) before anything is served;
         # ``--start`` starts it once the channel's inputs read GOOD (``_start_when_ready``).
         verb = Verb.START if args.start else Verb.LOAD
-        result = await bench.commands.execute_async(
-            Command.channel(
-                channel, Verb.LOAD, "command line", recipe=file, parameters=_params(args.param)
-            )
+        # The shell's own file (``local``): not confined to the recipe folders (ADR 0026).
+        load = Command.channel(
+            channel, Verb.LOAD, "command line", recipe=file, parameters=_params(args.param)
         )
+        result = await bench.commands.execute_async(dataclasses.replace(load, local=True))
         if args.start:
             starts.append(channel)
         if not result.accepted:
@@ -257,16 +258,20 @@ async def _serve(
 
 
 def _recipes_config(cfg: BenchConfig, bench: Bench) -> RecipesConfig:
-    """The HMI's recipes: the folder OPC UA's Start(recipe) finds them in; its dry-run
+    """The HMI's recipes: the recipe folders the command path loads from; its dry-run
     preview in a child process (app/preview.py)."""
     from supervisor.app.preview import preview_in_child
     from supervisor.hmi.auth import session_actor, session_role
     from supervisor.hmi.recipes_api import RecipesConfig
 
-    # A save needs an engineer's session: the same users and roles as the commands.
+    # The command path's folders (one path policy, ADR 0026); the editor saves into the
+    # first. A save needs an engineer's session: the same users and roles as the commands.
+    folders = bench.commands.recipe_folders
+    assert folders is not None  # a bench always has its I/O map's
     return RecipesConfig(
-        Path(cfg.opcua.recipes_dir),
+        folders.folders[0],
         preview_in_child,
+        folders=folders,
         target_of=bench.target,
         channels=bench.runners,
         role_of=session_role,
@@ -362,9 +367,11 @@ async def _sim(args: argparse.Namespace) -> int:
     if sim is None or not sim.served:
         _err(f"{args.io_map}: no device has sim: true; nothing to serve")
         return EXIT_USAGE
-    control = HttpApi(
-        TagDB(), clock, "127.0.0.1", args.control_port, estop=sim.press_estop, sim_state=sim.state
-    )
+    # The map's port (default 0: a free one, printed below), unless --control-port says.
+    port = args.control_port
+    if port is None:
+        port = cfg.simulation.control_port if cfg.simulation is not None else 0
+    control = HttpApi(TagDB(), clock, "127.0.0.1", port, estop=sim.press_estop, sim_state=sim.state)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -863,7 +870,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     sm = sub.add_parser("sim", help="serve the simulated devices of an I/O map, alone")
     sm.add_argument("io_map", nargs="?", default=str(DEFAULT_IO_MAP))
-    sm.add_argument("--control-port", type=int, default=8081, help="e-stop button API port")
+    sm.add_argument(
+        "--control-port",
+        type=int,
+        default=None,
+        help="e-stop button API port (default: the map's simulation.control_port; 0 picks a"
+        " free one, printed)",
+    )
     sm.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
     sm.set_defaults(func=cmd_sim)
 

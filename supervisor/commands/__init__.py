@@ -18,6 +18,7 @@ from supervisor.commands.model import (
 from supervisor.commands.path import CommandPath
 from supervisor.commands.recipes import (
     PreparedRecipe,
+    RecipeFolders,
     RecipeLoader,
     compile_recipe_file,
     read_recipe_text,
@@ -31,6 +32,7 @@ __all__ = [
     "CommandPath",
     "EveryoneOperates",
     "PreparedRecipe",
+    "RecipeFolders",
     "RecipeLoader",
     "Result",
     "ResultKind",

@@ -113,6 +113,10 @@ class Command:
     verb: Verb
     args: Mapping[str, Any] = field(default_factory=dict)
     actor: str = "operator"
+    local: bool = False
+    """Given in this host's shell (``supervisor run --recipe``), not over the network: its
+    recipe is read wherever the shell's user can read (ADR 0026); a network client's is
+    confined to the recipe folders."""
 
     @classmethod
     def channel(cls, name: str, verb: Verb, actor: str = "operator", **args: Any) -> Command:

@@ -58,7 +58,14 @@ from supervisor.commands.model import (
     TargetKind,
     Verb,
 )
-from supervisor.commands.recipes import PreparedRecipe, RecipeLoader, compile_recipe_file
+from supervisor.commands.recipes import (
+    PreparedRecipe,
+    RecipeFolders,
+    RecipeLoader,
+    RecipeNotFound,
+    RecipeOutside,
+    compile_recipe_file,
+)
 from supervisor.commands.roles import EveryoneOperates, Roles
 from supervisor.commands.worker import WorkerTimeout, run_in_worker
 from supervisor.config.limits import RECIPE_COMPILE_TIMEOUT_S
@@ -106,6 +113,7 @@ class CommandPath:
         roles: Roles | None = None,
         compile_timeout_s: float = RECIPE_COMPILE_TIMEOUT_S,
         protected: Mapping[str, str] | None = None,
+        recipe_folders: RecipeFolders | None = None,
     ) -> None:
         self.db = db
         self.clock = clock
@@ -115,6 +123,10 @@ class CommandPath:
         self.loader = loader
         self.roles: Roles = roles or EveryoneOperates()
         self.compile_timeout_s = compile_timeout_s
+        # Where a recipe may be loaded from (None: anywhere — tools and tests without a
+        # network client; a bench always has its I/O map's folders). Commands given in
+        # this host's shell (``Command.local``) read what that shell's user can read.
+        self.recipe_folders = recipe_folders
         # Tags a force may never touch → what reads them (commands/force.py); without the
         # bench's list, at least every channel guard's.
         self.protected: Mapping[str, str] = (
@@ -170,8 +182,11 @@ class CommandPath:
             target = self.loader.target(job.channel)  # a snapshot, taken on the loop
             self._loading[job.channel] = job.recipe
             try:
+                folders = None if command.local else self.recipe_folders
                 ready = await run_in_worker(
-                    lambda: compile_recipe_file(job.channel, job.recipe, target, job.parameters),
+                    lambda: compile_recipe_file(
+                        job.channel, job.recipe, target, job.parameters, folders
+                    ),
                     self.compile_timeout_s,
                     f"loading {job.recipe} on {job.channel}",
                 )
@@ -205,11 +220,27 @@ class CommandPath:
                 return None
             _only(command, *RECIPE_ARGUMENTS)
             recipe, parameters = _text(a, "recipe"), _parameters(a)
+            recipe = self._recipe_file(recipe, command.local)
         except Refusal:
             return None
-        if not Path(recipe).exists():
-            return None
         return _RecipeJob(t.name, recipe, parameters)
+
+    def _recipe_file(self, recipe: str, local: bool) -> str:
+        """The file to open for ``recipe`` (the path policy: ``RecipeFolders``), or
+        ``Refusal``: forbidden outside the recipe folders, not found."""
+        folders = self.recipe_folders
+        if folders is None or local:
+            # Not "is a file": a device (/dev/zero) or a pipe is read to its size limit, and
+            # refused there with the limit named (README: Input limits).
+            if not Path(recipe).exists():
+                raise Refusal(ResultKind.NOT_FOUND, f"{recipe}: no such recipe")
+            return recipe
+        try:
+            return str(folders.locate(recipe))
+        except RecipeOutside as exc:
+            raise Refusal(ResultKind.FORBIDDEN, str(exc)) from None
+        except RecipeNotFound as exc:
+            raise Refusal(ResultKind.NOT_FOUND, str(exc)) from None
 
     def _dispatch(self, command: Command) -> Result:
         """Execute ``command`` or raise ``Refusal``."""
@@ -241,12 +272,12 @@ class CommandPath:
         if v is Verb.LOAD:
             _only(c, *RECIPE_ARGUMENTS)
             metadata = _metadata(a)
-            result = self._load(name, _text(a, "recipe"), _parameters(a))
+            result = self._load(name, _text(a, "recipe"), _parameters(a), c.local)
             self._set_metadata(name, metadata, replace=True)
             return result
         if v is Verb.START:
             _only(c, *RECIPE_ARGUMENTS)
-            return self._start(name, runner, a, c.actor)
+            return self._start(name, runner, a, c.actor, c.local)
         if v in CHAIN_VERBS:
             _only(c)
             return self._chain(name, runner, v, c.actor)
@@ -270,21 +301,20 @@ class CommandPath:
             return self._enable(name, runner, _flag(a, "value"))
         return self._write(c, a)  # one of this channel's other tags
 
-    def _load(self, name: str, recipe: str, parameters: dict[str, str]) -> Result:
+    def _load(self, name: str, recipe: str, parameters: dict[str, str], local: bool) -> Result:
         loader = self.loader
         if loader is None:
             raise Refusal(ResultKind.NOT_FOUND, "this bench does not load recipes")
-        # Not "is a file": a device (/dev/zero) or a pipe is read to its size limit, and
-        # refused there with the limit named (README: Input limits).
-        if not Path(recipe).exists():
-            raise Refusal(ResultKind.NOT_FOUND, f"{recipe}: no such recipe")
+        recipe = self._recipe_file(recipe, local)
         job = _RecipeJob(name, recipe, parameters)
         try:
             ready = self._ready[1] if self._ready is not None and self._ready[0] == job else None
             if isinstance(ready, Exception):
                 raise ready
             if ready is None:  # no worker: compiled here (no scan is running)
-                ready = compile_recipe_file(name, recipe, loader.target(name), parameters)
+                folders = None if local else self.recipe_folders
+                target = loader.target(name)
+                ready = compile_recipe_file(name, recipe, target, parameters, folders)
             test_id = loader.install_recipe(ready).test_id
         except ConfigErrors as exc:
             details = tuple(e.location_message() for e in exc.errors)
@@ -307,7 +337,9 @@ class CommandPath:
             recipe=program,
         )
 
-    def _start(self, name: str, runner: ChainRunner, a: Mapping[str, Any], actor: str) -> Result:
+    def _start(
+        self, name: str, runner: ChainRunner, a: Mapping[str, Any], actor: str, local: bool
+    ) -> Result:
         # Interlocks and Manual first: a refused start must not load the recipe either.
         self._interlocks(name, runner, "start")
         if runner.port.manual_driven:
@@ -328,7 +360,7 @@ class CommandPath:
                 )
         loaded = ""
         if a.get("recipe") is not None:
-            self._load(name, _text(a, "recipe"), _parameters(a))
+            self._load(name, _text(a, "recipe"), _parameters(a), local)
             self._set_metadata(name, metadata, replace=True)
             loaded = f"recipe {runner.program.name if runner.program else ''} loaded, "
             before = loader.test_metadata.get(name) if loader is not None else None

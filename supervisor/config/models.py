@@ -160,8 +160,10 @@ class OpcUaConfig(Strict):
         description="The server's own certificate and key (own/), and the client certificates"
         " it trusts (trusted/; refused ones land in rejected/); default <state_dir>/opcua/pki.",
     )
-    recipes_dir: str = Field(
-        "recipes", description="Where Start(recipe) finds a recipe given by name (name.yaml)."
+    recipes_dir: str | None = Field(
+        None,
+        description="Deprecated: the bench's top-level `recipes: {folders: [...]}` (this"
+        " key, when given alone, is read as its one folder).",
     )
     sampling_interval_s: float | None = Field(
         None,
@@ -580,6 +582,14 @@ class SimWatchdogRelay(SimPoint):
 class SimulationConfig(Strict):
     """The simulated seed-002 plant: one pack behind the EA supply, seen by ADAM and BMS."""
 
+    control_port: int = Field(
+        0,
+        ge=0,
+        le=65535,
+        description="`supervisor sim`'s control API (the e-stop button, the plant's state)"
+        " on 127.0.0.1; 0 (default): a free port, printed at start (two simulated benches"
+        " never clash).",
+    )
     pack: SimCell = SimCell(model="liion-pack", capacity_ah=10.0, soc=0.5, cells_series=4)
     ambient_c: float = 25.0
     lem_current: SimPoint | None = None
@@ -799,6 +809,28 @@ def _read_token_file(path: str) -> str:
     return text
 
 
+class RecipeFoldersConfig(Strict):
+    """Where the bench's clients (HTTP, OPC UA, the screens' recipe editor) find recipes,
+    and the only folders they may load them from (docs/adr/0026-threat-model.md)."""
+
+    folders: list[str] = Field(
+        ["recipes"],
+        min_length=1,
+        description="Recipe folders, relative to the working directory (like state_dir);"
+        " a recipe given over the network (HTTP, OPC UA, `supervisor ctl`) loads only when"
+        " its real path (symbolic links followed) is inside one of them. A name without a"
+        " folder is <folder>/<name>.yaml in the first that has it; the screens' editor"
+        " saves into the first.",
+    )
+
+    @field_validator("folders")
+    @classmethod
+    def _not_empty(cls, v: list[str]) -> list[str]:
+        if any(not f.strip() for f in v):
+            raise ValueError("a recipe folder is a path, not an empty text")
+        return v
+
+
 class BenchConfig(Strict):
     """A bench: its scan, devices, extra tag mappings and channels."""
 
@@ -807,6 +839,7 @@ class BenchConfig(Strict):
     scan: ScanConfig = ScanConfig()
     hmi: HmiConfig = HmiConfig()
     opcua: OpcUaConfig = OpcUaConfig()
+    recipes: RecipeFoldersConfig = RecipeFoldersConfig()
     state_dir: str = Field("var", description="Where retained state and results go.")
     retain: RetainConfig = RetainConfig()
     history: HistorianConfig = HistorianConfig()
@@ -837,6 +870,25 @@ class BenchConfig(Strict):
     @property
     def source_sha256(self) -> str:
         return self._source_sha256
+
+    @model_validator(mode="after")
+    def _recipes_dir_alias(self) -> BenchConfig:
+        # opcua.recipes_dir was the one recipe folder before `recipes:` (issue 27).
+        old = self.opcua.recipes_dir
+        if old is None:
+            return self
+        if "recipes" in self.model_fields_set and self.recipes.folders != [old]:
+            raise ValueError(
+                f"opcua.recipes_dir {old!r} and recipes.folders {self.recipes.folders} disagree:"
+                " keep recipes.folders only"
+            )
+        return self
+
+    @property
+    def recipe_folders(self) -> list[str]:
+        """The recipe folders: ``recipes.folders``, or the old ``opcua.recipes_dir``."""
+        old = self.opcua.recipes_dir
+        return [old] if old is not None else list(self.recipes.folders)
 
     @field_validator("devices")
     @classmethod

@@ -45,7 +45,7 @@ from aiohttp import web
 
 from supervisor.chains.compiler import Target, compile_recipe
 from supervisor.chains.program import Program
-from supervisor.commands.recipes import read_recipe_text
+from supervisor.commands.recipes import RecipeFolders, read_recipe_text
 from supervisor.commands.worker import WorkerTimeout, run_in_worker
 from supervisor.config.limits import (
     DRY_RUN_PREVIEW_TIMEOUT_S,
@@ -130,6 +130,7 @@ class RecipesConfig:
     """What the recipe endpoints need (``supervisor run`` builds it)."""
 
     recipes_dir: Path
+    """Where the editor lists and saves recipes (the first recipe folder)."""
     dry_run: DryRunner | None = None
     """None: ``POST /api/recipes/dryrun`` answers 503."""
     target_of: Callable[[str], Target] | None = None
@@ -139,6 +140,10 @@ class RecipesConfig:
     actor_of: ActorOf = _hmi_actor
     validate_timeout_s: float = RECIPE_COMPILE_TIMEOUT_S
     dry_run_timeout_s: float = DRY_RUN_PREVIEW_TIMEOUT_S
+    folders: RecipeFolders | None = None
+    """The command path's path policy (ADR 0026): a recipe is read only when its real path
+    is inside one of them (a symbolic link in the folder to a file elsewhere is not
+    served). None: ``recipes_dir`` alone."""
 
 
 # --- validation (pure: safe in a worker thread) -------------------------------------------
@@ -169,13 +174,16 @@ def check_recipe_text(
     file: str,
     target: Target | None = None,
     overrides: Mapping[str, str] | None = None,
+    folders: RecipeFolders | None = None,
 ) -> Checked:
     """Parse and compile ``text`` as ``supervisor check`` does the file ``file``
     (``ConfigErrors`` with the same messages); ``target``: also against a channel;
-    ``overrides``: parameter values given for a run."""
+    ``overrides``: parameter values given for a run; ``folders``: a file the recipe reads
+    (a load profile) only from them (ADR 0026)."""
     recipe, pos = load_recipe_text(text, file)
+    files = folders.refuse_file if folders is not None else None
     try:
-        program = compile_recipe(recipe, pos, file, target, overrides)
+        program = compile_recipe(recipe, pos, file, target, overrides, files)
         return Checked(program, {k: str(v) for k, v in recipe.parameters.items()})
     finally:
         del recipe
@@ -427,6 +435,7 @@ class RecipesApi:
     def __init__(self, config: RecipesConfig) -> None:
         self.config = config
         self.dir = config.recipes_dir
+        self.folders = config.folders or RecipeFolders.of([config.recipes_dir])
         self._save_lock = asyncio.Lock()
         self._dry_running = False
 
@@ -473,6 +482,8 @@ class RecipesApi:
             name = path.name.removesuffix(SUFFIX)
             if not path.name.endswith(SUFFIX) or not valid_name(name) or not path.is_file():
                 continue
+            if not self.folders.inside(path):  # a link to elsewhere: not a recipe here
+                continue
             try:
                 modified = path.stat().st_mtime
             except OSError:
@@ -493,6 +504,12 @@ class RecipesApi:
         path = Path(self.file_of(name))
         if not await asyncio.to_thread(path.is_file):
             return _error(404, f"no recipe {name!r} in {self.dir}")
+        if not await asyncio.to_thread(self.folders.inside, path):
+            return _error(
+                403,
+                f"recipe {name!r} is a link to a file outside the recipe folders: recipes are"
+                f" read only from {self.folders.describe()}",
+            )
         try:
             text, modified = await asyncio.to_thread(_read, path)
         except ConfigErrors as exc:
@@ -514,7 +531,7 @@ class RecipesApi:
         timeout_s = self.config.validate_timeout_s
         try:
             return await run_in_worker(
-                lambda: check_recipe_text(text, file, target, overrides),
+                lambda: check_recipe_text(text, file, target, overrides, self.folders),
                 timeout_s,
                 f"validating {file}",
             )

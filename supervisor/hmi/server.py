@@ -501,6 +501,61 @@ def _json(data: Any, status: int = 200) -> web.Response:
     return web.json_response(data, status=status, dumps=json_dumps)
 
 
+# --- what every answer carries (issue 27, finding 7; docs/adr/0026-threat-model.md) --------
+SECURITY_HEADERS: Final = {
+    # Only the supervisor's own scripts, styles and connections (the WebSocket to the same
+    # host is 'self' in CSP 3), never inside another site's frame (clickjacking of a
+    # command button), no plug-ins, no <base> to elsewhere, forms only to this server.
+    "Content-Security-Policy": (
+        "default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:;"
+        " connect-src 'self'; frame-ancestors 'none'; object-src 'none'; base-uri 'self';"
+        " form-action 'self'"
+    ),
+    "X-Frame-Options": "DENY",  # frame-ancestors for browsers without CSP 2
+    "X-Content-Type-Options": "nosniff",  # a JSON answer is never run as a script
+    "Referrer-Policy": "same-origin",
+}
+
+
+async def _security_headers(request: web.Request, response: web.StreamResponse) -> None:
+    """On every answer, just before its headers leave (pages, JSON, files, WebSocket
+    upgrades and aiohttp's own errors alike: a signal, not a middleware, so that a
+    response prepared inside its handler gets them too)."""
+    for name, value in SECURITY_HEADERS.items():
+        response.headers.setdefault(name, value)
+
+
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+
+
+@web.middleware
+async def json_errors(request: web.Request, handler: Handler) -> web.StreamResponse:
+    """Every error answer under ``/api/`` is JSON ``{"accepted": false, "reason", "kind"}``
+    like the API's own refusals, including aiohttp's (413 request too large, 404 no such
+    route, 405 method not allowed) and an unexpected exception's 500, never its text/plain
+    page (a client parsing JSON got a parse error instead of the reason)."""
+    try:
+        return await handler(request)
+    except web.HTTPException as exc:
+        if exc.status < 400 or not request.path.startswith("/api/"):
+            raise
+        reason = exc.text or exc.reason
+        if exc.text and exc.content_type == "text/plain":
+            reason = exc.text.removeprefix(f"{exc.status}: ")
+        body = {"accepted": False, "reason": reason, "kind": exc.reason.lower()}
+        headers = {k: v for k, v in exc.headers.items() if k.lower() in ("allow", "retry-after")}
+        response = _json(body, status=exc.status)
+        response.headers.update(headers)
+        return response
+    except Exception as exc:
+        if not request.path.startswith("/api/"):
+            raise
+        log.exception("HTTP %s %s failed", request.method, request.path)
+        return _json(
+            {"accepted": False, "reason": f"internal error: {exc}", "kind": "internal error"}, 500
+        )
+
+
 class HttpApi:
     def __init__(
         self,
@@ -528,7 +583,8 @@ class HttpApi:
         self.port = port
         self._runner: web.AppRunner | None = None
         self.snapshots = TagSnapshots(db, clock, pacing)
-        app = web.Application()
+        app = web.Application(middlewares=[json_errors])
+        app.on_response_prepare.append(_security_headers)
         app.add_routes(
             [
                 web.get("/api/tags", self._list),
@@ -687,6 +743,15 @@ class HttpApi:
         )
 
     async def _sim_estop(self, request: web.Request) -> web.Response:
+        # An operator's button (issue 27: a viewer's press aborted a held test).
+        actor = self.actor(request)
+        if self.commands.roles.access_of(actor) < Access.OPERATOR:
+            who = actor.removeprefix("hmi:")
+            return self._bad(
+                f"viewer may not press the simulated e-stop ({who} is a viewer): log in as an"
+                " operator",
+                ResultKind.FORBIDDEN,
+            )
         try:
             body = await request.json()
         except ValueError:

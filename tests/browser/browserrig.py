@@ -90,13 +90,14 @@ def bench_map(workdir: Path, **hmi: Any) -> Path:
         "port": 0,
         **{k: v for k, v in wanted.items() if k in known},
     }
-    # OPC UA off (not what this tests; 4840 may be taken); its recipes folder, which the
+    # OPC UA off (not what this tests; 4840 may be taken); the recipes folder, which the
     # HMI's Recipes screen shares, is a copy: a test that saves never writes into recipes/.
     recipes = workdir / "recipes"
     recipes.mkdir(exist_ok=True)
     for src in [*(ROOT / "recipes").glob("*.yaml"), SHORT_RECIPE]:
         shutil.copy(src, recipes / src.name)
-    data["opcua"] = {"enabled": False, "recipes_dir": str(recipes)}
+    data["opcua"] = {"enabled": False}
+    data["recipes"] = {"folders": [str(recipes)]}
     data["state_dir"] = str(workdir / "state")
     path = workdir / "sim.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")

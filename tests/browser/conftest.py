@@ -73,6 +73,12 @@ def page(context: Any) -> Iterator[Any]:
     pg = context.new_page()
     errors: list[str] = []
     pg.on("pageerror", lambda exc: errors.append(str(exc)))
+    # Anything the Content-Security-Policy blocked (issue 27): a script, a style, the
+    # WebSocket — the screens must work under it.
+    pg.on(
+        "console",
+        lambda msg: errors.append(msg.text) if "Content Security Policy" in msg.text else None,
+    )
     yield pg
     assert not errors, f"the page raised: {errors}"
 

@@ -5,6 +5,7 @@ recipe, each with its metadata sidecar, and each folder verified."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -64,14 +65,16 @@ async def test_a_dry_run_and_a_real_run_of_one_recipe_write_bdf_the_reference_re
     (dry_folder,) = (tmp_path / "dry").iterdir()
     check_with_the_reference_reader(dry_folder)
 
-    monkeypatch.chdir(tmp_path)
+    monkeypatch.chdir(tmp_path)  # sim.yaml's recipe folder, recipes/, is relative
+    (tmp_path / "recipes").mkdir()
+    shutil.copyfile(RECIPE, tmp_path / "recipes" / RECIPE.name)
     b = build_bench(
         REGISTRY.load_bench(ROOT / "io_maps" / "sim.yaml"), VirtualClock(), in_process=True
     )
     try:
         await b.start()
         await b.engine.run_for(3.0)
-        for verb, args in ((Verb.LOAD, {"recipe": str(RECIPE)}), (Verb.START, {"cell_id": "A1"})):
+        for verb, args in ((Verb.LOAD, {"recipe": RECIPE.stem}), (Verb.START, {"cell_id": "A1"})):
             r = b.commands.execute(Command.channel("ch1", verb, **args))
             assert r.accepted, r.reason
         for _ in range(120):

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import re
+import shutil
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -46,6 +47,8 @@ def config_home(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
 @pytest.fixture
 async def rig(tmp_path: Path) -> AsyncIterator[tuple[Rig, HttpApi]]:
+    # The shipped recipe, in the rig's recipe folder (its temporary folder): ctl names it.
+    shutil.copyfile(DS2710, tmp_path / DS2710.name)
     async with opcua_rig(tmp_path) as r:
         api = HttpApi(r.bench.db, r.bench.clock, "127.0.0.1", 0, commands=r.bench.commands)
         build_screens(r.bench, api, root=tmp_path / "no-hmi", cfg=HmiConfig(login=False))
@@ -88,7 +91,7 @@ async def test_the_tile_the_channel_screen_ctl_opcua_and_the_display_line_show_o
 ) -> None:
     r, api = rig
     bench = r.bench
-    out = await ctl(r, capsys, "start", "ch3", str(DS2710), "-p", "q_init=1300 mAh")
+    out = await ctl(r, capsys, "start", "ch3", DS2710.stem, "-p", "q_init=1300 mAh")
     assert "started" in out[0]
     await r.scans(10)
     await ctl(r, capsys, "advance", "ch3")  # past the 60 s rest: 200 mA out

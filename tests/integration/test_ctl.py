@@ -137,6 +137,7 @@ async def test_a_refused_command_exits_2_with_the_server_s_reason(
     assert (code, out) == (2, [])
     assert err == [
         "supervisor ctl: ch0: start refused (BadNotFound): no-such-recipe: no such recipe"
+        f" in {rig.tmp}/"
     ]
     code, _, err = await ctl(rig, capsys, "hold", "ch0")  # anonymous: read only
     assert code == 2
@@ -284,7 +285,7 @@ async def test_a_certificate_made_on_first_use_is_refused_until_the_server_trust
     code, out, err = await ctl(rig, capsys, "start", "ch0", "nope", user="alice", security=secure)
     assert (code, err) == (
         2,
-        ["supervisor ctl: ch0: start refused (BadNotFound): nope: no such recipe"],
+        [f"supervisor ctl: ch0: start refused (BadNotFound): nope: no such recipe in {rig.tmp}/"],
     )
 
 

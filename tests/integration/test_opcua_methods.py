@@ -94,8 +94,7 @@ async def test_start_with_a_recipe_runs_it_and_the_step_change_event_arrives(
 
 
 async def test_start_finds_a_recipe_by_name_and_takes_its_parameters(rig: Rig) -> None:
-    folder = rig.settings.recipes_dir
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = rig.tmp  # the rig's recipe folder (commandrig.io_map)
     (folder / "low.yaml").write_text(WITH_PARAMETER, encoding="utf-8")
     async with rig.client("alice") as c:
         ch0 = Channel(c, await rig.ns(c))
@@ -160,7 +159,8 @@ async def test_refusals_are_bad_status_codes_with_the_command_path_s_reason(
         ch0 = Channel(c, await rig.ns(c))
         res = await ch0("Start", s("no-such-recipe"), s(""))
         assert res.StatusCode.value == S.BadNotFound
-        assert text(res) == "no-such-recipe: no such recipe"
+        # Looked for in the recipe folders (ADR 0026), named in the answer.
+        assert text(res) == f"no-such-recipe: no such recipe in {rig.tmp}/"
         broken = recipe(tmp_path, "recipe: x\nsteps:\n  - {id: a, charge: 9 V}\n", "broken.yaml")
         res = await ch0("Start", s(broken), s(""))
         assert res.StatusCode.value == S.BadConfigurationError

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shutil
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -24,7 +25,10 @@ from supervisor.publish.provenance import PROVENANCE_NAME, verify
 
 ROOT = Path(__file__).resolve().parents[2]
 SIM_MAP = ROOT / "io_maps" / "sim.yaml"
-RECIPE = ROOT / "tests" / "browser" / "short-cycle.yaml"
+SHORT_CYCLE = ROOT / "tests" / "browser" / "short-cycle.yaml"
+RECIPE = Path("recipes") / SHORT_CYCLE.name
+"""As the bench finds it: in sim.yaml's recipe folder (``recipes/``, relative to the working
+directory: each test's own, where ``sim_bench`` puts a copy)."""
 pytestmark = pytest.mark.integration
 
 _OPEN: list[Bench] = []
@@ -38,7 +42,9 @@ async def _shutdown_benches() -> AsyncIterator[None]:
 
 
 async def sim_bench(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Bench:
-    monkeypatch.chdir(tmp_path)  # the I/O map's state_dir (results) is relative
+    monkeypatch.chdir(tmp_path)  # the I/O map's state_dir and recipe folder are relative
+    RECIPE.parent.mkdir(exist_ok=True)
+    shutil.copyfile(SHORT_CYCLE, RECIPE)
     b = build_bench(REGISTRY.load_bench(SIM_MAP), VirtualClock(), in_process=True)
     _OPEN.append(b)
     await b.start()

@@ -24,7 +24,6 @@ from supervisor.publish.opcua.methods import (
     check,
     parse_parameters,
     request,
-    resolve_recipe,
 )
 from supervisor.publish.opcua.server import sampling_interval_s
 from supervisor.publish.opcua.statuses import REFUSAL_STATUS, quality_status
@@ -151,20 +150,18 @@ def test_a_call_is_checked_against_the_method_s_declaration() -> None:
     assert check(START, ok[:1]).status == S.BadArgumentsMissing  # type: ignore[union-attr]
 
 
-def test_a_call_becomes_a_request_in_the_command_path_s_words(tmp_path: Path) -> None:
-    (tmp_path / "slow.yaml").write_text("recipe: slow\n", "utf-8")
-    assert resolve_recipe("slow", tmp_path) == str(tmp_path / "slow.yaml")
-    assert resolve_recipe("other", tmp_path) == "other"
+def test_a_call_becomes_a_request_in_the_command_path_s_words() -> None:
+    # The recipe as the client named it: the command path finds a name in the recipe
+    # folders and refuses a path outside them (ADR 0026), not this layer.
     req = request(
         START,
         "ch0",
         [ua.Variant("slow", VT.String), ua.Variant("v=1 V", VT.String)],
         "opcua:a",
-        tmp_path,
     )
-    assert req.args == {"recipe": str(tmp_path / "slow.yaml"), "parameters": {"v": "1 V"}}  # type: ignore[union-attr]
+    assert req.args == {"recipe": "slow", "parameters": {"v": "1 V"}}  # type: ignore[union-attr]
     mode = next(m for m in METHODS if m.name == "SetMode")
-    assert request(mode, "ch1", [ua.Variant("Manual", VT.String)], "x", tmp_path).args == {  # type: ignore[union-attr]
+    assert request(mode, "ch1", [ua.Variant("Manual", VT.String)], "x").args == {  # type: ignore[union-attr]
         "value": "manual"
     }
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Final
 
 from asyncua import ua
@@ -206,20 +205,12 @@ def parse_parameters(value: object) -> dict[str, str]:
     return out
 
 
-def resolve_recipe(name: str, recipes_dir: Path) -> str:
-    """A recipe named without a folder or suffix is ``<recipes_dir>/<name>.yaml`` when that
-    file exists; anything else is a path for the command path to open (or refuse)."""
-    if name and "/" not in name and not name.endswith((".yaml", ".yml")):
-        candidate = recipes_dir / f"{name}.yaml"
-        if candidate.is_file():
-            return str(candidate)
-    return name
-
-
 def request(
-    method: Method, channel: str, args: Sequence[ua.Variant], actor: str, recipes_dir: Path
+    method: Method, channel: str, args: Sequence[ua.Variant], actor: str
 ) -> Request | Invalid:
-    """The command of a call whose argument types ``check`` accepted."""
+    """The command of a call whose argument types ``check`` accepted. A recipe is passed
+    as the client named it: the command path finds a name in the recipe folders and
+    refuses a path outside them (its path policy, ADR 0026)."""
     values = [v.Value for v in args]
     if method.verb == "start":
         recipe, params = str(values[0] or ""), values[1]
@@ -240,12 +231,11 @@ def request(
                     (S.Good, S.BadInvalidArgument),
                 )
             return Request("channel", channel, "start", metadata, actor)
-        path = resolve_recipe(recipe, recipes_dir)
         return Request(
             "channel",
             channel,
             "start",
-            {"recipe": path, "parameters": parameters, **metadata},
+            {"recipe": recipe, "parameters": parameters, **metadata},
             actor,
         )
     if method.verb == "mode":

@@ -100,7 +100,6 @@ class OpcUaSettings:
     anonymous: bool
     users_file: Path
     pki_dir: Path
-    recipes_dir: Path
     scan_period_s: float
     sampling_interval_s: float = 0.0
     """How often the scan hands changed tags to the server (``OpcUaFeed``); 0: every scan."""
@@ -118,7 +117,6 @@ class OpcUaSettings:
             anonymous=o.anonymous,
             users_file=Path(o.users_file) if o.users_file else base / "users.yaml",
             pki_dir=Path(o.pki_dir) if o.pki_dir else base / "pki",
-            recipes_dir=Path(o.recipes_dir),
             scan_period_s=cfg.scan.period_s,
             sampling_interval_s=sampling_interval_s(cfg.scan.period_s, o.sampling_interval_s),
         )
@@ -590,10 +588,7 @@ class OpcUaServer:
             bad = methods.check(method, args)
             if bad is None and method.verb in ("force", "unforce"):
                 return await self._force(method, args, actor)
-            if bad is None:
-                req = methods.request(method, channel, args, actor, self.settings.recipes_dir)
-            else:
-                req = bad
+            req = methods.request(method, channel, args, actor) if bad is None else bad
             if isinstance(req, methods.Invalid):
                 log.warning(
                     "OPC UA %s.%s by %s refused: %s", channel, method.name, actor, req.reason
@@ -617,7 +612,7 @@ class OpcUaServer:
         variable = self.layout.variables.get(name)
         if variable is None:
             return _result(S.BadNodeIdUnknown, f"{method.name}: unknown tag {name!r}", n)
-        req = methods.request(method, "", args, actor, self.settings.recipes_dir)
+        req = methods.request(method, "", args, actor)
         assert isinstance(req, Request)
         if method.verb == "force":
             text = str(args[1].Value)
