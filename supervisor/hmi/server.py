@@ -35,6 +35,7 @@ from supervisor.commands import Command, CommandPath, Result, ResultKind, Verb
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Value
 from supervisor.core.quality import Quality, Reason
+from supervisor.hmi.csrf import RequestOrigins
 from supervisor.hmi.history_api import HistoryQuery, add_history_routes
 from supervisor.hmi.recipes_api import RecipesConfig, add_recipe_routes
 from supervisor.hmi.tests_api import TestsConfig, add_test_routes
@@ -515,9 +516,12 @@ class HttpApi:
         recipes: RecipesConfig | None = None,
         tests: TestsConfig | None = None,
         pacing: ScanPacing | None = None,
+        allowed_origins: Iterable[str] = (),
     ):
         """``pacing``: the scan sharing this event loop (``ScanEngine``): a full image's turn
-        then starts only when it is over before that scan is due (ADR 0019)."""
+        then starts only when it is over before that scan is due (ADR 0019).
+        ``allowed_origins``: pages of these origins may command, besides the API's own
+        (``hmi.allowed_origins``, :mod:`supervisor.hmi.csrf`)."""
         self.db = db
         self._estop = estop
         self._sim_state = sim_state
@@ -529,6 +533,8 @@ class HttpApi:
         self._runner: web.AppRunner | None = None
         self.snapshots = TagSnapshots(db, clock, pacing)
         app = web.Application()
+        # Cross-site request forgery: JSON bodies and same-origin pages only (issue 27).
+        RequestOrigins(allowed_origins).install(app)
         app.add_routes(
             [
                 web.get("/api/tags", self._list),

@@ -152,8 +152,8 @@ class Supervisor:
     ) -> tuple[int, Any]:
         data = None if body is None else json.dumps(body).encode()
         req = urllib.request.Request(self.base + path, data=data, method=method)
-        if data is not None:
-            req.add_header("Content-Type", "application/json")
+        # Every command declares JSON, a body or not (supervisor.hmi.csrf).
+        req.add_header("Content-Type", "application/json")
         try:
             with opener.open(req, timeout=10) as res:
                 return res.status, json.loads(res.read() or b"null")
