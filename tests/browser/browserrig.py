@@ -211,7 +211,7 @@ def start_supervisor(workdir: Path, **hmi: Any) -> Supervisor:
         raise AssertionError(f"supervisor run did not start: {lines}\n{tail}")
     # The rest of stdout goes to a file (a full pipe would block the supervisor).
     drain = threading_drain(proc, workdir / "supervisor.stdout")
-    login = "login" in hmi_options()
+    login = "login" in hmi_options() and hmi.get("login", True) is not False
     sup = Supervisor(proc, base, workdir, log_path, login, drain)
     wait_for(
         "the simulated devices connected",
