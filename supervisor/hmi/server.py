@@ -37,6 +37,7 @@ from supervisor.core.driver import Value
 from supervisor.core.quality import Quality, Reason
 from supervisor.hmi.csrf import RequestOrigins
 from supervisor.hmi.history_api import HistoryQuery, add_history_routes
+from supervisor.hmi.openapi import add_openapi_route
 from supervisor.hmi.recipes_api import RecipesConfig, add_recipe_routes
 from supervisor.hmi.tests_api import TestsConfig, add_test_routes
 from supervisor.safety import Alarm, AlarmEvent
@@ -546,6 +547,7 @@ class HttpApi:
                 web.post("/api/alarms/{alarm}/{action}", self._alarm_command),
             ]
         )
+        add_openapi_route(app)  # GET /api/openapi.json (hmi/openapi.yaml)
         # Forcing (engineers only; never a tag the safety phase uses): ADR 0015.
         app.add_routes(
             [
