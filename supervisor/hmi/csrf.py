@@ -53,6 +53,8 @@ class RequestOrigins:
         upgrade = request.headers.get(hdrs.UPGRADE, "").lower() == "websocket"
         if request.method not in STATE_CHANGING and not upgrade:
             return None
+        if request.match_info.http_exception is not None:
+            return None  # no such route or method (404, 405): nothing runs, nothing changes
         refused = self._foreign(request)
         if refused is not None:
             return refused
