@@ -7,7 +7,9 @@ it is checked (role, state, interlocks), recorded with its actor, and answered
 give, 404 an unknown tag, channel, alarm or recipe, 409 refused in this state or by an
 interlock, 422 a recipe refused (``details``: file:line:col), 503 a recipe that took longer
 than ``RECIPE_COMPILE_TIMEOUT_S`` to read and compile (README "Input limits"; it is
-compiled in a worker thread, never on the scan's event loop). A write of a channel's
+compiled in a worker thread, never on the scan's event loop). Before any of it, a command
+not declared ``application/json`` is 415 and one from a page of another origin 403
+(:mod:`supervisor.hmi.csrf`). Every route is described in ``openapi.yaml``. A write of a channel's
 ``command``, ``mode``, ``manual_current``, ``enable`` or ``ack`` tag is that command. The
 scan takes the effect at its next start.
 
