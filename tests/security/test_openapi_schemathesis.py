@@ -40,6 +40,7 @@ SEED = 27
 EXCLUDED_PATHS = ("/api/logout", "/api/ws", "/api/sim/state", "/api/recipes/dryrun")
 EXCLUDED_CHECKS = ("positive_data_acceptance", "ignored_auth", "allow_header_conformance")
 ST = Path(sys.executable).parent / "st"
+UPLOT = Path(__file__).resolve().parents[2] / "hmi" / "node_modules" / "uplot" / "dist"
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +85,15 @@ def run_schemathesis(
         "--report-json-path",
         str(report),
     ]
-    return subprocess.run(command, capture_output=True, text=True, timeout=170, check=False)
+    # Run in the report's folder: schemathesis keeps a cache (.schemathesis/) where it runs.
+    return subprocess.run(
+        command,
+        capture_output=True,
+        text=True,
+        timeout=170,
+        check=False,
+        cwd=report.parent,
+    )
 
 
 def test_schemathesis_finds_no_5xx_and_every_answer_as_described(
@@ -92,6 +101,8 @@ def test_schemathesis_finds_no_5xx_and_every_answer_as_described(
 ) -> None:
     if not ST.exists():
         pytest.fail(f"{ST} is missing: pip install -e '.[dev]' installs schemathesis")
+    if not UPLOT.exists():  # the screens' files answer 503 "run make hmi" without it
+        pytest.fail(f"{UPLOT} is missing: `make hmi` installs it (npm ci)")
     report = tmp_path / "schemathesis.json"
     done = run_schemathesis(bench, report, session_cookie(bench, "operator"))
     assert report.exists(), f"schemathesis wrote no report:\n{done.stdout}\n{done.stderr}"
