@@ -23,6 +23,9 @@ from supervisor.hmi.screens import Screens
 from supervisor.publish.opcua import OpcUaSettings
 from supervisor.testing import run_scans
 
+JSON = {"Content-Type": "application/json"}
+"""What every command declares, a body or not (supervisor.hmi.csrf)."""
+
 USERS = {"vera": "viewer", "otto": "operator", "erin": "engineer"}
 """Name → role; each password is `password(name)`."""
 
@@ -51,7 +54,7 @@ class Hmi:
     async def call(
         self, s: aiohttp.ClientSession, method: str, path: str, body: Any = None
     ) -> tuple[int, Any]:
-        kw: dict[str, Any] = {} if body is None else {"json": body}
+        kw: dict[str, Any] = {"headers": JSON} if body is None else {"json": body}
         async with s.request(method, self.base + path, **kw) as resp:
             return resp.status, await resp.json()
 
@@ -81,15 +84,18 @@ async def hmi_bench(
     users_file = OpcUaSettings.of(bench.cfg).users_file
     for user, role in USERS.items():
         add_user(users_file, user, role, password(user))
+    cfg = cfg or HmiConfig(login=True)
     press = bench.sim.press_estop if estop and bench.sim is not None else None
-    api = HttpApi(bench.db, bench.clock, "127.0.0.1", 0, commands=bench.commands, estop=press)
-    screens = build_screens(
-        bench,
-        api,
-        root=root or tmp / "no-hmi",
-        queue_size=queue_size,
-        cfg=cfg or HmiConfig(login=True),
+    api = HttpApi(
+        bench.db,
+        bench.clock,
+        "127.0.0.1",
+        0,
+        commands=bench.commands,
+        estop=press,
+        allowed_origins=cfg.allowed_origins,
     )
+    screens = build_screens(bench, api, root=root or tmp / "no-hmi", queue_size=queue_size, cfg=cfg)
     await api.start()
     hmi = Hmi(bench, api, screens)
     try:

@@ -147,6 +147,7 @@ async def _serve(
         recipes=_recipes_config(cfg, bench),
         tests=TestsConfig(Path(cfg.state_dir) / "results", bench.results, bench.runners),
         pacing=bench.engine,
+        allowed_origins=cfg.hmi.allowed_origins,
     )
     screens = build_screens(bench, api)  # ConfigError for a bad users file: exit 2
     opcua = None

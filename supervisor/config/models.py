@@ -89,6 +89,28 @@ def is_loopback(host: str) -> bool:
         return False
 
 
+_DEFAULT_PORTS: Final = {"http": 80, "https": 443}
+
+
+def web_origin(url: str) -> str | None:
+    """The origin (RFC 6454) of ``url`` as browsers serialise it in an ``Origin`` header:
+    ``scheme://host[:port]`` in lower case, the scheme's default port left out; None when
+    ``url`` has none (not http/https, no host, ``null``)."""
+    try:
+        parts = urllib.parse.urlsplit(url.strip())
+        port = parts.port
+    except ValueError:  # a port out of range, a malformed IPv6 literal
+        return None
+    scheme, host = parts.scheme.lower(), parts.hostname
+    if scheme not in _DEFAULT_PORTS or not host:
+        return None
+    if ":" in host:  # an IPv6 literal keeps its brackets
+        host = f"[{host}]"
+    if port is None or port == _DEFAULT_PORTS[scheme]:
+        return f"{scheme}://{host}"
+    return f"{scheme}://{host}:{port}"
+
+
 class HmiConfig(Strict):
     """The HTTP API and the operator screens (docs/adr/0016-hmi-sessions-live-data.md)."""
 
@@ -117,6 +139,35 @@ class HmiConfig(Strict):
         le=10.0,
         description="How often the screens get the tags that changed (WebSocket /api/ws).",
     )
+    allowed_origins: list[str] = Field(
+        [],
+        description="Other origins (`scheme://host[:port]`) whose pages may send commands,"
+        " e.g. the address of a reverse proxy in front of the HMI; the HMI's own origin"
+        " (scheme and Host of each request) always may. Any other page's command is refused"
+        " (403, cross-site request forgery).",
+    )
+
+    @field_validator("allowed_origins")
+    @classmethod
+    def _origins(cls, origins: list[str]) -> list[str]:
+        normal: list[str] = []
+        for text in origins:
+            origin = web_origin(text)
+            parts = urllib.parse.urlsplit(text.strip())
+            # Exactly an origin: a path or query is no part of what browsers send.
+            if (
+                origin is None
+                or parts.path not in ("", "/")
+                or parts.query
+                or parts.fragment
+                or parts.username is not None
+            ):
+                raise ValueError(
+                    f"allowed origin {text!r} is not an origin: expected scheme://host[:port]"
+                    " (http or https, no path), e.g. https://bench.lab.example:8443"
+                )
+            normal.append(origin)
+        return normal
 
     @model_validator(mode="after")
     def _login_off_the_loopback(self) -> HmiConfig:

@@ -6,8 +6,10 @@ The users are the OPC UA users (``supervisor.config.users.UserStore``, one file)
 
 - ``POST /api/login {"user", "password"}`` opens a session: a random token (256 bits) in an
   HttpOnly, SameSite=Strict cookie ``bench_session`` (the page's scripts never see it, and
-  no other site's page can send it). Sessions live in this process only: a restart logs
-  everyone out, which the page survives (it goes back to login, keeping its place).
+  no other site's page can send it; a page on another port of the same host is the same
+  site: ``supervisor.hmi.csrf`` refuses its commands by their origin). Sessions live in
+  this process only: a restart logs everyone out, which the page survives (it goes back to
+  login, keeping its place).
 - A session expires after ``hmi.session_timeout_s`` without a request (ISA-101 panels are
   shared: a shift left logged in must not command the next one's bench).
 - A wrong user and a wrong password get the same answer (401, "wrong user name or

@@ -7,7 +7,9 @@ it is checked (role, state, interlocks), recorded with its actor, and answered
 give, 404 an unknown tag, channel, alarm or recipe, 409 refused in this state or by an
 interlock, 422 a recipe refused (``details``: file:line:col), 503 a recipe that took longer
 than ``RECIPE_COMPILE_TIMEOUT_S`` to read and compile (README "Input limits"; it is
-compiled in a worker thread, never on the scan's event loop). A write of a channel's
+compiled in a worker thread, never on the scan's event loop). Before any of it, a command
+not declared ``application/json`` is 415 and one from a page of another origin 403
+(:mod:`supervisor.hmi.csrf`). Every route is described in ``openapi.yaml``. A write of a channel's
 ``command``, ``mode``, ``manual_current``, ``enable`` or ``ack`` tag is that command. The
 scan takes the effect at its next start.
 
@@ -35,7 +37,9 @@ from supervisor.commands import Command, CommandPath, Result, ResultKind, Verb
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Value
 from supervisor.core.quality import Quality, Reason
+from supervisor.hmi.csrf import RequestOrigins
 from supervisor.hmi.history_api import HistoryQuery, add_history_routes
+from supervisor.hmi.openapi import add_openapi_route
 from supervisor.hmi.recipes_api import RecipesConfig, add_recipe_routes
 from supervisor.hmi.tests_api import TestsConfig, add_test_routes
 from supervisor.safety import Alarm, AlarmEvent
@@ -570,9 +574,12 @@ class HttpApi:
         recipes: RecipesConfig | None = None,
         tests: TestsConfig | None = None,
         pacing: ScanPacing | None = None,
+        allowed_origins: Iterable[str] = (),
     ):
         """``pacing``: the scan sharing this event loop (``ScanEngine``): a full image's turn
-        then starts only when it is over before that scan is due (ADR 0019)."""
+        then starts only when it is over before that scan is due (ADR 0019).
+        ``allowed_origins``: pages of these origins may command, besides the API's own
+        (``hmi.allowed_origins``, :mod:`supervisor.hmi.csrf`)."""
         self.db = db
         self._estop = estop
         self._sim_state = sim_state
@@ -583,7 +590,11 @@ class HttpApi:
         self.port = port
         self._runner: web.AppRunner | None = None
         self.snapshots = TagSnapshots(db, clock, pacing)
-        app = web.Application(middlewares=[json_errors])
+        app = web.Application()
+        # Cross-site request forgery: JSON bodies and same-origin pages only (issue 27).
+        RequestOrigins(allowed_origins).install(app)
+        # Outermost: every error under /api/ is JSON, aiohttp's own and the refusals too.
+        app.middlewares.insert(0, json_errors)
         app.on_response_prepare.append(_security_headers)
         app.add_routes(
             [
@@ -596,6 +607,7 @@ class HttpApi:
                 web.post("/api/alarms/{alarm}/{action}", self._alarm_command),
             ]
         )
+        add_openapi_route(app)  # GET /api/openapi.json (hmi/openapi.yaml)
         # Forcing (engineers only; never a tag the safety phase uses): ADR 0015.
         app.add_routes(
             [

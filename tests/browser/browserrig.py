@@ -153,8 +153,8 @@ class Supervisor:
     ) -> tuple[int, Any]:
         data = None if body is None else json.dumps(body).encode()
         req = urllib.request.Request(self.base + path, data=data, method=method)
-        if data is not None:
-            req.add_header("Content-Type", "application/json")
+        # Every command declares JSON, a body or not (supervisor.hmi.csrf).
+        req.add_header("Content-Type", "application/json")
         try:
             with opener.open(req, timeout=10) as res:
                 return res.status, json.loads(res.read() or b"null")
@@ -212,7 +212,7 @@ def start_supervisor(workdir: Path, **hmi: Any) -> Supervisor:
         raise AssertionError(f"supervisor run did not start: {lines}\n{tail}")
     # The rest of stdout goes to a file (a full pipe would block the supervisor).
     drain = threading_drain(proc, workdir / "supervisor.stdout")
-    login = "login" in hmi_options()
+    login = "login" in hmi_options() and hmi.get("login", True) is not False
     sup = Supervisor(proc, base, workdir, log_path, login, drain)
     wait_for(
         "the simulated devices connected",

@@ -36,6 +36,9 @@ from supervisor.hmi import HttpApi
 from supervisor.hmi.recipes_api import MAX_BODY_BYTES, MAX_TRACE_POINTS, RecipesConfig
 from supervisor.testing import free_tcp_port, wait_until
 
+JSON = {"Content-Type": "application/json"}
+"""What every command declares, a body or not (supervisor.hmi.csrf)."""
+
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.integration
 
@@ -69,6 +72,7 @@ class Client:
             kw["json"] = body
         url = URL(self.api.url + path, encoded=True)  # as sent: ..%2F stays encoded
         headers = {"X-Test-Role": self.role} if self.role is not None else {}
+        headers.update(JSON)  # every command declares JSON (supervisor.hmi.csrf)
         async with self.session.request(method, url, headers=headers, **kw) as resp:
             return resp.status, await resp.json()
 
@@ -214,7 +218,7 @@ async def test_a_body_too_large_to_hold_a_recipe_is_413_unread(client: Client) -
     data = io.BytesIO(b'{"text": "' + b"x" * (MAX_BODY_BYTES + 1) + b'"}')
     async with aiohttp.ClientSession() as session:  # its own connection, closed here
         url = client.api.url + "/recipes/huge"
-        async with session.put(url, data=data, headers={"X-Test-Role": "engineer"}) as resp:
+        async with session.put(url, data=data, headers={"X-Test-Role": "engineer", **JSON}) as resp:
             status, body = resp.status, await resp.json()
     assert status == 413
     assert body["reason"].startswith("request body is too large")

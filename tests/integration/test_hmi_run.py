@@ -29,7 +29,9 @@ pytestmark = pytest.mark.integration
 
 def _call(opener: urllib.request.OpenerDirector, method: str, url: str, body: Any = None) -> Any:
     data = None if body is None else json.dumps(body).encode()
-    req = urllib.request.Request(url, data=data, method=method)
+    req = urllib.request.Request(
+        url, data=data, method=method, headers={"Content-Type": "application/json"}
+    )
     try:
         with opener.open(req, timeout=5) as resp:
             return resp.status, json.loads(resp.read())

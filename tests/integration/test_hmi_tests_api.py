@@ -25,6 +25,9 @@ from supervisor.hmi.tests_api import TestsConfig
 from supervisor.publish.results import BDF_COLUMNS
 from supervisor.testing import run_scans
 
+JSON = {"Content-Type": "application/json"}
+"""What every command declares, a body or not (supervisor.hmi.csrf)."""
+
 pytestmark = pytest.mark.integration
 
 TWO_CYCLES = (
@@ -42,7 +45,7 @@ class Client:
     results: Path
 
     async def call(self, method: str, path: str, body: Any = None) -> tuple[int, Any]:
-        kw: dict[str, Any] = {} if body is None else {"json": body}
+        kw: dict[str, Any] = {"headers": JSON} if body is None else {"json": body}
         url = URL(self.api.url + path, encoded=True)
         async with self.session.request(method, url, **kw) as resp:
             return resp.status, await resp.json()

@@ -28,6 +28,9 @@ from supervisor.hmi import HttpApi
 from supervisor.tags import Access, TagSpec
 from supervisor.testing import run_scans
 
+JSON = {"Content-Type": "application/json"}
+"""What every command declares, a body or not (supervisor.hmi.csrf)."""
+
 pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -39,7 +42,7 @@ class Client:
     session: aiohttp.ClientSession
 
     async def call(self, method: str, path: str, body: Any = None) -> tuple[int, Any]:
-        kw: dict[str, Any] = {} if body is None else {"json": body}
+        kw: dict[str, Any] = {"headers": JSON} if body is None else {"json": body}
         async with self.session.request(method, self.api.url + path, **kw) as resp:
             return resp.status, await resp.json()
 
@@ -221,7 +224,7 @@ async def test_a_refusal_answers_its_status_and_the_reason(
 
 async def test_a_body_that_is_not_json_is_a_bad_argument(client: Client) -> None:
     url = client.api.url + "/tags/ch0.enable"
-    async with client.session.put(url, data=b"true please") as resp:
+    async with client.session.put(url, data=b"true please", headers=JSON) as resp:
         assert resp.status == 400
         assert (await resp.json())["accepted"] is False
 
@@ -309,7 +312,8 @@ def strict_json(text: str) -> Any:
 
 
 async def put_raw(c: Client, name: str, body: str) -> tuple[int, Any]:
-    async with c.session.put(f"{c.api.url}/tags/{name}", data=body.encode()) as resp:
+    url = f"{c.api.url}/tags/{name}"
+    async with c.session.put(url, data=body.encode(), headers=JSON) as resp:
         return resp.status, strict_json(await resp.text())
 
 

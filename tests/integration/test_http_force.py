@@ -19,6 +19,9 @@ from supervisor.hmi import HttpApi
 from supervisor.tags import Access
 from supervisor.testing import run_scans
 
+JSON = {"Content-Type": "application/json"}
+"""What every command declares, a body or not (supervisor.hmi.csrf)."""
+
 pytestmark = pytest.mark.integration
 
 
@@ -48,7 +51,7 @@ async def api(tmp_path: Path) -> AsyncIterator[tuple[Bench, HttpApi, aiohttp.Cli
 async def call(
     api: HttpApi, s: aiohttp.ClientSession, method: str, tag: str, body: Any = None
 ) -> tuple[int, Any]:
-    kw: dict[str, Any] = {} if body is None else {"json": body}
+    kw: dict[str, Any] = {"headers": JSON} if body is None else {"json": body}
     async with s.request(method, f"{api.url}/tags/{tag}/force", **kw) as resp:
         return resp.status, await resp.json()
 

@@ -67,7 +67,10 @@ class Supervisor:
 
     def write(self, name: str, value: object) -> None:
         req = urllib.request.Request(
-            f"{self.url}/tags/{name}", data=json.dumps({"value": value}).encode(), method="PUT"
+            f"{self.url}/tags/{name}",
+            data=json.dumps({"value": value}).encode(),
+            method="PUT",
+            headers={"Content-Type": "application/json"},
         )
         with urllib.request.urlopen(req, timeout=10):
             pass

@@ -35,7 +35,12 @@ pytestmark = pytest.mark.integration
 
 
 def _put(url: str, body: object) -> None:
-    req = urllib.request.Request(url, data=json.dumps(body).encode(), method="PUT")
+    req = urllib.request.Request(
+        url,
+        data=json.dumps(body).encode(),
+        method="PUT",
+        headers={"Content-Type": "application/json"},
+    )
     with urllib.request.urlopen(req, timeout=5) as resp:
         resp.read()
 

@@ -160,7 +160,12 @@ async def test_losing_the_supply_while_charging_trips_the_channel_safe(bench: Be
 
 
 def _http(method: str, url: str, body: object) -> None:
-    req = urllib.request.Request(url, data=json.dumps(body).encode(), method=method)
+    req = urllib.request.Request(
+        url,
+        data=json.dumps(body).encode(),
+        method=method,
+        headers={"Content-Type": "application/json"},
+    )
     with urllib.request.urlopen(req, timeout=5) as resp:
         resp.read()
 

@@ -135,7 +135,9 @@ async def test_a_bus_failure_makes_the_channel_inputs_bad_and_trips_a_driving_ch
 
 def _http(method: str, url: str, body: object | None = None) -> object:
     data = None if body is None else json.dumps(body).encode()
-    req = urllib.request.Request(url, data=data, method=method)
+    req = urllib.request.Request(
+        url, data=data, method=method, headers={"Content-Type": "application/json"}
+    )
     with urllib.request.urlopen(req, timeout=5) as resp:
         return json.loads(resp.read())
 
@@ -188,7 +190,10 @@ def test_supervisor_run_serves_the_api_charges_on_request_and_exits_0_on_sigterm
         assert isinstance(current, dict) and current["quality"] == "GOOD"
         assert current["value"] == pytest.approx(0.3, abs=1e-3)
         refused = urllib.request.Request(
-            f"{url}/tags/ch0.voltage", data=b'{"value": 3}', method="PUT"
+            f"{url}/tags/ch0.voltage",
+            data=b'{"value": 3}',
+            method="PUT",
+            headers={"Content-Type": "application/json"},
         )
         with pytest.raises(urllib.error.HTTPError) as info:
             urllib.request.urlopen(refused, timeout=5)
@@ -213,6 +218,7 @@ def test_supervisor_run_serves_the_api_charges_on_request_and_exits_0_on_sigterm
                 {"file": str(ROOT / "tests/data/bad_recipes/unit_mismatch.yaml")}
             ).encode(),
             method="PUT",
+            headers={"Content-Type": "application/json"},
         )
         with pytest.raises(urllib.error.HTTPError) as refused_recipe:
             urllib.request.urlopen(bad, timeout=5)

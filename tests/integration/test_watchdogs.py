@@ -62,7 +62,9 @@ async def test_a_served_unit_switches_its_relays_off_by_itself_when_the_host_goe
 # --- two processes -----------------------------------------------------------------------------
 def http(method: str, url: str, body: object | None = None) -> Any:
     data = None if body is None else json.dumps(body).encode()
-    req = urllib.request.Request(url, data=data, method=method)
+    req = urllib.request.Request(
+        url, data=data, method=method, headers={"Content-Type": "application/json"}
+    )
     with urllib.request.urlopen(req, timeout=5) as resp:
         return json.loads(resp.read())
 
