@@ -36,6 +36,7 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import Value
 from supervisor.core.quality import Quality, Reason
 from supervisor.hmi.history_api import HistoryQuery, add_history_routes
+from supervisor.hmi.limits import ConnectionGuard, ConnectionLimits
 from supervisor.hmi.recipes_api import RecipesConfig, add_recipe_routes
 from supervisor.hmi.tests_api import TestsConfig, add_test_routes
 from supervisor.safety import Alarm, AlarmEvent
@@ -515,9 +516,11 @@ class HttpApi:
         recipes: RecipesConfig | None = None,
         tests: TestsConfig | None = None,
         pacing: ScanPacing | None = None,
+        limits: ConnectionLimits | None = None,
     ):
         """``pacing``: the scan sharing this event loop (``ScanEngine``): a full image's turn
-        then starts only when it is over before that scan is due (ADR 0019)."""
+        then starts only when it is over before that scan is due (ADR 0019). ``limits``:
+        the connection cap and timeouts (``supervisor.hmi.limits``; the defaults without)."""
         self.db = db
         self._estop = estop
         self._sim_state = sim_state
@@ -527,6 +530,10 @@ class HttpApi:
         self.host = host
         self.port = port
         self._runner: web.AppRunner | None = None
+        self._listener: asyncio.Server | None = None
+        self.limits = limits or ConnectionLimits()
+        self.guard: ConnectionGuard | None = None
+        """The listener's connection counts (after ``start``)."""
         self.snapshots = TagSnapshots(db, clock, pacing)
         app = web.Application()
         app.add_routes(
@@ -567,17 +574,28 @@ class HttpApi:
         return f"http://{self.host}:{self.port}/api"
 
     async def start(self) -> None:
-        self._runner = web.AppRunner(self.app, access_log=None)
+        limits = self.limits
+        # keepalive_timeout: an idle keep-alive connection is closed (aiohttp's default
+        # kept it for an hour).
+        self._runner = web.AppRunner(
+            self.app, access_log=None, keepalive_timeout=limits.idle_timeout_s
+        )
         await self._runner.setup()
-        site = web.TCPSite(self._runner, self.host, self.port)
-        await site.start()
-        server = site._server
-        if server is not None and self.port == 0:
-            sockets = getattr(server, "sockets", None) or []
-            if sockets:
-                self.port = sockets[0].getsockname()[1]
+        handler = self._runner.server
+        assert handler is not None
+        # Our own listener instead of aiohttp's TCPSite: each accepted connection goes
+        # through the guard (cap, header timeout) before aiohttp sees it.
+        self.guard = ConnectionGuard(handler, limits)
+        self._listener = await asyncio.get_running_loop().create_server(
+            self.guard.protocol, self.host, self.port, backlog=limits.backlog
+        )
+        if self.port == 0 and self._listener.sockets:
+            self.port = self._listener.sockets[0].getsockname()[1]
 
     async def stop(self) -> None:
+        if self._listener is not None:
+            self._listener.close()  # no new connection; aiohttp closes the open ones
+            self._listener = None
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
