@@ -265,9 +265,9 @@ class Flood:
         try:
             while time.monotonic() < end:
                 for key, _ in sel.select(timeout=0.1):
-                    s: socket.socket = key.data
+                    conn: socket.socket = key.data
                     try:
-                        data = s.recv(4096)
+                        data = conn.recv(4096)
                     except (BlockingIOError, InterruptedError):
                         continue
                     except OSError:
@@ -276,7 +276,7 @@ class Flood:
                         self.refused_503 += 1
                     if not data or data.startswith(b"HTTP/1.1 503"):
                         self.closed += 1
-                        sel.unregister(s)
+                        sel.unregister(conn)
         finally:
             sel.close()
 
