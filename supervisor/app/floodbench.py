@@ -304,6 +304,8 @@ class Figures:
     http_accepted: int = 0
     opcua_connections: int = 0
     new_requests: Counter[int] = field(default_factory=Counter)
+    recipe_load: int = 0
+    """The status of a recipe load on ch1 during the flood (it opens a file)."""
     logins: int = 0
     logins_per_s: float = 0.0
     login_answers: Counter[int] = field(default_factory=Counter)
@@ -351,6 +353,8 @@ def flood(
         opc.open(opcua_connections)
         web.read_answers(2.0)  # the 503s beyond the cap come at once
         poll()
+        # The bench opens files during the flood (a recipe to load): descriptors were kept.
+        fig.recipe_load = op.call("PUT", "/api/channels/ch1/recipe", {"file": RECIPE})[0]
         # A new request during the flood: answered (503 or served), never left hanging.
         fig.new_requests[one_request(sup.host, sup.http_port, "GET", "/api/session")] += 1
         # Wrong passwords at ``login_rate``, each on a connection of its own.
@@ -414,6 +418,7 @@ def report(fig: Figures) -> list[str]:
         f"  HTTP 503 beyond the cap:     {fig.http_503} (not answered 503: {fig.http_accepted},"
         " held within the cap until the header timeout)",
         f"  a new request in the flood:  {dict(fig.new_requests)}",
+        f"  a recipe loaded in the flood: HTTP {fig.recipe_load}",
         f"  logins/s achieved:           {fig.logins_per_s:.1f} (answers: {answers})",
     ]
 

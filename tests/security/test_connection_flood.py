@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from supervisor.app.floodbench import MIB, bench_run, flood
+from supervisor.app.floodbench import MIB, bench_run, flood, report
 
 pytestmark = pytest.mark.integration
 
@@ -25,11 +25,14 @@ def test_a_flood_of_idle_connections_leaves_every_device_connected_and_answers_5
 ) -> None:
     with bench_run(tmp_path) as sup:
         fig = flood(sup, http_connections=1100, opcua_connections=200, login_s=4.0)
+    print("\n".join(report(fig)))  # shown when an assertion fails
     # Every device stayed connected at every poll, nothing tripped, the test still runs.
-    assert fig.polls >= 3
     assert fig.disconnected == []
     assert fig.faults == {}
     assert fig.test_state == "Running"
+    assert fig.polls >= 2
+    # The bench still opens files in the flood (a recipe load): descriptors were kept.
+    assert fig.recipe_load == 200
     # The scan kept its deadlines (a stall is a scan late by many periods).
     assert fig.stalls == 0
     # Beyond the cap the listener answered 503 at once; a new request was answered.
