@@ -32,6 +32,7 @@ from supervisor.config.models import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core import memtrace
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 from supervisor.core.heap import collect_when_idle, settle_after_start
+from supervisor.core.logrepeat import RepeatFilter
 from supervisor.scan.engine import ScanFirstLoop
 
 if TYPE_CHECKING:
@@ -65,19 +66,28 @@ def _setup_logging(level: str, *, off_thread: bool = False) -> None:
     interpreter lock go, and a step change of 16 channels in one scan logged 16 lines on
     the scan's thread, each a chance for a publisher's thread to keep the lock up to the
     switch interval (issue 13, ADR 0021). The listener writes what is queued before the
-    process exits (``atexit``)."""
+    process exits (``atexit``).
+
+    Repeated lines are collapsed (``RepeatFilter``: one line of a kind per 10 s, with the
+    count of those suppressed; issue 27: a connection flood wrote 71,567 "Too many open
+    files" lines). The filter sits before the queue: a suppressed line (a traceback) is
+    not even formatted."""
     root = logging.getLogger()
     if root.handlers:
         return
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter(LOG_FORMAT))
+    repeats = RepeatFilter(time.monotonic)
     if off_thread:
         records: queue.SimpleQueue[logging.LogRecord] = queue.SimpleQueue()
         listener = logging.handlers.QueueListener(records, handler)
         listener.start()
         atexit.register(listener.stop)
-        root.addHandler(logging.handlers.QueueHandler(records))
+        queued = logging.handlers.QueueHandler(records)
+        queued.addFilter(repeats)
+        root.addHandler(queued)
     else:
+        handler.addFilter(repeats)
         root.addHandler(handler)
     root.setLevel(getattr(logging, level.upper(), logging.INFO))
 
@@ -88,6 +98,8 @@ async def _run(args: argparse.Namespace) -> int:
     from supervisor.devices.registry import load_bench
 
     cfg = load_bench(args.io_map)
+    if not _descriptors_fit(cfg):
+        return EXIT_USAGE
     # One bench, one supervisor (DESIGN.md "Safety"): the lock comes before anything that
     # touches a device, a simulator or a port; the kernel drops it when this process dies.
     lock = BenchLock(cfg.state_dir, cfg.bench)
@@ -103,6 +115,27 @@ async def _run(args: argparse.Namespace) -> int:
         return await _run_locked(args, cfg)
     finally:
         lock.release()
+
+
+def _descriptors_fit(cfg: BenchConfig) -> bool:
+    """Raise the soft ``RLIMIT_NOFILE`` (towards 8192, within the hard limit) and check that
+    the listeners' caps leave the devices their descriptors (issue 27, finding 3); False
+    (said on stderr) when they do not fit."""
+    from supervisor.app.descriptors import descriptor_budget
+    from supervisor.core.descriptors import raise_soft_limit
+
+    limit = raise_soft_limit()
+    budget = descriptor_budget(cfg)
+    problem = budget.problem(limit)
+    if problem is not None:
+        _err(f"supervisor: {problem}")
+        return False
+    raised = f", raised from {limit.before}" if limit.before != limit.soft else ""
+    _out(
+        f"file descriptors: soft limit {limit.soft}{raised}; the caps take at most"
+        f" {budget.describe()}"
+    )
+    return True
 
 
 async def _run_locked(args: argparse.Namespace, cfg: BenchConfig) -> int:
@@ -125,6 +158,7 @@ async def _run_locked(args: argparse.Namespace, cfg: BenchConfig) -> int:
 async def _serve(
     args: argparse.Namespace, cfg: BenchConfig, bench: Bench, restored: list[str]
 ) -> int:
+    from supervisor.app.descriptors import http_limits
     from supervisor.app.hmi import build_screens
     from supervisor.commands import Command, Verb
     from supervisor.hmi import HttpApi
@@ -148,6 +182,7 @@ async def _serve(
         tests=TestsConfig(Path(cfg.state_dir) / "results", bench.results, bench.runners),
         pacing=bench.engine,
         allowed_origins=cfg.hmi.allowed_origins,
+        limits=http_limits(cfg),
     )
     screens = build_screens(bench, api)  # ConfigError for a bad users file: exit 2
     opcua = None
@@ -748,6 +783,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 args.clients, args.seconds, args.opcua_tags, args.period_ms / 1000
             )
         )
+    if args.what == "flood":
+        from supervisor.app.floodbench import flood_benchmark
+
+        return flood_benchmark(
+            args.flood_http, args.flood_opcua, args.login_rate, args.login_seconds
+        )
     if args.what in ("load", "memory", "report"):
         from supervisor.app import benchsuite
 
@@ -991,6 +1032,7 @@ def build_parser() -> argparse.ArgumentParser:
             "load",
             "memory",
             "report",
+            "flood",
         ],
     )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
@@ -1030,6 +1072,12 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--http-clients", type=int, default=4, help="http: GET /api/tags loops")
     b.add_argument("--ws-clients", type=int, default=3, help="http: WebSocket pages")
     b.add_argument("--minutes", type=float, default=30.0, help="memory: minutes to run")
+    b.add_argument("--flood-http", type=int, default=2000, help="flood: idle HTTP connections")
+    b.add_argument("--flood-opcua", type=int, default=200, help="flood: idle OPC UA connections")
+    b.add_argument("--login-rate", type=float, default=100.0, help="flood: wrong logins per second")
+    b.add_argument(
+        "--login-seconds", type=float, default=30.0, help="flood: seconds of wrong logins"
+    )
     b.add_argument("--warmup", type=float, default=None, help="load, memory: warm-up seconds")
     b.add_argument(
         "--trace",

@@ -169,6 +169,43 @@ class HmiConfig(Strict):
             normal.append(origin)
         return normal
 
+    max_connections: int = Field(
+        256,
+        ge=1,
+        le=60000,
+        description="Open HTTP connections at most (pages, API clients and screens' WebSockets"
+        " together); one more is answered 503 at once and closed, so that a flood of clients"
+        ' never takes the file descriptors the devices need (README "Connection limits").',
+    )
+    max_websockets: int = Field(
+        32,
+        ge=1,
+        le=60000,
+        description="Screens (WebSocket /api/ws) connected at most; one more is answered 503.",
+    )
+    header_timeout_s: float = Field(
+        10.0,
+        gt=0,
+        le=300.0,
+        description="A connection whose request headers are not complete this long after it"
+        " opened (or after the first byte of its next request) is closed (slowloris).",
+    )
+    idle_timeout_s: float = Field(
+        60.0,
+        gt=0,
+        le=3600.0,
+        description="A keep-alive connection without a request for this long is closed.",
+    )
+
+    @model_validator(mode="after")
+    def _websockets_within_connections(self) -> HmiConfig:
+        if self.max_websockets > self.max_connections:
+            raise ValueError(
+                f"max_websockets ({self.max_websockets}) is more than max_connections"
+                f" ({self.max_connections}): each screen is one of the HTTP connections"
+            )
+        return self
+
     @model_validator(mode="after")
     def _login_off_the_loopback(self) -> HmiConfig:
         # Without login every client operates (the bench's outputs): only this machine's.
@@ -224,6 +261,20 @@ class OpcUaConfig(Strict):
         " MinimumSamplingInterval its variables advertise (s). Default: the scan period, but"
         " not under 0.05 s (a 10 ms scan would spend a third of its CPU feeding OPC UA values"
         " no SCADA client samples that fast; events and alarms are never delayed).",
+    )
+    max_connections: int = Field(
+        64,
+        ge=1,
+        le=60000,
+        description="Open OPC UA connections at most; one more is closed at once (README"
+        ' "Connection limits").',
+    )
+    activation_timeout_s: float = Field(
+        10.0,
+        gt=0,
+        le=300.0,
+        description="A connection without an activated session this long after it opened is"
+        " closed (an idle or stalled client does not hold its descriptor).",
     )
 
     @field_validator("security")

@@ -40,6 +40,7 @@ from aiohttp import WSCloseCode, WSMsgType, web
 from supervisor.core.clock import Clock
 from supervisor.core.records import BenchEvent
 from supervisor.hmi.auth import VALID_KEY
+from supervisor.hmi.limits import MAX_WEBSOCKETS
 from supervisor.hmi.server import (
     Collected,
     TagSnapshots,
@@ -111,6 +112,7 @@ class LiveHub:
         publish_period_s: float = 0.2,
         alarms: AlarmManager | None = None,
         queue_size: int = QUEUE_SIZE,
+        max_clients: int = MAX_WEBSOCKETS,
     ) -> None:
         self.db = db
         self.clock = clock
@@ -118,6 +120,10 @@ class LiveHub:
         self.alarms = alarms
         self.queue_size = queue_size
         self.clients: set[LiveClient] = set()
+        self.max_clients = max_clients
+        """Screens connected at most (``hmi.max_websockets``); one more is answered 503."""
+        self.refused = 0
+        self._admitted = 0  # clients past the cap's check, connected or still connecting
         self.dropped = 0
         self.published = 0
         self._version = db.version
@@ -290,7 +296,27 @@ class LiveHub:
         self, request: web.Request, valid: Callable[[], bool] | None = None
     ) -> web.StreamResponse:
         """``GET /api/ws``: the snapshot, the alarms, then deltas and events until either
-        side closes. (Authenticated before the upgrade by the login middleware.)"""
+        side closes. (Authenticated before the upgrade by the login middleware.) Beyond
+        ``max_clients`` screens: 503 before the upgrade (issue 27, finding 3)."""
+        if self._admitted >= self.max_clients:
+            self.refused += 1
+            log.warning(
+                "hmi: %d screens connected (hmi.max_websockets): one more refused",
+                self._admitted,
+            )
+            reason = f"too many screens connected (hmi.max_websockets: {self.max_clients})"
+            return web.json_response(
+                {"accepted": False, "reason": reason}, status=503, headers={"Retry-After": "5"}
+            )
+        self._admitted += 1
+        try:
+            return await self._serve(request, valid)
+        finally:
+            self._admitted -= 1
+
+    async def _serve(
+        self, request: web.Request, valid: Callable[[], bool] | None
+    ) -> web.StreamResponse:
         ws = web.WebSocketResponse(heartbeat=HEARTBEAT_S)
         await ws.prepare(request)
         found: Callable[[], bool] = request.get(VALID_KEY, _always)

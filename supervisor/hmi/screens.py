@@ -48,7 +48,14 @@ def install_screens(
     access = HmiAccess(users, sessions, cfg.login, cfg.anonymous_read, throttle)
     access.install(api.app)
     api.commands.roles = HmiRoles(users, api.commands.roles)
-    live = LiveHub(api.db, api.clock, cfg.publish_period_s, api.commands.alarms, queue_size)
+    live = LiveHub(
+        api.db,
+        api.clock,
+        cfg.publish_period_s,
+        api.commands.alarms,
+        queue_size,
+        max_clients=cfg.max_websockets,
+    )
     live.install(api.app)
     layout = None
     if bench is not None:

@@ -39,6 +39,7 @@ from supervisor.core.driver import Value
 from supervisor.core.quality import Quality, Reason
 from supervisor.hmi.csrf import RequestOrigins
 from supervisor.hmi.history_api import HistoryQuery, add_history_routes
+from supervisor.hmi.limits import ConnectionGuard, ConnectionLimits
 from supervisor.hmi.openapi import add_openapi_route
 from supervisor.hmi.recipes_api import RecipesConfig, add_recipe_routes
 from supervisor.hmi.tests_api import TestsConfig, add_test_routes
@@ -575,11 +576,13 @@ class HttpApi:
         tests: TestsConfig | None = None,
         pacing: ScanPacing | None = None,
         allowed_origins: Iterable[str] = (),
+        limits: ConnectionLimits | None = None,
     ):
         """``pacing``: the scan sharing this event loop (``ScanEngine``): a full image's turn
         then starts only when it is over before that scan is due (ADR 0019).
         ``allowed_origins``: pages of these origins may command, besides the API's own
-        (``hmi.allowed_origins``, :mod:`supervisor.hmi.csrf`)."""
+        (``hmi.allowed_origins``, :mod:`supervisor.hmi.csrf`). ``limits``: the connection
+        cap and timeouts (``supervisor.hmi.limits``; the defaults without)."""
         self.db = db
         self._estop = estop
         self._sim_state = sim_state
@@ -589,6 +592,10 @@ class HttpApi:
         self.host = host
         self.port = port
         self._runner: web.AppRunner | None = None
+        self._listener: asyncio.Server | None = None
+        self.limits = limits or ConnectionLimits()
+        self.guard: ConnectionGuard | None = None
+        """The listener's connection counts (after ``start``)."""
         self.snapshots = TagSnapshots(db, clock, pacing)
         app = web.Application()
         # Cross-site request forgery: JSON bodies and same-origin pages only (issue 27).
@@ -635,17 +642,28 @@ class HttpApi:
         return f"http://{self.host}:{self.port}/api"
 
     async def start(self) -> None:
-        self._runner = web.AppRunner(self.app, access_log=None)
+        limits = self.limits
+        # keepalive_timeout: an idle keep-alive connection is closed (aiohttp's default
+        # kept it for an hour).
+        self._runner = web.AppRunner(
+            self.app, access_log=None, keepalive_timeout=limits.idle_timeout_s
+        )
         await self._runner.setup()
-        site = web.TCPSite(self._runner, self.host, self.port)
-        await site.start()
-        server = site._server
-        if server is not None and self.port == 0:
-            sockets = getattr(server, "sockets", None) or []
-            if sockets:
-                self.port = sockets[0].getsockname()[1]
+        handler = self._runner.server
+        assert handler is not None
+        # Our own listener instead of aiohttp's TCPSite: each accepted connection goes
+        # through the guard (cap, header timeout) before aiohttp sees it.
+        self.guard = ConnectionGuard(handler, limits)
+        self._listener = await asyncio.get_running_loop().create_server(
+            self.guard.protocol, self.host, self.port, backlog=limits.backlog
+        )
+        if self.port == 0 and self._listener.sockets:
+            self.port = self._listener.sockets[0].getsockname()[1]
 
     async def stop(self) -> None:
+        if self._listener is not None:
+            self._listener.close()  # no new connection; aiohttp closes the open ones
+            self._listener = None
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None

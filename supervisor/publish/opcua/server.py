@@ -103,6 +103,10 @@ class OpcUaSettings:
     scan_period_s: float
     sampling_interval_s: float = 0.0
     """How often the scan hands changed tags to the server (``OpcUaFeed``); 0: every scan."""
+    max_connections: int = 64
+    """Open connections at most (``opcua.max_connections``): one more is closed at once."""
+    activation_timeout_s: float = 10.0
+    """A connection without an activated session this long is closed."""
 
     @classmethod
     def of(cls, cfg: BenchConfig) -> OpcUaSettings:
@@ -119,6 +123,8 @@ class OpcUaSettings:
             pki_dir=Path(o.pki_dir) if o.pki_dir else base / "pki",
             scan_period_s=cfg.scan.period_s,
             sampling_interval_s=sampling_interval_s(cfg.scan.period_s, o.sampling_interval_s),
+            max_connections=o.max_connections,
+            activation_timeout_s=o.activation_timeout_s,
         )
 
     @property
@@ -350,6 +356,11 @@ class OpcUaServer:
         server = BenchServer(user_manager=PasswordUsers(self.users, s.anonymous, self.throttle))
         # ConditionRefresh replays the retained alarm conditions (asyncua keeps them).
         server.iserver.bind_condition_methods = True
+        # Issue 27, finding 3: a flood of clients must not take the descriptors the devices
+        # need. asyncua closes a connection beyond its cap at once, and one that has not
+        # activated a session in time (an idle socket, a stalled handshake).
+        server.iserver.max_connections = s.max_connections
+        server.iserver.max_pending_activation_seconds = s.activation_timeout_s
         self._server = server
         # The standard address space from the machine's shared shelf: its nodes are read
         # when first asked for instead of all kept in memory (ADR 0020; None: in memory).
