@@ -73,6 +73,7 @@ def _simulate(tmp: Path, server: InfluxServer) -> Run:
     data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
     data["hmi"]["login"] = False  # its HTTP clients do not log in
     data["state_dir"] = str(tmp / "state")
+    data["recipes"] = {"folders": [str(tmp)]}  # the test's recipe, written below
     token = tmp / "influx.token"
     token.write_text(server.token + "\n", encoding="utf-8")
     data["influxdb"] = {
