@@ -193,6 +193,7 @@ def kill_restart_map(workdir: Path, io_map: str = "io_maps/sim.yaml") -> Path:
     data["hmi"]["login"] = False  # its HTTP client does not log in (loopback)
     data.pop("opcua", None)  # not what this measures (and 4840 may be taken)
     data["state_dir"] = str(workdir / "var")
+    data["recipes"] = {"folders": [str(workdir)]}  # where its recipe is written
     path = workdir / "seed002.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     return path

@@ -98,7 +98,8 @@ async def _run(args: argparse.Namespace) -> int:
     from supervisor.devices.registry import load_bench
 
     cfg = load_bench(args.io_map)
-    if not _descriptors_fit(cfg):
+    descriptors = _descriptors_fit(cfg)
+    if descriptors is None:
         return EXIT_USAGE
     # One bench, one supervisor (DESIGN.md "Safety"): the lock comes before anything that
     # touches a device, a simulator or a port; the kernel drops it when this process dies.
@@ -112,15 +113,18 @@ async def _run(args: argparse.Namespace) -> int:
         _err(f"supervisor: cannot take the bench lock {lock.path}: {exc.strerror or exc}")
         return EXIT_USAGE
     try:
+        # Said once the bench is this process's: a second supervisor refused by the lock
+        # prints nothing on stdout.
+        _out(descriptors)
         return await _run_locked(args, cfg)
     finally:
         lock.release()
 
 
-def _descriptors_fit(cfg: BenchConfig) -> bool:
+def _descriptors_fit(cfg: BenchConfig) -> str | None:
     """Raise the soft ``RLIMIT_NOFILE`` (towards 8192, within the hard limit) and check that
-    the listeners' caps leave the devices their descriptors (issue 27, finding 3); False
-    (said on stderr) when they do not fit."""
+    the listeners' caps leave the devices their descriptors (issue 27, finding 3): the line
+    that says so, or None (said on stderr) when they do not fit."""
     from supervisor.app.descriptors import descriptor_budget
     from supervisor.core.descriptors import raise_soft_limit
 
@@ -129,13 +133,12 @@ def _descriptors_fit(cfg: BenchConfig) -> bool:
     problem = budget.problem(limit)
     if problem is not None:
         _err(f"supervisor: {problem}")
-        return False
+        return None
     raised = f", raised from {limit.before}" if limit.before != limit.soft else ""
-    _out(
+    return (
         f"file descriptors: soft limit {limit.soft}{raised}; the caps take at most"
         f" {budget.describe()}"
     )
-    return True
 
 
 async def _run_locked(args: argparse.Namespace, cfg: BenchConfig) -> int:

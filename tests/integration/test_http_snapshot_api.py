@@ -36,11 +36,12 @@ async def test_get_tags_answers_the_text_of_every_tag_json_and_changes_show_at_o
                     assert resp.headers["Content-Type"] == "application/json; charset=utf-8"
                     assert await resp.text() == expected
             name = next(t.name for t in bench.db if t.name.endswith(".manual_current"))
-            async with s.put(api.url + f"/tags/{name}", json={"value": 0.5}) as resp:
+            # Within every channel's hard limits (a setpoint beyond them is refused).
+            async with s.put(api.url + f"/tags/{name}", json={"value": 0.1}) as resp:
                 assert resp.status == 200
             async with s.get(api.url + "/tags") as resp:
                 tags = {t["name"]: t for t in await resp.json()}
-            assert tags[name]["value"] == bench.db[name].value == 0.5
+            assert tags[name]["value"] == bench.db[name].value == 0.1
     finally:
         await api.stop()
         await bench.shutdown()
