@@ -17,6 +17,7 @@ whether it is still what was written (issue 26, ADR 0025).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import platform
@@ -217,13 +218,21 @@ def utc_iso(unix_s: float) -> str:
 def software_version() -> dict[str, str]:
     """The package's version as installed (``importlib.metadata``); no git commit: a
     deployed bench has no repository, and git is not a run-time dependency (ADR 0025)."""
+    return dict(_software_version())
+
+
+@functools.cache
+def _software_version() -> tuple[tuple[str, str], ...]:
+    # Looked up once a process: ``importlib.metadata`` leaves reference cycles behind at
+    # each look-up, and a recipe load must leave none (commands/worker.py freezes the heap
+    # after it: tests/unit/test_recipe_load_off_the_loop.py).
     from importlib import metadata
 
     try:
         version = metadata.version(SOFTWARE)
     except metadata.PackageNotFoundError:
         version = "unknown (not installed)"
-    return {"name": SOFTWARE, "version": version, "python": platform.python_version()}
+    return (("name", SOFTWARE), ("version", version), ("python", platform.python_version()))
 
 
 @dataclass(frozen=True)
