@@ -1,6 +1,6 @@
 """The Grafana dashboards and provisioning of ``hmi/grafana/``, read as Grafana reads them.
 
-No Grafana binary is reachable from this machine (``../shared/reference/ecosystem.md``), so
+No Grafana binary is reachable from this machine (no registry here serves one), so
 the tests check the dashboards the two ways that catch what Grafana would reject or show
 empty: the JSON model (uids, panel ids, grid, data sources, variables, units) and every
 Flux query run against the tests' real InfluxDB with Grafana's macros substituted the way

@@ -1,7 +1,7 @@
 """A real InfluxDB server for the tests: InfluxDB 1.8.10 on loopback, its own data folder.
 
 InfluxDB 1.8 serves the v2 write API and Flux that influxdb-client speaks (bucket
-``db/rp``, token ``user:password``; ``../shared/reference/ecosystem.md``). ``make test``
+``db/rp``, token ``user:password``; docs/adr/0012). ``make test``
 builds the binary once with ``go install`` into a cache shared by every clone
 (``SUPERVISOR_INFLUXD`` names it); a missing binary is an error, not a skip, so CI never
 passes without the server.

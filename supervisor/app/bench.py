@@ -198,7 +198,10 @@ class Bench:
         may have run in a worker thread, ``CommandPath.execute_async``)."""
         channel, program = prepared.channel, prepared.program
         runner = self.runners[channel]
-        root = results_dir or Path(self.cfg.state_dir) / "results"
+        # Absolute from the load on: a test's files stay where it began whatever the
+        # process's working directory later is (a relative ``state_dir`` is the one of
+        # the moment the recipe is loaded).
+        root = (results_dir or Path(self.cfg.state_dir) / "results").absolute()
         previous_root = self.results_roots.get(channel)
         self.results_roots[channel] = root
         try:

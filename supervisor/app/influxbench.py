@@ -2,7 +2,7 @@
 spool into a local InfluxDB, next to raw influxdb-client batch writes in the same run.
 
 Both write the same line-protocol strings (5 float fields per point, batches of 5000, the
-throughput figure of ``../shared/reference/ecosystem.md``) into one local InfluxDB 1.8
+influxdb-client's published throughput figure) into one local InfluxDB 1.8
 started for the run (``$SUPERVISOR_INFLUXD`` or ``influxd`` on PATH; ``make influxd``
 builds it): the raw side with ``write_api(SYNCHRONOUS)``, one request after the other; the
 spool side through the in-memory queue, the spool on disk and the forwarder, timed until

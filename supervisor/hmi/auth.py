@@ -1,4 +1,4 @@
-"""Who is on the HMI: login, sessions and roles (issue 12 "Access", /work/hmi_contract.md).
+"""Who is on the HMI: login, sessions and roles (issue 12 "Access", docs/adr/0016).
 
 The users are the OPC UA users (``supervisor.config.users.UserStore``, one file): a
 **viewer** sees, an **operator** also commands the channels and acknowledges alarms, an

@@ -1,6 +1,6 @@
 """Live data for the screens: ``GET /api/ws`` (WebSocket), deltas at the publish rate.
 
-Server → client JSON text messages (/work/hmi_contract.md "Live data"):
+Server → client JSON text messages (docs/adr/0016 "Live data"):
 
 - ``{"type": "snapshot", "version": N, "tags": {name: TAG}}`` once at connect (TAG is
   ``tag_json`` without its name), then ``{"type": "alarms", "alarms": [...]}``;

@@ -1,6 +1,6 @@
 """The dashboards in hmi/grafana/dashboards/ follow Grafana's dashboard model, so that the
 provisioned Grafana loads every one of them without an error (there is no Grafana binary
-here to load them: ``../shared/reference/ecosystem.md``). Their queries are run against a
+here to load them). Their queries are run against a
 real InfluxDB in tests/integration/test_grafana_dashboards.py."""
 
 from __future__ import annotations

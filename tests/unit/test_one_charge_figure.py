@@ -35,8 +35,11 @@ steps:
 
 
 @pytest.fixture
-async def bench() -> AsyncIterator[Bench]:
-    b = build_bench(load_bench(ROOT / "io_maps" / "sim.yaml"), VirtualClock(), in_process=True)
+async def bench(tmp_path: Path) -> AsyncIterator[Bench]:
+    cfg = load_bench(ROOT / "io_maps" / "sim.yaml")
+    # Its results in the test's folder, not in the checkout's var/sim.
+    cfg = cfg.model_copy(update={"state_dir": str(tmp_path / "state")})
+    b = build_bench(cfg, VirtualClock(), in_process=True)
     await b.start()
     try:
         await b.engine.run_for(1.0)

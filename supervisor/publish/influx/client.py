@@ -2,7 +2,7 @@
 
 ``POST <url>/api/v2/write?org=…&bucket=…&precision=ns`` with ``Authorization: Token …``:
 the endpoint influxdb-client posts to, served by InfluxDB 2.x and by 1.8 (bucket
-``db/rp``, token ``user:password``; ``../shared/reference/ecosystem.md``). Sent with the
+``db/rp``, token ``user:password``; docs/adr/0012). Sent with the
 standard library's ``http.client`` on one kept-alive connection (docs/adr/0012): the
 forwarder needs every status code, the ``Retry-After`` header and a timeout it chose, and
 none of the library's own buffering or retrying.

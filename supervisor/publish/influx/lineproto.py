@@ -1,7 +1,7 @@
 """InfluxDB line protocol, built directly from the change feed's samples and bench events.
 
 Built as strings, not with influxdb-client's ``Point`` (about 4× slower: its serialisation
-is the bottleneck, ``../shared/reference/ecosystem.md``). The schema (everyone follows it,
+is the bottleneck: docs/adr/0012). The schema (everyone follows it,
 the dashboards query it):
 
 - ``channel``: tags ``bench``, ``channel``, ``recipe``, ``test_id``, ``cell_id`` (the test's
