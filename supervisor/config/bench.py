@@ -18,6 +18,7 @@ from supervisor.config.models import (
     SourceSpec,
 )
 from supervisor.config.text import decode_yaml
+from supervisor.config.wiring import wiring_problems
 from supervisor.config.yamlpos import Positions, load_yaml_text, read_yaml_bytes, validate
 from supervisor.core.driver import PointInfo
 from supervisor.core.errors import ConfigError, ConfigErrors
@@ -132,6 +133,7 @@ def check_bench(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError
     checker.channels()
     checker.safety()
     checker.simulation()
+    checker.wiring()
     return sorted(checker.errors, key=lambda e: (e.line or 0, e.col or 0))
 
 
@@ -380,6 +382,11 @@ class _Checker:
             at = ("safety", "heartbeat", "tag")
             if self._declared(at, hb.tag) and not self._is_output(hb.tag):
                 self.err(at, f"heartbeat tag {hb.tag!r} must map a relay or digital output")
+
+    # --- wiring: safety references of the right kind, unit and owner (config/wiring.py) ---
+    def wiring(self) -> None:
+        for path, msg in wiring_problems(self.cfg):
+            self.err(path, msg)
 
     # --- the simulated plant's wiring ---------------------------------------------------
     def simulation(self) -> None:
