@@ -2462,3 +2462,272 @@ def _profile_many_rows(rng: random.Random, src: Source, small: bool) -> Made | N
     t.ends[1:] = ["\n"] * count
     expect = REFUSE if count > MAX_PROFILE_ROWS else EITHER
     return t.made(f"{count:,} rows (limit {MAX_PROFILE_ROWS:,})", expect)
+
+
+# --------------------------------------------------------------------------------------------
+# Wiring (issue 28, finding 5): an I/O map's safety references rewired to signals of the wrong
+# kind, direction or unit, outputs given two owners, alarm limits out of order, interlock ids
+# that are the bench's own: well-formed, and certainly refused (supervisor/config/wiring.py).
+#
+# The kinds of the map's tags are read from the file itself, not from the code under test: an
+# output is a relay (``slotN.doK``) or a source's setpoint/switch point, a boolean input has a
+# ``threshold:``, a measurement has a ``unit:`` of V, A or degC.
+
+_OUTPUT_POINT = re.compile(r"^(?:slot\d+\.do\d+|output|current_set|voltage_set|b\d+\.\w+_set)$")
+_MEASURED_UNITS = ("V", "A", "degC")
+# A channel's measurement references and the unit each must be in.
+_MEASUREMENTS = (
+    (("voltage_tag",), "V"),
+    (("current_tag",), "A"),
+    (("temperature_tag",), "degC"),
+    (("bms", "cell_max_tag"), "V"),
+    (("bms", "cell_min_tag"), "V"),
+    (("bms", "temperature_tag"), "degC"),
+)
+_RESERVED_INTERLOCK_IDS = ("estop", "EStop", "heartbeat", "stall", "scan")
+
+
+@dataclass
+class _Wiring:
+    """An I/O map's node graph and its tags by kind."""
+
+    doc: _Doc
+    data: dict[str, object]
+    outputs: list[tuple[str, str, str]]  # (tag, device, point)
+    booleans: list[str]
+    analog: dict[str, str]  # tag -> unit
+
+    def node(self, *path: str | int) -> Node | None:
+        node: Node | None = self.doc.root
+        for part in path:
+            if isinstance(part, int):
+                if not isinstance(node, SequenceNode) or not 0 <= part < len(node.value):
+                    return None
+                node = node.value[part]
+            else:
+                i = _entry(node, part) if isinstance(node, MappingNode) else None
+                if i is None or not isinstance(node, MappingNode):
+                    return None
+                node = node.value[i][1]
+        return node
+
+    def value(self, *path: str | int) -> str | None:
+        node = self.node(*path)
+        return str(node.value) if isinstance(node, ScalarNode) else None
+
+    def put(self, path: Path_, key: str, value: Node) -> bool:
+        """Set ``key`` of the mapping at ``path`` (added when absent)."""
+        node = self.node(*path)
+        if not isinstance(node, MappingNode):
+            return False
+        i = _entry(node, key)
+        if i is None:
+            node.value.append((_scalar(key), value))
+        else:
+            node.value[i] = (node.value[i][0], value)
+        return True
+
+    def wrong_for(self, unit: str) -> list[tuple[str, str]]:
+        """Tags that are certainly not a measurement in ``unit``: (tag, what it is)."""
+        out = [(t, "an output") for t, _, _ in self.outputs]
+        out += [(t, "a boolean") for t in self.booleans]
+        out += [(t, f"a tag in {u}") for t, u in self.analog.items() if u != unit]
+        return out
+
+    def channels(self) -> list[int]:
+        node = self.node("channels")
+        return list(range(len(node.value))) if isinstance(node, SequenceNode) else []
+
+    def made(self, how: str) -> Made:
+        return _made(self.doc, how, REFUSE)
+
+
+def _wiring(src: Source) -> _Wiring | None:
+    doc = _doc(src)
+    try:
+        data = yaml.safe_load(src.text)
+    except yaml.YAMLError:
+        return None
+    if doc is None or not isinstance(data, dict) or not isinstance(data.get("devices"), dict):
+        return None
+    outputs: list[tuple[str, str, str]] = []
+    booleans: list[str] = []
+    analog: dict[str, str] = {}
+    names: set[str] = set()
+    for t in data.get("tags") or []:
+        if not isinstance(t, dict) or not isinstance(t.get("name"), str):
+            continue
+        name, point = t["name"], str(t.get("point"))
+        if name in names:
+            continue  # a duplicate name: its kind is the first's
+        names.add(name)
+        if _OUTPUT_POINT.match(point):
+            outputs.append((name, str(t.get("device")), point))
+        elif t.get("threshold") is not None:
+            booleans.append(name)
+        elif t.get("unit") in _MEASURED_UNITS:
+            analog[name] = str(t["unit"])
+    return _Wiring(doc, data, outputs, booleans, analog)
+
+
+@_mutator("wiring.estop", "check", weight=2)
+def _wiring_estop(rng: random.Random, src: Source, small: bool) -> Made | None:
+    """The e-stop reads an analog value or an output instead of its sense input."""
+    w = _wiring(src)
+    if w is None or w.value("safety", "estop", "tag") is None:
+        return None
+    old = w.value("safety", "estop", "tag")
+    choices = [(t, "an output") for t, _, _ in w.outputs]
+    choices += [(t, f"an analog tag in {u}") for t, u in w.analog.items()]
+    if not choices:
+        return None
+    new, what = rng.choice(choices)
+    w.put(("safety", "estop"), "tag", _scalar(new))
+    return w.made(f"safety.estop.tag {old!r} → {new!r} ({what})")
+
+
+@_mutator("wiring.feedback", "check", weight=2)
+def _wiring_feedback(rng: random.Random, src: Source, small: bool) -> Made | None:
+    """A contactor feedback that reads the contactor's own command, an output or a number."""
+    w = _wiring(src)
+    if w is None:
+        return None
+    sites = [i for i in w.channels() if w.value("channels", i, "contactor_feedback_tag")]
+    if not sites:
+        return None
+    i = rng.choice(sites)
+    cmd = w.value("channels", i, "contactor_tag")
+    choices = [(cmd, "the contactor's own command")] if cmd else []
+    choices += [(t, "an output") for t, _, _ in w.outputs]
+    choices += [(t, f"an analog tag in {u}") for t, u in w.analog.items()]
+    new, what = rng.choice([c for c in choices if c[0] is not None])
+    w.put(("channels", i), "contactor_feedback_tag", _scalar(new))
+    return w.made(f"channels[{i}].contactor_feedback_tag → {new!r} ({what})")
+
+
+@_mutator("wiring.owner", "check", weight=3)
+def _wiring_owner(rng: random.Random, src: Source, small: bool) -> Made | None:
+    """An output given two owners: the heartbeat on a contactor coil, the e-stop relay on the
+    heartbeat, two channels on one contactor, a second tag on a coil or heartbeat output."""
+    w = _wiring(src)
+    if w is None:
+        return None
+    contactors = {
+        i: c for i in w.channels() if (c := w.value("channels", i, "contactor_tag")) is not None
+    }
+    heartbeat = w.value("safety", "heartbeat", "tag")
+    estop = w.node("safety", "estop")
+    owned = {t: (d, p) for t, d, p in w.outputs if t in {*contactors.values(), heartbeat}}
+    ways: list[str] = []
+    if heartbeat is not None and contactors:
+        ways.append("heartbeat_on_coil")
+    if heartbeat is not None and isinstance(estop, MappingNode):
+        ways.append("relay_on_heartbeat")
+    if contactors and len(w.channels()) > 1:
+        ways.append("shared_contactor")
+    if owned:
+        ways.append("second_tag")
+    if not ways:
+        return None
+    way = rng.choice(ways)
+    if way == "heartbeat_on_coil":
+        coil = rng.choice(sorted(contactors.values()))
+        w.put(("safety", "heartbeat"), "tag", _scalar(coil))
+        return w.made(f"safety.heartbeat.tag → {coil!r}, a channel's contactor coil")
+    if way == "relay_on_heartbeat":
+        assert heartbeat is not None
+        w.put(("safety", "estop"), "relay_tag", _scalar(heartbeat))
+        return w.made(f"safety.estop.relay_tag → the heartbeat {heartbeat!r}")
+    if way == "shared_contactor":
+        i, coil = rng.choice(sorted(contactors.items()))
+        other = rng.choice([k for k in w.channels() if k != i])
+        w.put(("channels", other), "contactor_tag", _scalar(coil))
+        return w.made(f"channels[{other}].contactor_tag → {coil!r}, channels[{i}]'s contactor")
+    tag = rng.choice(sorted(owned))
+    device, point = owned[tag]
+    tags = w.node("tags")
+    assert isinstance(tags, SequenceNode)
+    pairs = [("name", "coil.copy"), ("device", device), ("point", point)]
+    entry = MappingNode(_TAG + "map", [(_scalar(k), _scalar(v)) for k, v in pairs], flow_style=True)
+    tags.value.insert(rng.randrange(len(tags.value) + 1), entry)
+    return w.made(f"a second tag 'coil.copy' on {tag!r}'s output {device}.{point}")
+
+
+@_mutator("wiring.measurement", "check", weight=3)
+def _wiring_measurement(rng: random.Random, src: Source, small: bool) -> Made | None:
+    """A channel's voltage, current or temperature (or BMS) tag rewired to a boolean, an
+    output or a measurement in another unit."""
+    w = _wiring(src)
+    if w is None or not w.channels():
+        return None
+    i = rng.choice(w.channels())
+    fields = [(f, u) for f, u in _MEASUREMENTS if len(f) == 1 or w.node("channels", i, *f)]
+    checks = w.node("channels", i, "voltage_checks")
+    if isinstance(checks, SequenceNode):
+        fields += [((k, "tag"), "V") for k in range(len(checks.value))]
+    path, unit = rng.choice(fields)
+    wrong = w.wrong_for(unit)
+    if not wrong:
+        return None
+    new, what = rng.choice(wrong)
+    *parent, key = path
+    if parent and parent[0] != "bms":
+        parent = ["voltage_checks", *parent]
+    if not w.put(("channels", i, *parent), str(key), _scalar(new)):
+        return None
+    where = ".".join(str(p) for p in (*parent, key))
+    return w.made(f"channels[{i}].{where} → {new!r} ({what}, not {unit})")
+
+
+@_mutator("wiring.alarm_order", "check", weight=2)
+def _wiring_alarm_order(rng: random.Random, src: Source, small: bool) -> Made | None:
+    """A measurement's alarm limits out of order (``hh: 10, ll: 50``)."""
+    w = _wiring(src)
+    tags = w.node("tags") if w is not None else None
+    if w is None or not isinstance(tags, SequenceNode):
+        return None
+    sites = [
+        k
+        for k, t in enumerate(tags.value)
+        if isinstance(t, MappingNode) and w.value("tags", k, "name") in w.analog
+    ]
+    if not sites:
+        return None
+    k = rng.choice(sites)
+    order = ["ll", "l", "h", "hh"]
+    a, b = sorted(rng.sample(range(4), 2))
+    low = rng.choice([10, 0.5, -5, 100])
+    high = low - rng.choice([0, 1, 40])  # the upper key at or below the lower one
+    pairs = [(order[b], high), (order[a], low)]
+    rng.shuffle(pairs)
+    alarms = MappingNode(
+        _TAG + "map", [(_scalar(key), _scalar(f"{v:g}")) for key, v in pairs], flow_style=True
+    )
+    w.put(("tags", k), "alarms", alarms)
+    shown = ", ".join(f"{key}: {v:g}" for key, v in pairs)
+    return w.made(f"tags[{k}].alarms → {{{shown}}} ({order[b]} not above {order[a]})")
+
+
+@_mutator("wiring.interlock_id", "check", weight=2)
+def _wiring_interlock_id(rng: random.Random, src: Source, small: bool) -> Made | None:
+    """An interlock under the name of one of the bench's own safety functions."""
+    w = _wiring(src)
+    if w is None or not w.analog:
+        return None
+    reserved = rng.choice(_RESERVED_INTERLOCK_IDS)
+    tag = rng.choice(sorted(w.analog))
+    fields = [("id", reserved), ("tag", tag), ("above", "60")]
+    entry = MappingNode(
+        _TAG + "map", [(_scalar(k), _scalar(v)) for k, v in fields], flow_style=True
+    )
+    interlocks = SequenceNode(_TAG + "seq", [entry], flow_style=False)
+    if w.node("safety") is None:
+        root = w.doc.root
+        assert isinstance(root, MappingNode)
+        root.value.append((_scalar("safety"), MappingNode(_TAG + "map", [])))
+    old = w.node("safety", "interlocks")
+    if isinstance(old, SequenceNode):
+        old.value.insert(rng.randrange(len(old.value) + 1), entry)
+    elif not w.put(("safety",), "interlocks", interlocks):
+        return None
+    return w.made(f"safety.interlocks: an interlock with the reserved id {reserved!r}")

@@ -235,10 +235,10 @@ def measurements_have_kind_and_unit(
 def one_owner_per_output(cfg: BenchConfig, sig: Mapping[str, Signal]) -> Iterator[Problem]:
     """Each output point has one writer among the channels' contactors, the e-stop relay
     and the heartbeat: two writers overwrite each other every scan."""
-    claims: list[tuple[Path_, str | None, str]] = [
-        (("channels", i, "contactor_tag"), c.contactor_tag, f"channel {c.name!r}'s contactor coil")
-        for i, c in enumerate(cfg.channels)
-    ]
+    claims: list[tuple[Path_, str | None, str]] = []
+    for i, c in enumerate(cfg.channels):
+        role = f"the contactor coil of channel {c.name!r}"
+        claims.append((("channels", i, "contactor_tag"), c.contactor_tag, role))
     s = cfg.safety
     if s.estop is not None:
         claims.append((("safety", "estop", "relay_tag"), s.estop.relay_tag, "the e-stop relay"))
@@ -324,8 +324,8 @@ def interlock_ids_not_reserved(cfg: BenchConfig, sig: Mapping[str, Signal]) -> I
                 ("safety", "interlocks", k, "id"),
                 (
                     f"interlock id {il.id!r} is reserved (reserved ids:"
-                    f" {', '.join(RESERVED_INTERLOCK_IDS)}): its alarm would read as the bench's own"
-                    f" {il.id.lower()} tripping; choose another id"
+                    f" {', '.join(RESERVED_INTERLOCK_IDS)}): its alarm would read as the"
+                    f" bench's own {il.id.lower()} tripping; choose another id"
                 ),
             )
 

@@ -58,8 +58,8 @@ CASES = [
         HEARTBEAT,
         "heartbeat: {tag: contactor.cmd, period_s: 0.5}",
         "heartbeat: {tag: |contactor.cmd",
-        "'contactor.cmd' is already channel 'ch4''s contactor coil; the heartbeat needs an"
-        " output of its own",
+        "'contactor.cmd' is already the contactor coil of channel 'ch4'; the heartbeat needs"
+        " an output of its own",
         "ownership",
     ),
     (
@@ -75,8 +75,8 @@ CASES = [
         CH0,
         CH0 + "    contactor_tag: contactor.cmd\n",
         "contactor_tag: |contactor.cmd\n    contactor_feedback_tag",
-        "'contactor.cmd' is already channel 'ch0''s contactor coil; channel 'ch4''s contactor"
-        " coil needs an output of its own",
+        "'contactor.cmd' is already the contactor coil of channel 'ch0'; the contactor coil of"
+        " channel 'ch4' needs an output of its own",
         "ownership",
     ),
     (
