@@ -660,7 +660,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         return EXIT_OK
     from supervisor.importers.profile import import_profile
 
-    _write_or_print(import_profile(args.file, name=args.name), args.output)
+    _write_or_print(import_profile(args.file, name=args.name, output=args.output), args.output)
     return EXIT_OK
 
 

@@ -51,3 +51,56 @@ def test_a_profile_repeated_10_to_the_400_times_is_refused_at_load_at_its_value(
     )
     err = refused(cli("check", str(path)), f"{path}:6:15:", "too many")
     assert f"at most {MAX_PROFILE_REPEAT:,} times (README: Input limits)" in err
+
+
+# --- finding 9: load profile CSVs -------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "col", "words"),
+    [
+        # Decimal commas with ',' as the separator: 0 s, 0 A and v_min 5 V.
+        ("t,i\n0,0,5\n10,0,5\n", 2, 1, ("separate the cells with ';'", "decimal points")),
+        ("0,1,2,3,4,5,6,7,8\n10,0\n", 1, 17, ("9 columns", "at most 8: time, current")),
+        ("0;1;1/2/3\n10;0\n", 1, 5, ("'1/2/3': a min/max cell holds two numbers",)),
+        ("0,1/2\n10,0\n", 1, 3, ("'1/2': the current is one number",)),
+        ("0,1e-400\n10,0\n", 1, 3, ("'1e-400' is too small to be told from zero",)),
+    ],
+)
+def test_a_profile_csv_cell_that_would_be_misread_is_refused_where_it_is(
+    tmp_path: Path, text: str, line: int, col: int, words: tuple[str, ...]
+) -> None:
+    path = tmp_path / "p.csv"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError) as exc:
+        read_profile_csv(path)
+    assert (exc.value.line, exc.value.col) == (line, col)
+    for word in words:
+        assert word in exc.value.message
+
+
+def test_a_profile_csv_window_with_one_bound_and_french_decimals_still_read(
+    tmp_path: Path,
+) -> None:
+    half = tmp_path / "half.csv"
+    half.write_text("0,1,3.0,\n10,0,,\n", encoding="utf-8")
+    assert read_profile_csv(half)[0].v_min == 3.0
+    french = tmp_path / "fr.csv"
+    french.write_text("0;0,5;3,0/4,2\n10;0\n", encoding="utf-8")
+    first = read_profile_csv(french)[0]
+    assert (first.current_a, first.v_min, first.v_max) == (0.5, 3.0, 4.2)
+
+
+def test_a_100000_row_profile_within_the_csv_limits_imports_as_a_recipe_naming_the_csv(
+    tmp_path: Path,
+) -> None:
+    csv = tmp_path / "long.csv"
+    lines = ["t,i"] + [f"{k},{0.5 if k % 2 else -0.25},2.5,4.2" for k in range(100_000)]
+    csv.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    out = tmp_path / "recipes" / "long.yaml"
+    out.parent.mkdir()
+    proc = cli("import", "profile", str(csv), "-o", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "file: ../long.csv" in out.read_text(encoding="utf-8")
+    check = cli("check", str(out))
+    assert check.returncode == 0, check.stderr
