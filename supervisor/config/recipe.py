@@ -285,6 +285,14 @@ class ProfileSpec(Strict):
             )
         return v
 
+    @field_validator("file")
+    @classmethod
+    def _file(cls, v: str | None) -> str | None:
+        # A NUL cannot be in a path: open() raised ValueError, a traceback (issue 28).
+        if v is not None and "\0" in v:
+            raise ValueError("a file name cannot hold a NUL character ('\\0')")
+        return v
+
     @model_validator(mode="after")
     def _one(self) -> ProfileSpec:
         if (self.file is None) == (self.rows is None):

@@ -37,7 +37,9 @@ _FIELDS = ("v_min", "v_max", "i_min", "i_max", "t_min", "t_max")
 def _name(path: Path, name: str | None) -> str:
     if name is not None:
         if not re.match(ID_PATTERN, name):
-            raise ValueError(f"recipe name {name!r} must match {ID_PATTERN}")
+            raise ConfigError(
+                f"--name {name!r}: a recipe name must match {ID_PATTERN}", "<command line>"
+            )
         return name
     stem = re.sub(r"[^A-Za-z0-9_\-]+", "-", path.stem).strip("-") or "profile"
     return stem if re.match(r"^[A-Za-z_]", stem) else f"profile-{stem}"
