@@ -59,10 +59,12 @@ def _limits(row: Row, layout: Layout, path: Path) -> list[float | None]:
             row.line,
             cols[1 + _LIMITS],
         )
-    if layout.delimiter == "," and len(values) % 2 == 0:
+    last = row.cells[-1].text
+    if layout.delimiter == "," and len(values) % 2 == 0 and last and "/" not in last:
         # Time and current, then whole windows: a window with one bound gives the other
-        # an empty cell. An odd count is what decimal commas make of a row with ``,`` as
-        # the separator (``0,0,5`` read as 0 s, 0 A and v_min 5 V; issue 28).
+        # an empty cell. A row ending in a lone bound is what decimal commas make of a
+        # row with ``,`` as the separator (``0,0,5`` read as 0 s, 0 A and v_min 5 V;
+        # issue 28).
         raise ConfigError(
             f"this row has {1 + len(values)} values with ',' as the separator: a window"
             " lacks its other bound. If the file has decimal commas, separate the cells"

@@ -104,3 +104,78 @@ def test_a_100000_row_profile_within_the_csv_limits_imports_as_a_recipe_naming_t
     assert "file: ../long.csv" in out.read_text(encoding="utf-8")
     check = cli("check", str(out))
     assert check.returncode == 0, check.stderr
+
+
+# --- finding 7: the CLI's tracebacks ----------------------------------------------------
+
+NUL_PROFILE = 'recipe: nul\nsteps:\n  - id: p\n    profile: {file: "a\\0b.csv"}\n'
+
+
+@pytest.mark.parametrize("command", ["check", "dry-run"])
+def test_a_profile_file_name_with_a_nul_is_refused_at_its_value(
+    tmp_path: Path, command: str
+) -> None:
+    path = tmp_path / "nul.yaml"
+    path.write_text(NUL_PROFILE, encoding="utf-8")
+    refused(cli(command, str(path)), f"{path}:4:21:", "NUL")
+
+
+def test_a_state_dir_with_a_nul_is_refused_by_run_at_its_value(tmp_path: Path) -> None:
+    text = (ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8")
+    path = tmp_path / "map.yaml"
+    path.write_text(text.replace("state_dir: var/sim", 'state_dir: "st\\0x"'), encoding="utf-8")
+    refused(cli("run", str(path), "--http-port", "0"), f"{path}:", "state_dir", "NUL")
+
+
+def test_dry_run_refuses_a_capacity_too_small_to_model() -> None:
+    recipe = str(ROOT / "recipes" / "capacity-test.yaml")
+    refused(cli("dry-run", recipe, "--capacity-ah", "1e-300"), "--capacity-ah", "1e-300")
+
+
+def test_dry_run_refuses_a_results_folder_that_takes_no_folder() -> None:
+    recipe = str(ROOT / "recipes" / "capacity-test.yaml")
+    refused(cli("dry-run", recipe, "--results", "/proc"), "--results", "/proc")
+
+
+@pytest.mark.parametrize("kind", ["profile", "chadeche"])
+def test_import_refuses_a_bad_recipe_name_and_a_missing_output_folder(kind: str) -> None:
+    source = (
+        str(ROOT / "tests" / "data" / "chadeche" / "figure10.txt")
+        if kind == "chadeche"
+        else str(ROOT / "tests" / "data" / "mutation_sources" / "profile.csv")
+    )
+    if not Path(source).exists():  # any valid load profile
+        pytest.skip(f"{source} is not in the repository")
+    refused(cli("import", kind, source, "--name", "bad name"), "--name 'bad name'")
+    out = "/nonexistent/dir/x.yaml"
+    refused(cli("import", kind, source, "-o", out), f"{out}: cannot write")
+
+
+def test_check_into_a_pipe_closed_early_exits_quietly() -> None:
+    recipes = sorted(str(p) for p in (ROOT / "recipes").glob("*.yaml"))
+    proc = subprocess.run(
+        f"{sys.executable} -m supervisor.cli.main check {' '.join(recipes)} | head -1",
+        shell=True,
+        capture_output=True,
+        text=True,
+        check=False,
+        cwd=ROOT,
+        executable="/bin/bash",
+    )
+    assert "Traceback" not in proc.stderr
+    assert "BrokenPipeError" not in proc.stderr
+
+
+def test_a_chadeche_sd_of_5000_leading_zeros_is_read_as_its_number(tmp_path: Path) -> None:
+    zeros = "0" * 5000
+    path = tmp_path / "sd.txt"
+    path.write_text(
+        "ADR\tC/D\tmA\tSD\tTL\tTH\tLmAh\tHmAh\tTRUE\tCTRLZ\tCOMMENT\n"
+        f"1\tD\t0\t{zeros}60\tI\tI\tI\tI\tI\tS\t#Repos\n"
+        f"{zeros}2\tD\t{zeros}0\t{zeros}\tI\tI\tI\tI\tI\t{zeros}1\t#fin\n",
+        encoding="utf-8",
+    )
+    proc = cli("import", "chadeche", str(path))
+    assert "Traceback" not in proc.stderr
+    assert proc.returncode == 0, proc.stderr
+    assert "duration: 60 s" in proc.stdout
