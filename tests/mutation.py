@@ -2731,3 +2731,27 @@ def _wiring_interlock_id(rng: random.Random, src: Source, small: bool) -> Made |
     elif not w.put(("safety",), "interlocks", interlocks):
         return None
     return w.made(f"safety.interlocks: an interlock with the reserved id {reserved!r}")
+
+
+# Issue 28, names and separators (findings 4 and 9): cells a ',' CSV would misread.
+
+
+@_mutator("profile.separators", "profile", weight=2)
+def _profile_separators(rng: random.Random, src: Source, small: bool) -> Made | None:
+    t = _Csv(src)
+    rows = t.data_rows()
+    if not rows:
+        return None
+    i = rng.choice(rows)
+    how = rng.randrange(4)
+    if how == 0:  # decimal commas with ',' as the separator: "0,0,5" for 0 s and 0.5 A
+        t.rows[i] = [t.rows[i][0], "0", "5"]
+        return t.made(f"line {i + 1}: a decimal comma current in a ',' file", REFUSE)
+    if how == 1:  # a 9th column
+        t.rows[i] = [t.rows[i][0], "0.1", "1", "2", "0", "1", "0", "40", "9"]
+        return t.made(f"line {i + 1}: nine columns", REFUSE)
+    if how == 2:  # a min/max cell of three numbers
+        t.rows[i] = [t.rows[i][0], "0.1", "1/2/3"]
+        return t.made(f"line {i + 1}: '1/2/3' in a min/max cell", REFUSE)
+    t.rows[i] = [t.rows[i][0], "1e-400"]
+    return t.made(f"line {i + 1}: a current of 1e-400 (underflows to 0)", REFUSE)

@@ -19,7 +19,14 @@ from pathlib import Path
 from typing import Final
 
 from supervisor.chains.behaviours import MIN_POWER_VOLTAGE_V
-from supervisor.chains.expr import Expr, ExprError, Signature, compile_condition
+from supervisor.chains.expr import (
+    FUNCTIONS,
+    KEYWORDS,
+    Expr,
+    ExprError,
+    Signature,
+    compile_condition,
+)
 from supervisor.chains.profile_csv import read_profile_csv
 from supervisor.chains.program import (
     Action,
@@ -57,6 +64,32 @@ CHANNEL_VARIABLES: dict[str, Dim] = {
     "delta_peak": Dim.VOLTAGE,
     "peak_voltage": Dim.VOLTAGE,
 }
+
+# The names a parameter may not take, by kind: the one table both the refusal and its
+# message read. A parameter named ``voltage`` replaced the measurement in every condition
+# (issue 28: ``until: voltage <= 1.1 V`` never fired and the dry run drove the cell into
+# reversal); one named ``abs`` or ``and`` cannot be read at all.
+COUNTERS: frozenset[str] = frozenset(
+    {"charge", "energy", "step_charge", "step_energy", "cycle", "step_time", "cycle_time"}
+    | {"test_time"}
+)
+RESERVED_NAMES: dict[str, tuple[str, ...]] = {
+    "measurement": tuple(n for n in CHANNEL_VARIABLES if n not in COUNTERS),
+    "counter": tuple(n for n in CHANNEL_VARIABLES if n in COUNTERS),
+    "function": FUNCTIONS,
+    "word": tuple(sorted(KEYWORDS)),  # a word of the expressions
+}
+
+
+def reserved_kind(name: str) -> str | None:
+    """``"measurement"``, ``"counter"``, ``"function"``, ``"word"``, or None: free."""
+    return next((kind for kind, names in RESERVED_NAMES.items() if name in names), None)
+
+
+def reserved_names_text() -> str:
+    """``measurements: voltage, current, ...; counters: ...; functions: ...; words: ...``."""
+    return "; ".join(f"{kind}s: {', '.join(names)}" for kind, names in RESERVED_NAMES.items())
+
 
 # Step kinds each source can execute (CP is regulated in software from V·I).
 CC_ONLY = frozenset(
@@ -229,9 +262,30 @@ class _Compiler:
             warnings=tuple(warnings),
         )
 
+    def _check_parameter_name(self, name: str) -> None:
+        """A parameter may not take the name of a measurement, a counter, a function, a
+        word of the expressions or a bench tag: it would hide it (or never be read)."""
+        kind = reserved_kind(name)
+        if kind is None and name in self.target.tags:
+            kind = "bench tag"
+        if kind is None:
+            return
+        why = (
+            f"an expression could not read it (it would read the {kind})"
+            if kind in ("function", "word")
+            else f"the conditions would read it instead of the {kind} {name!r}"
+        )
+        self.err(
+            ("parameters", name),
+            f"parameter {name!r} takes the name of a {kind}: {why}; rename it"
+            f" (e.g. '{name}_set'). Reserved names: {reserved_names_text()}",
+            at_key=True,
+        )
+
     def _parameters(self) -> dict[str, tuple[float, Dim]]:
         out: dict[str, tuple[float, Dim]] = {}
         for name, raw in self.r.parameters.items():
+            self._check_parameter_name(name)
             q = self.q(raw, ("parameters", name))
             if q is not None:
                 out[name] = self._resolve_c(q, ("parameters", name))

@@ -67,7 +67,8 @@ class ConditionValues:
         self.peak_v: float | None = None
         # The values handed to the conditions: one dict per chain, filled in place each
         # scan (it never leaves the scan). Parameters are constants: set once, and again
-        # each scan only where one has the name of a channel variable (it wins, as it did).
+        # each scan only where one has the name of a channel variable (the compiler refuses
+        # such a name since issue 28; a program built in code may still have one).
         self._values: Values = {}
         self._parameters_over = {
             k: v for k, v in self._parameters.items() if k in CHANNEL_VALUE_NAMES

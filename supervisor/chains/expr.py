@@ -151,6 +151,10 @@ def _a(dim: Dim) -> str:
 
 _KEYWORDS = frozenset({"and", "or", "not", "true", "false"})
 _FUNCS = ("abs", "min", "max")
+KEYWORDS = _KEYWORDS
+"""The words of the expression language: no name may be one (``chains.compiler``)."""
+FUNCTIONS = _FUNCS
+"""The functions an expression may call: no name may be one (``chains.compiler``)."""
 
 # Unit symbols, plus the micro and ohm signs people type in their other Unicode forms.
 _UNIT_TABLE: dict[str, tuple[Dim, float]] = dict(UNITS)

@@ -22,6 +22,7 @@ import re
 import signal
 import statistics
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -509,6 +510,8 @@ DRY_RUN_MAX_CELLS: Final = 1000
 """Li-ion cells in series a dry run models at most (a 4.35 kV pack)."""
 DRY_RUN_MAX_CAPACITY_AH: Final = 100_000.0
 """The largest rated capacity a dry run models (a 100 kAh bank)."""
+DRY_RUN_MIN_CAPACITY_AH: Final = 0.001
+"""The smallest (1 mAh, below any coin cell): ``1e-300`` made the model's voltage NaN."""
 _TIME_OF_DAY = re.compile(r"([01]?[0-9]|2[0-3]):([0-5][0-9])", re.ASCII)
 
 
@@ -582,6 +585,15 @@ def _results_dir(text: str) -> str:
         raise argparse.ArgumentTypeError(f"{text!r}: {existing} is not a folder")
     if not os.access(existing, os.W_OK | os.X_OK):
         raise argparse.ArgumentTypeError(f"{text!r}: cannot write in {existing}")
+    try:
+        # A test's folder is made in it: tried now (``/proc`` passes the checks above and
+        # takes no folder; the recorder failed at the first record, issue 28).
+        path.mkdir(parents=True, exist_ok=True)
+        Path(tempfile.mkdtemp(prefix=".supervisor-probe-", dir=path)).rmdir()
+    except OSError as exc:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: cannot make a folder in it: {exc.strerror or exc}"
+        ) from None
     return text
 
 
@@ -630,7 +642,10 @@ def _write_or_print(text: str, out: str | None) -> None:
     path = Path(out)
     if path.exists():
         raise ConfigError(f"{out}: already exists; choose another name or remove it first")
-    path.write_text(text, encoding="utf-8")
+    try:
+        path.write_text(text, encoding="utf-8")
+    except OSError as exc:  # a missing folder, no permission (issue 28: a traceback)
+        raise ConfigError(f"cannot write: {exc.strerror or exc}", out) from None
     _err(f"wrote {out}")
 
 
@@ -660,7 +675,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         return EXIT_OK
     from supervisor.importers.profile import import_profile
 
-    _write_or_print(import_profile(args.file, name=args.name), args.output)
+    _write_or_print(import_profile(args.file, name=args.name, output=args.output), args.output)
     return EXIT_OK
 
 
@@ -948,7 +963,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--param", action="append", default=[], metavar="NAME=VALUE")
     d.add_argument(
         "--capacity-ah",
-        type=_bounded(0.0, DRY_RUN_MAX_CAPACITY_AH, "Ah", low_included=False),
+        type=_bounded(DRY_RUN_MIN_CAPACITY_AH, DRY_RUN_MAX_CAPACITY_AH, "Ah"),
         default=None,
         help="rated capacity of the cell",
     )
@@ -1157,7 +1172,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_FAIL
     except KeyboardInterrupt:
         return EXIT_OK
+    except BrokenPipeError:
+        return _stdout_closed()
     return code
+
+
+EXIT_PIPE: Final = 128 + signal.SIGPIPE
+"""Stdout closed by its reader (``check recipes/*.yaml | head -1``): quietly, with the status
+of a Unix tool stopped by SIGPIPE."""
+
+
+def _stdout_closed() -> int:
+    # What is still buffered for the closed pipe would raise again when Python flushes
+    # stdout at exit: point it at /dev/null (the Python documentation's recipe).
+    with contextlib.suppress(OSError, ValueError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    return EXIT_PIPE
 
 
 if __name__ == "__main__":

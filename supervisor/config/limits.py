@@ -28,6 +28,7 @@ __all__ = [
     "MAX_INITIAL_CHARGE_AH",
     "MAX_IO_MAP_TAGS",
     "MAX_PROFILE_CSV_BYTES",
+    "MAX_PROFILE_REPEAT",
     "MAX_PROFILE_ROWS",
     "MAX_RECIPE_GROUPS",
     "MAX_RECIPE_STEPS",
@@ -70,6 +71,9 @@ MAX_RECIPE_GROUPS: Final = 1_000
 MAX_PROFILE_ROWS: Final = 100_000
 """Rows of one profile (inline ``rows:`` or its CSV, plus a header line): 27 h at one row
 a second. Inline rows reach the 1 MiB file limit first (a row takes 20 bytes)."""
+MAX_PROFILE_REPEAT: Final = 1_000_000
+"""``repeat:`` of a profile: as many as a recipe's cycles. ``10**400`` was accepted and the
+test aborted in its first scan (the profile's end time as a float overflowed; issue 28)."""
 MAX_CYCLES: Final = 1_000_000
 """``cycles:`` of a recipe (and a Chadèche ``.prm``'s ``-n``)."""
 MAX_INITIAL_CHARGE_AH: Final = 100_000.0

@@ -992,6 +992,14 @@ class BenchConfig(Strict):
         old = self.opcua.recipes_dir
         return [old] if old is not None else list(self.recipes.folders)
 
+    @field_validator("state_dir")
+    @classmethod
+    def _state_dir(cls, v: str) -> str:
+        # A NUL cannot be in a path: the bench lock's mkdir raised ValueError (issue 28).
+        if "\0" in v:
+            raise ValueError("state_dir cannot hold a NUL character ('\\0')")
+        return v
+
     @field_validator("devices")
     @classmethod
     def _device_names(cls, v: dict[str, DeviceConfig]) -> dict[str, DeviceConfig]:

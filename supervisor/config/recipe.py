@@ -27,6 +27,7 @@ from pydantic import (
 
 from supervisor.config.limits import (
     MAX_CYCLES,
+    MAX_PROFILE_REPEAT,
     MAX_PROFILE_ROWS,
     MAX_RECIPE_GROUPS,
     MAX_RECIPE_STEPS,
@@ -267,7 +268,30 @@ class ProfileRow(Strict):
 class ProfileSpec(Strict):
     file: str | None = Field(None, description="CSV relative to the recipe file")
     rows: list[ProfileRow] | None = None
-    repeat: int = Field(1, ge=1)
+    repeat: int = Field(1, ge=1, json_schema_extra={"maximum": MAX_PROFILE_REPEAT})
+
+    @field_validator("repeat")
+    @classmethod
+    def _repeat(cls, v: int) -> int:
+        if v > MAX_PROFILE_REPEAT:
+            # A count of 400 digits is said by its size, not written out in full (and
+            # without str(): it refuses more than 4300 digits).
+            shown = (
+                f"{v:,}" if v < 10**24 else f"more than 10^{int((v.bit_length() - 1) * 0.30103)}"
+            )
+            raise ValueError(
+                f"{shown} is too many; a profile may repeat at most"
+                f" {MAX_PROFILE_REPEAT:,} times (README: Input limits)"
+            )
+        return v
+
+    @field_validator("file")
+    @classmethod
+    def _file(cls, v: str | None) -> str | None:
+        # A NUL cannot be in a path: open() raised ValueError, a traceback (issue 28).
+        if v is not None and "\0" in v:
+            raise ValueError("a file name cannot hold a NUL character ('\\0')")
+        return v
 
     @model_validator(mode="after")
     def _one(self) -> ProfileSpec:

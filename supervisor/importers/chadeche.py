@@ -203,6 +203,12 @@ def _digits_hint(text: str) -> str:
     return ""
 
 
+def _whole(digits: str) -> int:
+    """ASCII digits as an int, without their leading zeros: ``int()`` refuses more than
+    4300 digits, and 5000 zeros before a 5 is the number 5 (issue 28)."""
+    return int(digits.lstrip("0") or "0")
+
+
 def _too_large(digits: str) -> bool:
     """ASCII digits beyond :data:`C_INT_MAX` (``int()`` is not asked for thousands)."""
     digits = digits.lstrip("0")
@@ -285,7 +291,7 @@ def _parse_action(text: str, col: int) -> _Act | str:
     if _INT.match(t):
         if _too_large(t):
             return f"goto address {_clip(t)} is too large: at most {C_INT_MAX} (a C int)"
-        return _Act("N", str(int(t)), col)
+        return _Act("N", str(_whole(t)), col)
     m = _HHMM.match(t)
     if m and int(m[1]) < 24 and int(m[2]) < 60:
         return _Act("HHMM", f"{int(m[1]):02d}:{m[2]}", col)
@@ -435,7 +441,7 @@ def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
             err(ln, cols[0], f"ADR {_clip(adr_text)} is too large: at most {C_INT_MAX} (a C int)")
             bad = True
         else:
-            adr = int(adr_text)
+            adr = _whole(adr_text)
             adrs.add(adr)
             if prev_adr is not None and adr <= prev_adr[0]:
                 err(
@@ -470,7 +476,7 @@ def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
             err(ln, cols[2], f"{_clip(ma_text)} mA is over the board's {_MAX_MA} mA maximum")
             bad = True
         else:
-            ma = int(ma_text)
+            ma = _whole(ma_text)
             if ma > _MAX_MA:
                 err(ln, cols[2], f"{ma} mA is over the board's {_MAX_MA} mA maximum")
                 bad = True
@@ -488,7 +494,7 @@ def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
             err(ln, cols[3], f"SD {_clip(sd_text)} is too large: at most {C_INT_MAX} s (a C int)")
             bad = True
         else:
-            sd = int(sd_text)
+            sd = _whole(sd_text)
 
         acts: list[_Act] = []
         for k in range(4, 10):
@@ -776,7 +782,9 @@ def _step(row: _Row, last: bool, simplify: bool) -> tuple[dict[str, Any], str | 
 def _recipe_name(path: Path, name: str | None) -> str:
     if name is not None:
         if not re.match(ID_PATTERN, name):
-            raise ValueError(f"recipe name {name!r} must match {ID_PATTERN}")
+            raise ConfigError(
+                f"--name {name!r}: a recipe name must match {ID_PATTERN}", "<command line>"
+            )
         return name
     stem = re.sub(r"[^A-Za-z0-9_\-]+", "-", path.stem).strip("-") or "imported"
     if not re.match(r"^[A-Za-z_]", stem):

@@ -6,7 +6,10 @@ accepts are exactly those: time (s), current (A, + charges), then optional V min
 I min/max and T min/max, each pair in two columns or one ``min/max`` cell; ``,`` ``;`` or
 tab separated; an optional header line; UTF-8 or CP1252.
 
-The rows are written inline (``profile: {rows: [...]}``) so the recipe stands alone.
+The rows are written inline (``profile: {rows: [...]}``) so the recipe stands alone, when
+the recipe stays within a recipe's size limit (1 MiB, about 30,000 rows); a longer profile,
+up to the CSV's own limits (README: Input limits), is named by the recipe instead
+(``profile: {file: ...}``, relative to the recipe written with ``-o``, else absolute).
 Times are seconds from the step start; the step ends when the last row's time is reached
 (that row only marks the end).
 """
@@ -14,12 +17,14 @@ Times are seconds from the step start; the step ends when the last row's time is
 from __future__ import annotations
 
 import math
+import os
 import re
 from pathlib import Path
 
 from supervisor.chains.compiler import Target, compile_recipe
 from supervisor.chains.profile_csv import read_profile_csv
 from supervisor.chains.program import ProfilePoint
+from supervisor.config.limits import MAX_YAML_BYTES
 from supervisor.config.recipe import ID_PATTERN, load_recipe_text
 from supervisor.config.yamledit import yaml_float, yaml_scalar
 from supervisor.core.errors import ConfigError, ConfigErrors
@@ -32,7 +37,9 @@ _FIELDS = ("v_min", "v_max", "i_min", "i_max", "t_min", "t_max")
 def _name(path: Path, name: str | None) -> str:
     if name is not None:
         if not re.match(ID_PATTERN, name):
-            raise ValueError(f"recipe name {name!r} must match {ID_PATTERN}")
+            raise ConfigError(
+                f"--name {name!r}: a recipe name must match {ID_PATTERN}", "<command line>"
+            )
         return name
     stem = re.sub(r"[^A-Za-z0-9_\-]+", "-", path.stem).strip("-") or "profile"
     return stem if re.match(r"^[A-Za-z_]", stem) else f"profile-{stem}"
@@ -44,8 +51,13 @@ def _row(p: ProfilePoint) -> str:
     return "{" + ", ".join(f"{k}: {yaml_float(v)}" for k, v in items if v is not None) + "}"
 
 
-def import_profile(csv_path: str | Path, *, name: str | None = None) -> str:
+def import_profile(
+    csv_path: str | Path, *, name: str | None = None, output: str | Path | None = None
+) -> str:
     """Recipe YAML (one ``profile:`` step with ``rows:``) from a load profile CSV.
+
+    ``output``: where the recipe will be written (None: printed); a profile too long to be
+    written inline is named relative to it.
 
     Raises ConfigErrors naming the CSV (with line) when it cannot be read or the rows do
     not make a valid profile (times not increasing, a negative time, non-finite values).
@@ -85,8 +97,15 @@ def import_profile(csv_path: str | Path, *, name: str | None = None) -> str:
         *(f"        - {_row(p)}" for p in points),
     ]
     text = "\n".join(header + body) + "\n"
-
     where = "<imported profile>"
+    if len(text.encode("utf-8")) > MAX_YAML_BYTES:
+        # The CSV's limits are the ones that apply (issue 28: a 100,000-row profile within
+        # them was refused as a recipe over 1 MiB): the recipe names the file instead.
+        recipe_path = Path(output).absolute() if output is not None else Path.cwd() / "r.yaml"
+        ref = os.path.relpath(path.absolute(), recipe_path.parent) if output else path.absolute()
+        body[-len(points) - 1 :] = [f"      file: {yaml_scalar(str(ref))}"]
+        text = "\n".join(header + body) + "\n"
+        where = str(recipe_path)
     try:
         recipe, pos = load_recipe_text(text, where)
         compile_recipe(recipe, pos, where, Target())

@@ -76,13 +76,13 @@ groups:
 """
 
 # The values a condition reads beyond the readings: dV/dt, the clocks, the counters, the
-# cycle, a parameter named like a channel value (it wins over the channel's).
+# cycle, a parameter (one named like a channel value is refused since issue 28).
 READS_MORE_RECIPE = """
 recipe: more
 chemistry: nimh
 capacity: 2000 mAh
 parameters:
-  step_charge: 1 Ah
+  q_most: 1 Ah
 cycles: 3
 steps:
   - id: charge
@@ -90,19 +90,18 @@ steps:
     duration: 12 s
     until:
       - dv_dt < 0 V/s and test_time > 5 s: next
-      - step_charge < 0.5 Ah and cycle_time > 1 h: end
+      - step_charge > q_most and cycle_time > 1 h: end
       - charge > 10 Ah or energy > 10 Wh or step_energy > 10 Wh or power > 50 W: end
       - cycle > 2 and step_time > 3 s: next
   - {id: rest, rest: 3 s}
 """
 
-# A parameter named like a reading (the conditions and limits read it instead), a charge
-# at 0 A (no ETA), a step ended by its time limit only.
+# A parameter in a condition, a charge at 0 A (no ETA), a step ended by its time limit only.
 ODD_RECIPE = """
 recipe: odd
 capacity: 2000 mAh
 parameters:
-  voltage: 1.2 V
+  v_high: 1.5 V
 limits:
   voltage: [0.8 V, 1.9 V]
   current: [null, 0.5 A]
@@ -113,7 +112,7 @@ steps:
     charge: 0 A
     duration: 9 s
     until:
-      - voltage > 1.5 V: next
+      - voltage > v_high: next
   - {id: push, discharge: 0.1 A, duration: 30 s}
 """
 
