@@ -802,6 +802,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return flood_benchmark(
             args.flood_http, args.flood_opcua, args.login_rate, args.login_seconds
         )
+    if args.what == "validate-attack":
+        from supervisor.app.validatebench import validate_attack_benchmark
+
+        return validate_attack_benchmark()
     if args.what in ("load", "memory", "report"):
         from supervisor.app import benchsuite
 
@@ -1046,6 +1050,7 @@ def build_parser() -> argparse.ArgumentParser:
             "memory",
             "report",
             "flood",
+            "validate-attack",
         ],
     )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")

@@ -62,6 +62,8 @@ CPU_MARGIN_S: Final = 5
 """``RLIMIT_CPU`` past the deadline: the parent kills first; the kernel if it cannot."""
 RETRY_AFTER_S: Final = 5
 """What a refused caller is told to wait (HTTP ``Retry-After``)."""
+IMPORT_NICENESS: Final = 10
+"""A waiting process's priority while it imports (its job then runs idle)."""
 READY: Final = b"ready\n"
 _PR_SET_PDEATHSIG: Final = 1
 
@@ -127,7 +129,10 @@ def child_main(modules: Sequence[str]) -> int:
     """The child's entry: import ``modules``, say ready, run the one job read from stdin."""
     _die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C in a terminal: the parent decides
-    _lowest_priority()
+    # Below the scan while importing (our own modules: seconds, bounded), idle once the
+    # job — what a client sent — runs.
+    with contextlib.suppress(OSError):
+        os.nice(IMPORT_NICENESS)
     for m in modules:
         importlib.import_module(m)
     sys.stdout.buffer.write(READY)
@@ -137,6 +142,7 @@ def child_main(modules: Sequence[str]) -> int:
         return 0
     fn, args, memory_limit_bytes, cpu_s = pickle.loads(job)
     del job
+    _lowest_priority()
     used_s = resource.getrusage(resource.RUSAGE_SELF)
     _limit(resource.RLIMIT_CPU, int(used_s.ru_utime + used_s.ru_stime) + cpu_s)
     _limit(resource.RLIMIT_AS, memory_limit_bytes)
