@@ -189,6 +189,7 @@ class AttackFigures:
     exit_s: float = 0.0
     exit_code: int | None = None
     safe: bool = False
+    realtime: bool = False
 
 
 def _p99(xs: list[float]) -> float:
@@ -286,7 +287,12 @@ def attack(sup: Supervisor, text: str, workers: int) -> AttackFigures:
         sampler.join()
     fig.during_jitter_p99_s = _p99(during)
     fig.taken_gone = all(gone(p) for p in fig.ready_before)
+    # The after window once the new waiting processes are ready (their imports done): the
+    # steady state the attack left, not the start of its replacements.
+    idle_check_processes(sup.proc.pid, workers)
     fig.after = _window(sup, op)
+    status, diag = op.call("GET", "/api/diagnostics")
+    fig.realtime = bool(status == 200 and diag["scan"].get("realtime_priority"))
     # Busy ones too (R): a new waiting process importing is not expected 10 s later.
     fig.left_running = {
         p: s for p, s in check_processes(sup.proc.pid).items() if p in fig.ready_before or s == "R"
@@ -312,7 +318,8 @@ def report(fig: AttackFigures) -> list[str]:
         f" (+{a.stalls - b.stalls}; stall_max_s {a.stall_max_s:.3f})",
         f"  start jitter p99:    before {b.jitter_p99_s * 1000:.2f} ms, during"
         f" {fig.during_jitter_p99_s * 1000:.2f} ms, after {a.jitter_p99_s * 1000:.2f} ms"
-        f" ({b.samples}/{a.samples} samples of scan.jitter_s)",
+        f" ({b.samples}/{a.samples} samples of scan.jitter_s; the scan's real-time"
+        f" priority: {'yes' if fig.realtime else 'no'})",
         f"  supervisor VmRSS:    before {b.rss_bytes / MIB:.1f} MiB, after"
         f" {a.rss_bytes / MIB:.1f} MiB ({(a.rss_bytes - b.rss_bytes) / MIB:+.1f} MiB)",
         f"  check processes:     the {len(fig.ready_before)} ready before all gone:"
