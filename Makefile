@@ -114,6 +114,9 @@ bench: $(STAMP) $(INFLUXD) $(HMI_STAMP) $(CHROMIUM)
 	# A flood under RLIMIT_NOFILE 1024: 2000 idle HTTP + 200 idle OPC UA connections, then
 	# 100 wrong logins/s for 30 s; every device connected, no trip, no stall (issue 27).
 	$(BENCH_ENV) $(BIN)/supervisor bench flood --flood-http 2000 --flood-opcua 200 --login-rate 100 --login-seconds 30
+	# Issue 28: three 150 KB alias-amplified recipe texts posted at once by a viewer to
+	# /api/recipes/validate: stalls, jitter p99 and RSS before/after, SIGTERM to exit.
+	$(BENCH_ENV) $(BIN)/supervisor bench validate-attack
 	# The load case (io_maps/load16.yaml): scan p99/period, overruns, jitter, GET /api/tags.
 	$(BENCH_ENV) $(BIN)/supervisor bench load --seconds $(BENCH_LOAD_S)
 	$(BENCH_ENV) $(BIN)/supervisor bench memory --minutes $(BENCH_MEMORY_MIN)

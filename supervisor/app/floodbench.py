@@ -63,18 +63,25 @@ def free_port() -> int:
 
 
 def flood_map(
-    folder: Path, hmi: dict[str, Any] | None = None, recipe_folders: tuple[Path, ...] = ()
+    folder: Path,
+    hmi: dict[str, Any] | None = None,
+    recipe_folders: tuple[Path, ...] = (),
+    recipes: dict[str, Any] | None = None,
 ) -> Path:
     """io_maps/sim.yaml on free loopback ports with its state in ``folder``, login on;
     ``hmi``: keys added to its ``hmi:`` section (a test's short header timeout);
-    ``recipe_folders``: more recipe folders than the repository's ``recipes/``."""
+    ``recipe_folders``: more recipe folders than the repository's ``recipes/``;
+    ``recipes``: keys added to its ``recipes:`` section (a test's short check deadline)."""
     data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
     data["hmi"].update({"port": 0, "login": True, **(hmi or {})})
     data["opcua"]["port"] = free_port()
     for name in ("adam", "ea", "bms"):
         data["devices"][name]["port"] = free_port()
     data["state_dir"] = str(folder / "state")
-    data["recipes"] = {"folders": [str(ROOT / "recipes"), *map(str, recipe_folders)]}
+    data["recipes"] = {
+        "folders": [str(ROOT / "recipes"), *map(str, recipe_folders)],
+        **(recipes or {}),
+    }
     path = folder / "flood.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
     return path
@@ -325,10 +332,13 @@ class Figures:
 
 @contextlib.contextmanager
 def bench_run(
-    folder: Path, hmi: dict[str, Any] | None = None, recipe_folders: tuple[Path, ...] = ()
+    folder: Path,
+    hmi: dict[str, Any] | None = None,
+    recipe_folders: tuple[Path, ...] = (),
+    recipes: dict[str, Any] | None = None,
 ) -> Iterator[Supervisor]:
     """A flood map in ``folder`` with its operator, its supervisor started (and stopped)."""
-    io_map = flood_map(folder, hmi, recipe_folders)
+    io_map = flood_map(folder, hmi, recipe_folders, recipes)
     add_user(io_map, *OPERATOR, role="operator")
     sup = Supervisor(io_map, folder / "supervisor.log")
     try:

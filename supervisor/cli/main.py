@@ -174,6 +174,7 @@ async def _serve(
     estop = bench.sim.press_estop if bench.sim is not None and bench.sim.served else None
 
     history = bench.historian.query if bench.historian is not None else None
+    recipes = _recipes_config(cfg, bench)
     api = HttpApi(
         bench.db,
         clock,
@@ -182,7 +183,7 @@ async def _serve(
         estop=estop,
         commands=bench.commands,
         history=history,
-        recipes=_recipes_config(cfg, bench),
+        recipes=recipes,
         tests=TestsConfig(Path(cfg.state_dir) / "results", bench.results, bench.runners),
         pacing=bench.engine,
         allowed_origins=cfg.hmi.allowed_origins,
@@ -225,6 +226,8 @@ async def _serve(
     loop.add_signal_handler(signal.SIGUSR2, _dump_tasks)
     try:
         await api.start()
+        if recipes.checks is not None:
+            recipes.checks.warm()
         if opcua is not None:
             await opcua.start()
         await bench.start()
@@ -277,6 +280,8 @@ async def _serve(
     try:
         await bench.run(stop)
     finally:
+        if recipes.checks is not None:
+            recipes.checks.kill_all()  # a check under way is abandoned at once (issue 28)
         if starter is not None:
             starter.cancel()
             await asyncio.gather(starter, return_exceptions=True)
@@ -302,15 +307,20 @@ def _recipes_config(cfg: BenchConfig, bench: Bench) -> RecipesConfig:
     preview in a child process (app/preview.py)."""
     from supervisor.app.preview import preview_in_child
     from supervisor.hmi.auth import session_actor, session_role
-    from supervisor.hmi.recipes_api import RecipesConfig
+    from supervisor.hmi.recipes_api import RecipesConfig, recipe_checks
 
     # The command path's folders (one path policy, ADR 0026); the editor saves into the
     # first. A save needs an engineer's session: the same users and roles as the commands.
     folders = bench.commands.recipe_folders
     assert folders is not None  # a bench always has its I/O map's
+    # Recipe texts from the network are checked in child processes, killed when abandoned
+    # (issue 28); started now so that the first check does not wait for their imports.
+    checks = recipe_checks(cfg.recipes.check_workers, cfg.recipes.check_memory_mib * 1024 * 1024)
     return RecipesConfig(
         folders.folders[0],
         preview_in_child,
+        validate_timeout_s=cfg.recipes.check_timeout_s,
+        checks=checks,
         folders=folders,
         target_of=bench.target,
         channels=bench.runners,
@@ -807,6 +817,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return flood_benchmark(
             args.flood_http, args.flood_opcua, args.login_rate, args.login_seconds
         )
+    if args.what == "validate-attack":
+        from supervisor.app.validatebench import validate_attack_benchmark
+
+        return validate_attack_benchmark()
     if args.what in ("load", "memory", "report"):
         from supervisor.app import benchsuite
 
@@ -1051,6 +1065,7 @@ def build_parser() -> argparse.ArgumentParser:
             "memory",
             "report",
             "flood",
+            "validate-attack",
         ],
     )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")

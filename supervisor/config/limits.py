@@ -37,6 +37,8 @@ __all__ = [
     "MAX_TRANSITIONS_PER_SCAN",
     "MAX_YAML_BYTES",
     "MAX_YAML_VALUES",
+    "RECIPE_CHECK_MEMORY_BYTES",
+    "RECIPE_CHECK_WORKERS",
     "RECIPE_COMPILE_TIMEOUT_S",
     "TooLarge",
     "read_limited",
@@ -89,6 +91,14 @@ RECIPE_COMPILE_TIMEOUT_S: Final = 30.0
 thread: past this the load is refused (HTTP 503) and the worker abandoned. A file at the
 limits (1 MiB, 6 000 steps with their conditions) takes 5 to 10 s on a small two-core
 machine; what takes longer is stuck (a named pipe nobody writes to, a hung network share)."""
+
+RECIPE_CHECK_MEMORY_BYTES: Final = 1024 * MIB
+"""Address space of the child process a recipe text posted to the HTTP API is checked in
+(``RLIMIT_AS``; the interpreter and its modules take about 150 MiB of it): past it the
+check is refused (HTTP 413) and the supervisor's own memory never grew."""
+RECIPE_CHECK_WORKERS: Final = 2
+"""Recipe texts checked at once for the HTTP API, each in its child process (as many more
+wait; beyond that HTTP 503 with Retry-After)."""
 
 MAX_TRANSITIONS_PER_SCAN: Final = 100
 """Steps a chain may enter in one scan (goto chains, ends of cycles): more is a loop that

@@ -31,6 +31,11 @@ from pydantic import (
     model_validator,
 )
 
+from supervisor.config.limits import (
+    RECIPE_CHECK_MEMORY_BYTES,
+    RECIPE_CHECK_WORKERS,
+    RECIPE_COMPILE_TIMEOUT_S,
+)
 from supervisor.core.driver import PointInfo
 
 NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
@@ -923,6 +928,28 @@ class RecipeFoldersConfig(Strict):
         " its real path (symbolic links followed) is inside one of them. A name without a"
         " folder is <folder>/<name>.yaml in the first that has it; the screens' editor"
         " saves into the first.",
+    )
+    check_timeout_s: float = Field(
+        RECIPE_COMPILE_TIMEOUT_S,
+        gt=0,
+        le=600.0,
+        description="A recipe text checked for the HTTP API (the screens' editor: validate,"
+        " save, dry run) is refused (503) when its check takes longer; its child process is"
+        " killed.",
+    )
+    check_memory_mib: int = Field(
+        RECIPE_CHECK_MEMORY_BYTES // (1024 * 1024),
+        ge=256,
+        le=65536,
+        description="Address space of the child process a recipe text is checked in: a"
+        " text that needs more is refused (413); the supervisor's own memory never grows.",
+    )
+    check_workers: int = Field(
+        RECIPE_CHECK_WORKERS,
+        ge=1,
+        le=8,
+        description="Recipe texts checked at once, each in its child process (as many more"
+        " wait; beyond that 503 with Retry-After).",
     )
 
     @field_validator("folders")

@@ -21,10 +21,12 @@
 Names match :data:`NAME_PATTERN` (no folder, no ``..``): anything else is refused before a
 path is made of it. A text over ``MAX_YAML_BYTES`` is answered 413 with the message
 ``supervisor check`` gives for such a file; so is a request body too large to hold one.
-Validation runs in a worker thread (``commands/worker.py``) with a time limit, never on
-the scan's event loop; the disk is read and written in threads too. A dry run runs flat out
-for seconds: ``supervisor run`` computes it in a child process (``app/preview.py`` says
-why: in a thread it cost the scan deadlines), stopped at ``DRY_RUN_PREVIEW_TIMEOUT_S``.
+Validation runs in a child process (``commands/childjob.py``) with a deadline and a memory
+limit, killed when abandoned, never on the scan's event loop nor in a thread of its
+process (issue 28: an abandoned thread ran on, holding the scan's CPU, memory and
+lock); the disk is read and written in threads. A dry run runs flat out for seconds:
+``supervisor run`` computes it in a child process (``app/preview.py`` says why: in a
+thread it cost the scan deadlines), stopped at ``DRY_RUN_PREVIEW_TIMEOUT_S``.
 """
 
 from __future__ import annotations
@@ -45,11 +47,18 @@ from aiohttp import web
 
 from supervisor.chains.compiler import Target, compile_recipe
 from supervisor.chains.program import Program
+from supervisor.commands.childjob import (
+    ChildJobError,
+    ChildJobs,
+    ChildJobsBusy,
+    ChildOutOfMemory,
+)
 from supervisor.commands.recipes import RecipeFolders, read_recipe_text
-from supervisor.commands.worker import WorkerTimeout, run_in_worker
 from supervisor.config.limits import (
     DRY_RUN_PREVIEW_TIMEOUT_S,
     MAX_YAML_BYTES,
+    RECIPE_CHECK_MEMORY_BYTES,
+    RECIPE_CHECK_WORKERS,
     RECIPE_COMPILE_TIMEOUT_S,
     size_text,
     too_large_message,
@@ -144,9 +153,13 @@ class RecipesConfig:
     """The command path's path policy (ADR 0026): a recipe is read only when its real path
     is inside one of them (a symbolic link in the folder to a file elsewhere is not
     served). None: ``recipes_dir`` alone."""
+    checks: ChildJobs | None = None
+    """Where texts are parsed and compiled: child processes with a deadline and a memory
+    limit, killed when abandoned (``commands/childjob.py``). None: the API makes its own
+    and kills them when the application stops."""
 
 
-# --- validation (pure: safe in a worker thread) -------------------------------------------
+# --- validation (pure: safe in a child process) -------------------------------------------
 @dataclass(frozen=True)
 class Checked:
     """A recipe text that compiled, and its parameters as written (``"1.0 V"``)."""
@@ -188,6 +201,40 @@ def check_recipe_text(
     finally:
         del recipe
         pos.release_gradually()
+
+
+def check_recipe_job(
+    text: str,
+    file: str,
+    target: Target | None,
+    overrides: Mapping[str, str] | None,
+    folders: RecipeFolders | None,
+) -> dict[str, Any]:
+    """:func:`check_recipe_text` as plain data, for a child process (``ChildJobs``): the
+    answer of ``Checked.as_json`` with ``"steps"``, or ``{"errors": [{"message", "file",
+    "line", "col"}]}``."""
+    try:
+        return check_recipe_text(text, file, target, overrides, folders).as_json()
+    except ConfigErrors as exc:
+        errors = exc.errors
+    except ConfigError as exc:
+        errors = [exc]
+    return {
+        "errors": [
+            {"message": e.message, "file": e.file, "line": e.line, "col": e.col} for e in errors
+        ]
+    }
+
+
+PRELOAD: Final = ("supervisor.hmi.recipes_api",)
+"""What a check's child process needs imported (once, in the fork server)."""
+
+
+def recipe_checks(
+    workers: int = RECIPE_CHECK_WORKERS, memory_limit_bytes: int = RECIPE_CHECK_MEMORY_BYTES
+) -> ChildJobs:
+    """The child processes recipe texts are checked in (``supervisor run`` makes them)."""
+    return ChildJobs(workers, workers, memory_limit_bytes, PRELOAD)
 
 
 def error_json(e: ConfigError) -> dict[str, Any]:
@@ -324,11 +371,18 @@ def _refused(errors: list[ConfigError], status: int = 422) -> web.Response:
 
 
 class BadBody(Exception):
-    def __init__(self, status: int, reason: str, errors: list[ConfigError] | None = None):
+    def __init__(
+        self,
+        status: int,
+        reason: str,
+        errors: list[ConfigError] | None = None,
+        retry_after_s: int | None = None,
+    ):
         super().__init__(reason)
         self.status = status
         self.reason = reason
         self.errors = errors or []
+        self.retry_after_s = retry_after_s
 
     def response(self) -> web.Response:
         resp = (
@@ -338,6 +392,8 @@ class BadBody(Exception):
             # The rest of the body is not read: the connection is closed after the answer
             # instead of reading on to the next request.
             resp.force_close()
+        if self.retry_after_s is not None:
+            resp.headers["Retry-After"] = str(self.retry_after_s)
         return resp
 
 
@@ -438,6 +494,8 @@ class RecipesApi:
         self.folders = config.folders or RecipeFolders.of([config.recipes_dir])
         self._save_lock = asyncio.Lock()
         self._dry_running = False
+        self.own_checks = config.checks is None
+        self.checks = config.checks if config.checks is not None else recipe_checks()
 
     def file_of(self, name: str) -> str:
         """The file a recipe ``name`` is (as ``supervisor check`` would be given it)."""
@@ -525,24 +583,29 @@ class RecipesApi:
         file: str,
         target: Target | None,
         overrides: Mapping[str, str] | None = None,
-    ) -> Checked:
-        """``check_recipe_text`` in a worker thread; ``ConfigErrors`` when refused,
-        ``BadBody`` 503 past the time limit."""
+    ) -> dict[str, Any]:
+        """``check_recipe_text`` in a child process (``Checked.as_json``); ``ConfigErrors``
+        when refused; ``BadBody`` 503 past the time limit or when too many run, 413 past
+        the memory limit. The child is killed if the request goes away meanwhile."""
         timeout_s = self.config.validate_timeout_s
+        what = f"validating {file}"
         try:
-            return await run_in_worker(
-                lambda: check_recipe_text(text, file, target, overrides, self.folders),
-                timeout_s,
-                f"validating {file}",
+            answer: dict[str, Any] = await self.checks.run(
+                check_recipe_job, (text, file, target, overrides, self.folders), timeout_s, what
             )
-        except WorkerTimeout:
-            raise BadBody(
-                503,
-                f"validating {file} took more than {timeout_s:g} s; abandoned"
-                " (README: Input limits)",
-            ) from None
-        except ConfigError as exc:
-            raise ConfigErrors([exc]) from None
+        except ChildJobsBusy as exc:
+            raise BadBody(503, str(exc), retry_after_s=exc.retry_after_s) from None
+        except ChildOutOfMemory as exc:
+            raise BadBody(413, f"{exc} (README: Input limits)") from None
+        except ChildJobError as exc:  # its deadline, or it crashed
+            raise BadBody(503, f"{exc} (README: Input limits)") from None
+        if "errors" in answer:
+            raise ConfigErrors([_config_error(e) for e in answer["errors"]])
+        return answer
+
+    async def close(self) -> None:
+        """Kill the checks under way and wait for their end (the application stops)."""
+        await self.checks.close()
 
     async def validate(self, request: web.Request) -> web.Response:
         try:
@@ -555,8 +618,7 @@ class RecipesApi:
             return exc.response()
         except ConfigErrors as exc:
             return _refused(exc.errors)
-        answer = checked.as_json()
-        answer["file"] = file
+        answer = {**checked, "file": file}
         return _json(answer)
 
     # --- dry run ------------------------------------------------------------------------
@@ -677,9 +739,9 @@ class RecipesApi:
             actor,
             "created" if created else "replaced",
             file,
-            len(checked.program.steps),
+            checked["steps"],
         )
-        answer = checked.as_json()
+        answer = dict(checked)
         answer.update({"saved": True, "created": created, "name": name, "file": file})
         return _json(answer)
 
@@ -720,6 +782,12 @@ def add_recipe_routes(
     if actor_of is not None:
         config = replace(config, actor_of=actor_of)
     api = RecipesApi(config)
+    if api.own_checks:
+
+        async def kill_checks(app: web.Application) -> None:
+            await api.close()
+
+        app.on_shutdown.append(kill_checks)
     app.add_routes(
         [
             web.get("/api/recipes", api.list),
