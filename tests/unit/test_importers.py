@@ -193,7 +193,8 @@ def test_the_recipe_name_comes_from_the_file_name_or_the_argument(tmp_path: Path
     assert import_chadeche(FIGURE_10, name="case-study").recipe["recipe"] == "case-study"
     odd = write(tmp_path, FIGURE_10.read_text(encoding="utf-8"), "2017 essai n°3.txt")
     assert import_chadeche(odd).recipe["recipe"] == "chadeche-2017-essai-n-3"
-    with pytest.raises(ValueError, match="recipe name"):
+    # A configuration error (exit 2 from the CLI, issue 28 finding 7), not a ValueError.
+    with pytest.raises(ConfigError, match="recipe name"):
         import_chadeche(FIGURE_10, name="bad name")
 
 
