@@ -133,6 +133,11 @@ class _Compiler:
         # declared and read by nothing is warned of (issue 26, finding 6: capacity-test's
         # i_discharge was given on the command line and changed nothing).
         self.used: set[str] = set()
+        # Each distinct condition text compiled once against this recipe's signature (the
+        # same for every step): an anchored condition used as the `until` of N steps is
+        # tokenised once, not N times (issue 28: 100 uses of a 100 kB condition took a
+        # minute). An error is kept too and reported at every use site, each its own place.
+        self._conditions: dict[str, Expr | ExprError] = {}
 
     # --- errors --------------------------------------------------------------------
     def err(
@@ -324,14 +329,19 @@ class _Compiler:
 
     # --- expressions and actions -------------------------------------------------------
     def cond(self, text: str, path: tuple[str | int, ...], at_key: bool = False) -> Expr | None:
-        try:
-            expr = compile_condition(text, self.sig)
-            self.used.update(expr.names & self.params.keys())
-            return expr
-        except ExprError as exc:
-            msg = exc.message if text in exc.message else f"{exc.message} (in {text!r})"
-            self.err(path, msg, at_key=at_key, offset=exc.offset)
-            return None
+        compiled = self._conditions.get(text)
+        if compiled is None:
+            try:
+                compiled = compile_condition(text, self.sig)
+            except ExprError as exc:
+                compiled = exc
+            self._conditions[text] = compiled
+        if isinstance(compiled, Expr):
+            self.used.update(compiled.names & self.params.keys())
+            return compiled
+        msg = compiled.message if text in compiled.message else f"{compiled.message} (in {text!r})"
+        self.err(path, msg, at_key=at_key, offset=compiled.offset)
+        return None
 
     def action(self, text: str, path: tuple[str | int, ...]) -> Action | None:
         t = str(text).strip()
