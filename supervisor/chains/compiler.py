@@ -39,6 +39,9 @@ from supervisor.config.yamlpos import Positions
 from supervisor.core.errors import ConfigError, ConfigErrors
 from supervisor.core.units import Dim, Quantity, UnitError, parse_quantity
 
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+"""C0 and C1 control characters (a newline among them): never in an action."""
+
 # What a step chain can read, besides parameters and bench tags (all in base units).
 CHANNEL_VARIABLES: dict[str, Dim] = {
     "voltage": Dim.VOLTAGE,
@@ -344,6 +347,15 @@ class _Compiler:
         return None
 
     def action(self, text: str, path: tuple[str | int, ...]) -> Action | None:
+        control = _CONTROL.search(str(text))
+        if control is not None:
+            # Stripped, "sleep_until 08:00\n" was read as 08:00; an action is one line
+            # (the journal and the log show it).
+            self.err(
+                path,
+                f"action {text!r} has the control character {control[0]!r}: one line of text only",
+            )
+            return None
         t = str(text).strip()
         words = t.split(None, 1)
         head = words[0] if words else ""
@@ -358,6 +370,9 @@ class _Compiler:
             return Action(ActionKind.SLEEP, seconds=int(m[1]) * 3600 + int(m[2]) * 60)
         if head == "sleep":
             s = self._time(rest, path)
+            if s is not None and s < 0:
+                self.err(path, f"action {t!r}: a sleep cannot be negative (write sleep 10 s)")
+                return None
             return None if s is None else Action(ActionKind.SLEEP, seconds=s)
         target = rest if head == "goto" else t
         if target in self.ids:
