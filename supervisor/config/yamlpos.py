@@ -6,7 +6,9 @@ build plain Python data from it themselves (dict, list, str, int, float, bool, N
 * every mapping key and every value keeps its 1-based ``line:col`` (:class:`Positions`);
 * duplicate keys are errors instead of "last one wins";
 * YAML 1.1 timestamps stay strings (no ``datetime`` surprises), ``!!binary``/``!!set``/
-  ``!!python/...`` and custom tags are refused;
+  ``!!python/...`` and custom tags are refused, and so are the YAML 1.1 numbers nobody
+  means (``010`` octal, ``1:30`` base 60) and strings with a lone surrogate;
+* aliases and merge keys are counted as they expand (README "Input limits");
 * every failure is a :class:`~supervisor.core.errors.ConfigError` naming file, line and column.
 
 ``validate`` runs a pydantic model over the data and turns every validation error into a
@@ -239,8 +241,10 @@ def load_yaml_text(text: str, file: str = "<string>") -> tuple[Any, Positions]:
     """Parse one YAML document into plain data plus the position of every node.
 
     Raises ConfigError for syntax errors, duplicate keys, unsupported tags, recursive aliases,
-    empty documents, a text longer than ``MAX_YAML_BYTES`` characters and a document of more
-    than ``MAX_YAML_VALUES`` values once its aliases are expanded.
+    empty documents, lone surrogates, YAML 1.1 octal and base-60 numbers, a text longer than
+    ``MAX_YAML_BYTES`` characters, and a document of more than ``MAX_YAML_VALUES`` values or
+    ``MAX_YAML_TEXT_CHARS`` characters of text once its aliases and merge keys are expanded
+    (counted while it is built: refused after at most that much work).
     """
     if text.startswith("\ufeff"):
         text = text[1:]
