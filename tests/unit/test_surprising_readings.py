@@ -136,3 +136,10 @@ async def test_a_dry_run_held_at_once_by_an_until_says_why(tmp_path: Path) -> No
     assert res.state is State.HELD
     assert res.end_reason == "until #1: voltage >= 0 V"
     assert "end: Held: until #1: voltage >= 0 V" in format_report(res)
+
+
+def test_a_user_name_with_a_trailing_newline_is_refused() -> None:
+    from supervisor.config.users import name_problem
+
+    assert name_problem("alice") == ""
+    assert "user name 'alice\\n'" in name_problem("alice\n")
