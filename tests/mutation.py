@@ -2755,3 +2755,157 @@ def _profile_separators(rng: random.Random, src: Source, small: bool) -> Made | 
         return t.made(f"line {i + 1}: '1/2/3' in a min/max cell", REFUSE)
     t.rows[i] = [t.rows[i][0], "1e-400"]
     return t.made(f"line {i + 1}: a current of 1e-400 (underflows to 0)", REFUSE)
+
+
+# Issue 28, findings 2, 3 and 10 (branch yamlamp): aliases and merge keys that amplify, YAML
+# 1.1 numbers that surprise, strings that cannot be encoded. The loader counts values and
+# text while it builds the document (README "Input limits"): an amplifying file is refused
+# after at most the limit's worth of work, at the place where it passes it.
+
+_COND_TERM = "voltage >= 5 V"
+
+
+def _step_sites(doc: _Doc) -> list[_Site]:
+    """The step mappings of a recipe (``steps[i]``)."""
+    return [
+        s
+        for s in doc.values()
+        if isinstance(s.node, MappingNode) and len(s.path) == 2 and s.path[0] == "steps"
+    ]
+
+
+@_mutator("aliases.big_condition", "check", weight=3)
+def _aliases_big_condition(rng: random.Random, src: Source, small: bool) -> Made | None:
+    """A long condition anchored once and used as the ``until`` of N steps (finding 2): its
+    text counts at every use; over 1 MiB expanded it is certainly refused."""
+    doc = _doc(src)
+    if doc is None:
+        return None
+    steps = _step_sites(doc)
+    if not steps:
+        return None
+    size = rng.choice([2_000, 20_000] if small else [20_000, 100_000, 300_000])
+    condition = " or ".join([_COND_TERM] * (size // (len(_COND_TERM) + 4)))
+    uses = rng.choice([1, 2, len(steps)] if small else [1, 5, 10, 11, 100, 1000])
+    cond = ScalarNode(_STR, condition, style='"')  # one node: the serialiser anchors it
+    used = 0
+    for k in range(uses):
+        site = steps[k % len(steps)]
+        assert isinstance(site.node, MappingNode)
+        entry = SequenceNode(_TAG + "seq", [MappingNode(_TAG + "map", [(cond, _scalar("next"))])])
+        if k >= len(steps):  # more uses than steps: more items in the same until lists
+            until = next(v for key, v in site.node.value if _key_text(key) == "until")
+            assert isinstance(until, SequenceNode)
+            until.value.extend(entry.value)
+        else:
+            site.node.value = [(k_, v) for k_, v in site.node.value if _key_text(k_) != "until"]
+            site.node.value.append((_scalar("until"), entry))
+        used += 1
+    expanded = used * len(condition)
+    expect = REFUSE if expanded > MAX_YAML_BYTES else EITHER
+    return _made(
+        doc,
+        f"a {len(condition):,}-character condition anchored once, the until of {used} steps"
+        f" ({expanded:,} characters expanded; limit {MAX_YAML_BYTES:,})",
+        expect,
+    )
+
+
+@_mutator("aliases.chain", "check", weight=2)
+def _aliases_chain(rng: random.Random, src: Source, small: bool) -> Made | None:
+    """A chain of anchors, each level a list of two aliases of the one below (2**depth
+    values): over 500,000 it is certainly refused, wherever it stands."""
+    doc = _doc(src)
+    if doc is None:
+        return None
+    site = _pick(rng, [s for s in doc.values() if s.parent is not None])
+    if site is None:
+        return None
+    depth = rng.choice([4, 8, 12] if small else [12, 18, 19, 24, 40])
+    node: Node = copy.deepcopy(site.node)
+    for _ in range(depth):
+        node = SequenceNode(_TAG + "seq", [node, node], flow_style=True)
+    doc.replace(site, node)
+    # A list site was a list before (still may be valid); anything else is now the wrong shape.
+    expect = REFUSE if 2 ** (depth + 1) > 500_000 else EITHER
+    return _made(doc, f"{site.where()} → a chain of {depth} anchors, 2 aliases each", expect)
+
+
+@_mutator("merges.bomb", "check", weight=3)
+def _merges_bomb(rng: random.Random, src: Source, small: bool) -> Made | None:
+    """A K-key mapping anchored once and merged M times (``{<<: *a}`` items, or one merge key
+    with a list of M aliases): each merge counts its K keys (finding 3)."""
+    doc = _doc(src)
+    if doc is None:
+        return None
+    site = _pick(rng, _collections(doc, SequenceNode))
+    if site is None:
+        return None
+    keys = rng.choice([10, 200] if small else [10, 2000])
+    merges = rng.choice([10, 200] if small else [1000, 50_000, 200_000])
+    mapping = "{" + ", ".join(f"k{i}: {i}" for i in range(keys)) + "}"
+    if rng.random() < 0.5:
+        fragment = f"[&mb {mapping}" + ", {<<: *mb}" * merges + "]"
+        what = f"a list of {merges:,} {{<<: *a}} of a {keys}-key mapping"
+    else:
+        fragment = f"[&mb {mapping}, {{<<: [" + ", ".join(["*mb"] * merges) + "]}]"
+        what = f"one merge key of {merges:,} aliases of a {keys}-key mapping"
+    doc.replace_raw(site, fragment)
+    expanded = 2 * keys * merges
+    # Over the limit of values (each key and value) or of text: certainly refused.
+    expect = REFUSE if expanded > 500_000 else EITHER
+    return _made(doc, f"{site.where()} → {what} ({expanded:,} values merged)", expect)
+
+
+@_mutator("yaml11.numbers", "check", weight=3)
+def _yaml11_numbers(rng: random.Random, src: Source, small: bool) -> Made | None:
+    """An integer written as YAML 1.1 reads it unlike it shows (finding 10): ``010`` (octal,
+    8) or ``1:30`` (base 60, 90), refused; or ``0x..``/``1_000`` forms that say what they
+    are and stay the same number."""
+    doc = _doc(src)
+    if doc is None:
+        return None
+    sites = [
+        s
+        for s in _number_sites(doc)
+        if s.node.tag == _INT and re.fullmatch(r"[0-9]+", str(s.node.value))
+    ]
+    site = _pick(rng, sites)
+    if site is None:
+        return None
+    value = int(str(site.node.value))
+    how = rng.randrange(4)
+    if how == 0:
+        text, expect = "0" + str(value), REFUSE
+    elif how == 1:
+        text, expect = f"{value // 60 + 1}:{value % 60:02d}", REFUSE
+    elif how == 2:
+        text, expect = hex(value), EITHER
+    else:
+        text, expect = (f"{value:_}" if value >= 1000 else f"+{value}"), EITHER
+    if text == "00":  # zero with a leading zero: zero either way
+        expect = EITHER
+    doc.replace(site, _scalar(text))
+    return _made(doc, f"{site.where()}: {value} → {text}", expect)
+
+
+@_mutator("text.surrogate", "check", weight=2)
+def _text_surrogate(rng: random.Random, src: Source, small: bool) -> Made | None:
+    """A double-quoted string with a lone surrogate escape (``"\\ud800"``): a str that no
+    file, log or socket can take, certainly refused where it is written."""
+    doc = _doc(src)
+    if doc is None:
+        return None
+    sites = [
+        s
+        for s in doc.sites()
+        if isinstance(s.node, ScalarNode) and s.node.tag == _STR and s.parent is not None
+    ]
+    site = _pick(rng, sites)
+    if site is None:
+        return None
+    escape = rng.choice(["\\ud800", "\\udfff", "\\ud83d\\ude00"])
+    original = str(site.node.value).replace("\\", "\\\\").replace('"', '\\"')
+    fragment = '"' + original[:40] + escape + '"'
+    doc.replace_raw(site, fragment)
+    return _made(doc, f"{site.where()} → a double-quoted string with {escape}", REFUSE)

@@ -92,6 +92,9 @@ class Record:
     why: str
     stderr: str
     cpu_s: float  # CPU time of the command(s), a figure for the report (never asserted)
+    peak_mb: float = 0.0
+    """The largest resident memory of the commands this worker ran so far, this one included
+    (``RUSAGE_CHILDREN``): the largest over all records is the peak of any single command."""
 
     @property
     def category(self) -> str:
@@ -180,6 +183,7 @@ def run_variant(v: Variant, workdir: Path, timeout_s: float, memory_mb: int) -> 
         why=verdict.why,
         stderr=_excerpt(err),
         cpu_s=_children_cpu_s() - cpu_before,
+        peak_mb=resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
     )
     if record.category not in FAILED:
         for path in written:
@@ -360,6 +364,13 @@ def main(argv: list[str] | None = None) -> int:
     failed = sum(r.failed for r in records)
     print(f"failures: {failed}; pending on other branches: {sum(r.excused for r in records)}")
     print(f"wall time: {wall_s:.0f} s; CPU time of the commands: {cpu_s:.0f} s")
+    if records:
+        slowest = max(records, key=lambda r: r.cpu_s)
+        print(
+            f"slowest command: {slowest.cpu_s:.1f} s of CPU (#{slowest.index}"
+            f" {slowest.mutation}, {slowest.size_bytes:,} bytes); peak memory of any command:"
+            f" {max(r.peak_mb for r in records):.0f} MB"
+        )
     print(f"report: {report}")
     return 1 if failed else 0
 

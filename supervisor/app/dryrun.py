@@ -287,7 +287,12 @@ async def dry_run(
     runner.listeners.remove(steps)  # the shutdown's last scans are not part of the run
     end = runner.end_reason
     if runner.state is State.HELD:
-        end = str(bench.db["ch0.chain.alarm"].value or bench.db["ch0.fault"].value or end)
+        end = str(
+            bench.db["ch0.chain.alarm"].value
+            or bench.db["ch0.fault"].value
+            or runner.hold_reason  # an until's `hold`: the condition that came true
+            or end
+        )
     snap = runner.snapshot()
     if not finished and snap is not None:
         end = cap_message(max_hours, snap, program)

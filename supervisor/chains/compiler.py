@@ -46,6 +46,9 @@ from supervisor.config.yamlpos import Positions
 from supervisor.core.errors import ConfigError, ConfigErrors
 from supervisor.core.units import Dim, Quantity, UnitError, parse_quantity
 
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+"""C0 and C1 control characters (a newline among them): never in an action."""
+
 # What a step chain can read, besides parameters and bench tags (all in base units).
 CHANNEL_VARIABLES: dict[str, Dim] = {
     "voltage": Dim.VOLTAGE,
@@ -166,6 +169,11 @@ class _Compiler:
         # declared and read by nothing is warned of (issue 26, finding 6: capacity-test's
         # i_discharge was given on the command line and changed nothing).
         self.used: set[str] = set()
+        # Each distinct condition text compiled once against this recipe's signature (the
+        # same for every step): an anchored condition used as the `until` of N steps is
+        # tokenised once, not N times (issue 28: 100 uses of a 100 kB condition took a
+        # minute). An error is kept too and reported at every use site, each its own place.
+        self._conditions: dict[str, Expr | ExprError] = {}
 
     # --- errors --------------------------------------------------------------------
     def err(
@@ -378,16 +386,30 @@ class _Compiler:
 
     # --- expressions and actions -------------------------------------------------------
     def cond(self, text: str, path: tuple[str | int, ...], at_key: bool = False) -> Expr | None:
-        try:
-            expr = compile_condition(text, self.sig)
-            self.used.update(expr.names & self.params.keys())
-            return expr
-        except ExprError as exc:
-            msg = exc.message if text in exc.message else f"{exc.message} (in {text!r})"
-            self.err(path, msg, at_key=at_key, offset=exc.offset)
-            return None
+        compiled = self._conditions.get(text)
+        if compiled is None:
+            try:
+                compiled = compile_condition(text, self.sig)
+            except ExprError as exc:
+                compiled = exc
+            self._conditions[text] = compiled
+        if isinstance(compiled, Expr):
+            self.used.update(compiled.names & self.params.keys())
+            return compiled
+        msg = compiled.message if text in compiled.message else f"{compiled.message} (in {text!r})"
+        self.err(path, msg, at_key=at_key, offset=compiled.offset)
+        return None
 
     def action(self, text: str, path: tuple[str | int, ...]) -> Action | None:
+        control = _CONTROL.search(str(text))
+        if control is not None:
+            # Stripped, "sleep_until 08:00\n" was read as 08:00; an action is one line
+            # (the journal and the log show it).
+            self.err(
+                path,
+                f"action {text!r} has the control character {control[0]!r}: one line of text only",
+            )
+            return None
         t = str(text).strip()
         words = t.split(None, 1)
         head = words[0] if words else ""
@@ -402,6 +424,9 @@ class _Compiler:
             return Action(ActionKind.SLEEP, seconds=int(m[1]) * 3600 + int(m[2]) * 60)
         if head == "sleep":
             s = self._time(rest, path)
+            if s is not None and s < 0:
+                self.err(path, f"action {t!r}: a sleep cannot be negative (write sleep 10 s)")
+                return None
             return None if s is None else Action(ActionKind.SLEEP, seconds=s)
         target = rest if head == "goto" else t
         if target in self.ids:

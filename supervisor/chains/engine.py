@@ -130,6 +130,10 @@ class ChainRunner:
         self.command_handler: Callable[[str], None] | None = None
         self.progress = Progress()
         self._r = RunState()
+        self.hold_reason = ""
+        """Why the chain last went Holding: an until's ``hold``, a fault, a supervision
+        rule, an operator. A hold with no alarm and no fault (``voltage >= 0 V: hold``) had
+        no other words, and a dry run ended with "end: Held: " (issue 28)."""
         # Whether the loaded test (``_r.test_id``) has been started: a later start (after
         # a reset) is a new test with a new id, never the old one reopened (issue 26).
         self._test_started = False
@@ -1083,6 +1087,8 @@ class ChainRunner:
         self._set("state_code", OPCUA_CODE[state])
         if state in (State.HOLDING, State.HELD) and self._r.held_since is None:
             self._r.held_since = self.clock.now()
+        if state is State.HOLDING and old not in (State.HOLDING, State.HELD):
+            self.hold_reason = cause
         r = self._r
         if state in (State.STOPPING, State.ABORTING) and old in ACTIVE:
             self._end_record()

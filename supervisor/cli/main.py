@@ -523,6 +523,7 @@ DRY_RUN_MAX_CAPACITY_AH: Final = 100_000.0
 DRY_RUN_MIN_CAPACITY_AH: Final = 0.001
 """The smallest (1 mAh, below any coin cell): ``1e-300`` made the model's voltage NaN."""
 _TIME_OF_DAY = re.compile(r"([01]?[0-9]|2[0-3]):([0-5][0-9])", re.ASCII)
+_CONTROL_CHAR = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 
 
 _NUMBER = re.compile(r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?", re.ASCII)
@@ -576,7 +577,9 @@ def _cells(text: str) -> int:
 
 
 def _time_of_day(text: str) -> str:
-    m = _TIME_OF_DAY.fullmatch(text.strip())
+    # Spaces around are forgiven; a newline or another control character is not (stripped,
+    # "08:00\n" was accepted).
+    m = None if _CONTROL_CHAR.search(text) else _TIME_OF_DAY.fullmatch(text.strip())
     if m is None:
         raise argparse.ArgumentTypeError(
             f"expected a time of day HH:MM (00:00 to 23:59), got {text!r}"

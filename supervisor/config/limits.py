@@ -36,6 +36,7 @@ __all__ = [
     "MAX_TEXT_BYTES",
     "MAX_TRANSITIONS_PER_SCAN",
     "MAX_YAML_BYTES",
+    "MAX_YAML_TEXT_CHARS",
     "MAX_YAML_VALUES",
     "RECIPE_CHECK_MEMORY_BYTES",
     "RECIPE_CHECK_WORKERS",
@@ -57,7 +58,15 @@ why a recipe is compiled in a worker thread, never on the scan's loop."""
 MAX_YAML_VALUES: Final = 500_000
 """Values in one YAML document once aliases are expanded (``*a`` counts the whole anchored
 node each time it is used): what the models validate. Bounds the "billion laughs"
-document, a few hundred bytes that expand to 10⁹ values."""
+document, a few hundred bytes that expand to 10⁹ values. Counted while the document is
+built, merge keys included (``<<: *a`` counts every key of ``a`` each time): a merge bomb
+is refused after building at most this many, not after gigabytes."""
+
+MAX_YAML_TEXT_CHARS: Final = MAX_YAML_BYTES
+"""Characters of text (keys and scalars) in one YAML document once aliases are expanded:
+what the compiler reads. A file without aliases never holds more text than its size; a
+100 kB condition anchored once and used as the ``until`` of 100 steps stands for 10 MB of
+expressions to check (issue 28)."""
 
 MAX_TEXT_BYTES: Final = 1 * MIB
 """A Chadèche sequence file (seed 000 §III.D) or its ``chadecheN.prm``."""

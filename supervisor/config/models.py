@@ -1031,7 +1031,9 @@ class BenchConfig(Strict):
     @classmethod
     def _device_names(cls, v: dict[str, DeviceConfig]) -> dict[str, DeviceConfig]:
         for name in v:
-            if not re.match(NAME_PATTERN, name):
+            # fullmatch: ``$`` also matches before a trailing newline ("ps\n" split the
+            # log lines that name the device).
+            if not re.fullmatch(NAME_PATTERN, name):
                 raise ValueError(f"device name {name!r} must be a plain identifier")
         return v
 

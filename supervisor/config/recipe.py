@@ -378,7 +378,8 @@ class Step(Strict):
     @field_validator("sleep_until")
     @classmethod
     def _hhmm(cls, v: str | None) -> str | None:
-        if v is not None and not HHMM.match(str(v)):
+        # fullmatch: ``$`` also matches before a trailing newline ("08:00\n").
+        if v is not None and not HHMM.fullmatch(str(v)):
             raise ValueError(f"sleep_until needs a time of day HH:MM, got {v!r}")
         return v
 
@@ -491,7 +492,9 @@ class Recipe(Strict):
     @classmethod
     def _params(cls, v: dict[str, Q]) -> dict[str, Q]:
         for name, val in v.items():
-            if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", name):
+            # fullmatch: ``$`` also matches before a trailing newline, and a name with
+            # one splits the log lines that show it.
+            if not PARAMETER_NAME.fullmatch(name):
                 raise ValueError(f"parameter name {name!r} must be an identifier")
             try:
                 quantity(val)

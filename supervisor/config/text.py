@@ -43,6 +43,14 @@ __all__ = [
 _BREAK = re.compile(r"\r\n|\r|\n")
 # YAML 1.1 §5.4 line breaks, as PyYAML's reader counts them (it also breaks on NEL, LS, PS).
 _YAML_BREAK = re.compile(r"\r\n|[\r\n\x85\u2028\u2029]")
+# A multi-byte UTF-8 character (RFC 3629 well-formed sequences): in a file that is not UTF-8
+# all through, the sign that it mixes encodings (CP1252 text rarely holds such a pair:
+# an accented capital followed by a symbol).
+_UTF8_SEQUENCE = re.compile(
+    rb"[\xc2-\xdf][\x80-\xbf]|\xe0[\xa0-\xbf][\x80-\xbf]|[\xe1-\xec\xee\xef][\x80-\xbf]{2}"
+    rb"|\xed[\x80-\x9f][\x80-\xbf]|\xf0[\x90-\xbf][\x80-\xbf]{2}|[\xf1-\xf3][\x80-\xbf]{3}"
+    rb"|\xf4[\x80-\x8f][\x80-\xbf]{2}"
+)
 _UTF16_BOMS = (codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)  # also the start of a UTF-32 BOM
 # A number in a table cell as the C library's strtod reads it, in ASCII digits; inf and nan
 # included (refused by name where they make no sense).
@@ -149,7 +157,9 @@ def decode_yaml(data: bytes, file: str | Path) -> DecodedText:
 def decode_text(data: bytes, file: str | Path) -> DecodedText:
     """A text file's bytes: UTF-8 (BOM allowed), else CP1252 (what Excel writes on Windows).
 
-    A file with a UTF-8 BOM must be UTF-8 all through. CP1252 leaves five bytes undefined
+    A file with a UTF-8 BOM must be UTF-8 all through, and so must one holding any UTF-8
+    character (a file that mixes both is refused where its first non-UTF-8 byte is, not read
+    as mojibake). CP1252 leaves five bytes undefined
     (0x81, 0x8D, 0x8F, 0x90, 0x9D): a file holding one is neither, and refused where it is.
     """
     _refuse_utf16(data, file, "UTF-8 or CP1252 (Windows-1252)")
@@ -167,8 +177,25 @@ def decode_text(data: bytes, file: str | Path) -> DecodedText:
             ) from None
     try:
         return DecodedText(data.decode("utf-8"), "UTF-8")
-    except UnicodeDecodeError:
-        pass
+    except UnicodeDecodeError as exc:
+        not_utf8 = exc
+    utf8 = _UTF8_SEQUENCE.search(data)
+    if utf8 is not None:
+        # Read as CP1252, the UTF-8 part turns to mojibake ("Repos" with an accent shown
+        # as "RÃ©pos") and nobody is told: a file edited in two editors is refused instead.
+        line, col = _bad_byte(data, not_utf8, "utf-8", yaml=False)
+        head = data[: utf8.start()].decode("cp1252", errors="replace")
+        u_line, u_col = line_col(head, len(head))
+        shown = utf8[0].decode("utf-8")
+        raise ConfigError(
+            f"the file mixes encodings: byte 0x{data[not_utf8.start]:02x} is not UTF-8, but"
+            f" line {u_line}, column {u_col} is UTF-8 ({shown!r}); read as CP1252 it would"
+            " show as mojibake. Save the whole file in one encoding (UTF-8, or CP1252 /"
+            " Windows-1252)",
+            file,
+            line,
+            col,
+        )
     try:
         return DecodedText(data.decode("cp1252"), "CP1252")
     except UnicodeDecodeError as exc:

@@ -131,7 +131,7 @@ def name_problem(name: str) -> str:
     """Why ``name`` cannot be a user's name ("" when it can)."""
     if name == ANONYMOUS:
         return f"{ANONYMOUS!r} is the name of anonymous sessions"
-    if not re.match(NAME_PATTERN, name):
+    if not re.fullmatch(NAME_PATTERN, name):  # not "$": it matches before a final newline
         return f"user name {name!r}: letters, digits and _.@- only (1 to 64 characters)"
     return ""
 

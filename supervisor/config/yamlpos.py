@@ -6,7 +6,9 @@ build plain Python data from it themselves (dict, list, str, int, float, bool, N
 * every mapping key and every value keeps its 1-based ``line:col`` (:class:`Positions`);
 * duplicate keys are errors instead of "last one wins";
 * YAML 1.1 timestamps stay strings (no ``datetime`` surprises), ``!!binary``/``!!set``/
-  ``!!python/...`` and custom tags are refused;
+  ``!!python/...`` and custom tags are refused, and so are the YAML 1.1 numbers nobody
+  means (``010`` octal, ``1:30`` base 60) and strings with a lone surrogate;
+* aliases and merge keys are counted as they expand (README "Input limits");
 * every failure is a :class:`~supervisor.core.errors.ConfigError` naming file, line and column.
 
 ``validate`` runs a pydantic model over the data and turns every validation error into a
@@ -33,7 +35,13 @@ from yaml.error import MarkedYAMLError
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 from yaml.reader import ReaderError
 
-from supervisor.config.limits import MAX_YAML_BYTES, MAX_YAML_VALUES, TooLarge, read_limited
+from supervisor.config.limits import (
+    MAX_YAML_BYTES,
+    MAX_YAML_TEXT_CHARS,
+    MAX_YAML_VALUES,
+    TooLarge,
+    read_limited,
+)
 from supervisor.config.limits import size_text as _size_text
 from supervisor.config.text import decode_yaml, line_col
 from supervisor.core.errors import ConfigError, ConfigErrors
@@ -233,8 +241,10 @@ def load_yaml_text(text: str, file: str = "<string>") -> tuple[Any, Positions]:
     """Parse one YAML document into plain data plus the position of every node.
 
     Raises ConfigError for syntax errors, duplicate keys, unsupported tags, recursive aliases,
-    empty documents, a text longer than ``MAX_YAML_BYTES`` characters and a document of more
-    than ``MAX_YAML_VALUES`` values once its aliases are expanded.
+    empty documents, lone surrogates, YAML 1.1 octal and base-60 numbers, a text longer than
+    ``MAX_YAML_BYTES`` characters, and a document of more than ``MAX_YAML_VALUES`` values or
+    ``MAX_YAML_TEXT_CHARS`` characters of text once its aliases and merge keys are expanded
+    (counted while it is built: refused after at most that much work).
     """
     if text.startswith("\ufeff"):
         text = text[1:]
@@ -313,6 +323,45 @@ def _short_tag(tag: str) -> str:
     return "!!" + tag[len(_YAML_TAG) :] if tag.startswith(_YAML_TAG) else tag
 
 
+_SURROGATE = re.compile("[\ud800-\udfff]")
+
+_OCTAL = re.compile(r"[-+]?0[0-7_]+\Z")
+_SEXAGESIMAL = re.compile(r"[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+(?:\.[0-9_]*)?\Z")
+
+
+def _yaml11_surprise(text: str) -> str | None:
+    """Why a plain number that YAML 1.1 reads unlike what it shows is refused, or None.
+
+    YAML 1.1 (PyYAML) reads ``010`` as octal (8) and ``1:30`` as base 60 (90): ``cycles:
+    010`` would run 8 cycles, ``cycles: 1:30`` 90. Nobody writes either on purpose in a
+    recipe or an I/O map, so both are refused with what to write instead (README "Recipe
+    format"). ``0x1F``, ``0b101`` and ``1_000`` say what they are and stay numbers.
+    """
+    if _OCTAL.match(text) and text.strip("-+_0"):
+        digits = ("-" if text.startswith("-") else "") + text.lstrip("-+").lstrip("0_")
+        return (
+            f"the number {text} has a leading zero, which YAML 1.1 reads as octal"
+            f" ({int(text.replace('_', ''), 8)}): write {digits} without the leading zero, or"
+            f" quote it ('{text}') for text"
+        )
+    if _OCTAL.match(text):
+        return None  # 00, 0_0: zero either way
+    if _SEXAGESIMAL.match(text):
+        return (
+            f"{text} is a base-60 number in YAML 1.1 ({_sexagesimal(text):g}), not a time:"
+            f" quote it ('{text}') for a time of day or text, or write the number itself"
+        )
+    return None
+
+
+def _sexagesimal(text: str) -> float:
+    sign = -1.0 if text.startswith("-") else 1.0
+    value = 0.0
+    for part in text.lstrip("-+").replace("_", "").split(":"):
+        value = value * 60 + float(part)
+    return sign * value
+
+
 class _Builder:
     """Constructs plain data from a composed node graph, checking what SafeLoader does not."""
 
@@ -320,8 +369,15 @@ class _Builder:
         self.file = file
         self.mappings: dict[int, dict[Hashable, _Entry]] = {}
         self._done: dict[int, Any] = {}
-        # Values under each node once aliases are expanded (what a model validates).
-        self._sizes: dict[int, int] = {}
+        # Values and characters of text under each built node once its aliases are
+        # expanded (what a model validates, what the compiler reads); an alias adds its
+        # node's again each time it is used.
+        self._sizes: dict[int, tuple[int, int]] = {}
+        self.values = 0
+        """Values built so far, aliases and merge keys expanded (refused over the limit)."""
+        self.chars = 0
+        """Characters of text (keys and scalars) built so far, aliases expanded."""
+        self._building: list[Node] = []
         self._active: set[int] = set()
         self._scalars = SafeConstructor()
         self._scalar_kinds: dict[str, tuple[str, Callable[[SafeConstructor, ScalarNode], Any]]] = {
@@ -337,48 +393,63 @@ class _Builder:
     def build(self, node: Node) -> Any:
         nid = id(node)
         if nid in self._done:  # an alias: share the value, like PyYAML
+            values, chars = self._sizes[nid]
+            # Located where it is used (the container being built), not at its anchor.
+            self._grow(values, chars, self._building[-1] if self._building else node)
             return self._done[nid]
         if nid in self._active:
             raise self.error("recursive alias: a node cannot contain itself", node)
+        start_values, start_chars = self.values, self.chars
         self._active.add(nid)
+        self._building.append(node)
         try:
             if isinstance(node, ScalarNode):
+                self._grow(1, len(node.value), node)
                 value = self._scalar(node)
             elif isinstance(node, SequenceNode):
                 if node.tag != _SEQ:
                     raise self._bad_tag(node, "a list")
+                self._grow(1, 0, node)
                 value = [self.build(item) for item in node.value]
             elif isinstance(node, MappingNode):
                 if node.tag != _MAP:
                     raise self._bad_tag(node, "a mapping")
+                self._grow(1, 0, node)
                 value = self._mapping(node)
             else:  # pragma: no cover - the composer only makes these three
                 raise self.error(f"unsupported YAML node {type(node).__name__}", node)
         finally:
             self._active.discard(nid)
+            self._building.pop()
         self._done[nid] = value
-        self._count(node)
+        self._sizes[nid] = (self.values - start_values, self.chars - start_chars)
         return value
 
-    def _count(self, node: Node) -> None:
-        """The expanded size of ``node`` (its children are built): refused over
-        ``MAX_YAML_VALUES`` at the smallest node that exceeds it (an alias repeats its
-        whole anchored node each time: a few lines can stand for 10⁹ values)."""
-        sizes = self._sizes
-        size = 1
-        if isinstance(node, SequenceNode):
-            size += sum(sizes.get(id(item), 1) for item in node.value)
-        elif isinstance(node, MappingNode):
-            for key_node, value_node in self.mappings.get(id(node), {}).values():
-                size += sizes.get(id(key_node), 1) + sizes.get(id(value_node), 1)
-        sizes[id(node)] = size
-        if size > MAX_YAML_VALUES:
+    def _grow(self, values: int, chars: int, where: Node) -> None:
+        """Count what the document holds so far, aliases and merge keys expanded, and refuse
+        it at ``where`` the moment it passes a limit: while it is built, not after (an
+        alias repeats its whole anchored node each time, a merge key its whole mapping: a
+        few lines can stand for 10⁹ values, a 100 kB condition used 100 times for 10 MB of
+        text to compile; README "Input limits")."""
+        self.values += values
+        self.chars += chars
+        if self.values > MAX_YAML_VALUES:
             raise TooLarge(
-                f"document is too large: this node holds {size:,} values once its aliases are"
-                f" expanded; a recipe or an I/O map may have at most {MAX_YAML_VALUES:,}"
+                f"document is too large: more than {MAX_YAML_VALUES:,} values once its aliases"
+                " and merge keys are expanded (each use of an alias counts the whole node it"
+                f" names); a recipe or an I/O map may have at most {MAX_YAML_VALUES:,}"
                 " (README: Input limits)",
                 self.file,
-                *_line_col_of(node),
+                *_line_col_of(where),
+            )
+        if self.chars > MAX_YAML_TEXT_CHARS:
+            raise TooLarge(
+                f"document is too large: more than {MAX_YAML_TEXT_CHARS:,} characters of text"
+                " once its aliases and merge keys are expanded (each use of an alias counts the"
+                " whole text it names); a recipe or an I/O map may hold at most"
+                f" {_size_text(MAX_YAML_TEXT_CHARS)} of text (README: Input limits)",
+                self.file,
+                *_line_col_of(where),
             )
 
     def _bad_tag(self, node: Node, kind: str) -> ConfigError:
@@ -390,6 +461,17 @@ class _Builder:
     def _scalar(self, node: ScalarNode) -> Any:
         tag = node.tag
         if tag in (_STR, _TIMESTAMP, _VALUE, _MERGE):
+            surrogate = _SURROGATE.search(node.value)
+            if surrogate is not None:
+                # "\ud800" in a double-quoted string: a str no file, log or socket can
+                # take (every writer encodes UTF-8); refused here, where it is written.
+                raise self.error(
+                    "a string that cannot be encoded as UTF-8: it holds the lone surrogate"
+                    f" U+{ord(surrogate[0]):04X} (an escape such as \\ud800 is half of a"
+                    " character; write the character itself, or \\U0001F600 for one above"
+                    " U+FFFF)",
+                    node,
+                )
             # Timestamps stay text: configuration wants str, not datetime.
             return str(node.value)
         if tag == _NULL:
@@ -398,6 +480,9 @@ class _Builder:
         if kind is None:
             raise self._bad_tag(node, "a scalar")
         name, construct = kind
+        surprise = _yaml11_surprise(node.value) if tag in (_INT, _FLOAT) else None
+        if surprise is not None:
+            raise self.error(surprise, node)
         try:
             return construct(self._scalars, node)
         except (ValueError, KeyError, IndexError, TypeError, ArithmeticError) as exc:
@@ -406,12 +491,14 @@ class _Builder:
     def _mapping(self, node: MappingNode) -> dict[Any, Any]:
         index: dict[Hashable, _Entry] = {}
         merges: list[Node] = []
+        merge_keys: list[Node] = []
         merge_key: Node | None = None
         for key_node, value_node in node.value:
             if isinstance(key_node, ScalarNode) and key_node.tag == _MERGE:
                 if merge_key is not None:
                     raise self._duplicate("<<", key_node, merge_key)
                 merge_key = key_node
+                merge_keys.append(key_node)
                 merges.append(value_node)
                 continue
             key = self.build(key_node)
@@ -421,10 +508,21 @@ class _Builder:
             if key in index:
                 raise self._duplicate(key, key_node, index[key][0])
             index[key] = (key_node, value_node)
-        for value_node in merges:
+        for merge_node, value_node in zip(merge_keys, merges, strict=True):
             for source in self._merge_sources(value_node):
-                self.build(source)
-                for key, entry in self.mappings[id(source)].items():
+                if id(source) not in self._done:
+                    self.build(source)  # an inline mapping (an alias is built already)
+                source_index = self.mappings[id(source)]
+                # Its keys count before they are copied (each source in full, even keys
+                # this mapping overrides: the copying is the work); the values count as
+                # they are built below, like any alias.
+                values = chars = 0
+                for key_node, _ in source_index.values():
+                    key_values, key_chars = self._sizes[id(key_node)]
+                    values += key_values
+                    chars += key_chars
+                self._grow(values, chars, merge_node)
+                for key, entry in source_index.items():
                     index.setdefault(key, entry)  # explicit keys and earlier sources win
         self.mappings[id(node)] = index
         return {key: self.build(entry[1]) for key, entry in index.items()}

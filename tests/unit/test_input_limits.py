@@ -33,6 +33,7 @@ from supervisor.config.limits import (
     MAX_SEQUENCE_ROWS,
     MAX_TEXT_BYTES,
     MAX_YAML_BYTES,
+    MAX_YAML_TEXT_CHARS,
     MAX_YAML_VALUES,
     RECIPE_COMPILE_TIMEOUT_S,
     size_text,
@@ -308,6 +309,7 @@ def test_the_readme_documents_every_limit_enforced_here() -> None:
     for shown in (
         size_text(MAX_YAML_BYTES),
         f"{MAX_YAML_VALUES:,}",
+        f"{MAX_YAML_TEXT_CHARS:,}",
         f"{MAX_RECIPE_STEPS:,}",
         f"{MAX_RECIPE_GROUPS:,}",
         f"{MAX_CYCLES:,}",
