@@ -57,6 +57,7 @@ from supervisor.config.limits import (
 from supervisor.config.recipe import load_recipe_text
 from supervisor.core.errors import ConfigError, ConfigErrors
 from supervisor.core.records import Record
+from supervisor.hmi import body as body_reader
 
 log = logging.getLogger(__name__)
 
@@ -334,15 +335,11 @@ class BadBody(Exception):
         resp = (
             _refused(self.errors, self.status) if self.errors else _error(self.status, self.reason)
         )
-        if self.status == 413:
+        if self.status in (413, 415):
             # The rest of the body is not read: the connection is closed after the answer
             # instead of reading on to the next request.
             resp.force_close()
         return resp
-
-
-def _no_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not JSON")
 
 
 async def read_json_object(
@@ -353,21 +350,14 @@ async def read_json_object(
         f"request body is too large: more than {size_text(limit_bytes)}; a recipe may have"
         f" at most {size_text(MAX_YAML_BYTES)} (README: Input limits)"
     )
-    length = request.content_length
-    if length is not None and length > limit_bytes:
-        raise BadBody(413, too_large)
-    data = bytearray()
-    async for chunk in request.content.iter_chunked(64 * 1024):
-        data += chunk
-        if len(data) > limit_bytes:
-            raise BadBody(413, too_large)
+    # The API's one body reader (``supervisor.hmi.body``): encodings, charsets, depth and
+    # lone surrogates refused like on every other route.
     try:
-        body = json.loads(bytes(data).decode("utf-8"), parse_constant=_no_constant)
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise BadBody(400, f"the body must be a JSON object: {exc}") from None
-    if not isinstance(body, dict):
-        raise BadBody(400, "the body must be a JSON object")
-    return body
+        return await body_reader.read_json_object(
+            request, limit_bytes=limit_bytes, too_large=too_large
+        )
+    except body_reader.BodyError as exc:
+        raise BadBody(exc.status, exc.reason) from None
 
 
 def _only(body: Mapping[str, Any], *allowed: str) -> None:
