@@ -37,21 +37,20 @@ MAX_DEPTH: Final = 32
 class BodyError(Exception):
     """A body refused: ``status`` (400, 413, 415) and ``reason``."""
 
-    def __init__(self, status: int, reason: str) -> None:
+    def __init__(self, status: int, reason: str, *, close: bool = False) -> None:
         super().__init__(reason)
         self.status = status
         self.reason = reason
-
-    @property
-    def unread(self) -> bool:
-        """The body was left unread (too large, or in an encoding not taken)."""
-        return self.status in (413, 415)
+        self.close = close
+        """Close the connection after the answer: the rest of the body cannot be read."""
 
     def response(self, **extra: Any) -> web.Response:
-        kind = {413: "too large", 415: "unsupported media type"}.get(self.status, "bad argument")
+        kind = {413: "request entity too large", 415: "unsupported media type"}.get(
+            self.status, "bad argument"
+        )
         body = {"accepted": False, "reason": self.reason, "kind": kind, **extra}
         resp = web.json_response(body, status=self.status)
-        if self.unread:
+        if self.close:
             # The connection closes after the answer: aiohttp would otherwise read the
             # rest of the body to reuse it, and a body that cannot be decoded (gzip
             # declared, plain sent) would drop the connection without the answer.
@@ -70,6 +69,7 @@ def _check_headers(request: web.Request) -> None:
         raise BodyError(
             415,
             f"Content-Encoding {encoding[:40]!r} is not accepted: send the JSON body as it is",
+            close=True,
         )
     charset = request.charset
     if charset is not None:
@@ -86,10 +86,11 @@ def _check_headers(request: web.Request) -> None:
 async def read_bytes(request: web.Request, limit_bytes: int, too_large: str = "") -> bytes:
     """The body, refused 413 past ``limit_bytes`` (``too_large``: the reason to give)."""
     _check_headers(request)
-    reason = too_large or f"request body is too large: more than {limit_bytes:,} bytes"
-    length = request.content_length
-    if length is not None and length > limit_bytes:
-        raise BodyError(413, reason)
+    # aiohttp's own words when it refused such a body (clients and tests know them).
+    reason = too_large or f"Maximum request body size {limit_bytes} exceeded"
+    # Read up to the limit even when the declared length is over it, as aiohttp's own
+    # ``read`` did: an answer before the body is read would leave the client writing into
+    # a connection the server no longer reads.
     data = bytearray()
     try:
         async for chunk in request.content.iter_chunked(64 * 1024):
@@ -140,22 +141,25 @@ async def read_json(
     limit_bytes: int = MAX_JSON_BYTES,
     too_large: str = "",
     empty: Any = None,
+    shape: str = "",
 ) -> Any:
     """The request's JSON document, checked as the module says. ``empty``: what an empty
-    body gives (None: an empty body is refused, it is not JSON)."""
+    body gives (None: an empty body is refused, it is not JSON). ``shape``: the body the
+    route expects (``{"value": ...}``), said when the body is not JSON."""
+    prefix = f"body must be JSON {shape}: " if shape else ""
     data = await read_bytes(request, limit_bytes, too_large)
     if empty is not None and not data.strip():
         return empty
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise BodyError(400, f"the body is not UTF-8: {exc}") from None
+        raise BodyError(400, f"{prefix}the body is not UTF-8: {exc}") from None
     try:
         doc = json.loads(text, parse_constant=_no_constant)
     except RecursionError:
         raise BodyError(400, f"the body is nested deeper than {MAX_DEPTH} levels") from None
     except ValueError as exc:
-        raise BodyError(400, f"the body is not JSON: {exc}") from None
+        raise BodyError(400, f"{prefix}the body is not JSON: {exc}") from None
     _check_tree(doc)
     return doc
 
@@ -167,14 +171,20 @@ async def read_json_object(
     too_large: str = "",
     empty_ok: bool = False,
     what: str = "the body",
+    shape: str = "",
 ) -> dict[str, Any]:
     """``read_json``, refused 400 unless an object (``{}`` for an empty body when
     ``empty_ok``)."""
     doc = await read_json(
-        request, limit_bytes=limit_bytes, too_large=too_large, empty={} if empty_ok else None
+        request,
+        limit_bytes=limit_bytes,
+        too_large=too_large,
+        empty={} if empty_ok else None,
+        shape=shape,
     )
     if not isinstance(doc, dict):
-        raise BodyError(400, f"{what} must be a JSON object, not {type(doc).__name__}")
+        must = f"body must be JSON {shape}" if shape else f"{what} must be a JSON object"
+        raise BodyError(400, f"{must}, not {type(doc).__name__}")
     return doc
 
 

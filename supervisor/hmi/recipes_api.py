@@ -325,8 +325,15 @@ def _refused(errors: list[ConfigError], status: int = 422) -> web.Response:
 
 
 class BadBody(Exception):
-    def __init__(self, status: int, reason: str, errors: list[ConfigError] | None = None):
+    def __init__(
+        self,
+        status: int,
+        reason: str,
+        errors: list[ConfigError] | None = None,
+        close: bool = False,
+    ):
         super().__init__(reason)
+        self.close = close  # the body could not be read (an encoding not taken)
         self.status = status
         self.reason = reason
         self.errors = errors or []
@@ -335,7 +342,7 @@ class BadBody(Exception):
         resp = (
             _refused(self.errors, self.status) if self.errors else _error(self.status, self.reason)
         )
-        if self.status in (413, 415):
+        if self.status == 413 or self.close:
             # The rest of the body is not read: the connection is closed after the answer
             # instead of reading on to the next request.
             resp.force_close()
@@ -350,6 +357,9 @@ async def read_json_object(
         f"request body is too large: more than {size_text(limit_bytes)}; a recipe may have"
         f" at most {size_text(MAX_YAML_BYTES)} (README: Input limits)"
     )
+    length = request.content_length
+    if length is not None and length > limit_bytes:
+        raise BadBody(413, too_large)
     # The API's one body reader (``supervisor.hmi.body``): encodings, charsets, depth and
     # lone surrogates refused like on every other route.
     try:
@@ -357,7 +367,7 @@ async def read_json_object(
             request, limit_bytes=limit_bytes, too_large=too_large
         )
     except body_reader.BodyError as exc:
-        raise BadBody(exc.status, exc.reason) from None
+        raise BadBody(exc.status, exc.reason, close=exc.close) from None
 
 
 def _only(body: Mapping[str, Any], *allowed: str) -> None:

@@ -553,6 +553,10 @@ async def json_errors(request: web.Request, handler: Handler) -> web.StreamRespo
         )
 
 
+VALUE_BODY: Final = '{"value": ...}'
+RECIPE_BODY: Final = '{"file": "...", "parameters": {...}}'
+
+
 class HttpApi:
     def __init__(
         self,
@@ -705,23 +709,23 @@ class HttpApi:
         is refused by name: a typo such as ``"valeu"`` beside ``"value"`` is never
         ignored)."""
         try:
-            body = await read_json_object(request)
+            body = await read_json_object(request, shape=VALUE_BODY)
             refuse_unknown(body, ("value",), name)
         except BodyError as exc:
             return exc.response()
         if "value" not in body:
-            return self._bad('body must be JSON {"value": ...}')
+            return self._bad(f"body must be JSON {VALUE_BODY}")
         return body
 
     async def _recipe(self, request: web.Request) -> web.Response:
         """Load a recipe on a channel: ``{"file": "recipes/x.yaml", "parameters": {...}}``."""
         channel = request.match_info["channel"]
         try:
-            body = await read_json_object(request)
+            body = await read_json_object(request, shape=RECIPE_BODY)
         except BodyError as exc:
             return exc.response()
         if not isinstance(body.get("file"), str):
-            return self._bad('body must be JSON {"file": "...", "parameters": {...}}')
+            return self._bad(f"body must be JSON {RECIPE_BODY}")
         args = {"recipe": body.pop("file"), **body}
         return await self._answer(
             Command(Target.channel(channel), Verb.LOAD, args, self.actor(request))
