@@ -7,6 +7,7 @@ refused, 400, naming the member.
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ import aiohttp
 import pytest
 from hmirig import Hmi, hmi_bench, password
 
+from supervisor.commands import Command, Verb
 from supervisor.config.models import HmiConfig
 
 pytestmark = pytest.mark.integration
@@ -154,3 +156,30 @@ async def test_a_password_with_a_lone_surrogate_is_a_json_refusal_not_a_500(hmi:
         status, kind, body = await send(s, hmi, "POST", "/api/login", data)
         assert status == 400 and "json" in kind, (user, status, body)
         assert reason(body).startswith("password:"), body
+
+
+async def test_a_refusal_quoting_a_lone_surrogate_is_stored_escaped_and_history_goes_on(
+    hmi: Hmi,
+) -> None:
+    """Past the edge (a value from elsewhere than a JSON body): the command path's refusal
+    quotes the value in its event, which the real historian stores escaped."""
+    bench = hmi.bench
+    historian = bench.record_history()  # the rig's bench records none by itself
+    assert historian is not None
+    await historian.start()
+    for command in (
+        Command.write("ch1.command", "\ud800", "hmi:vera"),
+        Command.channel("ch1", Verb.MODE, "hmi:otto", value="\ud800"),
+    ):
+        result = bench.commands.execute(command)
+        assert result.http_status == 400, result
+    await hmi.scans(3)
+    assert await asyncio.to_thread(historian.writer.flush)
+    written = historian.writer.rows_written
+    await hmi.scans(3)
+    assert await asyncio.to_thread(historian.writer.flush)
+    assert historian.writer.rows_written > written
+    assert (historian.writer.crashes, historian.writer.write_errors) == (0, 0)
+    texts = [e.text for e in historian.query.events(0, 4e9, kind="command")]
+    assert any("'\\ud800'" in t and "ch1.command" in t for t in texts), texts
+    assert any("mode \\ud800" in t for t in texts), texts
