@@ -17,11 +17,13 @@ The policy, in two places:
   character UTF-8 cannot encode written as its Python escape ``\\udXXX``
   (``backslashreplace``): the record keeps what was received, readable, and the writer
   lives. Refusing there instead would lose the very event that says what happened.
-  Escaping only what cannot be encoded keeps every other text byte for byte.
+  Escaping only what cannot be encoded keeps every other text byte for byte. Log lines
+  too (``StorableFormatter``).
 """
 
 from __future__ import annotations
 
+import logging
 from typing import Final, TypeVar
 
 WRITE_ERRORS: Final = "backslashreplace"
@@ -55,3 +57,11 @@ def unencodable_at(text: str) -> int | None:
     except UnicodeEncodeError as exc:
         return exc.start
     return None
+
+
+class StorableFormatter(logging.Formatter):
+    """Log lines made storable: a stream opened strict (``PYTHONIOENCODING=utf-8:strict``,
+    a log file) would otherwise drop the line with a "--- Logging error ---" page."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return storable_text(super().format(record))
