@@ -2909,3 +2909,32 @@ def _text_surrogate(rng: random.Random, src: Source, small: bool) -> Made | None
     fragment = '"' + original[:40] + escape + '"'
     doc.replace_raw(site, fragment)
     return _made(doc, f"{site.where()} → a double-quoted string with {escape}", REFUSE)
+
+
+# Issue 28, findings 1 and 6 (writers): strings that cannot be encoded. A YAML double-quoted
+# escape ``\ud800`` makes a lone surrogate, which no writer can encode as UTF-8 (the
+# historian died of one). ``check`` may refuse the value or take it (a writer then stores it
+# escaped: supervisor/core/encoding.py); never a traceback.
+
+_SURROGATE_ESCAPES = ("\\ud800", "\\udfff", "\\udc80", "\\udbff")
+_PLAIN_VALUE = re.compile(r"^(\s*(?:- )?[A-Za-z_][\w.]*): +([^\s#\"'\[\]{}&*|>!%@`][^#]*?)\s*$")
+
+
+@_mutator("text.surrogate_escape", "check", weight=2, refuses=False)
+def _text_surrogate_escape(rng: random.Random, src: Source, small: bool) -> Made | None:
+    lines = _lines(src.text)
+    found = [(i, m) for i, ln in enumerate(lines) if (m := _PLAIN_VALUE.match(ln.rstrip("\n")))]
+    if not found:
+        return None
+    i, m = rng.choice(found)
+    key, value = m.group(1), m.group(2)
+    escape = rng.choice(_SURROGATE_ESCAPES)
+    at = rng.randrange(len(value) + 1)
+    quoted = (value[:at] + "\0" + value[at:]).replace("\\", "\\\\").replace('"', '\\"')
+    end = "\n" if lines[i].endswith("\n") else ""
+    lines[i] = f'{key}: "{quoted.replace(chr(0), escape)}"{end}'
+    return Made(
+        "".join(lines).encode("utf-8"),
+        f"line {i + 1}: the escape {escape} (a lone surrogate) in {key.strip()}'s value",
+        EITHER,
+    )

@@ -13,7 +13,7 @@ import logging
 
 from supervisor.chains.engine import ChainRunner
 from supervisor.commands.model import CommandEvent
-from supervisor.core.records import BenchEvent, ChainEvent, EventSink
+from supervisor.core.records import BenchEvent, ChainEvent, EventSink, storable_event
 from supervisor.safety.alarms import AlarmEvent
 
 __all__ = ["EventFeed"]
@@ -103,6 +103,10 @@ class EventFeed:
         return runner.test_id, runner.program.name
 
     def _emit(self, event: BenchEvent) -> None:
+        # Every sink is a writer (SQLite, line protocol, OPC UA): a text it cannot encode
+        # (a refused value quoted in a command's text) is escaped once, here
+        # (``supervisor.core.encoding``).
+        event = storable_event(event)
         for sink in self.sinks:
             try:
                 sink.on_event(event)

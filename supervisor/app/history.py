@@ -8,7 +8,9 @@ changes, alarm transitions, operator commands with their actor). Its three alarm
 declared here, in the alarm model, at medium priority (the bench keeps running safely;
 the operator must act for the record): ``historian.corrupt`` (a file set aside, waits for
 an acknowledge), ``historian.write`` (writes fail: disk full, read-only), and
-``historian.overflow`` (samples dropped, the disk slower than the scan).
+``historian.overflow`` (samples dropped, the disk slower than the scan) and
+``historian.crashed`` (the writer's thread crashed and started again: waits for an
+acknowledge).
 """
 
 from __future__ import annotations

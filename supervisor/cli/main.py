@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Final, NoReturn
 from supervisor.cli import ctl
 from supervisor.config.models import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core import memtrace
+from supervisor.core.encoding import StorableFormatter
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 from supervisor.core.heap import collect_when_idle, settle_after_start
 from supervisor.core.logrepeat import RepeatFilter
@@ -77,7 +78,7 @@ def _setup_logging(level: str, *, off_thread: bool = False) -> None:
     if root.handlers:
         return
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter(LOG_FORMAT))
+    handler.setFormatter(StorableFormatter(LOG_FORMAT))  # core/encoding.py
     repeats = RepeatFilter(time.monotonic)
     if off_thread:
         records: queue.SimpleQueue[logging.LogRecord] = queue.SimpleQueue()

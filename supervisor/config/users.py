@@ -41,6 +41,7 @@ from pydantic import Field, field_validator
 
 from supervisor.config.models import Strict
 from supervisor.config.yamlpos import load_yaml, validate
+from supervisor.core.encoding import storable_text
 from supervisor.core.errors import ConfigError
 from supervisor.tags import Access
 
@@ -205,6 +206,10 @@ class UserStore:
 
     def authenticate(self, name: str, password: str) -> User | None:
         """The user when ``password`` is theirs, else None."""
+        # A character UTF-8 cannot encode (a lone surrogate from a JSON escape) would raise
+        # in the hash, a 500; escaped, it is just a wrong password (no stored hash is of
+        # such a text: ``core/encoding.py``).
+        password = storable_text(password)
         self._refresh()
         entry = self._users.get(name)
         if entry is None:

@@ -8,8 +8,11 @@ layers).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
+
+from supervisor.core.encoding import storable_text
 
 
 @dataclass(frozen=True, slots=True)
@@ -103,6 +106,21 @@ class BenchEvent:
     severity: int = 0  # ISA-18.2 priority of an alarm (0 for anything else)
     test_id: str = ""
     recipe: str = ""
+
+
+_EVENT_TEXTS = ("kind", "channel", "source", "text", "actor", "test_id", "recipe")
+
+
+def storable_event(event: BenchEvent) -> BenchEvent:
+    """``event`` with each of its texts storable by every writer (``core/encoding.py``);
+    ``event`` itself, the usual case, when they all are."""
+    changes: dict[str, Any] = {}
+    for name in _EVENT_TEXTS:
+        value = getattr(event, name)
+        safe = storable_text(value)
+        if safe is not value:
+            changes[name] = safe
+    return dataclasses.replace(event, **changes) if changes else event
 
 
 class EventSink(Protocol):

@@ -48,6 +48,7 @@ from supervisor.commands import Command, Verb
 from supervisor.commands.roles import Roles
 from supervisor.config.users import ANONYMOUS, ROLE_ACCESS, ROLES, Role, User, UserStore
 from supervisor.core.logins import LoginThrottle
+from supervisor.hmi.body import BodyError, read_json
 from supervisor.hmi.server import ACTOR_KEY, json_dumps
 from supervisor.tags import Access
 
@@ -337,9 +338,9 @@ class HmiAccess:
                 409,
             )
         try:
-            body = await request.json()
-        except ValueError:
-            body = None
+            body = await read_json(request)  # a lone surrogate in a password: 400, named
+        except BodyError as exc:
+            return exc.response()
         if not (
             isinstance(body, dict)
             and isinstance(body.get("user"), str)

@@ -66,6 +66,7 @@ from supervisor.config.limits import (
 from supervisor.config.recipe import load_recipe_text
 from supervisor.core.errors import ConfigError, ConfigErrors
 from supervisor.core.records import Record
+from supervisor.hmi import body as body_reader
 
 log = logging.getLogger(__name__)
 
@@ -377,8 +378,10 @@ class BadBody(Exception):
         reason: str,
         errors: list[ConfigError] | None = None,
         retry_after_s: int | None = None,
+        close: bool = False,
     ):
         super().__init__(reason)
+        self.close = close  # the body could not be read (an encoding not taken)
         self.status = status
         self.reason = reason
         self.errors = errors or []
@@ -388,17 +391,13 @@ class BadBody(Exception):
         resp = (
             _refused(self.errors, self.status) if self.errors else _error(self.status, self.reason)
         )
-        if self.status == 413:
+        if self.status == 413 or self.close:
             # The rest of the body is not read: the connection is closed after the answer
             # instead of reading on to the next request.
             resp.force_close()
         if self.retry_after_s is not None:
             resp.headers["Retry-After"] = str(self.retry_after_s)
         return resp
-
-
-def _no_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not JSON")
 
 
 async def read_json_object(
@@ -412,18 +411,14 @@ async def read_json_object(
     length = request.content_length
     if length is not None and length > limit_bytes:
         raise BadBody(413, too_large)
-    data = bytearray()
-    async for chunk in request.content.iter_chunked(64 * 1024):
-        data += chunk
-        if len(data) > limit_bytes:
-            raise BadBody(413, too_large)
+    # The API's one body reader (``supervisor.hmi.body``): encodings, charsets, depth and
+    # lone surrogates refused like on every other route.
     try:
-        body = json.loads(bytes(data).decode("utf-8"), parse_constant=_no_constant)
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise BadBody(400, f"the body must be a JSON object: {exc}") from None
-    if not isinstance(body, dict):
-        raise BadBody(400, "the body must be a JSON object")
-    return body
+        return await body_reader.read_json_object(
+            request, limit_bytes=limit_bytes, too_large=too_large
+        )
+    except body_reader.BodyError as exc:
+        raise BadBody(exc.status, exc.reason, close=exc.close) from None
 
 
 def _only(body: Mapping[str, Any], *allowed: str) -> None:

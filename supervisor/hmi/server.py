@@ -33,10 +33,11 @@ from typing import Any, Final, Protocol
 
 from aiohttp import web
 
-from supervisor.commands import Command, CommandPath, Result, ResultKind, Verb
+from supervisor.commands import Command, CommandPath, Result, ResultKind, Target, Verb
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Value
 from supervisor.core.quality import Quality, Reason
+from supervisor.hmi.body import BodyError, read_json, read_json_object, refuse_unknown
 from supervisor.hmi.csrf import RequestOrigins
 from supervisor.hmi.history_api import HistoryQuery, add_history_routes
 from supervisor.hmi.limits import ConnectionGuard, ConnectionLimits
@@ -493,15 +494,6 @@ class TagSnapshots:
         return version, text
 
 
-def _no_constant(name: str) -> Any:
-    # json.loads takes NaN, Infinity and -Infinity, which RFC 8259 does not.
-    raise ValueError(f"{name} is not JSON")
-
-
-def _json_loads(text: str) -> Any:
-    return json.loads(text, parse_constant=_no_constant)
-
-
 def _json(data: Any, status: int = 200) -> web.Response:
     return web.json_response(data, status=status, dumps=json_dumps)
 
@@ -559,6 +551,10 @@ async def json_errors(request: web.Request, handler: Handler) -> web.StreamRespo
         return _json(
             {"accepted": False, "reason": f"internal error: {exc}", "kind": "internal error"}, 500
         )
+
+
+VALUE_BODY: Final = '{"value": ...}'
+RECIPE_BODY: Final = '{"file": "...", "parameters": {...}}'
 
 
 class HttpApi:
@@ -708,24 +704,32 @@ class HttpApi:
         """A request that is not a command yet (no JSON, an unknown route verb)."""
         return self._respond(Result.refused(kind, reason))
 
-    async def _body(self, request: web.Request, empty_ok: bool) -> dict[str, Any] | None:
-        """The JSON object of the body ({} for an empty body when ``empty_ok``), or None."""
-        if empty_ok and not await request.read():
-            return {}
+    async def _value_body(self, request: web.Request, name: str) -> dict[str, Any] | web.Response:
+        """A tag write's body ``{"value": ...}``, or the answer refusing it (another member
+        is refused by name: a typo such as ``"valeu"`` beside ``"value"`` is never
+        ignored)."""
         try:
-            body = await request.json(loads=_json_loads)
-        except ValueError:
-            return None
-        return body if isinstance(body, dict) else None
+            body = await read_json_object(request, shape=VALUE_BODY)
+            refuse_unknown(body, ("value",), name)
+        except BodyError as exc:
+            return exc.response()
+        if "value" not in body:
+            return self._bad(f"body must be JSON {VALUE_BODY}")
+        return body
 
     async def _recipe(self, request: web.Request) -> web.Response:
         """Load a recipe on a channel: ``{"file": "recipes/x.yaml", "parameters": {...}}``."""
         channel = request.match_info["channel"]
-        body = await self._body(request, empty_ok=False)
-        if body is None or not isinstance(body.get("file"), str):
-            return self._bad('body must be JSON {"file": "...", "parameters": {...}}')
+        try:
+            body = await read_json_object(request, shape=RECIPE_BODY)
+        except BodyError as exc:
+            return exc.response()
+        if not isinstance(body.get("file"), str):
+            return self._bad(f"body must be JSON {RECIPE_BODY}")
         args = {"recipe": body.pop("file"), **body}
-        return await self._answer(Command.channel(channel, Verb.LOAD, self.actor(request), **args))
+        return await self._answer(
+            Command(Target.channel(channel), Verb.LOAD, args, self.actor(request))
+        )
 
     async def _channel_command(self, request: web.Request) -> web.Response:
         """``POST /api/channels/{ch}/commands/{verb}`` with the verb's arguments as JSON."""
@@ -733,10 +737,14 @@ class HttpApi:
         verb = Verb.parse(name)
         if verb is None:
             return self._bad(f"unknown command {name!r}", ResultKind.NOT_FOUND)
-        args = await self._body(request, empty_ok=True)
-        if args is None:
-            return self._bad(f"{name}: the arguments must be a JSON object")
-        return await self._answer(Command.channel(channel, verb, self.actor(request), **args))
+        try:
+            args = await read_json_object(request, empty_ok=True, what=f"{name}: the arguments")
+        except BodyError as exc:
+            return exc.response()
+        # The arguments as a mapping, never as keywords: a member named like a parameter of
+        # ``Command.channel`` (``actor``, ``verb``, ``cls``) was a TypeError, a 500; now
+        # the command path refuses it as an unknown argument, by name.
+        return await self._answer(Command(Target.channel(channel), verb, args, self.actor(request)))
 
     async def _alarm_command(self, request: web.Request) -> web.Response:
         """``POST /api/alarms/{id}/acknowledge|reset|shelve|unshelve`` (shelve:
@@ -747,10 +755,12 @@ class HttpApi:
                 f"unknown alarm command {action!r} ({', '.join(ALARM_ACTIONS)})",
                 ResultKind.NOT_FOUND,
             )
-        args = await self._body(request, empty_ok=True)
-        if args is None:
-            return self._bad(f"{action}: the arguments must be a JSON object")
-        return await self._answer(Command.alarm(alarm, Verb(action), self.actor(request), **args))
+        try:
+            args = await read_json_object(request, empty_ok=True, what=f"{action}: the arguments")
+        except BodyError as exc:
+            return exc.response()
+        command = Command(Target.alarm(alarm), Verb(action), args, self.actor(request))
+        return await self._answer(command)
 
     async def _alarms(self, request: web.Request) -> web.Response:
         """Alarms not in their normal state (first-out first), and the latest transitions
@@ -783,9 +793,9 @@ class HttpApi:
                 ResultKind.FORBIDDEN,
             )
         try:
-            body = await request.json()
-        except ValueError:
-            body = None
+            body = await read_json(request)
+        except BodyError as exc:
+            return exc.response()
         if not isinstance(body, dict) or not isinstance(body.get("pressed"), bool):
             return _json({"error": 'body must be {"pressed": true|false}'}, status=400)
         assert self._estop is not None
@@ -800,9 +810,9 @@ class HttpApi:
     async def _put(self, request: web.Request) -> web.Response:
         """``PUT /api/tags/{name}`` ``{"value": ...}``: a write through the command path."""
         name = request.match_info["name"]
-        body = await self._body(request, empty_ok=False)
-        if body is None or "value" not in body:
-            return self._bad('body must be JSON {"value": ...}')
+        body = await self._value_body(request, name)
+        if isinstance(body, web.Response):
+            return body
         return await self._answer(Command.write(name, body["value"], self.actor(request)))
 
     async def _force(self, request: web.Request) -> web.Response:
@@ -810,9 +820,9 @@ class HttpApi:
         the tag's type) until ``DELETE``; 403 below engineer, 409 for a tag the safety phase
         reads or drives, 400 a wrong value, 404 an unknown tag."""
         name = request.match_info["name"]
-        body = await self._body(request, empty_ok=False)
-        if body is None or "value" not in body:
-            return self._bad('body must be JSON {"value": ...}')
+        body = await self._value_body(request, name)
+        if isinstance(body, web.Response):
+            return body
         return await self._answer(Command.force(name, body["value"], self.actor(request)))
 
     async def _unforce(self, request: web.Request) -> web.Response:

@@ -69,9 +69,10 @@ class StaticFiles:
         base = root.resolve()
         try:
             path = (base / relative).resolve()
-        except (OSError, RuntimeError):
+            found = path.is_relative_to(base) and path.is_file()
+        except (OSError, RuntimeError, ValueError):  # ValueError: a NUL byte (``%00``)
             raise web.HTTPNotFound() from None
         # No way out of the root (``..``, a symbolic link elsewhere, an absolute path).
-        if not path.is_relative_to(base) or not path.is_file():
+        if not found:
             raise web.HTTPNotFound()
         return web.FileResponse(path, headers=NO_STORE)

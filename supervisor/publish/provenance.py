@@ -29,6 +29,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from supervisor.core.encoding import WRITE_ERRORS
 from supervisor.core.units import Dim, UnitError, parse_quantity
 
 PROVENANCE_NAME = "provenance.json"
@@ -286,7 +287,8 @@ def write_once(path: Path, document: Mapping[str, Any]) -> bool:
         return False
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(document, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+    text = json.dumps(document, indent=2, ensure_ascii=False) + "\n"
+    tmp.write_text(text, encoding="utf-8", errors=WRITE_ERRORS)  # core/encoding.py
     tmp.replace(path)
     return True
 

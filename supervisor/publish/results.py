@@ -40,6 +40,7 @@ from functools import partial
 from pathlib import Path
 from typing import IO, Any, Generic, TypeVar
 
+from supervisor.core.encoding import WRITE_ERRORS
 from supervisor.core.records import ChainEvent, Record
 from supervisor.publish.provenance import (
     BDF_METADATA_SUFFIX,
@@ -309,7 +310,7 @@ def write_summary(path: Path, channel: str, summary: dict[str, Any]) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+        tmp.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8", errors=WRITE_ERRORS)
         tmp.replace(path)
     except OSError:
         log.exception("%s: cannot write %s", channel, path)
@@ -365,7 +366,9 @@ def read_timeline(folder: Path) -> Iterator[dict[str, Any]]:
 def _open_jsonl(path: Path) -> IO[str]:
     """``path`` opened to append lines; a last line cut short (a power cut) is ended first
     so that the next line is whole (``read_jsonl`` skips the broken one)."""
-    f = path.open("a", encoding="utf-8")
+    # A text UTF-8 cannot encode (a lone surrogate) is written as its escape, never an
+    # exception that loses the line (``core/encoding.py``).
+    f = path.open("a", encoding="utf-8", errors=WRITE_ERRORS)
     try:
         with path.open("rb") as r:
             size = r.seek(0, 2)
@@ -534,12 +537,12 @@ class ResultCollector:
         fresh = not bdf.exists() or bdf.stat().st_size == 0
         if not fresh:
             self._resume_columns(bdf)
-        self._bdf = bdf.open("a", newline="", encoding="utf-8")
+        self._bdf = bdf.open("a", newline="", encoding="utf-8", errors=WRITE_ERRORS)
         self._bdf_writer = csv.writer(self._bdf)
         if fresh:
             self._bdf_writer.writerow(BDF_COLUMNS + self.aux_columns)
             self._bdf.flush()
-        self._cha = cha.open("a", encoding="utf-8")
+        self._cha = cha.open("a", encoding="utf-8", errors=WRITE_ERRORS)
         self._write_origin()
         self._open_timeline()
         self._open_cycles_file()

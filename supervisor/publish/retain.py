@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from supervisor.core.encoding import storable_text
 from supervisor.core.gate import ScanGate
 
 log = logging.getLogger(__name__)
@@ -327,7 +328,9 @@ class RetainStore:
 
     def _write(self, conn: sqlite3.Connection, batch: dict[str, tuple[float, Document]]) -> None:
         """One transaction: every document of a batch, or none."""
-        rows = [(key, wall, json.dumps(doc)) for key, (wall, doc) in batch.items()]
+        # json.dumps writes ASCII (a lone surrogate as \\udXXX); a key is escaped like any
+        # other text a writer stores (``core/encoding.py``).
+        rows = [(storable_text(key), wall, json.dumps(doc)) for key, (wall, doc) in batch.items()]
         conn.execute("BEGIN IMMEDIATE")
         try:
             conn.executemany(

@@ -83,4 +83,5 @@ async def test_http_force_refusals(api: tuple[Bench, HttpApi, aiohttp.ClientSess
     status, body = await call(http, s, "PUT", "no.tag", {"value": 1})
     assert status == 404
     status, body = await call(http, s, "PUT", "room.temp", {"v": 1})
-    assert status == 400 and body["reason"] == 'body must be JSON {"value": ...}'
+    # Issue 28: a member other than "value" is refused by name (it was "body must be ...").
+    assert status == 400 and body["reason"] == "room.temp: unknown member 'v' (expected: value)"

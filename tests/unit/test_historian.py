@@ -33,6 +33,7 @@ from supervisor.devices.registry import bench_from_data, load_bench
 from supervisor.publish.changes import Sample
 from supervisor.publish.historian import (
     CORRUPT_ALARM,
+    CRASH_ALARM,
     OVERFLOW_ALARM,
     WRITE_ALARM,
     BadRange,
@@ -45,6 +46,7 @@ from supervisor.publish.historian.store import (
     CACHE_KIB,
     CACHE_KIB_PER_TAG,
     CACHE_MIN_KIB,
+    TagInfo,
     cache_kib,
     connect,
     used_bytes,
@@ -695,6 +697,8 @@ def test_the_diagnostic_tags_are_named_with_their_units(make: Make) -> None:
         "historian.rows_deleted": "",
         "historian.write_errors": "",
         "historian.last_error": "",
+        "historian.crashes": "",
+        "historian.last_crash": "",
         "historian.file_bytes": "B",
         "historian.oldest_sample_age_s": "s",
         "historian.commit_duration_s": "s",
@@ -769,3 +773,56 @@ def test_the_writer_looks_at_the_scan_gate_between_every_scans_samples_of_a_batc
     r.flush()
     assert gate.waits >= 5 + 1  # before each scan's rows, and before the first insert
     assert [v for _, v, _ in r.stored("ch0.voltage")][-5:] == [1.0, 1.1, 1.2, 1.3, 1.4]
+
+
+# --- issue 28, finding 1: no value stops the writer; a crash is said and restarts it ------
+
+
+def test_a_text_utf8_cannot_encode_is_stored_escaped_and_the_writer_goes_on(make: Make) -> None:
+    r = make(TagSpec("ch0.chain.state", dtype="str"), TagSpec("ch0.voltage", unit="V"))
+    w = r.clock.wall
+    r.historian.on_event(
+        BenchEvent(r.clock.now(), w(), "command", "ch1", "ch1.command", "x := '\ud800' \udcff")
+    )
+    r.scan({"ch0.chain.state": "a\ud800b"})
+    r.flush()
+    r.scan({"ch0.voltage": 3.5})
+    r.flush()
+    assert [e.text for e in r.query.events(0, 4e9)] == ["x := '\\ud800' \\udcff"]
+    assert r.stored("ch0.chain.state")[-1][1] == "a\\ud800b"
+    assert r.stored("ch0.voltage")[-1][1] == 3.5
+    writer = r.historian.writer
+    assert (writer.crashes, writer.write_errors, writer.error) == (0, 0, None)
+
+
+def test_a_writer_thread_that_crashes_raises_an_alarm_and_is_started_again(
+    make: Make, caplog: pytest.LogCaptureFixture
+) -> None:
+    r = make(TagSpec("ch0.voltage", unit="V"), TagSpec("ch0.current", unit="A"))
+    real = r.historian._describe
+    calls = {"n": 0}
+
+    def describe_once_broken(name: str) -> TagInfo:
+        # A fake collaborator: an exception no write expects, escaping the thread's loop.
+        calls["n"] += 1
+        if calls["n"] == 1:
+            raise RuntimeError("injected fault")
+        return real(name)
+
+    r.historian.writer._describe = describe_once_broken
+    with caplog.at_level(logging.ERROR):
+        r.scan({"ch0.voltage": 3.5})
+        r.historian.writer.flush()  # its batch is lost in the crash (counted)
+    r.scan({"ch0.current": 1.25})
+    r.flush()  # the thread runs again
+    r.scan()  # the diagnostics and alarms of what happened
+    writer = r.historian.writer
+    assert writer.crashes == 1 and writer.write_errors == 1
+    assert "RuntimeError: injected fault" in writer.last_crash
+    assert writer.rows_dropped >= 1  # the batch it was writing
+    assert r.stored("ch0.current")[-1][1] == 1.25
+    raised = [(on, text) for i, on, text in r.alarms if i == CRASH_ALARM]
+    assert raised[0][0] is True and "injected fault" in raised[0][1]
+    assert r.db["historian.crashes"].value == 1
+    assert "injected fault" in r.db["historian.last_crash"].value
+    assert "writer thread crashed" in caplog.text

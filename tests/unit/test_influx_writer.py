@@ -9,6 +9,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -464,3 +465,32 @@ def test_on_a_real_clock_the_status_tags_are_brought_up_to_date_ten_times_a_seco
     finally:
         real.close()
         virtual.close()
+
+
+async def test_a_spool_writer_thread_that_crashes_is_started_again_and_says_why(
+    tmp_path: Path,
+) -> None:
+    # Issue 28: an exception escaping the writer's loop ended it for good, silently.
+    class OnceBroken(Spool):  # a fake collaborator: a bug the loop does not expect
+        broken = True
+
+        def append(self, *args: Any, **kw: Any) -> tuple[int, int]:
+            if self.broken:
+                self.broken = False
+                raise RuntimeError("injected fault")
+            return super().append(*args, **kw)
+
+    spool = OnceBroken(tmp_path / "spool.sqlite", 10_000_000)
+    writer = SpoolWriter(spool, commit_interval_s=0.01, chunk_points=100, max_queue_points=10_000)
+    writer.start()
+    try:
+        writer.put("channel", ["channel,bench=b1 v=1 1", "channel,bench=b1 v=2 2"])
+        await wait_until(lambda: writer.crashes == 1, "the crash counted", LIMIT_S)
+        assert writer.error is not None and "injected fault" in writer.error
+        writer.put("channel", ["channel,bench=b1 v=3 3"])
+        await wait_until(lambda: writer.commits >= 1, "a commit after the crash", 10 * LIMIT_S)
+        assert writer.error is None  # written again
+    finally:
+        writer.stop()
+    counts = spool.counts()
+    assert counts.produced == 3 and counts.dropped == 2 and counts.waiting == 1

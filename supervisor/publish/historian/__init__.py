@@ -10,6 +10,7 @@ OPC UA HistoryRead and the screens' trends.
 from supervisor.publish.historian.publisher import (
     ALARMS,
     CORRUPT_ALARM,
+    CRASH_ALARM,
     OVERFLOW_ALARM,
     WRITE_ALARM,
     AlarmHook,
@@ -38,6 +39,7 @@ from supervisor.publish.historian.writer import HistoryWriter, OpenReport, Write
 __all__ = [
     "ALARMS",
     "CORRUPT_ALARM",
+    "CRASH_ALARM",
     "EVENT_KINDS",
     "HISTORY_NAME",
     "MAX_BUCKETS",

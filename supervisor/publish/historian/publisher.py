@@ -39,7 +39,9 @@ WRITE_ALARM: Final = "historian.write"
 """Writes fail (disk full, read-only): active until one succeeds."""
 OVERFLOW_ALARM: Final = "historian.overflow"
 """Samples or events were dropped because the queue was full: active while it is."""
-ALARMS: Final = (CORRUPT_ALARM, WRITE_ALARM, OVERFLOW_ALARM)
+CRASH_ALARM: Final = "historian.crashed"
+"""The writer's thread crashed and was started again (the batch it was writing lost)."""
+ALARMS: Final = (CORRUPT_ALARM, WRITE_ALARM, OVERFLOW_ALARM, CRASH_ALARM)
 
 AlarmHook = Callable[[str, bool, str], None]
 """``hook(alarm_id, active, message)``: the owner raises or clears that alarm."""
@@ -58,6 +60,8 @@ _DIAGNOSTICS: Final = (
     ("rows_deleted", "int", "", "Samples deleted by retention since start"),
     ("write_errors", "int", "", "Failed transactions since start"),
     ("last_error", "str", "", "Why the last write failed ('' once one succeeds)"),
+    ("crashes", "int", "", "Times the writer's thread crashed and was started again"),
+    ("last_crash", "str", "", "Why the writer's thread last crashed ('' when never)"),
     ("file_bytes", "int", "B", "The history file and its WAL on disk"),
     ("oldest_sample_age_s", "float", "s", "Age of the oldest sample or event kept"),
     ("commit_duration_s", "float", "s", "Duration of the last transaction"),
@@ -120,6 +124,7 @@ class Historian:
             )
             self.diag[key] = db.get(spec.name) or db.add(spec)
         self._reported_asides = 0
+        self._reported_crashes = 0
         self._write_alarm = False
         self._overflow_alarm = False
         self._dropped_seen = 0
@@ -206,6 +211,8 @@ class Historian:
         db.update(d["rows_deleted"], w.rows_deleted)
         db.update(d["write_errors"], w.write_errors)
         db.update(d["last_error"], w.error or "")
+        db.update(d["crashes"], w.crashes)
+        db.update(d["last_crash"], w.last_crash)
         db.update(d["file_bytes"], w.file_bytes)
         oldest = w.oldest_wall
         db.update(d["oldest_sample_age_s"], 0.0 if oldest is None else self.clock.wall() - oldest)
@@ -220,6 +227,13 @@ class Historian:
             if alarm is not None:
                 alarm(CORRUPT_ALARM, True, aside.text())
                 alarm(CORRUPT_ALARM, False, "")
+        # A crash: raised and cleared at once like a file set aside (the thread runs again;
+        # the operator must know a batch was lost, and a bug is there).
+        if w.crashes > self._reported_crashes:
+            self._reported_crashes = w.crashes
+            if alarm is not None:
+                alarm(CRASH_ALARM, True, f"history {self.path}: {w.last_crash}")
+                alarm(CRASH_ALARM, False, "")
         error = w.error
         if (error is not None) != self._write_alarm:
             self._write_alarm = error is not None

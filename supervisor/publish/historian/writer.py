@@ -20,6 +20,12 @@ Nothing is lost silently (docs/adr/0013-historian.md):
   (``error``, the log), counted (``write_errors``), and retried every ``retry_s`` on a
   new connection; the scan never notices. A file found corrupt while running is set aside
   at the next connection, as at open (``store.check``).
+- **A crash of the thread** (an exception no write expects: a bug, a value no writer should
+  have been handed) is counted (``crashes``, ``write_errors``), said (``error``,
+  ``last_crash``, the log with its traceback; the owner raises ``historian.crashed``) and
+  the thread starts again after ``retry_s``. The batch it was writing is dropped and
+  counted: written again it would crash again (issue 28: one refused value's event
+  stopped the writer for good, with nobody told).
 - **A clean stop** (``close``) writes everything queued before the thread ends; a killed
   process loses what was not committed yet: one ``commit_interval_s`` of samples (plus the
   rows of a commit under way), or the whole queue if the disk had fallen behind.
@@ -38,9 +44,10 @@ from collections.abc import Callable, Generator, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from supervisor.core.encoding import storable, storable_text
 from supervisor.core.gate import ScanGate
 from supervisor.core.quality import Quality
-from supervisor.core.records import BenchEvent
+from supervisor.core.records import BenchEvent, storable_event
 from supervisor.publish.changes import Sample
 from supervisor.publish.historian.store import (
     CORRUPT_ERRORS,
@@ -146,6 +153,9 @@ class HistoryWriter:
         self.oldest_wall: float | None = None
         self.retention_runs = 0
         self.set_asides: list[SetAside] = []  # files renamed aside, for the owner's alarm
+        self.crashes = 0  # exceptions that escaped the thread's loop (it started again)
+        self.last_crash = ""  # the last of them, with its type ("" when none)
+        self._in_flight: tuple[int, int, int] | None = None  # rows, events, seq being written
 
     # --- start and stop (the owner's thread) -----------------------------------------
     def open(self) -> OpenReport:
@@ -165,7 +175,7 @@ class HistoryWriter:
         self._stopping = False
         self._stop_deadline = math.inf
         self._thread = threading.Thread(
-            target=self._run, name=f"historian:{self.path}", daemon=True
+            target=self._thread_main, name=f"historian:{self.path}", daemon=True
         )
         self._thread.start()
         with self._cond:
@@ -251,6 +261,42 @@ class HistoryWriter:
             return True
 
     # --- the thread -------------------------------------------------------------------
+    def _thread_main(self) -> None:
+        """``_run``, started again after an exception escaped it: nothing a writer is
+        handed may stop the history for good."""
+        while True:
+            try:
+                self._run()
+                return
+            except Exception as exc:
+                self._crashed(exc)
+            with self._cond:
+                if self._stopping and time.monotonic() >= self._stop_deadline:
+                    self._give_up()
+                    return
+                if not self._stopping:
+                    self._cond.wait(self.settings.retry_s)
+
+    def _crashed(self, exc: Exception) -> None:
+        """Count and say a crash; drop the batch it was writing (counted)."""
+        why = f"writer thread crashed ({type(exc).__name__}: {exc}); restarted"
+        log.error("history %s: %s", self.path, why, exc_info=exc)
+        self._drop_connection()
+        with self._cond:
+            self.crashes += 1
+            self.last_crash = why
+            self.error = why
+            self.write_errors += 1
+            self._attempts += 1
+            if self._in_flight is not None:
+                rows, events, upto = self._in_flight
+                self._in_flight = None
+                self.rows_dropped += rows
+                self.events_dropped += events
+                self.queued_rows -= rows
+                self._done_seq = max(self._done_seq, upto)
+            self._cond.notify_all()
+
     def _run(self) -> None:
         settings = self.settings
         job: Iterator[None] | None = None
@@ -290,7 +336,10 @@ class HistoryWriter:
                 if take:
                     if self.gate is not None:
                         self.gate.wait()  # the batch's rows are made while no scan runs
+                    n_rows = sum(len(b) for b in samples)
+                    self._in_flight = (n_rows, len(events), upto)
                     ok = self._write_batch(samples, events, upto)
+                    self._in_flight = None
                     if ok:
                         next_commit = time.monotonic() + settings.commit_interval_s
                     else:
@@ -443,7 +492,7 @@ class HistoryWriter:
                                 e.test_id,
                                 e.recipe,
                             )
-                            for e in events
+                            for e in map(storable_event, events)
                         ],
                     )
                 conn.execute("COMMIT")
@@ -498,7 +547,9 @@ class HistoryWriter:
             # A scan's samples at a time, the scan's turn in between: a second of changes
             # in the load case is ten thousand rows, 5 ms of the interpreter lock in one go.
             self._give_way()
-            extend([(ids[s.name], s.wall, s.value, s.quality) for s in b])
+            # A text value is stored escaped when UTF-8 cannot encode it (a lone
+            # surrogate: ``core/encoding.py``); sqlite3 would raise for the whole batch.
+            extend([(ids[s.name], s.wall, storable(s.value), s.quality) for s in b])
         return rows
 
     def _give_way(self) -> None:
@@ -513,7 +564,12 @@ class HistoryWriter:
             "INSERT INTO tags (name, unit, dtype, description) VALUES (?, ?, ?, ?)"
             " ON CONFLICT (name) DO UPDATE SET unit = excluded.unit, dtype = excluded.dtype,"
             " description = excluded.description RETURNING id",
-            (name, info.unit, info.dtype, info.description),
+            (
+                storable_text(name),
+                storable_text(info.unit),
+                storable_text(info.dtype),
+                storable_text(info.description),
+            ),
         ).fetchone()
         return int(row[0])
 

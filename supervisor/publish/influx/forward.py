@@ -30,6 +30,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from supervisor.core.threads import run_restarting
 from supervisor.publish.influx.client import (
     CONFIGURATION,
     TRANSIENT,
@@ -123,6 +124,7 @@ class Forwarder:
         self._recent: deque[tuple[float, int]] = deque()
         self._dead_alarm = ""
         self._last_dead_reason = ""
+        self.crashes = 0  # exceptions that escaped the thread's loop (it started again)
 
     # --- control ----------------------------------------------------------------------
     def start(self) -> None:
@@ -130,7 +132,9 @@ class Forwarder:
             return
         self._stopping = False
         self._deadline = None
-        self._thread = threading.Thread(target=self._run, name="influx-forwarder", daemon=True)
+        self._thread = threading.Thread(
+            target=self._thread_main, name="influx-forwarder", daemon=True
+        )
         self._thread.start()
 
     def notify(self) -> None:
@@ -180,19 +184,26 @@ class Forwarder:
             )
 
     # --- the thread -------------------------------------------------------------------
+    def _thread_main(self) -> None:
+        # A bug must not end forwarding for good: the points stay in the spool, the loop
+        # starts again (``core/threads.py``).
+        run_restarting(
+            "InfluxDB forwarder", self._run, self._crashed, self._stop_due, self._wait, 1.0
+        )
+
+    def _crashed(self, exc: Exception) -> None:
+        with self._cond:
+            self.crashes += 1
+            self._connected = False
+            self._last_error = f"forwarder crashed ({type(exc).__name__}: {exc}); restarted"
+
     def _run(self) -> None:
-        try:
-            while True:
-                delay = self._step()
-                if delay is None:
-                    return
-                if delay > 0:
-                    self._wait(delay)
-        except Exception:  # a bug must not end forwarding silently
-            log.exception("InfluxDB forwarder failed; points stay in the spool")
-            with self._cond:
-                self._connected = False
-                self._last_error = "forwarder failed (see the log)"
+        while True:
+            delay = self._step()
+            if delay is None:
+                return
+            if delay > 0:
+                self._wait(delay)
 
     def _stop_due(self) -> bool:
         with self._cond:

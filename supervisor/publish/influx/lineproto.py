@@ -44,6 +44,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 from supervisor.core.driver import Value
+from supervisor.core.encoding import storable_text
 from supervisor.core.records import BenchEvent
 from supervisor.publish.changes import Sample
 
@@ -96,20 +97,21 @@ _STRING = str.maketrans({"\\": "\\\\", '"': '\\"', "\n": " ", "\r": " "})
 
 
 def escape_tag(text: str) -> str:
-    """A tag key or tag value (also a field key) as line protocol writes it."""
-    return text.translate(_KEY)
+    """A tag key or tag value (also a field key) as line protocol writes it (a character
+    UTF-8 cannot encode escaped: ``core/encoding.py``)."""
+    return storable_text(text).translate(_KEY)
 
 
 escape_field_key = escape_tag
 
 
 def escape_measurement(text: str) -> str:
-    return text.translate(_MEASUREMENT)
+    return storable_text(text).translate(_MEASUREMENT)
 
 
 def escape_string(text: str) -> str:
     """A string field value, quotes included."""
-    return f'"{text.translate(_STRING)}"'
+    return f'"{storable_text(text).translate(_STRING)}"'
 
 
 def format_float(value: float) -> str | None:

@@ -34,6 +34,7 @@ from supervisor.core.driver import Value
 from supervisor.core.gate import ScanGate
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
+from supervisor.core.threads import run_restarting
 from supervisor.publish.changes import ChangeFeed, ChangeReader, Changes, Sample
 from supervisor.publish.influx.client import CONFIGURATION, TRANSIENT, WriteClient
 from supervisor.publish.influx.forward import Forwarder, ForwarderStatus
@@ -176,10 +177,12 @@ class SpoolWriter:
         # system call and an exchange of the interpreter lock, 100 times a second (issue 13).
         self._idle = False
         self._thread: threading.Thread | None = None
+        self._in_flight = 0  # points taken from the queue, not spooled or put back yet
         self.gate: ScanGate | None = None
         """Encode only while the scan is not running (``core/gate.py``; set by the bench)."""
         self.error: str | None = None
         self.commits = 0
+        self.crashes = 0  # exceptions that escaped the thread's loop (it started again)
 
     @property
     def queued(self) -> int:
@@ -268,7 +271,7 @@ class SpoolWriter:
         if self._thread is not None:
             return
         self._stopping = False
-        self._thread = threading.Thread(target=self._run, name="influx-spool", daemon=True)
+        self._thread = threading.Thread(target=self._thread_main, name="influx-spool", daemon=True)
         self._thread.start()
 
     def stop(self, timeout_s: float = 10.0) -> None:
@@ -284,6 +287,25 @@ class SpoolWriter:
             log.error("InfluxDB spool writer did not stop within %g s", timeout_s)
         self._thread = None
 
+    def _thread_main(self) -> None:
+        run_restarting(
+            f"InfluxDB spool {self.spool.path}",
+            self._run,
+            self._crashed,
+            lambda: self._stopping,
+            self._sleep,
+            SPOOL_RETRY_S,
+        )
+
+    def _crashed(self, exc: Exception) -> None:
+        """A crash: counted, said in ``error`` (``influx.last_error``, the spool alarm);
+        the lines it was handling are lost, counted as dropped."""
+        with self._cond:
+            self.crashes += 1
+            self._unspooled_drops += self._in_flight
+            self._in_flight = 0
+        self._failed(RuntimeError(f"writer thread crashed ({type(exc).__name__}: {exc})"))
+
     def _run(self) -> None:
         while True:
             with self._cond:
@@ -298,6 +320,9 @@ class SpoolWriter:
                 self._queued = 0
                 extra = self._unspooled_drops
                 stopping = self._stopping
+                self._in_flight = sum(
+                    item.points if isinstance(item, _Deferred) else len(item[1]) for item in queued
+                )
             items = self._encode(queued)
             n = sum(len(lines) for _, lines in items)
             try:
@@ -307,6 +332,7 @@ class SpoolWriter:
             except (sqlite3.Error, OSError, ValueError) as exc:
                 self._failed(exc)
                 with self._cond:
+                    self._in_flight = 0  # put back, or counted as dropped
                     if stopping:
                         self._unspooled_drops += n
                         lost = self._unspooled_drops
@@ -325,6 +351,7 @@ class SpoolWriter:
                 self._sleep(SPOOL_RETRY_S)
                 continue
             with self._cond:
+                self._in_flight = 0
                 self._unspooled_drops -= extra
                 self.commits += 1
                 if self.error is not None:

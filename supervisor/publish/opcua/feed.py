@@ -24,6 +24,7 @@ alarm transitions are not sampled: the first event the server has not taken wake
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 from collections import deque
 from collections.abc import Callable
@@ -31,8 +32,9 @@ from dataclasses import dataclass
 from typing import Final, NamedTuple
 
 from supervisor.core.driver import Value
+from supervisor.core.encoding import storable, storable_text
 from supervisor.core.quality import Quality, Reason
-from supervisor.core.records import BenchEvent
+from supervisor.core.records import BenchEvent, storable_event
 from supervisor.tags import Tag, TagDB, TagSpec
 
 SAMPLING_TOLERANCE: Final = 0.1
@@ -143,9 +145,14 @@ class OpcUaFeed:
         """An ``EventSink``: chain steps and operator commands (from the scan or a command)."""
         if event.kind == "alarm":
             return  # alarms come as conditions, with their state (``on_alarm``)
-        self._put_event(event)
+        self._put_event(storable_event(event))
 
     def on_alarm(self, alarm: AlarmView) -> None:
+        # asyncua encodes every string as strict UTF-8: a message it cannot encode would
+        # raise in the server's thread (``core/encoding.py``).
+        message = storable_text(alarm.message)
+        if message is not alarm.message:
+            alarm = dataclasses.replace(alarm, message=message)
         self._put_event(alarm)
 
     def _put_event(self, item: BenchEvent | AlarmView) -> None:
@@ -199,7 +206,16 @@ class OpcUaFeed:
 def _copy(tag: Tag) -> Update:
     return _new_update(
         Update,
-        (tag.index, tag.spec.name, tag.value, tag.quality, tag.reason, tag.source_t, tag.server_t),
+        # A text value UTF-8 cannot encode is served escaped (``core/encoding.py``).
+        (
+            tag.index,
+            tag.spec.name,
+            storable(tag.value),
+            tag.quality,
+            tag.reason,
+            tag.source_t,
+            tag.server_t,
+        ),
     )
 
 
