@@ -2938,3 +2938,45 @@ def _text_surrogate_escape(rng: random.Random, src: Source, small: bool) -> Made
         f"line {i + 1}: the escape {escape} (a lone surrogate) in {key.strip()}'s value",
         EITHER,
     )
+
+
+# --------------------------------------------------------------------------------------------
+# Reserved names (issue 28, finding 4): a recipe parameter renamed to a name an expression
+# already reads — a measurement, a counter, a function — and every use of it renamed too, so
+# that the recipe reads as its author meant it and only the shadowing is wrong. Refused at
+# the parameter's key (supervisor/chains/compiler.py RESERVED_NAMES).
+#
+# The names are the issue's and the README's, written here, not read from the code under
+# test: a name dropped from the compiler's table makes these variants accepted, and fail.
+
+_SHADOWED = ("voltage", "current", "temperature", "cycle", "abs", "max", "min")
+_WORD = r"(?<![A-Za-z0-9_.]){}(?![A-Za-z0-9_])"
+
+
+@_mutator("names.reserved", "check", weight=3)
+def _names_reserved(rng: random.Random, src: Source, small: bool) -> Made | None:
+    doc = _doc(src)
+    if doc is None:
+        return None
+    keys = [
+        s
+        for s in doc.sites()
+        if s.is_key and s.path[:1] == ("parameters",) and len(s.path) == 2
+        if isinstance(s.node, ScalarNode)
+    ]
+    site = _pick(rng, keys)
+    if site is None or not isinstance(site.node, ScalarNode):
+        return None
+    old = str(site.node.value)
+    new = rng.choice(_SHADOWED)
+    word = re.compile(_WORD.format(re.escape(old)))
+    for s in doc.values():  # every expression that reads the parameter reads the new name
+        node = s.node
+        if isinstance(node, ScalarNode) and node.tag == _STR and word.search(str(node.value)):
+            node.value = word.sub(new, str(node.value))
+    for s in doc.sites():  # an until's condition is a mapping key
+        node = s.node
+        if s.is_key and isinstance(node, ScalarNode) and word.search(str(node.value)):
+            node.value = word.sub(new, str(node.value))
+    doc.replace(site, _scalar(new))
+    return _made(doc, f"{site.where()}: parameter {old!r} renamed {new!r}, uses too", REFUSE)
