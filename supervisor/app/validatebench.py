@@ -85,15 +85,16 @@ def alias_text(total_bytes: int = 150_000, steps: int = 100) -> str:
 
 def slow_text(steps: int = 2000) -> str:
     """A valid recipe of some 700 KB that takes seconds to check on any machine (2000 steps,
-    each with a condition of six comparisons): slow without any trick of YAML."""
-    cond = " or ".join(
-        f"(voltage >= {1.0 + i / 1000:.3f} V and current < {0.1 + i / 1000:.3f} A)"
-        for i in range(6)
-    )
+    each with its own condition of six comparisons — the compiler compiles a condition text
+    once per recipe, so no two are alike): slow without any trick of YAML."""
     lines = ["recipe: slow", "capacity: 2 Ah", "cycles: 1", "steps:"]
-    for i in range(steps):
+    for s in range(steps):
+        cond = " or ".join(
+            f"(voltage >= {1.0 + (6 * s + i) / 1e5:.5f} V and current < {0.1 + i / 1000:.3f} A)"
+            for i in range(6)
+        )
         lines.append(
-            f"  - id: s{i}\n    charge: 0.1 A\n    duration: 1 h\n    until:\n      - {cond}: next"
+            f"  - id: s{s}\n    charge: 0.1 A\n    duration: 1 h\n    until:\n      - {cond}: next"
         )
     lines.append("  - {id: done, end: true}")
     return "\n".join(lines) + "\n"

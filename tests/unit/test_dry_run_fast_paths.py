@@ -130,7 +130,7 @@ chemistry: nimh
 capacity: 2000 mAh
 parameters:
   v_top: 1.6 V
-  power: 3 W
+  p_set: 3 W  # a parameter may not be named like the measurement (issue 28)
 steps:
   - id: charge
     charge: 0.1 C

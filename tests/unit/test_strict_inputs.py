@@ -49,8 +49,14 @@ def refusals(text: str, target: Target | None = None) -> list[str]:
         (["--soc", "2"], "argument --soc: expected a number from 0 to 1, got '2'"),
         (["--soc", "-0.5"], "argument --soc: expected a number from 0 to 1, got '-0.5'"),
         (["--soc", "5"], "argument --soc: expected a number from 0 to 1, got '5'"),
-        (["--capacity-ah", "0"], "argument --capacity-ah: expected a number more than 0"),
-        (["--capacity-ah", "-2"], "argument --capacity-ah: expected a number more than 0"),
+        (
+            ["--capacity-ah", "0"],
+            "argument --capacity-ah: expected a number from 0.001",
+        ),
+        (
+            ["--capacity-ah", "-2"],
+            "argument --capacity-ah: expected a number from 0.001",
+        ),
         (["--cells", "0"], "argument --cells: expected from 1 to 1000 cells in series, got '0'"),
         (["--cells", "٣"], "argument --cells: expected a whole number of cells, got '٣'"),
         (["--start", "abc"], "argument --start: expected a time of day HH:MM"),
