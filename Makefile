@@ -82,8 +82,17 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
+# The suite runs in TEST_JOBS processes (pytest-xdist), a test module in one process
+# (--dist loadfile: a module's supervisor, InfluxDB or browser is started once). Most of the
+# wall time is spent waiting on real processes, sockets and browsers, not on a core. The
+# tests marked "quiet" assert that the scan kept its timing (no stall, no overrun) under a
+# load they make themselves: they run afterwards, alone, on a machine left to them.
+TEST_JOBS ?= 2
+PYTEST    := $(BIN)/pytest -q -n $(TEST_JOBS) --dist loadfile
+
 unit: $(STAMP) $(INFLUXD) $(NODE_STAMP) $(HMI_STAMP) $(CHROMIUM)
-	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/pytest -q
+	SUPERVISOR_INFLUXD=$(INFLUXD) $(PYTEST) -m "not quiet"
+	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/pytest -q -m quiet
 
 $(INFLUXD):
 	@command -v go >/dev/null || { echo "Go is required to build the test InfluxDB server (influxd $(INFLUXD_VERSION))"; exit 2; }
@@ -136,8 +145,12 @@ mutation: $(STAMP)
 schema: $(STAMP)
 	$(BIN)/supervisor schema --out .
 
-check: $(STAMP)
+## The fast inner loop, no server to build or start (no InfluxDB, no browser, no Node.js):
+## lint, type-check, the shipped I/O maps and recipes through `supervisor check`, and the
+## unit tests (tests/unit/). `make test` runs everything.
+check: lint typecheck
 	$(BIN)/supervisor check io_maps/*.yaml recipes/*.yaml
+	$(PYTEST) tests/unit
 
 clean:
 	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache $(INTEROP)/node_modules hmi/node_modules

@@ -20,7 +20,9 @@ from supervisor.config.models import HmiConfig
 from supervisor.tags import TagSpec
 from supervisor.testing import wait_until
 
-pytestmark = pytest.mark.integration
+# It asserts the scan kept its timing (no stall, no overrun) under load it makes itself:
+# it runs alone, after the tests that run in parallel (Makefile: the "quiet" marker).
+pytestmark = [pytest.mark.integration, pytest.mark.quiet]
 
 
 class Reader:

@@ -40,7 +40,9 @@ JSON = {"Content-Type": "application/json"}
 """What every command declares, a body or not (supervisor.hmi.csrf)."""
 
 ROOT = Path(__file__).resolve().parents[2]
-pytestmark = pytest.mark.integration
+# It asserts the scan kept its timing (no stall, no overrun) under load it makes itself:
+# it runs alone, after the tests that run in parallel (Makefile: the "quiet" marker).
+pytestmark = [pytest.mark.integration, pytest.mark.quiet]
 
 SLOW = "nimh-25h-slow-cycle"
 CONTROL_SCANS = 100

@@ -9,7 +9,9 @@ import pytest
 from commandrig import DISCHARGE, recipe
 from hmirig import hmi_bench
 
-pytestmark = pytest.mark.integration
+# It asserts the scan kept its timing (no stall, no overrun) under load it makes itself:
+# it runs alone, after the tests that run in parallel (Makefile: the "quiet" marker).
+pytestmark = [pytest.mark.integration, pytest.mark.quiet]
 
 
 async def test_the_bench_layout_over_http(tmp_path: Path) -> None:

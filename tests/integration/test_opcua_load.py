@@ -22,7 +22,9 @@ from opcuarig import Collector, Rig, eventually, opcua_rig
 
 from supervisor.testing import wait_until
 
-pytestmark = pytest.mark.integration
+# It asserts the scan kept its timing (no stall, no overrun) under load it makes itself:
+# it runs alone, after the tests that run in parallel (Makefile: the "quiet" marker).
+pytestmark = [pytest.mark.integration, pytest.mark.quiet]
 TAGS = (
     ",".join(
         f"ch{k}.{t}" for k in range(4) for t in ("voltage", "current", "chain.step_time", "power")

@@ -17,7 +17,9 @@ import pytest
 
 from supervisor.app.floodbench import MIB, NO_ANSWER, REFUSED, bench_run, flood, report
 
-pytestmark = pytest.mark.integration
+# It asserts the scan kept its timing (no stall, no overrun) under load it makes itself:
+# it runs alone, after the tests that run in parallel (Makefile: the "quiet" marker).
+pytestmark = [pytest.mark.integration, pytest.mark.quiet]
 
 
 def test_a_flood_of_idle_connections_leaves_every_device_connected_and_answers_503(
