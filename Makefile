@@ -82,17 +82,20 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-# The suite runs in TEST_JOBS processes (pytest-xdist), a test module in one process
-# (--dist loadfile: a module's supervisor, InfluxDB or browser is started once). Most of the
-# wall time is spent waiting on real processes, sockets and browsers, not on a core. The
-# tests marked "quiet" assert that the scan kept its timing (no stall, no overrun) under a
-# load they make themselves: they run afterwards, alone, on a machine left to them.
+# The suite runs in three parts. The unit tests (virtual clock, CPU-bound) in TEST_JOBS
+# processes (pytest-xdist); then the tests of real processes, sockets and browsers, also in
+# TEST_JOBS processes — their wall time is spent waiting, not on a core — a module in one
+# process (--dist loadfile: its supervisor, InfluxDB or browser is started once); last,
+# alone, the tests marked "quiet": they assert that the scan kept its timing (no stall, no
+# overrun) or run devices with sub-second timeouts in the test's own event loop.
 TEST_JOBS ?= 2
 PYTEST    := $(BIN)/pytest -q -n $(TEST_JOBS) --dist loadfile
+WALL      := tests/integration tests/interop tests/security tests/browser
 
 unit: $(STAMP) $(INFLUXD) $(NODE_STAMP) $(HMI_STAMP) $(CHROMIUM)
-	SUPERVISOR_INFLUXD=$(INFLUXD) $(PYTEST) -m "not quiet"
-	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/pytest -q -m quiet
+	$(PYTEST) tests/unit
+	SUPERVISOR_INFLUXD=$(INFLUXD) $(PYTEST) -m "not quiet" $(WALL)
+	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/pytest -q -m quiet $(WALL)
 
 $(INFLUXD):
 	@command -v go >/dev/null || { echo "Go is required to build the test InfluxDB server (influxd $(INFLUXD_VERSION))"; exit 2; }

@@ -29,7 +29,9 @@ from supervisor.sim.plant import BenchPlant
 from supervisor.testing import free_tcp_port, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
-pytestmark = pytest.mark.integration
+# The bench and its three simulators share one event loop with device timeouts of 0.5 s: a
+# process kept off the CPU that long loses its devices (Makefile: the "quiet" marker).
+pytestmark = [pytest.mark.integration, pytest.mark.quiet]
 
 
 def seed002_map(tmp_path: Path) -> Path:
