@@ -93,7 +93,7 @@ PYTEST    := $(BIN)/pytest -q -n $(TEST_JOBS) --dist loadfile
 WALL      := tests/integration tests/interop tests/security tests/browser
 
 unit: $(STAMP) $(INFLUXD) $(NODE_STAMP) $(HMI_STAMP) $(CHROMIUM)
-	$(PYTEST) tests/unit
+	SUPERVISOR_INFLUXD=$(INFLUXD) $(PYTEST) tests/unit
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(PYTEST) -m "not quiet" $(WALL)
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/pytest -q -m quiet $(WALL)
 
@@ -150,10 +150,10 @@ schema: $(STAMP)
 
 ## The fast inner loop, no server to build or start (no InfluxDB, no browser, no Node.js):
 ## lint, type-check, the shipped I/O maps and recipes through `supervisor check`, and the
-## unit tests (tests/unit/). `make test` runs everything.
+## unit tests (tests/unit/) but the few marked integration. `make test` runs everything.
 check: lint typecheck
 	$(BIN)/supervisor check io_maps/*.yaml recipes/*.yaml
-	$(PYTEST) tests/unit
+	$(PYTEST) -m "not integration" tests/unit
 
 clean:
 	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache $(INTEROP)/node_modules hmi/node_modules

@@ -201,6 +201,8 @@ def test_the_memory_benchmark_runs_the_simulated_bench_and_records_its_figures(
     assert figures[0].measured > 0
 
 
+# The load case records into a real InfluxDB (SUPERVISOR_INFLUXD): not in make check.
+@pytest.mark.integration
 def test_the_load_benchmark_runs_the_load_case_with_its_clients_and_records_its_figures(
     at_root: Path, results: Path
 ) -> None:
@@ -242,6 +244,8 @@ def test_the_load_window_alternates_quiet_and_snapshot_blocks_so_drift_weighs_on
     assert sum(s for _, s in plan) == 60.0
 
 
+# The load case records into a real InfluxDB (SUPERVISOR_INFLUXD): not in make check.
+@pytest.mark.integration
 def test_the_load_benchmark_reaches_its_networked_devices_in_a_simulator_process_and_stops_it(
     at_root: Path, results: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
