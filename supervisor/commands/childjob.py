@@ -225,6 +225,12 @@ class ChildJobs:
         async def wait() -> None:
             with contextlib.suppress(Exception):
                 await proc.communicate()
+            # Closed here, not by a callback the loop may never run (the child watcher's
+            # exit report comes from another thread): a transport left open when the loop
+            # ends is an "unclosed transport" for every process killed at shutdown.
+            transport = getattr(proc, "_transport", None)
+            if transport is not None:
+                transport.close()
 
         task = asyncio.get_running_loop().create_task(wait())
         self._reapers.add(task)
@@ -246,7 +252,8 @@ class ChildJobs:
         spares = list(self._spares)
         self.kill_all()
         await asyncio.gather(*spares, return_exceptions=True)
-        await asyncio.gather(*self._reapers, return_exceptions=True)
+        while self._reapers:  # a spare's end may reap one more while waiting
+            await asyncio.gather(*list(self._reapers), return_exceptions=True)
 
     def kill_all(self) -> None:
         """Kill every job's process and every waiting one now; refuse new jobs (shutdown)."""
