@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import math
 import sqlite3
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -409,6 +410,42 @@ def test_retention_by_age_deletes_samples_and_events_older_than_max_age(make: Ma
     assert len(times) == 101
     assert r.query.events(0, 4e9)[0].text == "step 200"
     assert r.historian.writer.rows_deleted > 0
+
+
+def test_a_flush_asking_for_retention_waits_for_a_pass_that_starts_after_it_asks(
+    make: Make,
+) -> None:
+    # A pass already running when the flush asks began with an older cut-off: its end
+    # does not answer the request (CI saw the flush return with nothing deleted).
+    held, entered = threading.Event(), threading.Event()
+
+    def hold_the_first_delete(conn: sqlite3.Connection) -> None:
+        def trace(sql: str) -> None:
+            if sql.startswith("DELETE") and not entered.is_set():
+                entered.set()
+                held.wait(10.0)
+
+        conn.set_trace_callback(trace)
+
+    settings = WriterSettings(commit_interval_s=0.02, max_age_s=100.0, chunk_rows=7)
+    r = make(settings=settings, connect_hook=hold_the_first_delete)
+    r.scan({"ch0.voltage": 0.0})  # the first wall time: the start-up pass begins
+    assert entered.wait(10.0)  # ... and is held in its first delete, cut-off t=-99
+    for k in range(1, 300):
+        r.scan({"ch0.voltage": float(k)})
+    answered: list[bool] = []
+    flusher = threading.Thread(
+        target=lambda: answered.append(r.historian.writer.flush(retention=True))
+    )
+    flusher.start()
+    while r.historian.writer._flush_req == 0:  # the request is in: let the pass go on
+        time.sleep(0.001)
+    held.set()
+    flusher.join(15.0)
+    assert answered == [True]
+    times = [t for t, _, _ in r.stored("ch0.voltage")]
+    assert times[0] >= 300 - 100 and times[-1] == 300
+    assert r.historian.writer.retention_runs >= 2
 
 
 def test_retention_by_size_deletes_the_oldest_first_and_the_file_shrinks(make: Make) -> None:

@@ -126,6 +126,11 @@ class HistoryWriter:
         self._now_wall: float | None = None  # the latest wall time the scan handed in
         self._last_retention_wall: float | None = None
         self._force_retention = False
+        # A flush(retention=True) waits for a pass that *starts* after it asks: a pass
+        # already running began with an older cut-off and does not answer it.
+        self._retention_asked = 0  # requests so far
+        self._retention_running = 0  # the requests the running pass answers
+        self._retention_answered = 0  # the requests a finished pass answered
         self._flush_req = 0
         self._attempts = 0
         self._stopping = False
@@ -243,13 +248,15 @@ class HistoryWriter:
         deadline = time.monotonic() + timeout_s
         with self._cond:
             target = self._seq
-            runs = self.retention_runs + 1 if retention else 0
+            asked = 0
             if retention:
+                self._retention_asked += 1
+                asked = self._retention_asked
                 self._force_retention = True
             attempts = self._attempts
             self._flush_req += 1
             self._cond.notify_all()
-            while self._done_seq < target or self.retention_runs < runs:
+            while self._done_seq < target or self._retention_answered < asked:
                 if self._thread is None:
                     return False
                 if self.error is not None and self._attempts > attempts:
@@ -288,6 +295,8 @@ class HistoryWriter:
             self.error = why
             self.write_errors += 1
             self._attempts += 1
+            if self._retention_running > self._retention_answered:
+                self._force_retention = True  # the pass it was running is run again
             if self._in_flight is not None:
                 rows, events, upto = self._in_flight
                 self._in_flight = None
@@ -330,6 +339,7 @@ class HistoryWriter:
                     )
                     if start_retention:
                         self._force_retention = False
+                        self._retention_running = self._retention_asked
                         self._last_retention_wall = self._now_wall
                         known = self._now_wall
                         retention_wall = known if known is not None else self._wall()
@@ -592,6 +602,7 @@ class HistoryWriter:
     def _retention_done(self) -> None:
         with self._cond:
             self.retention_runs += 1
+            self._retention_answered = max(self._retention_answered, self._retention_running)
             self._cond.notify_all()
 
     def _retention_job(self, now_wall: float) -> Iterator[None]:
