@@ -1,6 +1,6 @@
 """One bench, one supervisor: an exclusive lock on the bench's state directory.
 
-DESIGN.md "Safety": the lock is taken before any device, simulator or port is touched, so
+docs/design.md "Safety": the lock is taken before any device, simulator or port is touched, so
 a second ``supervisor run`` of the same bench started by mistake never connects to the
 devices the first one drives (it would otherwise switch them safe under a running test).
 

@@ -1,6 +1,6 @@
 """Retained state wiring: what each channel saves, when, and how a restart brings it back.
 
-DESIGN.md "Safety": per channel the state that matters — test id, recipe (its text, file
+docs/design.md "Safety": per channel the state that matters — test id, recipe (its text, file
 name and parameters, so it recompiles the same even if the file changed or moved), chain
 state and step, step time, cycle, the run's time and counter baselines, the Ah/Wh counters
 (the ``retain=True`` tags), the mode — and the bench's latched alarms are persisted; after

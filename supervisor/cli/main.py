@@ -103,7 +103,7 @@ async def _run(args: argparse.Namespace) -> int:
     descriptors = _descriptors_fit(cfg)
     if descriptors is None:
         return EXIT_USAGE
-    # One bench, one supervisor (DESIGN.md "Safety"): the lock comes before anything that
+    # One bench, one supervisor (docs/design.md "Safety"): the lock comes before anything that
     # touches a device, a simulator or a port; the kernel drops it when this process dies.
     lock = BenchLock(cfg.state_dir, cfg.bench)
     try:
@@ -149,7 +149,7 @@ async def _run_locked(args: argparse.Namespace, cfg: BenchConfig) -> int:
 
     clock = RealClock()
     bench = build_bench(cfg, clock, simulate=not args.no_sim)
-    # Before anything runs: a test that was under way comes back Held (DESIGN.md "Safety").
+    # Before anything runs: a test that was under way comes back Held (docs/design.md "Safety").
     restored = bench.retain()
     bench.record_history()
     try:

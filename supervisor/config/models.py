@@ -618,7 +618,7 @@ class ChannelConfig(Strict):
     )
 
 
-# --- safety (DESIGN.md "Safety") --------------------------------------------------------------
+# --- safety (docs/design.md "Safety") --------------------------------------------------------
 Severity = Literal["low", "medium", "high", "critical"]
 
 
@@ -677,7 +677,7 @@ class SimPoint(Strict):
 
 
 class SimWatchdogRelay(SimPoint):
-    """The hardware watchdog relay in series with the contactor coil (DESIGN.md "Safety"),
+    """The hardware watchdog relay in series with the contactor coil (docs/design.md "Safety"),
     fed by the heartbeat relay output ``point`` that the supervisor toggles: its contact is
     closed only while that output changed state within ``timeout_s``."""
 

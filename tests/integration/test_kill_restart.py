@@ -1,5 +1,5 @@
 """The fault case "SIGKILL the supervisor at random points of a running recipe and restart
-it" (DESIGN.md "Safety"; seed 001's resumable context), three times with real processes:
+it" (docs/design.md "Safety"; seed 001's resumable context), three times with real processes:
 ``supervisor sim`` serves the seed 002 devices in one process (their battery outlives the
 supervisor), ``supervisor run --no-sim`` is killed by pid at a seeded random moment and
 started again on the same state directory. ``supervisor bench kill-restart`` runs the same

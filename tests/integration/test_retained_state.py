@@ -1,6 +1,6 @@
 """Retained state: a supervisor that dies brings its tests back Held after a restart.
 
-DESIGN.md "Safety": per channel the recipe, step, step time, cycle, Ah/Wh counters and
+docs/design.md "Safety": per channel the recipe, step, step time, cycle, Ah/Wh counters and
 test id are persisted; after a restart a channel comes back Held with its test resumable,
 never re-energised on its own (seed 001: the context is saved before every alarm so an
 interrupted test resumes later). Here on the virtual clock: the first bench "dies" right

@@ -1,4 +1,4 @@
-"""The battery contactor opens when the supervisor dies: two independent layers (DESIGN.md
+"""The battery contactor opens when the supervisor dies: two independent layers (docs/design.md
 "Safety"), on virtual time.
 
 - The hardware watchdog relay in series with the contactor coil (simulated in the plant):

@@ -12,7 +12,7 @@ Each poll reads one block per slot that is due
 (:data:`~supervisor.devices.adam.protocol.ANALOG_READ_FUNCTION` for analog slots, FC01 for
 relay slots): a slot may have its own period (``AdamModule.poll_period_s``), so that the
 slot holding the e-stop sense is read at the scan rate while the thermocouples stay slow
-(DESIGN.md "Safety"); the driver polls at its fastest slot's period, and every sample keeps
+(docs/design.md "Safety"); the driver polls at its fastest slot's period, and every sample keeps
 its own acquisition time (stale detection works per slot). A Modbus exception answer makes
 that slot's inputs BAD ``DEVICE_ERROR`` (code in ``last_error`` and ``raw_log``), a short
 answer makes them BAD ``COMM_FAILURE``; other slots are unaffected. A lost or silent

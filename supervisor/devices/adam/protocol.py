@@ -256,7 +256,7 @@ def is_burnout(raw: int, fmt: str = DEFAULT_RAW_FORMAT) -> bool:
 
 # --- host (communication) watchdog ----------------------------------------------------
 # The ADAM-5000/TCP's own watchdog: when no host talks to it for its timeout, its outputs
-# go to their safe values (DESIGN.md "Safety": the contactor opens when the supervisor
+# go to their safe values (docs/design.md "Safety": the contactor opens when the supervisor
 # dies). devices.md gives no Modbus register for it, and no Advantech document giving them
 # was found: EVERY address and value below is UNVERIFIED, a placeholder laid out like the
 # host watchdogs of comparable Modbus TCP I/O (a timeout register where 0 disarms, a safe

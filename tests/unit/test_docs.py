@@ -1,0 +1,126 @@
+"""The documentation a clone holds is all it needs (issue 29, items 9 and 10).
+
+The design lives in ``docs/design.md``: no file of the repository points to design notes
+outside it, which a clone does not have. Every relative link of the README and of the
+guides in ``docs/`` reaches a file that exists, and an anchor (``#section``) a heading of
+that file, so that moving a section from one page to another cannot leave a dead link.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# Spelled in two parts so that this file does not mention them itself.
+OUTSIDE_NOTES = ("../" + "shared", "DESIGN" + ".md")
+
+SKIPPED_DIRS = {".git", ".venv", "node_modules", "var", "__pycache__", ".mypy_cache"}
+LINK = re.compile(r"(?<!!)\[[^\]]*\]\(([^)\s]+)\)")
+HEADING = re.compile(r"^#{1,6}\s+(.*?)\s*#*\s*$")
+FENCE = re.compile(r"^\s*(```|~~~)")
+
+
+def repository_files() -> list[Path]:
+    """The files a clone has: git's list when there is one, else the tree less what is built."""
+    try:
+        listed = subprocess.run(
+            ["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True
+        ).stdout
+        return [ROOT / name for name in listed.decode().split("\0") if name]
+    except (OSError, subprocess.CalledProcessError):
+        return [
+            path
+            for path in ROOT.rglob("*")
+            if path.is_file() and not SKIPPED_DIRS.intersection(path.relative_to(ROOT).parts)
+        ]
+
+
+def documentation() -> list[Path]:
+    return [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+
+
+def outside_fences(text: str) -> list[str]:
+    """The lines of a Markdown text that are not inside a fenced code block."""
+    lines, fenced = [], False
+    for line in text.splitlines():
+        if FENCE.match(line):
+            fenced = not fenced
+        elif not fenced:
+            lines.append(line)
+    return lines
+
+
+def slug(heading: str) -> str:
+    """GitHub's anchor for a heading: lower case, punctuation dropped, spaces to hyphens."""
+    text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", heading).lower()
+    text = re.sub(r"[^\w\- ]", "", text)
+    return text.replace(" ", "-")
+
+
+def anchors(page: Path) -> set[str]:
+    found: set[str] = set()
+    seen: dict[str, int] = {}
+    for line in outside_fences(page.read_text(encoding="utf-8")):
+        match = HEADING.match(line)
+        if match:
+            base = slug(match.group(1))
+            count = seen.get(base, 0)
+            seen[base] = count + 1
+            found.add(base if count == 0 else f"{base}-{count}")
+    return found
+
+
+def relative_links(page: Path) -> list[str]:
+    links = []
+    for line in outside_fences(page.read_text(encoding="utf-8")):
+        for target in LINK.findall(line):
+            if re.match(r"^[a-z][a-z0-9+.-]*:", target):  # http:, https:, mailto:, opc.tcp:
+                continue
+            links.append(target)
+    return links
+
+
+def test_no_file_points_to_design_notes_outside_the_repository() -> None:
+    offenders = []
+    for path in repository_files():
+        if not path.is_file():
+            continue
+        data = path.read_bytes()
+        for needle in OUTSIDE_NOTES:
+            if needle.encode() in data:
+                offenders.append(f"{path.relative_to(ROOT)}: {needle}")
+    assert offenders == []
+
+
+def test_the_design_is_in_the_repository() -> None:
+    design = ROOT / "docs" / "design.md"
+    assert design.is_file()
+    cited = {"One scan", "Safety", "Publishing", "Recipes", "Tags"}
+    assert {slug(name) for name in cited} <= anchors(design)
+
+
+@pytest.mark.parametrize("page", documentation(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_relative_link_reaches_a_file_and_its_heading(page: Path) -> None:
+    dead = []
+    for target in relative_links(page):
+        file_part, _, anchor = target.partition("#")
+        linked = (page.parent / file_part).resolve() if file_part else page
+        if not linked.exists():
+            dead.append(f"{target}: no such file")
+        elif anchor and linked.suffix == ".md" and anchor not in anchors(linked):
+            dead.append(f"{target}: no heading #{anchor} in {linked.relative_to(ROOT)}")
+    assert dead == []
+
+
+def test_the_readme_opens_with_its_two_commands() -> None:
+    """A newcomer reads ``make run`` and ``make test`` before anything else (.ci/run runs the
+    second on a clean clone)."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    first_block = readme.split("```sh\n", 1)[1].split("```", 1)[0]
+    commands = [line.split("#", 1)[0].strip() for line in first_block.splitlines()]
+    assert commands[:2] == ["make run", "make test"]
