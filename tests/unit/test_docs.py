@@ -124,3 +124,10 @@ def test_the_readme_opens_with_its_two_commands() -> None:
     first_block = readme.split("```sh\n", 1)[1].split("```", 1)[0]
     commands = [line.split("#", 1)[0].strip() for line in first_block.splitlines()]
     assert commands[:2] == ["make run", "make test"]
+
+
+def test_the_adr_index_lists_every_decision() -> None:
+    adr = ROOT / "docs" / "adr"
+    index = (adr / "README.md").read_text(encoding="utf-8")
+    records = sorted(path.name for path in adr.glob("[0-9][0-9][0-9][0-9]-*.md"))
+    assert [name for name in records if f"]({name})" not in index] == []
