@@ -194,7 +194,7 @@ class ChainRunner:
             TagSpec(f"{n}.chain.progress", unit="1", initial=0.0, history=CLOCK_HISTORY),
             TagSpec(f"{n}.chain.eta_s", unit="s", initial=None, history=CLOCK_HISTORY),
             TagSpec(f"{n}.chain.internal_resistance", unit="ohm", initial=None),
-            # The test's charge (README "Tags"): what the ``charge`` condition tests.
+            # The test's charge (docs/integrator.md "Tags"): what the ``charge`` condition tests.
             TagSpec(
                 f"{n}.chain.charge_ah",
                 unit="Ah",

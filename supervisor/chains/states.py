@@ -41,7 +41,7 @@ class State(StrEnum):
     COMPLETE = "Complete"
 
 
-# OPC UA Part 10 / PackML StateEnumeration numbering (documented in the README;
+# OPC UA Part 10 / PackML StateEnumeration numbering (docs/integrator.md "Tags";
 # reference/semantics.md: "pick the OPC UA one"). Running is Execute, Resuming Unholding.
 OPCUA_CODE = {
     State.STOPPED: 0,

@@ -131,3 +131,34 @@ def test_the_adr_index_lists_every_decision() -> None:
     index = (adr / "README.md").read_text(encoding="utf-8")
     records = sorted(path.name for path in adr.glob("[0-9][0-9][0-9][0-9]-*.md"))
     assert [name for name in records if f"]({name})" not in index] == []
+
+
+SECTION_REFERENCE = re.compile(r'(README\.md|README|docs/[\w/.-]+\.md),? "([^"\n]+)"')
+
+
+def named_sections(page: Path) -> set[str]:
+    """What a reference may name in a page: its headings and its bold terms, lower case."""
+    text = page.read_text(encoding="utf-8")
+    lines = outside_fences(text)
+    names = {m.group(1) for line in lines if (m := HEADING.match(line))}
+    names |= set(re.findall(r"\*\*([^*\n]+)\*\*", text))
+    return {name.replace("`", "").lower() for name in names}
+
+
+def test_every_section_a_file_cites_is_in_the_page_it_names() -> None:
+    """``docs/design.md "Safety"`` in a comment: that page has that heading (or bold term)."""
+    dead = []
+    for path in repository_files():
+        if path.suffix not in {".py", ".md", ".yaml", ".yml", ".js", ".service", ""}:
+            continue
+        if not path.is_file():
+            continue
+        text = path.read_text(encoding="utf-8", errors="replace")
+        for page_name, section in SECTION_REFERENCE.findall(text):
+            page = ROOT / ("README.md" if page_name.startswith("README") else page_name)
+            if not page.is_file():
+                continue  # a README of another folder, named alone: not a section reference
+            wanted = section.replace("`", "").lower()
+            if not any(name.startswith(wanted) for name in named_sections(page)):
+                dead.append(f"{path.relative_to(ROOT)}: {page_name} {section!r}")
+    assert dead == []
