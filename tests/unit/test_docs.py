@@ -162,3 +162,29 @@ def test_every_section_a_file_cites_is_in_the_page_it_names() -> None:
             if not any(name.startswith(wanted) for name in named_sections(page)):
                 dead.append(f"{path.relative_to(ROOT)}: {page_name} {section!r}")
     assert dead == []
+
+
+TOP_FOLDERS = "supervisor|tests|deploy|io_maps|recipes|hmi|benchmarks|docs"
+NAMED_PATH = re.compile(rf"`((?:{TOP_FOLDERS})/[^`\s]*)`")
+
+
+def test_every_path_the_guides_name_exists() -> None:
+    """A file or folder the README or a guide names in code style exists: a move (a package
+    split, a renamed module) updates the page that describes it. The ADRs are records of
+    their time and keep the names they had; a path with a placeholder (``<kind>``, ``*``)
+    names no one file; ``tests/artifacts/`` is made by the tests; the design's "Target
+    layout" names what is still to come."""
+    missing = []
+    for page in documentation():
+        if "adr" in page.relative_to(ROOT).parts:
+            continue
+        text = page.read_text(encoding="utf-8").split("\n## Target layout", 1)[0]
+        for named in NAMED_PATH.findall(text):
+            path = named.split("::", 1)[0].rstrip(".,;:")
+            if any(mark in path for mark in "*<{…") or "node_modules" in path:
+                continue
+            if path.startswith("tests/artifacts/"):
+                continue
+            if not (ROOT / path).exists():
+                missing.append(f"{page.relative_to(ROOT)}: {path}")
+    assert missing == []
