@@ -7,13 +7,13 @@ from supervisor.core.driver import Driver
 from supervisor.devices.ea.config import EaDevice
 from supervisor.devices.ea.driver import EaDriver
 from supervisor.devices.ea.sim import EaSimulator, EaTcpSimulator
-from supervisor.devices.ea.transport import (
+from supervisor.devices.kind import DeviceKind, DeviceSimulator, DriverWiring, SimWiring
+from supervisor.fieldbus.scpi_transport import (
     InProcessScpiTransport,
     ScpiConnection,
     ScpiTransport,
     TcpScpiTransport,
 )
-from supervisor.devices.kind import DeviceKind, DeviceSimulator, DriverWiring, SimWiring
 
 
 def _driver(name: str, dev: EaDevice, wiring: DriverWiring) -> Driver:
