@@ -7,7 +7,15 @@ from supervisor.core.driver import Driver
 from supervisor.devices.ea.config import EaDevice
 from supervisor.devices.ea.driver import EaDriver
 from supervisor.devices.ea.sim import EaSimulator, EaTcpSimulator
-from supervisor.devices.kind import DeviceKind, DeviceSimulator, DriverWiring, SimWiring
+from supervisor.devices.kind import (
+    LINK,
+    DeviceKind,
+    DeviceRole,
+    DeviceSimulator,
+    DriverWiring,
+    Shown,
+    SimWiring,
+)
 from supervisor.fieldbus.scpi_transport import (
     InProcessScpiTransport,
     ScpiConnection,
@@ -66,7 +74,13 @@ def _simulator(name: str, dev: EaDevice, wiring: SimWiring) -> DeviceSimulator:
     )
 
 
-KIND = DeviceKind(EaDevice, _driver, _simulator)
+KIND = DeviceKind(
+    EaDevice,
+    _driver,
+    _simulator,
+    role=DeviceRole.SUPPLY,
+    shows=(Shown("voltage", "voltage", "n2"), Shown("link", LINK, "link")),
+)
 
 __all__ = [
     "KIND",
