@@ -1,4 +1,5 @@
 // Overview: the bench mimic (e-stop, supply, contactor, BMS) and one tile per channel.
+// Every tag it shows is named by /api/bench (supervisor/hmi/layout.py): no device names here.
 // High-performance HMI: grey when normal; colour only for what is abnormal.
 import { bindTags, esc, fmtDuration, $, $$ } from "../dom.js";
 
@@ -71,6 +72,8 @@ export function paintTile(el, ch, live) {
   $(".tile-alarm", el).textContent = abnormal ? (alarms[0]?.message || fault) : "";
 }
 
+const LINK_ATTRS = 'data-true="ok" data-false="LOST" data-abn="false"';
+
 /** The lines of a device's mimic box, as /api/bench describes them (its kind's "shows":
  * label, tag, format): the screen knows no device name and no kind. */
 function shownRows(device) {
@@ -78,8 +81,6 @@ function shownRows(device) {
     row(s.label, s.tag, s.format === "link" ? LINK_ATTRS : `data-fmt="${esc(s.format)}"`),
   );
 }
-
-const LINK_ATTRS = 'data-true="ok" data-false="LOST" data-abn="false"';
 
 export async function render({ root, app }) {
   root.dataset.title = "Overview";
