@@ -20,7 +20,6 @@ import os
 import queue
 import re
 import signal
-import statistics
 import sys
 import tempfile
 import time
@@ -28,9 +27,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Final, NoReturn
 
+from supervisor.bench import memtrace
 from supervisor.cli import ctl
 from supervisor.config.models import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
-from supervisor.core import memtrace
 from supervisor.core.encoding import StorableFormatter
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 from supervisor.core.heap import collect_when_idle, settle_after_start
@@ -385,7 +384,7 @@ def _dump_tasks() -> None:
 
 def cmd_run(args: argparse.Namespace) -> int:
     _setup_logging(args.log_level, off_thread=True)
-    # A debugging switch, off unless $SUPERVISOR_TRACEMALLOC names a folder (core/memtrace.py).
+    # A debugging switch, off unless $SUPERVISOR_TRACEMALLOC names a folder (bench/memtrace.py).
     trace = memtrace.start_from_env()
     # A bench runs for days: `kill -USR1 <pid>` prints every thread's stack to the log
     # (what a stuck supervisor is doing), without stopping it.
@@ -763,118 +762,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 # --- bench ---------------------------------------------------------------------------
 def cmd_bench(args: argparse.Namespace) -> int:
-    from supervisor.app import benchmarks
+    from supervisor.bench.command import run_bench
 
     _setup_logging("warning")
-    if args.what == "scan":
-        return asyncio.run(
-            benchmarks.scan_benchmark(
-                args.tags,
-                args.period_ms / 1000,
-                args.seconds,
-                recipes=args.recipes,
-                settle=not args.no_settle,
-            )
-        )
-    if args.what == "historian":
-        return asyncio.run(
-            benchmarks.historian_benchmark(args.tags, args.period_ms / 1000, args.seconds)
-        )
-    if args.what == "seed002":
-        return asyncio.run(benchmarks.seed002_benchmark(str(DEFAULT_IO_MAP)))
-    if args.what == "faults":
-        from supervisor.app import faults
-
-        for line in faults.table(asyncio.run(faults.run_all())):
-            _out(line)
-        return EXIT_OK
-    if args.what == "estop":
-        logging.disable(logging.ERROR)  # every press trips the channel, logged at ERROR
-        return asyncio.run(
-            benchmarks.estop_benchmark(str(DEFAULT_IO_MAP), args.presses, args.period_ms / 1000)
-        )
-    if args.what == "kill-restart":
-        from supervisor.app.killrestart import kill_restart_benchmark
-
-        return kill_restart_benchmark(args.iterations, args.seed)
-    if args.what == "influx":
-        from supervisor.app.influxbench import influx_benchmark
-
-        return influx_benchmark(args.points, args.rounds)
-    if args.what == "http":
-        from supervisor.app.httpbench import http_benchmark
-
-        return asyncio.run(
-            http_benchmark(
-                args.tags, args.period_ms / 1000, args.seconds, args.http_clients, args.ws_clients
-            )
-        )
-    if args.what == "opcua":
-        return asyncio.run(
-            benchmarks.opcua_benchmark(
-                args.clients, args.seconds, args.opcua_tags, args.period_ms / 1000
-            )
-        )
-    if args.what == "flood":
-        from supervisor.app.floodbench import flood_benchmark
-
-        return flood_benchmark(
-            args.flood_http, args.flood_opcua, args.login_rate, args.login_seconds
-        )
-    if args.what == "validate-attack":
-        from supervisor.app.validatebench import validate_attack_benchmark
-
-        return validate_attack_benchmark()
-    if args.what in ("load", "memory", "report"):
-        from supervisor.app import benchsuite
-
-        return benchsuite.run(args)
-    if args.what == "dry-run" and args.bytecodes:
-        from supervisor.app.dryruncost import scan_cost
-
-        cost = scan_cost(args.recipe)
-        _out(
-            f"dry run of {args.recipe}: {cost.bytecodes:,.0f} bytecodes and {cost.calls:.1f}"
-            f" Python calls a scan (the difference of two traced runs, {cost.scans} scans)"
-        )
-        _out(f"{'bytecodes':>10} {'calls':>6}  function")
-        for where, ops, calls in cost.by_function[:30]:
-            _out(f"{ops:10.1f} {calls:6.2f}  {where}")
-        return EXIT_OK
-    if args.what == "dry-run":
-        from supervisor.app.dryrun import dry_run, format_report
-
-        # Several runs in one process, their median recorded: one run's ratio moves by a
-        # fifth with what else the machine does (issue 13: 25 000–31 000× on the idle
-        # machine), the median of five much less.
-        ratios: list[float] = []
-        walls: list[float] = []
-        for k in range(args.runs):
-            res = asyncio.run(dry_run(args.recipe, soc=0.0))
-            ratios.append(res.ratio)
-            walls.append(res.wall_s)
-            _out(f"run {k + 1} of {args.runs}: {format_report(res)[-1]}")
-        for line in format_report(res)[-3:-1]:
-            _out(line)
-        median = statistics.median(ratios)
-        _out(
-            f"median of {args.runs} runs: {median:,.0f}x"
-            f" (min–max {min(ratios):,.0f}–{max(ratios):,.0f}x)"
-        )
-        from supervisor.app import benchreport
-
-        benchreport.record(
-            f"dry run of {args.recipe}",
-            median,
-            "× real time",
-            ">= 30000",
-            f"median of {args.runs} runs, min–max {min(ratios):,.0f}–{max(ratios):,.0f}×,"
-            f" {res.simulated_s / 3600:.1f} simulated h in {statistics.median(walls):.2f} s"
-            " wall (median)",
-            f"supervisor bench dry-run --recipe {args.recipe} --runs {args.runs}",
-        )
-        return EXIT_OK
-    return asyncio.run(benchmarks.manual_charge_benchmark(args.hours))
+    return run_bench(args, DEFAULT_IO_MAP)
 
 
 # --- opcua ---------------------------------------------------------------------------------
