@@ -17,4 +17,3 @@ def test_no_module_of_the_product_imports_the_lab_directly_or_through_another() 
     importers = graph.find_downstream_modules("supervisor.bench", as_package=True)
     product = sorted(m for m in importers if not m.startswith(LAB_USERS))
     assert product == []
-
