@@ -107,7 +107,7 @@ $(INFLUXD):
 	GOBIN=$(INFLUXD_CACHE) GOFLAGS=-buildvcs=false go install github.com/influxdata/influxdb/cmd/influxd@v$(INFLUXD_VERSION)
 
 ## Benchmarks: figures are printed, never asserted. Each figure of issue 13's table is
-## also recorded (supervisor/app/benchreport.py) and the last step writes the table:
+## also recorded (supervisor/bench/report.py) and the last step writes the table:
 ## var/bench/results.json and var/bench/results.md (figure | measured | target | reference
 ## | met?, with the machine). BENCH_MEMORY_MIN=30 gives the 30-minute memory figure.
 BENCH_DIR        ?= var/bench

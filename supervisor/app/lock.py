@@ -35,6 +35,15 @@ class BenchBusy(SupervisorError):
         self.path = path
 
 
+class BenchLockFailed(SupervisorError):
+    """The bench's lock could not be taken (its folder not writable, …): not another
+    supervisor (that is ``BenchBusy``)."""
+
+    def __init__(self, path: Path, exc: OSError) -> None:
+        super().__init__(f"cannot take the bench lock {path}: {exc.strerror or exc}")
+        self.path = path
+
+
 class BenchLock:
     """The exclusive lock of one bench's state directory (``acquire`` / ``release``)."""
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from supervisor.app.killrestart import (
+from supervisor.bench.killrestart import (
     _connected,
     _http,
     _in_state,

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from supervisor.app.killrestart import COUNTER_TOLERANCE, kill_restart
+from supervisor.bench.killrestart import COUNTER_TOLERANCE, kill_restart
 
 ROOT = Path(__file__).resolve().parents[2]
 SEED = 2026

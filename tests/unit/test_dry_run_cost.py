@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from supervisor.app.dryruncost import scan_cost
+from supervisor.bench.dryruncost import scan_cost
 from supervisor.cli.main import main
 
 
@@ -33,7 +33,7 @@ def test_a_scans_cost_is_the_difference_of_two_runs_and_the_same_each_time(root:
 def test_the_bench_command_prints_the_cost_by_function(
     root: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import supervisor.app.dryruncost as cost
+    import supervisor.bench.dryruncost as cost
 
     real = cost.scan_cost
     monkeypatch.setattr(cost, "scan_cost", lambda recipe: real(recipe, hours=0.01))
