@@ -1255,15 +1255,18 @@ def _refs_goto_self(rng: random.Random, src: Source, small: bool) -> Made | None
         return _made(doc, f"{site.where()} → {{id: {own}, goto: {own}}}", REFUSE)
     if how == 1:  # until: [true: <self>] (the zero-time loop)
         u = _entry(site.node, "until")
+        # A step named like an action ("hold", "end") is reached by "goto <id>": the bare
+        # word is the action (every-feature.yaml has a step 'hold'; [true: hold] holds).
+        jump = f"goto {own}" if own in ("next", "next_cycle", "end", "hold") else own
         until = SequenceNode(
             _TAG + "seq",
-            [MappingNode(_TAG + "map", [(_scalar("true"), _scalar(own))], flow_style=True)],
+            [MappingNode(_TAG + "map", [(_scalar("true"), _scalar(jump))], flow_style=True)],
         )
         if u is None:
             site.node.value.append((_scalar("until"), until))
         else:
             site.node.value[u] = (site.node.value[u][0], until)
-        how_ = f"{site.where()}: until: [true: {own}] (jumps to itself at once)"
+        how_ = f"{site.where()}: until: [true: {jump}] (jumps to itself at once)"
         return _made(doc, how_, REFUSE, PENDING_ZERO_TIME)
     if how == 2:  # an existing condition jumps to the step itself
         u = _entry(site.node, "until")
