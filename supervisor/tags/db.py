@@ -56,6 +56,8 @@ class Tag:
     def as_float(self, default: float = 0.0) -> float:
         """The value as a float (``default`` when it is not a number)."""
         v = self.value
+        if type(v) is float:  # a float tag's value, the common case: no conversion
+            return v
         if isinstance(v, int | float) and not isinstance(v, bool):
             return float(v)
         return default
