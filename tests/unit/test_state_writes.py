@@ -2,19 +2,23 @@
 quality, reason, timestamps, version and the change feed consistent, and a forced tag
 forced. No module outside ``supervisor/tags`` assigns those attributes itself (issue 29,
 item 3: eleven sites stamped ``tag.source_t`` by hand, each restating ``TagDB.stamp``).
+Likewise an alarm changes only through its ``AlarmManager``, which counts every change
+for the guard (item 4: an ``Alarm.__setattr__`` counted every write).
 
 The scan reads the source: an assignment to an attribute with one of those names on any
-object but ``self`` is taken for a tag's. The few that are not a tag's are listed with
-why; the list only shrinks (an entry whose site is gone fails the test too)."""
+object but ``self`` is taken for a tag's (an alarm's). The few that are not are listed
+with why; the lists only shrink (an entry whose site is gone fails the test too)."""
 
 from __future__ import annotations
 
 import ast
+import dataclasses
 from collections import Counter
 from pathlib import Path
 
 import pytest
 
+from supervisor.safety.alarms import Alarm
 from supervisor.tags import Tag, TagDB, TagSpec
 
 ROOT = Path(__file__).parents[2]
@@ -23,6 +27,7 @@ TAG_STATE = frozenset(
     {"value", "quality", "reason", "source_t", "server_t", "version", "forced", "index", "spec"}
 )
 """``Tag``'s attributes (its ``__slots__``, checked below)."""
+ALARM_STATE = frozenset(f.name for f in dataclasses.fields(Alarm))
 
 NOT_TAGS: Counter[tuple[str, str]] = Counter(
     {
@@ -54,16 +59,24 @@ def _flatten(target: ast.expr) -> list[ast.expr]:
     return [target]
 
 
-def tag_state_writes(path: Path) -> list[str]:
-    """Each assignment in ``path`` to an attribute named as a tag's, on an object that is
-    not ``self`` (an object's own attribute of that name is its own business); and each
+NOT_ALARMS: Counter[tuple[str, str]] = Counter(
+    {
+        # The guard's record of one of its checks (``_Check``), which holds an alarm.
+        ("supervisor/safety/guard.py", "check.active"): 1,
+    }
+)
+
+
+def attribute_writes(path: Path, names: frozenset[str] = TAG_STATE) -> list[str]:
+    """Each assignment in ``path`` to an attribute named in ``names``, on an object that
+    is not ``self`` (an object's own attribute of that name is its own business); and each
     ``setattr`` of such a name."""
     found: list[str] = []
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
         for target in (t for top in _targets(node) for t in _flatten(top)):
             if (
                 isinstance(target, ast.Attribute)
-                and target.attr in TAG_STATE
+                and target.attr in names
                 and not (isinstance(target.value, ast.Name) and target.value.id == "self")
             ):
                 found.append(ast.unparse(target))
@@ -74,7 +87,7 @@ def tag_state_writes(path: Path) -> list[str]:
             in ("setattr", "__setattr__")
             and len(node.args) >= 2
             and isinstance(node.args[1], ast.Constant)
-            and node.args[1].value in TAG_STATE
+            and node.args[1].value in names
         ):
             found.append(ast.unparse(node))
     return found
@@ -84,13 +97,18 @@ def test_the_names_checked_are_a_tags_attributes() -> None:
     assert frozenset(Tag.__slots__) == TAG_STATE | {"is_float"}  # set in __init__ only
 
 
-def test_no_module_outside_the_tag_database_writes_a_tag() -> None:
+def writes_outside(owner: str, names: frozenset[str]) -> Counter[tuple[str, str]]:
+    """The writes of ``names`` in every module of the package but ``owner``'s (a prefix)."""
     writes: Counter[tuple[str, str]] = Counter()
     for path in sorted(PACKAGE.rglob("*.py")):
         rel = path.relative_to(ROOT).as_posix()
-        if rel.startswith("supervisor/tags/"):
-            continue
-        writes.update((rel, w) for w in tag_state_writes(path))
+        if not rel.startswith(owner):
+            writes.update((rel, w) for w in attribute_writes(path, names))
+    return writes
+
+
+def test_no_module_outside_the_tag_database_writes_a_tag() -> None:
+    writes = writes_outside("supervisor/tags/", TAG_STATE)
     unexpected = writes - NOT_TAGS
     assert not unexpected, (
         "a tag changes only through TagDB (update, stamp, set_quality, write, force): "
@@ -98,6 +116,18 @@ def test_no_module_outside_the_tag_database_writes_a_tag() -> None:
     )
     gone = NOT_TAGS - writes
     assert not gone, f"no longer written: take them off NOT_TAGS: {sorted(gone)}"
+
+
+def test_no_module_outside_the_alarm_manager_writes_an_alarm() -> None:
+    writes = writes_outside("supervisor/safety/alarms.py", ALARM_STATE)
+    unexpected = writes - NOT_ALARMS
+    assert not unexpected, (
+        "an alarm changes only through its AlarmManager (set, acknowledge, reset, shelve, "
+        "unshelve, restore), which counts the change for the guard: "
+        + ", ".join(f"{p}: {w}" for p, w in sorted(unexpected))
+    )
+    gone = NOT_ALARMS - writes
+    assert not gone, f"no longer written: take them off NOT_ALARMS: {sorted(gone)}"
 
 
 def test_the_scan_finds_a_forced_tag_restamped_by_hand(tmp_path: Path) -> None:
@@ -114,7 +144,7 @@ def test_the_scan_finds_a_forced_tag_restamped_by_hand(tmp_path: Path) -> None:
         "    self.value = value  # the object's own attribute\n",
         encoding="utf-8",
     )
-    assert sorted(tag_state_writes(source)) == sorted(
+    assert sorted(attribute_writes(source)) == sorted(
         [
             "tag.source_t",
             "tag.value",
