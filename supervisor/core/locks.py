@@ -1,0 +1,33 @@
+"""An asyncio lock that says, through a public method, whether taking it now would wait."""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Literal
+
+
+class CountingLock(asyncio.Lock):
+    """``asyncio.Lock`` that counts the tasks inside :meth:`acquire`, so that :meth:`free`
+    can say that a task asking for it now gets it without yielding: nobody holds it and
+    nobody waits for it (the lock is fair: a waiting task goes first).
+
+    A driver that would do its exchange without an await when its locks are free
+    (``devices/chadeche/driver.py``: a dry run's polls) asks :meth:`free`; asyncio keeps
+    its own waiters private."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._inside_acquire = 0
+
+    async def acquire(self) -> Literal[True]:
+        self._inside_acquire += 1
+        try:
+            return await super().acquire()
+        finally:
+            self._inside_acquire -= 1
+
+    def free(self) -> bool:
+        """True: :meth:`acquire` called now returns without yielding. False: it may wait
+        (also while a cancelled waiter has not run yet: then the caller takes the awaited
+        way, which is always right)."""
+        return not self.locked() and self._inside_acquire == 0
