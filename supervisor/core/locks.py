@@ -7,27 +7,33 @@ from typing import Literal
 
 
 class CountingLock(asyncio.Lock):
-    """``asyncio.Lock`` that counts the tasks inside :meth:`acquire`, so that :meth:`free`
-    can say that a task asking for it now gets it without yielding: nobody holds it and
-    nobody waits for it (the lock is fair: a waiting task goes first).
+    """``asyncio.Lock`` that counts the tasks holding it or waiting inside :meth:`acquire`,
+    so that :meth:`free` can say that a task asking for it now gets it without yielding:
+    nobody holds it and nobody waits for it (the lock is fair: a waiting task goes first).
 
-    A driver that would do its exchange without an await when its locks are free
+    A driver that does its exchange without an await when its locks are free
     (``devices/chadeche/driver.py``: a dry run's polls) asks :meth:`free`; asyncio keeps
     its own waiters private."""
 
     def __init__(self) -> None:
         super().__init__()
-        self._inside_acquire = 0
+        self._users = 0
+        """Tasks that hold the lock or wait for it."""
 
     async def acquire(self) -> Literal[True]:
-        self._inside_acquire += 1
+        self._users += 1
         try:
             return await super().acquire()
-        finally:
-            self._inside_acquire -= 1
+        except BaseException:  # cancelled while waiting: it neither waits nor holds
+            self._users -= 1
+            raise
+
+    def release(self) -> None:
+        super().release()
+        self._users -= 1
 
     def free(self) -> bool:
         """True: :meth:`acquire` called now returns without yielding. False: it may wait
         (also while a cancelled waiter has not run yet: then the caller takes the awaited
         way, which is always right)."""
-        return not self.locked() and self._inside_acquire == 0
+        return self._users == 0

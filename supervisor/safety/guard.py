@@ -29,7 +29,6 @@ from dataclasses import dataclass
 
 from supervisor.config.models import ChannelConfig
 from supervisor.core.delay import OnDelay
-from supervisor.core.driver import Value
 from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality
 from supervisor.safety.alarms import Alarm, AlarmManager, Severity
@@ -275,7 +274,7 @@ class ChannelGuard:
             charge, discharge = self._admission()
             self._limits_a = ((self._charge_limit, charge), (self._discharge_limit, discharge))
             self._admission_version = db.version
-        self._write(self._limits_a)
+        self.db.update_many(self._limits_a)
         # The count at the start: after an evaluation that wrote an alarm (a trip, a reset),
         # the next scan's pass checks each alarm against its check again.
         self._alarm_writes = writes
@@ -377,12 +376,7 @@ class ChannelGuard:
                 (self._first_out, first_out),
             )
             self._trips_writes = writes
-        self._write(self._trips_out)
-
-    def _write(self, outputs: tuple[tuple[Tag, Value], ...]) -> None:
-        """Each tag its value."""
-        for tag, value in outputs:
-            self.db.update(tag, value)
+        self.db.update_many(self._trips_out)
 
     # --- what the outputs may do ----------------------------------------------------------
     def _admission(self) -> tuple[float, float]:

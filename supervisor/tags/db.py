@@ -16,6 +16,8 @@ from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.tags.spec import Access, TagSpec
 
+_GOOD, _NONE = Quality.GOOD, Reason.NONE
+
 
 class Tag:
     """Live state of one tag. Mutated only through ``TagDB`` so versions stay right."""
@@ -162,6 +164,23 @@ class TagDB:
             self._order.move_to_end(tag.index)
             return True
         return False
+
+    def update_many(self, writes: Iterable[tuple[Tag, Value | None]]) -> None:
+        """``update(tag, value)`` for each pair in turn: GOOD, without a reason, at this
+        scan's time.
+
+        For the outputs a phase writes every scan (the channel guard's trips and limits),
+        most of them unchanged: a tag that already holds its value, GOOD and without a
+        reason, only has its source time moved, as its update would (a GOOD float tag
+        holds a finite float), here rather than in one ``update`` call each (issue 29: a
+        profile of the dry run). ``test_tagdb_update_many.py`` proves it equal to the
+        updates one by one for every kind of tag and value."""
+        for tag, value in writes:
+            if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+                if not tag.forced:
+                    tag.source_t = self.scan_t
+            else:
+                self.update(tag, value)
 
     def stamp(self, tag: Tag, source_t: float | None = None) -> None:
         """The source says the tag's value still holds: its source time moves to
