@@ -20,7 +20,9 @@ _GOOD, _NONE = Quality.GOOD, Reason.NONE
 
 
 class Tag:
-    """Live state of one tag. Mutated only through ``TagDB`` so versions stay right."""
+    """Live state of one tag. Mutated only through ``TagDB`` (its ``update``,
+    ``update_many``, ``stamp``, ``set_quality``, ``write``, ``force``, ``unforce``), which
+    keeps the versions, the change feed and forcing right."""
 
     __slots__ = (
         "forced",
@@ -80,9 +82,8 @@ class TagDB:
         self._order: OrderedDict[int, Tag] = OrderedDict()
         self.scan_t = 0.0
         """This scan's time (:meth:`set_scan_time`): the server time of its changes and the
-        source time of what it stamps. Read-only but for ``set_scan_time``; public so that
-        the scan's hot paths stamp a tag that holds without a call (``tag.source_t =
-        db.scan_t`` unless forced: :meth:`stamp`, inline; issue 13)."""
+        source time of what it stamps. Read-only but for ``set_scan_time``: a tag changes
+        only through this class (``tests/unit/test_state_writes.py``)."""
 
     # --- declaration -----------------------------------------------------------
     def add(self, spec: TagSpec) -> Tag:
