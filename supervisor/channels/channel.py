@@ -25,6 +25,13 @@ class Mode(StrEnum):
     AUTO = "auto"
 
 
+_MANUAL = Mode.MANUAL.value
+_AUTO = Mode.AUTO.value
+"""The mode values as plain texts: ``Mode.MANUAL`` is an attribute lookup on an enum
+class, about seven times the cost of the comparison, and ``_drive`` compares up to three
+times a scan."""
+
+
 _GOOD = Quality.GOOD
 
 
@@ -295,16 +302,16 @@ class Channel:
         else:
             # The request and whether the stage is active, in one look at the mode.
             mode = self.mode.value
-            if mode == Mode.MANUAL:
+            if mode == _MANUAL:
                 active = bool(self.enable.value)
                 request = self.manual_current.as_float() if active else 0.0
             else:
                 active = bool(self.auto_active.value)
-                request = self.auto_current.as_float() if active and mode == Mode.AUTO else 0.0
+                request = self.auto_current.as_float() if active and mode == _AUTO else 0.0
         db.update(self.current_cmd, self._clamp(request))
         if self.voltage_cmd is not None:
             vlo, vhi = self.limits.voltage_v
-            target = self.auto_voltage.as_float() if self.mode.value == Mode.AUTO else 0.0
+            target = self.auto_voltage.as_float() if self.mode.value == _AUTO else 0.0
             db.update(self.voltage_cmd, min(max(target, vlo), vhi) if target > 0 else vhi)
         # Power stage: output and contactor follow "active"; current is already 0 when not.
         if self.output_cmd is not None:

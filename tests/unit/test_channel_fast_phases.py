@@ -12,12 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from supervisor.channels import Channel, ChannelLimits
-from supervisor.channels.channel import Mode
+from supervisor.channels.channel import _AUTO, _MANUAL
 from supervisor.core.quality import Quality, Reason
 from supervisor.tags import TagDB
 
 LIMITS = ChannelLimits((-0.4, 0.4), (0.8, 1.9))
-_MANUAL, _AUTO = Mode.MANUAL.value, Mode.AUTO.value
 
 
 # --- the plain rules ---------------------------------------------------------------------
