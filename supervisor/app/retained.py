@@ -405,17 +405,16 @@ class Retention:
             if alarm_id not in alarms:
                 log.warning("retained alarm %s: not declared on this bench; dropped", alarm_id)
                 continue
-            a = alarms[alarm_id]
-            # The condition itself is re-evaluated by its owner from the first scan: if
-            # it is still present the alarm activates again and needs a new acknowledge.
-            a.active = False
-            a.message = str(rec["message"])
-            a.acked = bool(rec["acked"]) and not bool(rec["active"])
-            a.tripped = bool(rec["tripped"]) and a.latched
-            a.first_out = bool(rec["first_out"]) and a.tripped
-            a.acked_by = str(rec.get("acked_by", ""))
             since = rec.get("since_s")
-            a.activated_t = now - float(since) if since is not None else None
+            a = alarms.restore(
+                alarm_id,
+                message=str(rec["message"]),
+                acked=bool(rec["acked"]) and not bool(rec["active"]),
+                tripped=bool(rec["tripped"]),
+                first_out=bool(rec["first_out"]),
+                acked_by=str(rec.get("acked_by", "")),
+                activated_t=now - float(since) if since is not None else None,
+            )
             log.warning("alarm %s restored (%s): %s", a.id, a.state.value, a.message)
 
     def _restore_channel(self, channel: str, doc: Document) -> None:

@@ -16,7 +16,7 @@ from supervisor.chains.port import ChannelPort
 from supervisor.chains.program import Program
 from supervisor.chains.run import RunState
 from supervisor.core.quality import Quality
-from supervisor.tags import Tag, TagDB
+from supervisor.tags import TagDB
 
 _GOOD = Quality.GOOD
 
@@ -138,10 +138,10 @@ class ConditionValues:
         next scan, never keep it)."""
         port = self._port
         good = Quality.GOOD
-        q = _as_float(port.charge_ah)
-        energy = _as_float(port.energy_wh)
+        q = port.charge_ah.as_float()
+        energy = port.energy_wh.as_float()
         vt, i, t, p = port.voltage, port.current, port.temperature, port.power
-        # ``_as_float`` inlined for the readings (every scan of every chain).
+        # ``tag.as_float()`` inlined for the readings (every scan of every chain).
         x = vt.value
         v = (x if type(x) is float else vt.as_float()) if vt.quality is good else None
         peak = self.peak_v
@@ -289,13 +289,13 @@ class ConditionValues:
                 (x if type(x) is float else p.as_float()) if p.quality is _GOOD else None
             )
         if charge or step_charge:
-            q = _as_float(port.charge_ah)
+            q = port.charge_ah.as_float()
             if charge:
                 values["charge"] = self._initial_charge_ah + q - run.q0_ah
             if step_charge:
                 values["step_charge"] = q - run.step_q0
         if energy or step_energy:
-            e = _as_float(port.energy_wh)
+            e = port.energy_wh.as_float()
             if energy:
                 values["energy"] = e
             if step_energy:
@@ -347,9 +347,3 @@ CHANNEL_VALUE_NAMES = (
     "peak_voltage",
 )
 """The keys ``ConditionValues.values`` fills from the channel and the run, in order."""
-
-
-def _as_float(tag: Tag) -> float:
-    """``tag.as_float()``, without the call when the value is a float already."""
-    v = tag.value
-    return v if type(v) is float else tag.as_float()

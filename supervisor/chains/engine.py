@@ -804,7 +804,7 @@ class ChainRunner:
             return 0.0
         v = self.port.voltage
         return self._behaviours[r.step].setpoint(
-            self.clock.now() - r.t_step0, _as_float(v) if v.quality is _GOOD else None
+            self.clock.now() - r.t_step0, v.as_float() if v.quality is _GOOD else None
         )
 
     # --- transitions --------------------------------------------------------------------------
@@ -980,7 +980,7 @@ class ChainRunner:
         assert self._log_rules is not None
         r, port = self._r, self.port
         vt, it = port.voltage, port.current
-        # ``_as_float`` inlined: every running scan asks whether a record is due.
+        # ``tag.as_float()`` inlined: every running scan asks whether a record is due.
         x = vt.value
         v = (x if type(x) is float else vt.as_float()) if vt.quality is _GOOD else None
         x = it.value
@@ -1043,7 +1043,7 @@ class ChainRunner:
             state is State.COMPLETE,
             now - r.t_test0,
             self._behaviours[r.step].progress_current_a if step is not None else None,
-            _as_float(self.port.charge_ah) - r.step_q0,
+            self.port.charge_ah.as_float() - r.step_q0,
             program.capacity_ah if program is not None else None,
         )
         if shown is not None:
@@ -1155,12 +1155,6 @@ class ChainRunner:
     @property
     def test_id(self) -> str:
         return self._r.test_id
-
-
-def _as_float(tag: Tag) -> float:
-    """``tag.as_float()``, without the call when the value is a float already."""
-    v = tag.value
-    return v if type(v) is float else tag.as_float()
 
 
 def seconds_until(wall_now: float, hh: int, mm: int) -> float:

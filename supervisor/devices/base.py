@@ -23,6 +23,7 @@ from collections.abc import Awaitable, Callable, Mapping
 from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
 from supervisor.core.errors import SupervisorError
+from supervisor.core.locks import CountingLock
 from supervisor.core.quality import Quality, Reason
 
 log = logging.getLogger(__name__)
@@ -42,7 +43,7 @@ class PolledDriver(ABC):
         self.poll_period_s = poll_period_s
         self._image: dict[str, Sample] = {}
         self._pending: dict[str, Value] = {}
-        self._io_cycle = asyncio.Lock()
+        self._io_cycle = CountingLock()
         """Held by every exchange with the device (poll, flush, safe state, close)."""
         self._wake = asyncio.Event()
         """Set by ``write()``: the driver's task flushes without waiting for its next poll."""

@@ -66,6 +66,9 @@ class Transition(StrEnum):
 
 @dataclass
 class Alarm:
+    """One alarm's declaration and state: a plain record, changed only through its
+    :class:`AlarmManager`, which counts each change (``AlarmManager.writes``)."""
+
     id: str
     group: str  # a channel name, or "" for the whole bench
     severity: Severity
@@ -80,19 +83,6 @@ class Alarm:
     activated_t: float | None = None
     shelved_until: float | None = None
     acked_by: str = ""
-    owner: AlarmManager | None = field(default=None, init=False, repr=False, compare=False)
-    """The manager that declared it, which counts every write to it (``AlarmManager.writes``)."""
-
-    def __setattr__(self, name: str, value: object) -> None:
-        # Every write to an alarm, whoever makes it (its owner's ``set``, an operator's
-        # acknowledge or reset, retained alarms restored at start, a test), counts in its
-        # manager's ``writes``: a check that finds the count it saw at its last evaluation
-        # knows that no alarm changed since without reading each one (issue 13). Writes are
-        # rare (edges, people); reads, every scan, are plain attribute reads.
-        object.__setattr__(self, name, value)
-        owner = self.owner
-        if owner is not None:
-            owner.writes += 1
 
     @property
     def state(self) -> AlarmState:
@@ -135,7 +125,9 @@ class AlarmManager:
     # for every channel, and an alarm's group and reach never change once declared.
     _reach: dict[str, tuple[int, list[Alarm]]] = field(default_factory=dict)
     writes: int = 0
-    """Writes to its alarms so far (declarations included): unchanged, no alarm changed."""
+    """Changes to its alarms so far, declarations included: a check that finds the count
+    it saw at its last evaluation knows that no alarm changed since, without reading each
+    one (the channel guard, every scan). Every method that changes an alarm counts it."""
 
     # --- declaration ------------------------------------------------------------------
     def declare(
@@ -152,8 +144,8 @@ class AlarmManager:
         if alarm_id in self._alarms:
             raise ValueError(f"alarm {alarm_id!r} is declared twice")
         alarm = Alarm(alarm_id, group, severity, latched, affects, action=action)
-        alarm.owner = self  # counted from now on, this write too: one alarm more
         self._alarms[alarm_id] = alarm
+        self.writes += 1  # one alarm more: the alarms that reach a channel may change
         return alarm
 
     def __getitem__(self, alarm_id: str) -> Alarm:
@@ -174,14 +166,17 @@ class AlarmManager:
         now = self.clock.now()
         if alarm.shelved_until is not None and now >= alarm.shelved_until:
             alarm.shelved_until = None
+            self.writes += 1
             self._event(alarm, Transition.UNSHELVED, "shelving expired")
         if active and message and message != alarm.message:
             # Not written again when the same: an alarm that stays active with the same
             # message (an interlock held) does not count as a change every scan.
             alarm.message = message
+            self.writes += 1
         if active == alarm.active:
             return
         alarm.active = active
+        self.writes += 1
         if active:
             alarm.acked = False
             alarm.activated_t = now
@@ -203,6 +198,7 @@ class AlarmManager:
             raise OperatorError(f"alarm {alarm_id} is not waiting for an acknowledgement")
         alarm.acked = True
         alarm.acked_by = actor
+        self.writes += 1
         self._event(alarm, Transition.ACKNOWLEDGED, alarm.message, actor)
         return alarm
 
@@ -219,6 +215,7 @@ class AlarmManager:
             self.acknowledge(alarm_id, actor)
         alarm.tripped = False
         alarm.first_out = False
+        self.writes += 1
         self._event(alarm, Transition.RESET, alarm.message, actor)
         return alarm
 
@@ -231,6 +228,7 @@ class AlarmManager:
         if not 0 < duration_s <= 7 * 86400:
             raise OperatorError(f"shelving lasts between 0 s and 7 days, not {duration_s:g} s")
         alarm.shelved_until = self.clock.now() + duration_s
+        self.writes += 1
         self._event(alarm, Transition.SHELVED, f"for {duration_s:g} s", actor)
         return alarm
 
@@ -239,7 +237,35 @@ class AlarmManager:
         if alarm.shelved_until is None:
             raise OperatorError(f"alarm {alarm_id} is not shelved")
         alarm.shelved_until = None
+        self.writes += 1
         self._event(alarm, Transition.UNSHELVED, "by request", actor)
+        return alarm
+
+    # --- restart ----------------------------------------------------------------------
+    def restore(
+        self,
+        alarm_id: str,
+        *,
+        message: str,
+        acked: bool,
+        tripped: bool,
+        first_out: bool,
+        acked_by: str = "",
+        activated_t: float | None = None,
+    ) -> Alarm:
+        """An alarm as it was saved before a restart (``app/retained.py``), its condition
+        absent: its owner evaluates the condition again from the first scan, and if it is
+        still present the alarm activates again and needs a new acknowledge. Only a trip
+        stays tripped, and only a tripped alarm can be first-out."""
+        alarm = self[alarm_id]
+        alarm.active = False
+        alarm.message = message
+        alarm.acked = acked
+        alarm.tripped = tripped and alarm.latched
+        alarm.first_out = first_out and alarm.tripped
+        alarm.acked_by = acked_by
+        alarm.activated_t = activated_t
+        self.writes += 1
         return alarm
 
     # --- views ------------------------------------------------------------------------

@@ -29,15 +29,14 @@ from dataclasses import dataclass
 
 from supervisor.config.models import ChannelConfig
 from supervisor.core.delay import OnDelay
-from supervisor.core.driver import Value
 from supervisor.core.errors import OperatorError
-from supervisor.core.quality import Quality, Reason
+from supervisor.core.quality import Quality
 from supervisor.safety.alarms import Alarm, AlarmManager, Severity
 from supervisor.tags import Tag, TagDB
 
 log = logging.getLogger(__name__)
 
-_GOOD, _NONE = Quality.GOOD, Reason.NONE
+_GOOD = Quality.GOOD
 AUTO = "auto"  # the value of chN.mode under a step chain
 REGULATION_MARGIN = 0.02
 """A source holding a voltage (CV, or the supply's own limit) may give less current than
@@ -242,15 +241,7 @@ class ChannelGuard:
         fast = self._gated
         # Without a contactor the path is always closed: no call (``_power_path_closed``).
         closed = True if self._contactor is None else self._power_path_closed(now)
-        armed = self._armed
-        # The tags this guard writes are the same most scans: then only their source time
-        # moves, as their update would (an unforced GOOD tag without a reason holding the
-        # value: the update would change nothing else; issue 13).
-        if fast and closed == armed.value and armed.quality is _GOOD and armed.reason is _NONE:
-            if not armed.forced:  # ``db.stamp(armed)``, inline
-                armed.source_t = db.scan_t
-        else:
-            db.update(armed, closed)
+        db.update(self._armed, closed)
         # Every check skipped while none of their tags changed since they all settled and no
         # alarm was written since the last pass (issue 13: nearly every scan of a slow test):
         # each would be skipped by ``_evaluate_checks``'s own test (see ``_quiet``).
@@ -283,7 +274,7 @@ class ChannelGuard:
             charge, discharge = self._admission()
             self._limits_a = ((self._charge_limit, charge), (self._discharge_limit, discharge))
             self._admission_version = db.version
-        self._write(self._limits_a)
+        self.db.update_many(self._limits_a)
         # The count at the start: after an evaluation that wrote an alarm (a trip, a reset),
         # the next scan's pass checks each alarm against its check again.
         self._alarm_writes = writes
@@ -385,20 +376,7 @@ class ChannelGuard:
                 (self._first_out, first_out),
             )
             self._trips_writes = writes
-        self._write(self._trips_out)
-
-    def _write(self, outputs: tuple[tuple[Tag, Value], ...]) -> None:
-        """Each tag its value: a tag that already holds it, GOOD and without a reason, only
-        stamped, as its update would leave it (``db.stamp``, inline; issue 13); every tag
-        updated on the plain path (``_gated`` False)."""
-        db = self.db
-        fast = self._gated
-        for tag, value in outputs:
-            if fast and value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-                if not tag.forced:
-                    tag.source_t = db.scan_t
-            else:
-                db.update(tag, value)
+        self.db.update_many(self._trips_out)
 
     # --- what the outputs may do ----------------------------------------------------------
     def _admission(self) -> tuple[float, float]:
@@ -409,7 +387,7 @@ class ChannelGuard:
         charge, discharge = hi, -lo
         v = self._v
         if v.quality is _GOOD:
-            vv = _as_float(v)
+            vv = v.as_float()
             if vv >= self._vhi:
                 charge = 0.0
             if vv <= self._vlo:
@@ -429,10 +407,10 @@ class ChannelGuard:
     def _intended_a(self) -> float:
         """The current asked for (Manual setpoint, or the chain's request) — or flowing."""
         if self._mode.value == AUTO:
-            asked = _as_float(self._auto) if self._auto_active.value else 0.0
+            asked = self._auto.as_float() if self._auto_active.value else 0.0
         else:
-            asked = _as_float(self._manual) if self._enable.value else 0.0
-        return asked if asked != 0.0 else _as_float(self._cmd)
+            asked = self._manual.as_float() if self._enable.value else 0.0
+        return asked if asked != 0.0 else self._cmd.as_float()
 
     def _active(self) -> bool:
         if self._mode.value == AUTO:
@@ -484,13 +462,13 @@ class ChannelGuard:
 
     def _voltage_high(self) -> str:
         v, hi = self._v, self._vhi
-        if v.quality is _GOOD and self._intended_a() > 0 and _as_float(v) >= hi:
+        if v.quality is _GOOD and self._intended_a() > 0 and v.as_float() >= hi:
             return f"voltage {v.as_float():.3f} V at or above hard limit {hi} V while charging"
         return ""
 
     def _voltage_low(self) -> str:
         v, lo = self._v, self._vlo
-        if v.quality is _GOOD and self._intended_a() < 0 and _as_float(v) <= lo:
+        if v.quality is _GOOD and self._intended_a() < 0 and v.as_float() <= lo:
             return f"voltage {v.as_float():.3f} V at or below hard limit {lo} V while discharging"
         return ""
 
@@ -501,7 +479,7 @@ class ChannelGuard:
             if self._intended_a() == 0.0:
                 return ""
             return f"temperature input {t.quality.name} ({t.reason})"
-        tv = _as_float(t)
+        tv = t.as_float()
         if thi is not None and tv >= thi:
             return f"temperature {tv:.1f} degC at or above limit {thi} degC"
         if tlo is not None and tv <= tlo:
@@ -610,12 +588,6 @@ class ChannelGuard:
             if key == "temperature" and tmax is not None and x >= tmax:
                 return f"BMS temperature {x:.1f} degC at or above {tmax:g} degC"
         return ""
-
-
-def _as_float(tag: Tag) -> float:
-    """``tag.as_float()``, without the call when the value is a float already."""
-    v = tag.value
-    return v if type(v) is float else tag.as_float()
 
 
 def _derate(tag: Tag, headroom: float, band: float) -> float:

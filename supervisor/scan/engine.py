@@ -46,7 +46,7 @@ from supervisor.tags.spec import Scaling, TagSpec
 
 log = logging.getLogger(__name__)
 _perf_counter = time.perf_counter
-_GOOD, _BAD, _NONE = Quality.GOOD, Quality.BAD, Reason.NONE
+_BAD = Quality.BAD
 
 STATS_WINDOW = 10_000
 DRIVER_STOP_S = 5.0
@@ -413,21 +413,8 @@ class ScanEngine:
         db = self.db
         update = db.update
         for d, ctag, ftag in self._conn_tags:
-            # Both change a few times a run: an unchanged one only has its source time
-            # stamped, as its update would (``TagDB.stamp``, inline: neither is a float
-            # tag, no coercion to mind).
-            connected = d.connected
-            if connected == ctag.value and ctag.quality is _GOOD and ctag.reason is _NONE:
-                if not ctag.forced:
-                    ctag.source_t = now
-            else:
-                update(ctag, connected)
-            failures = getattr(d, "failures", 0)
-            if failures == ftag.value and ftag.quality is _GOOD and ftag.reason is _NONE:
-                if not ftag.forced:
-                    ftag.source_t = now
-            else:
-                update(ftag, failures)
+            update(ctag, d.connected)
+            update(ftag, getattr(d, "failures", 0))
         inputs = self.inputs
         if self._plan_of is not inputs or self._plan_len != len(inputs):
             self._input_plan()
@@ -452,9 +439,8 @@ class ScanEngine:
                     # but the source time (a driver may stamp a sample again in place with
                     # a newer time, never change its value, quality or reason: a new poll
                     # that read the same is the same object, ``devices/chadeche/
-                    # driver.py``). Stamped as ``TagDB.stamp`` does, inline.
-                    if not tag.forced:
-                        tag.source_t = s.t
+                    # driver.py``).
+                    db.stamp(tag, s.t)
                     continue
                 value: Value | None = s.value
                 quality, reason = s.quality, s.reason

@@ -3,8 +3,7 @@
 behaviour only what it answers differently from a rest step gives the same records,
 events and end as one that computes and asks everything every scan, on the shipped
 recipes; the cell's voltage computed inline is the one its methods compute, bit for bit;
-the simulated board's current from its cache is the one computed afresh; the driver's
-lock test is asyncio's; and a dry run
+the simulated board's current from its cache is the one computed afresh; and a dry run
 settles the heap for the run and leaves the collector as it found it."""
 
 from __future__ import annotations
@@ -35,7 +34,6 @@ from supervisor.config.recipe import load_recipe_text
 from supervisor.core.quality import Quality, Reason
 from supervisor.core.records import Record
 from supervisor.devices.chadeche import ChadecheDriver
-from supervisor.devices.chadeche.driver import _free
 from supervisor.devices.chadeche.protocol import (
     ADC_LSB_V,
     ADC_MAX_CODE,
@@ -272,26 +270,6 @@ async def test_a_dry_run_settles_the_heap_for_the_run_and_puts_it_back() -> None
     finally:
         gc.unfreeze()
     assert outcome(settled) == outcome(unsettled)
-
-
-async def test_a_lock_is_free_exactly_when_acquiring_it_would_not_wait() -> None:
-    lock = asyncio.Lock()
-
-    def plain() -> bool:  # what _free reads, through the public surface
-        waiters = lock._waiters
-        return not lock.locked() and (waiters is None or all(w.cancelled() for w in waiters))
-
-    assert _free(lock) is plain() is True  # never used: no deque of waiters yet
-    await lock.acquire()
-    assert _free(lock) is plain() is False  # held
-    waiter = asyncio.ensure_future(lock.acquire())
-    await asyncio.sleep(0)
-    assert _free(lock) is plain() is False  # held, a task waiting
-    lock.release()
-    await waiter
-    lock.release()
-    assert lock._waiters is not None and not lock._waiters
-    assert _free(lock) is plain() is True  # waited for once: an empty deque
 
 
 def moved(x: float | None, last: float | None, delta: float | None) -> bool:

@@ -81,9 +81,17 @@ class Rig:
             with contextlib.suppress(OperatorError):  # a cause still present: refused
                 self.guard.reset("op")
         elif kind == "unlatch":
-            # What restoring retained alarms does behind the guard's back.
+            # What restoring retained alarms does, outside the guard (app/retained.py).
             for a in self.alarms:
-                a.active = False
+                self.alarms.restore(
+                    a.id,
+                    message=a.message,
+                    acked=a.acked,
+                    tripped=a.tripped,
+                    first_out=a.first_out,
+                    acked_by=a.acked_by,
+                    activated_t=a.activated_t,
+                )
 
     def state(self) -> Any:
         tags = [(t.name, t.value, t.quality, t.reason, t.version, t.source_t) for t in self.db]

@@ -28,6 +28,7 @@ from pathlib import Path
 from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
 from supervisor.core.errors import DeviceIOError, ProtocolError, SupervisorError
+from supervisor.core.locks import CountingLock
 from supervisor.core.quality import Quality, Reason
 from supervisor.devices.base import PolledDriver
 from supervisor.devices.chadeche.bus import BoardClaim, ChadecheBus, claim_board
@@ -127,16 +128,6 @@ class _Board:
         return self.last_current_a
 
 
-def _free(lock: asyncio.Lock) -> bool:
-    """``lock`` would be acquired without yielding: nobody holds it and no task waits for
-    it (``asyncio.Lock.acquire``'s own test, on its waiters: a waiting task goes first)."""
-    # ``lock.locked()`` is ``lock._locked``; an empty deque of waiters (a lock that was
-    # waited for once) has nobody waiting: both read without a call (three times a poll).
-    waiters = lock._waiters
-    locked: bool = lock._locked  # type: ignore[attr-defined]
-    return not locked and (not waiters or all(w.cancelled() for w in waiters))
-
-
 class ChadecheDriver(PolledDriver):
     """Poll the boards' ADCs; apply current and LED commands safely.
 
@@ -190,7 +181,7 @@ class ChadecheDriver(PolledDriver):
                 if info.direction == "out":
                     self._outputs[info.name] = (a, info.name.split(".", 1)[1])
         # Output sequences (zero, flip, raise) and the safe state must not interleave.
-        self._io_lock = asyncio.Lock()
+        self._io_lock = CountingLock()
         super().__init__(name, clock, poll_period_s)
         # One owner per board (seed §III.G.2): always on real hardware, or when asked.
         self._claims: list[BoardClaim] = []
@@ -237,16 +228,13 @@ class ChadecheDriver(PolledDriver):
         changed, its memo (``_Board.kept``) says so in one test instead of three
         (:meth:`_read_points` is the point-by-point reading).
         """
-        cycle, io = self._io_cycle, self._io_lock
-        # ``_free(lock)``, without the call while nobody ever waited (an empty deque of
-        # waiters is falsy, so is None); else its whole test.
         if not (
             self._direct
             and self._connected
             and not self._pending
             and not self._lost_logged
-            and ((not cycle._locked and not cycle._waiters) or _free(cycle))  # type: ignore[attr-defined]
-            and ((not io._locked and not io._waiters) or _free(io))  # type: ignore[attr-defined]
+            and self._io_cycle.free()
+            and self._io_lock.free()
         ):
             return False
         now = self.clock.now()
@@ -302,12 +290,7 @@ class ChadecheDriver(PolledDriver):
         """:meth:`PolledDriver.flush` does nothing without a queued write while
         connected; on an in-process bus with the I/O lock free that is known without
         taking it (True: done). False: ``flush()`` must be awaited."""
-        cycle = self._io_cycle
-        return (
-            self._direct
-            and not (self._connected and self._pending)
-            and ((not cycle._locked and not cycle._waiters) or _free(cycle))  # type: ignore[attr-defined]
-        )
+        return self._direct and not (self._connected and self._pending) and self._io_cycle.free()
 
     # --- PolledDriver hooks ----------------------------------------------------
     async def _connect(self) -> None:

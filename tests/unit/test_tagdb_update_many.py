@@ -1,0 +1,110 @@
+"""``TagDB.update_many`` (the channel guard's outputs, every scan: issue 29's profile of the
+dry run) leaves every tag and the change feed exactly as ``TagDB.update`` called for each
+pair in turn does, for every kind of tag, value, quality, reason and forcing; and
+``Tag.as_float`` is the plain rule for every kind of value."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from supervisor.core.quality import Quality, Reason
+from supervisor.tags import TagDB, TagSpec
+
+DTYPES = ("float", "int", "bool", "str")
+FORCED: dict[str, Any] = {"float": 1.5, "int": 2, "bool": True, "str": "idle"}
+values = st.one_of(
+    st.none(),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.sampled_from([0.0, -0.0, 1.0, 1.5, 2.0]),
+    st.integers(-3, 3),
+    st.integers(),
+    st.booleans(),
+    st.sampled_from(["", "idle", "charging", "1.5"]),
+)
+initials = st.one_of(st.none(), values)
+# Before each batch: the process side moves some tags (any value, quality and reason),
+# someone forces or unforces some, then the batch writes some (a tag may come twice).
+process = st.tuples(
+    st.integers(0, 3),
+    values,
+    st.sampled_from(list(Quality)),
+    st.sampled_from([Reason.NONE, Reason.STALE, Reason.LAST_KNOWN, Reason.COMM_FAILURE]),
+    st.one_of(st.none(), st.floats(0.0, 100.0)),
+)
+rounds = st.lists(
+    st.tuples(
+        st.lists(process, max_size=4),
+        st.lists(st.tuples(st.integers(0, 3), st.booleans()), max_size=2),  # force/unforce
+        st.lists(st.tuples(st.integers(0, 3), values), max_size=6),  # the batch
+    ),
+    max_size=8,
+)
+
+
+def state(db: TagDB) -> list[str]:
+    tags = [
+        repr((t.value, t.quality, t.reason, t.source_t, t.server_t, t.version, t.forced))
+        for t in db
+    ]
+    return [*tags, repr(db.version), repr([t.name for t in db.changed_since(0)])]
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    st.lists(st.tuples(st.sampled_from(DTYPES), initials), min_size=4, max_size=4),
+    rounds,
+)
+def test_a_batch_of_updates_is_each_update_in_turn(
+    specs: list[tuple[str, Any]], steps: list[Any]
+) -> None:
+    many, one = TagDB(), TagDB()
+    for db in (many, one):
+        for k, (dtype, initial) in enumerate(specs):
+            try:
+                db.add(TagSpec(f"t{k}", dtype=dtype, initial=initial))  # type: ignore[arg-type]
+            except (TypeError, ValueError):
+                db.add(TagSpec(f"t{k}", dtype=dtype))  # type: ignore[arg-type]
+    tags_many, tags_one = list(many), list(one)
+    for scan, (moves, forcing, batch) in enumerate(steps):
+        for db, tags in ((many, tags_many), (one, tags_one)):
+            db.set_scan_time(float(scan + 1))
+            for k, value, quality, reason, source_t in moves:
+                db.update(tags[k], value, quality, reason, source_t)
+            for k, force in forcing:
+                if force and not tags[k].forced:
+                    db.force(f"t{k}", FORCED[specs[k][0]])
+                elif not force:
+                    db.unforce(f"t{k}")
+        many.update_many([(tags_many[k], value) for k, value in batch])
+        for k, value in batch:
+            one.update(tags_one[k], value)
+        assert state(many) == state(one)
+
+
+def plain_as_float(value: Any, default: float) -> float:
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        return float(value)
+    return default
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.sampled_from(DTYPES), values, st.floats(allow_nan=False) | st.just(-1.0))
+def test_a_tags_value_as_a_float_is_the_plain_rule(dtype: str, value: Any, default: float) -> None:
+    db = TagDB()
+    tag = db.add(TagSpec("t", dtype=dtype))  # type: ignore[arg-type]
+    tag.value = value  # any value a tag may hold, coerced or not
+    try:
+        expected: float | type[OverflowError] = plain_as_float(value, default)
+    except OverflowError:  # an int beyond the double range
+        expected = OverflowError
+    try:
+        got: float | type[OverflowError] = tag.as_float(default)
+    except OverflowError:
+        got = OverflowError
+    assert repr(got) == repr(expected)
+    if isinstance(got, float) and not math.isnan(got):
+        assert type(got) is float
