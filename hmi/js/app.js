@@ -86,21 +86,12 @@ async function loadBench() {
     .filter((n) => /^ch\d+\.voltage$/.test(n))
     .map((n) => n.split(".")[0])
     .map((ch) => ({ name: ch, tags: {} }));
-  const has = (n) => (names.includes(n) ? n : null);
   const devices = names
     .filter((n) => n.endsWith(".connected"))
     .map((n) => ({ name: n.split(".")[0], health_tag: n }));
-  return normaliseBench({
-    bench: "bench",
-    channels,
-    devices,
-    mimic: {
-      estop: has("estop.ok"),
-      supply: has("ea.output_on"),
-      contactor: has("contactor.closed"),
-      bms: has("bms.voltage"),
-    },
-  });
+  // No mimic without /api/bench: only the registry knows which device is the supply or
+  // the BMS (issue 29: a supply named "psu" lost its rows when the screens guessed).
+  return normaliseBench({ bench: "bench", channels, devices, mimic: {} });
 }
 
 function normaliseBench(b) {
