@@ -26,8 +26,9 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from supervisor.chains.behaviours import LimitCheck, StepBehaviour, behaviours_for
+from supervisor.chains.behaviours import LimitCheck, StepBehaviour
 from supervisor.chains.conditions import ConditionValues, Values
+from supervisor.chains.kinds import behaviours_for
 from supervisor.chains.port import ChannelPort
 from supervisor.chains.program import Action, ActionKind, CompiledStep, Program
 from supervisor.chains.progress import Progress
@@ -278,12 +279,11 @@ class ChainRunner:
             (name, -math.inf if lo is None else lo, math.inf if hi is None else hi)
             for name, (lo, hi), _ in self._limits
         )
-        # The readings the running scan looks at besides the conditions' names.
+        # The readings the running scan looks at besides the conditions' names (each
+        # behaviour's own: derived from its class, all of them when it says nothing).
         readings = {"voltage", *(name for name, _, _ in self._limits)}
-        if any(b.has_limits for b in behaviours):
-            readings |= {"voltage", "current", "temperature"}
-        if any(b.has_scan for b in behaviours):
-            readings |= {"voltage", "current"}
+        for b in behaviours:
+            readings |= b.readings
         self._conditions = ConditionValues(self.port, self.db, program, readings)
         self._log_rules = log_rules = LogRules(program)
         self._may_be_due_s = log_rules.may_be_due_s
