@@ -21,17 +21,17 @@ publishers of those (``supervisor.publish``).
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections import deque
 from collections.abc import Callable
 
-from supervisor.chains.behaviours import LimitCheck, StepBehaviour
+from supervisor.chains.behaviours import StepBehaviour
 from supervisor.chains.conditions import ConditionValues, Values
 from supervisor.chains.kinds import behaviours_for
 from supervisor.chains.port import ChannelPort
 from supervisor.chains.program import Action, ActionKind, CompiledStep, Program
 from supervisor.chains.progress import Progress
+from supervisor.chains.rules import StepRules
 from supervisor.chains.run import ChainSnapshot, RunState
 from supervisor.chains.sampling import LogRules, build_record
 from supervisor.chains.states import (
@@ -50,7 +50,6 @@ from supervisor.chains.states import (
 )
 from supervisor.config.limits import MAX_TRANSITIONS_PER_SCAN
 from supervisor.core.clock import Clock
-from supervisor.core.delay import OnDelay
 from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.core.records import ChainEvent, Record, Sampler
@@ -82,7 +81,6 @@ still see every scan's value."""
 _GOOD = Quality.GOOD
 _NONE = Reason.NONE
 _RUNNING = State.RUNNING
-EPS_S = 1e-9
 CHAIN_FIELDS = (
     "state",
     "state_code",
@@ -152,16 +150,11 @@ class ChainRunner:
         self._setpoints: tuple[float | None, ...] = ()
         self._conditions: ConditionValues | None = None
         self._log_rules: LogRules | None = None
-        self._limits: tuple[LimitCheck, ...] = ()
-        self._limit_delay = OnDelay(0.0)
-        # For the steady scan (``run``), set at load: per step, whether its scans can be
-        # steady and from when a record may be due (``LogRules.may_be_due_s``); the recipe
-        # limits as (name, low, high) with a missing bound infinite; whether the limits'
-        # on-delay was last told of a violation (else telling it of none changes nothing).
-        self._steady: tuple[bool, ...] = ()
+        # The running steps' rules (limits, supervision, interlock, untils, ends), set at
+        # load: one description for the plain and the steady scan.
+        self._rules: StepRules | None = None
+        # Per step, from when a record may be due (``LogRules.may_be_due_s``), set at load.
         self._may_be_due_s: tuple[float, ...] = ()
-        self._limit_bounds: tuple[tuple[str, float, float], ...] = ()
-        self._limit_timing = False
         n = port.name
         db.add(
             TagSpec(
@@ -260,39 +253,16 @@ class ChainRunner:
         self._setpoints = tuple(
             None if b.setpoint_varies else b.setpoint(0.0, None) for b in behaviours
         )
-        lim = program.limits
-        self._limit_delay = OnDelay(lim.delay_s)
-        self._limit_timing = False
-        # Only the limits with a bound: one without either never finds a violation.
-        self._limits = tuple(
-            check
-            for check in (
-                ("voltage", lim.voltage_v, "V"),
-                ("current", lim.current_a, "A"),
-                ("temperature", lim.temperature_c, "degC"),
-            )
-            if check[1] != (None, None)
-        )
-        # ``x < lo or x > hi`` with a missing bound infinite is the plain test's answer
-        # for every float x (NaN included: no comparison with it holds).
-        self._limit_bounds = tuple(
-            (name, -math.inf if lo is None else lo, math.inf if hi is None else hi)
-            for name, (lo, hi), _ in self._limits
-        )
-        # The readings the running scan looks at besides the conditions' names (each
-        # behaviour's own: derived from its class, all of them when it says nothing).
-        readings = {"voltage", *(name for name, _, _ in self._limits)}
+        rules = self._rules = StepRules(program)
+        # The readings the running scan looks at besides the conditions' names: the
+        # limits' and each behaviour's own (derived from its class, all of them when it
+        # says nothing).
+        readings = {"voltage", *rules.readings}
         for b in behaviours:
             readings |= b.readings
         self._conditions = ConditionValues(self.port, self.db, program, readings)
         self._log_rules = log_rules = LogRules(program)
         self._may_be_due_s = log_rules.may_be_due_s
-        # A steady scan runs a step that is not instant, in no group, and whose behaviour
-        # has no limits, scan work or end of its own: what ``_steady_running`` checks.
-        self._steady = tuple(
-            not (step.instant or step.groups or b.has_limits or b.has_scan or b.has_done)
-            for step, b in zip(program.steps, behaviours, strict=True)
-        )
 
     # --- retained state (DESIGN.md "Safety": a restart brings the test back Held) -------
     def snapshot(self) -> ChainSnapshot | None:
@@ -458,14 +428,16 @@ class ChainRunner:
         """One scan: the command, the running step's checks, the outputs, the tags.
 
         A steady scan — running, nothing commanded, no fault and no latched alarm, in
-        Auto, no sleep or advance pending, in a step whose scans can be steady
-        (``_steady``) — takes a short way (issue 13: nearly every scan of a test is one):
-        the step's checks in one call (``_steady_running``), then the outputs and tags
-        as ``_outputs`` and ``_publish`` write them, with an unchanged tag only stamped,
-        as its update would leave it (``TagDB.stamp``: a GOOD, reason-less tag holding
-        the same value). Whatever happens in the step (an alarm, a transition, a record)
-        ends the scan the plain way. ``tests/unit/test_chain_steady_scan.py`` checks it,
-        tag by tag, against the plain scan (``_fast`` False).
+        Auto, no sleep or advance pending, in a step that takes time — takes a short way
+        (issue 13: nearly every scan of a test is one): the step's rules (``StepRules``,
+        the plain scan's too) without the checks a steady scan cannot need
+        (``_steady_running``), then the outputs and tags as ``_outputs`` and ``_publish``
+        write them, with an unchanged tag only stamped, as its update would leave it
+        (``TagDB.stamp``: a GOOD, reason-less tag holding the same value). Whatever
+        happens in the step (an alarm, a transition, a record) ends the scan the plain
+        way. ``tests/unit/test_chain_steady_scan.py`` and
+        ``tests/unit/test_step_kinds_equivalence.py`` check it, tag by tag, against the
+        plain scan (``_fast`` False).
         """
         port, r = self.port, self._r
         index = r.step
@@ -479,7 +451,7 @@ class ChainRunner:
             and not self._pending_advance
             and r.sleep_until_t is None
             and r.step_count
-            and self._steady[index]
+            and not self._instant[index]
         ):
             self._scan(now, dt)
             return
@@ -499,8 +471,7 @@ class ChainRunner:
             return
         behaviour = self._behaviours[index]
         db = self.db
-        # A tag that holds is stamped inline (``db.stamp``, without the call).
-        scan_t, update = db.scan_t, db.update
+        stamp, update = db.stamp, db.update
         # ``_outputs`` of a running step: its setpoint unless its interlock holds it back.
         amps = 0.0
         if not self._interlock_tag.value:
@@ -520,8 +491,7 @@ class ChainRunner:
             (t_cycle, r.cycle),
         ):
             if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-                if not tag.forced:
-                    tag.source_t = scan_t
+                stamp(tag)
             else:
                 update(tag, value)
         update(t_step_time, now - r.t_step0)
@@ -567,70 +537,13 @@ class ChainRunner:
             self._sample(now, step)
 
     def _steady_running(self, now: float, r: RunState, step: CompiledStep) -> bool:
-        """``_running`` in a steady scan of ``step`` (see ``run``; its checks in the same
-        order, those a steady step cannot need left out): True when the step simply goes
-        on, False when something happened (an alarm, a transition, a record)."""
+        """``_running`` in a steady scan of ``step`` (see ``run``): the voltage observed
+        and the values read in one call, then the step's rules: True when the step simply
+        goes on, False when something happened (an alarm, a transition, a record)."""
         conditions = self._conditions
         assert conditions is not None
         values = conditions.observed_values(now, r)
-        st = values["step_time"]
-        assert isinstance(st, float)
-        # Recipe limits, armed once the power path is closed: a violation is described by
-        # ``_limit_violation`` (which finds the same first one).
-        why = ""
-        if self.port.armed.value is True:
-            for name, lo, hi in self._limit_bounds:
-                x = values[name]  # a reading: always in the dict
-                if isinstance(x, float) and (x < lo or x > hi):
-                    why = self._limit_violation(values, step, ())
-                    break
-        if why or self._limit_timing:
-            self._limit_timing = bool(why)
-            if self._limit_delay.update(bool(why), now):
-                self._alarm(why)
-                self._set_state(State.HOLDING, why)
-                return False
-        if (
-            step.max_time_s is not None
-            and r.max_time_acked != r.step_count
-            and st > step.max_time_s
-        ):
-            why = f"supervision: step {step.id} exceeded {step.max_time_s:g} s"
-            self._alarm(why)
-            self._set_state(State.HOLDING, why)
-            return False
-        if step.error is not None and step.error.evaluate(values) is True:
-            why = f"supervision: {step.error.text}"
-            self._alarm(why)
-            self._set_state(State.HOLDING, why)
-            return False
-        if step.interlock is not None:
-            ok = step.interlock.evaluate(values)
-            self._set("interlock", "" if ok is True else f"interlock: {step.interlock.text}")
-        else:
-            tag = self._interlock_tag
-            if tag.value == "" and tag.quality is _GOOD and tag.reason is _NONE:
-                if not tag.forced:  # ``db.stamp(tag)``, inline
-                    tag.source_t = self.db.scan_t
-            else:
-                self.db.update(tag, "")
-        for tr in step.transitions:
-            try:  # ``tr.condition.evaluate(values)``, without the method call
-                hit = tr.condition.fn(values)
-            except ArithmeticError:
-                hit = None
-            if hit is True:
-                self._act(tr.action, f"until #{tr.index}: {tr.text}", now)
-                return False
-        if step.duration_s is not None and st >= step.duration_s - EPS_S:
-            self._act(Action(ActionKind.NEXT), "duration elapsed", now)
-            return False
-        # ``_record(now, step)`` once a record may be due (it does nothing when none is).
-        # A record calls out to the recorders, which may act on the chain: the plain
-        # outputs and tags follow it.
-        if self.recorders and now - r.last_rec_t >= self._may_be_due_s[step.index]:
-            return not self._record(now, step)
-        return True
+        return self._step_rules(now, r, step, self._behaviours[step.index], values)
 
     def _scan(self, now: float, dt: float) -> None:
         """``run``'s plain way: every case."""
@@ -701,99 +614,68 @@ class ChainRunner:
         # Only the values this chain reads (its conditions, limits and behaviours).
         fast = self._fast
         values = conditions.values_read(now, r) if fast else conditions.values(now, r)
+        self._step_rules(now, r, step, behaviour, values)
+
+    def _step_rules(
+        self,
+        now: float,
+        r: RunState,
+        step: CompiledStep,
+        behaviour: StepBehaviour,
+        values: Values,
+    ) -> bool:
+        """The running step's rules (``StepRules``) for this scan, acted on in their order:
+        True when the step simply goes on, False when something happened (an alarm, a
+        transition, a record)."""
+        rules = self._rules
+        assert rules is not None
+        fast = self._fast
         st = values["step_time"]
         assert isinstance(st, float)
-        # Recipe limits (and the step's own, e.g. a profile row's): hold, latched alarm;
-        # armed once the power path is closed (the battery is what they are about).
-        if port.armed.value is not True:  # not port.limits_armed
-            why = ""
-        elif behaviour.has_limits or not fast:
-            why = self._limit_violation(values, step, behaviour.limits(st))
-        elif self._limits:
-            why = self._limit_violation(values, step, ())
-        else:
-            why = ""
-        self._limit_timing = bool(why)
-        if self._limit_delay.update(bool(why), now):
+        # A limit held past its on-delay, a supervision: hold, latched alarm.
+        why = rules.limit_hold(
+            now, values, step, behaviour, st, self.port.armed.value is True, fast
+        ) or rules.supervision(step, r, st, values)
+        if why:
             self._alarm(why)
             self._set_state(State.HOLDING, why)
-            return
-        # S7-GRAPH supervision: latched error, chain halts until acknowledged.
-        if (
-            step.max_time_s is not None
-            and r.max_time_acked != r.step_count
-            and st > step.max_time_s
-        ):
-            why = f"supervision: step {step.id} exceeded {step.max_time_s:g} s"
-            self._alarm(why)
-            self._set_state(State.HOLDING, why)
-            return
-        if step.error is not None and step.error.evaluate(values) is True:
-            why = f"supervision: {step.error.text}"
-            self._alarm(why)
-            self._set_state(State.HOLDING, why)
-            return
-        # Interlock: outputs safe while false; clears itself; transitions still evaluated.
-        if step.interlock is not None:
-            ok = step.interlock.evaluate(values)
-            self._set("interlock", "" if ok is True else f"interlock: {step.interlock.text}")
-        else:
-            self.db.update(self._interlock_tag, "")  # self._set("interlock", "")
+            return False
+        self._hold(self._interlock_tag, rules.interlock(step, values))
         if self._pending_advance:
             self._pending_advance = False
             if step.advance is None:
                 self._emit("message", f"advance refused in step {step.id}")
             else:
                 self._act(step.advance, "operator advance", now)
-                return
-        # Transitions in order: step's, then its groups'; the first true one wins.
-        for tr in step.transitions:
-            if tr.condition.evaluate(values) is True:
-                self._act(tr.action, f"until #{tr.index}: {tr.text}", now)
-                return
-        for g in step.groups:
-            grp = program.groups[g]
-            for tr in grp.transitions:
-                if tr.condition.evaluate(values) is True:
-                    self._act(tr.action, f"group {grp.id} until #{tr.index}: {tr.text}", now)
-                    return
-        if behaviour.has_scan or not fast:
-            v, i = values["voltage"], values["current"]
-            resistance = behaviour.scan(
-                st, v if isinstance(v, float) else None, i if isinstance(i, float) else None
-            )
-            if resistance is not None:
-                self._set("internal_resistance", resistance)
-                self._emit("message", f"DC internal resistance {resistance * 1000:.1f} mohm")
-        if behaviour.has_done or not fast:
-            done = behaviour.done(st)
-            if done:
-                self._act(Action(ActionKind.NEXT), done, now)
-                return
-        if step.duration_s is not None and st >= step.duration_s - EPS_S:
-            self._act(Action(ActionKind.NEXT), "duration elapsed", now)
-            return
-        for g in step.groups:
-            grp = program.groups[g]
-            t0 = r.group_t0.get(g)
-            if grp.duration_s is not None and t0 is not None and now - t0 >= grp.duration_s:
-                # A group's time limit leaves the group: on to the step after its last one.
-                self._goto(max(grp.steps) + 1, f"group {grp.id} duration elapsed", now)
-                return
-        self._record(now, step)
+                return False
+        hit = rules.transition(step, values)
+        if hit is None:
+            if behaviour.has_scan or not fast:
+                v, i = values["voltage"], values["current"]
+                resistance = behaviour.scan(
+                    st, v if isinstance(v, float) else None, i if isinstance(i, float) else None
+                )
+                if resistance is not None:
+                    self._set("internal_resistance", resistance)
+                    self._emit("message", f"DC internal resistance {resistance * 1000:.1f} mohm")
+            hit = rules.end(now, r, step, behaviour, st, fast)
+        if hit is not None:
+            self._act(hit[0], hit[1], now)
+            return False
+        # ``_record(now, step)`` once a record may be due (it does nothing when none is).
+        # A record calls out to the recorders, which may act on the chain: the plain
+        # outputs and tags follow it.
+        if self.recorders and now - r.last_rec_t >= self._may_be_due_s[step.index]:
+            return not self._record(now, step)
+        return True
 
-    def _limit_violation(
-        self, values: Values, step: CompiledStep, own: tuple[LimitCheck, ...]
-    ) -> str:
-        for name, (lo, hi), unit in (*self._limits, *own) if own else self._limits:
-            x = values.get(name)
-            if not isinstance(x, float):
-                continue
-            if lo is not None and x < lo:
-                return f"limit: {name} {x:.4g} {unit} below {lo:g} {unit} in step {step.id}"
-            if hi is not None and x > hi:
-                return f"limit: {name} {x:.4g} {unit} above {hi:g} {unit} in step {step.id}"
-        return ""
+    def _hold(self, tag: Tag, value: str) -> None:
+        """``tag`` holds ``value`` from now: stamped when it held it already (GOOD, no
+        reason), as its update would leave it, else updated."""
+        if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+            self.db.stamp(tag)
+        else:
+            self.db.update(tag, value)
 
     def setpoint(self) -> float:
         """Current the running step asks for now (A, + charges)."""
