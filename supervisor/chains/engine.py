@@ -469,72 +469,7 @@ class ChainRunner:
             self._outputs()
             self._publish(now)
             return
-        behaviour = self._behaviours[index]
-        db = self.db
-        stamp, update = db.stamp, db.update
-        # ``_outputs`` of a running step: its setpoint unless its interlock holds it back.
-        amps = 0.0
-        if not self._interlock_tag.value:
-            amps_now = self._setpoints[index]
-            amps = self.setpoint() if amps_now is None else amps_now
-        # Then, in their order, what ``port.request(amps, cv, True)`` writes (Running, no
-        # alarm latched: active) and what ``_publish`` of a running step writes: the step,
-        # its number and the cycle (the same but after an event, which leaves the steady
-        # way), the clocks, the progress.
-        t_step, t_index, t_cycle, t_step_time, t_test_time = self._publish_tags
-        for tag, value in (
-            (port.auto_current, amps),
-            (port.auto_active, True),
-            (port.auto_voltage, behaviour.cv_target_v),
-            (t_step, step.id),
-            (t_index, step.index + 1),
-            (t_cycle, r.cycle),
-        ):
-            if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-                stamp(tag)
-            else:
-                update(tag, value)
-        update(t_step_time, now - r.t_step0)
-        elapsed_s = now - r.t_test0
-        update(t_test_time, elapsed_s)
-        # ``self.progress.shown`` for an active test, inline (the same expressions; they
-        # cannot raise, so computing the ETA after writing the progress changes nothing).
-        t_progress, t_eta = self._progress_tags
-        est = self.progress.estimated_duration_s
-        # ``min(1.0, x)`` and ``max(0.0, x)`` as expressions (the same answers, NaN
-        # included): ``min`` and ``max`` parse keywords at every call.
-        if est:
-            fraction = elapsed_s / est
-            update(t_progress, fraction if fraction < 1.0 else 1.0)
-            left_s = est - elapsed_s
-            update(t_eta, left_s if left_s > 0.0 else 0.0)
-        else:
-            step_current_a = behaviour.progress_current_a
-            capacity_ah = program.capacity_ah
-            if step_current_a is not None and capacity_ah:
-                charge = port.charge_ah
-                x = charge.value
-                moved = abs((x if type(x) is float else charge.as_float()) - r.step_q0)
-                fraction = moved / capacity_ah
-                update(t_progress, fraction if fraction < 1.0 else 1.0)
-                amps_a = abs(step_current_a)
-                if amps_a > 0:
-                    left_s = (capacity_ah - moved) * 3600.0 / amps_a
-                    update(t_eta, left_s if left_s > 0.0 else 0.0)
-                else:
-                    update(t_eta, None)
-        if self._charge_live:
-            # ``_publish``'s test charge (``ConditionValues.charge_ah``), inline.
-            charge = port.charge_ah
-            x = charge.value
-            update(
-                self._charge_tag,
-                program.initial_charge_ah
-                + (x if type(x) is float else charge.as_float())
-                - r.q0_ah,
-            )
-        if self.samplers:
-            self._sample(now, step)
+        self._steady_outputs(now, r, program, step)
 
     def _steady_running(self, now: float, r: RunState, step: CompiledStep) -> bool:
         """``_running`` in a steady scan of ``step`` (see ``run``): the voltage observed
@@ -853,6 +788,81 @@ class ChainRunner:
                 amps = self.setpoint() if amps_now is None else amps_now
             cv = self._behaviours[index].cv_target_v
         self.port.request(amps, cv, running)
+
+    def _steady_outputs(
+        self, now: float, r: RunState, program: Program, step: CompiledStep
+    ) -> None:
+        """``_outputs`` then ``_publish`` of a steady scan of ``step`` (see ``run``): the
+        same writes in the same order, with what a steady scan cannot change left out and
+        an unchanged tag only stamped (``tests/unit/test_chain_steady_scan.py``)."""
+        index = step.index
+        behaviour = self._behaviours[index]
+        port = self.port
+        db = self.db
+        stamp, update = db.stamp, db.update
+        # ``_outputs`` of a running step: its setpoint unless its interlock holds it back.
+        amps = 0.0
+        if not self._interlock_tag.value:
+            amps_now = self._setpoints[index]
+            amps = self.setpoint() if amps_now is None else amps_now
+        # Then, in their order, what ``port.request(amps, cv, True)`` writes (Running, no
+        # alarm latched: active) and what ``_publish`` of a running step writes: the step,
+        # its number and the cycle (the same but after an event, which leaves the steady
+        # way), the clocks, the progress.
+        t_step, t_index, t_cycle, t_step_time, t_test_time = self._publish_tags
+        for tag, value in (
+            (port.auto_current, amps),
+            (port.auto_active, True),
+            (port.auto_voltage, behaviour.cv_target_v),
+            (t_step, step.id),
+            (t_index, step.index + 1),
+            (t_cycle, r.cycle),
+        ):
+            if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+                stamp(tag)
+            else:
+                update(tag, value)
+        update(t_step_time, now - r.t_step0)
+        elapsed_s = now - r.t_test0
+        update(t_test_time, elapsed_s)
+        # ``self.progress.shown`` for an active test, inline (the same expressions; they
+        # cannot raise, so computing the ETA after writing the progress changes nothing).
+        t_progress, t_eta = self._progress_tags
+        est = self.progress.estimated_duration_s
+        # ``min(1.0, x)`` and ``max(0.0, x)`` as expressions (the same answers, NaN
+        # included): ``min`` and ``max`` parse keywords at every call.
+        if est:
+            fraction = elapsed_s / est
+            update(t_progress, fraction if fraction < 1.0 else 1.0)
+            left_s = est - elapsed_s
+            update(t_eta, left_s if left_s > 0.0 else 0.0)
+        else:
+            step_current_a = behaviour.progress_current_a
+            capacity_ah = program.capacity_ah
+            if step_current_a is not None and capacity_ah:
+                charge = port.charge_ah
+                x = charge.value
+                moved = abs((x if type(x) is float else charge.as_float()) - r.step_q0)
+                fraction = moved / capacity_ah
+                update(t_progress, fraction if fraction < 1.0 else 1.0)
+                amps_a = abs(step_current_a)
+                if amps_a > 0:
+                    left_s = (capacity_ah - moved) * 3600.0 / amps_a
+                    update(t_eta, left_s if left_s > 0.0 else 0.0)
+                else:
+                    update(t_eta, None)
+        if self._charge_live:
+            # ``_publish``'s test charge (``ConditionValues.charge_ah``), inline.
+            charge = port.charge_ah
+            x = charge.value
+            update(
+                self._charge_tag,
+                program.initial_charge_ah
+                + (x if type(x) is float else charge.as_float())
+                - r.q0_ah,
+            )
+        if self.samplers:
+            self._sample(now, step)
 
     def _record(self, now: float, step: CompiledStep, reason: str = "") -> bool:
         """A record to the recorders when ``reason`` is given or a logging rule says one is
