@@ -26,13 +26,14 @@ from collections import deque
 from collections.abc import Callable
 
 from supervisor.chains.behaviours import StepBehaviour
+from supervisor.chains.chaintags import CHAIN_FIELDS, add_chain_tags
 from supervisor.chains.conditions import ConditionValues, Values
 from supervisor.chains.kinds import behaviours_for
 from supervisor.chains.port import ChannelPort
 from supervisor.chains.program import Action, ActionKind, CompiledStep, Program
 from supervisor.chains.progress import Progress
 from supervisor.chains.rules import StepRules
-from supervisor.chains.run import ChainSnapshot, RunState
+from supervisor.chains.run import ChainSnapshot, RunState, check_snapshot
 from supervisor.chains.sampling import LogRules, build_record
 from supervisor.chains.states import (
     ACTIVE,
@@ -53,8 +54,7 @@ from supervisor.core.clock import Clock
 from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.core.records import ChainEvent, Record, Sampler
-from supervisor.tags import Access, Tag, TagDB, TagSpec
-from supervisor.tags.spec import HistorySettings
+from supervisor.tags import Tag, TagDB
 
 __all__ = [
     "COMMANDS",
@@ -71,34 +71,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 EVENTS_KEPT = 200
-CLOCK_HISTORY = HistorySettings(min_interval_s=1.0)
-"""The chain's clocks and what follows from them (step and test time, progress, ETA) change
-every scan, linearly: the historian and InfluxDB store them at most once a second (the
-latest value at its own time). At a 10 ms scan they were half of every scan's changes (64
-of 130 in issue 13's load case), 64 points a second of straight lines; screens and OPC UA
-still see every scan's value."""
-
 _GOOD = Quality.GOOD
 _NONE = Reason.NONE
 _RUNNING = State.RUNNING
-CHAIN_FIELDS = (
-    "state",
-    "state_code",
-    "recipe",
-    "test_id",
-    "step",
-    "step_index",
-    "cycle",
-    "step_time",
-    "test_time",
-    "alarm",
-    "interlock",
-    "last_event",
-    "progress",
-    "eta_s",
-    "internal_resistance",
-    "charge_ah",
-)
 
 
 class ChainRunner:
@@ -156,55 +131,7 @@ class ChainRunner:
         # Per step, from when a record may be due (``LogRules.may_be_due_s``), set at load.
         self._may_be_due_s: tuple[float, ...] = ()
         n = port.name
-        db.add(
-            TagSpec(
-                f"{n}.command",
-                dtype="str",
-                access=Access.OPERATOR,
-                initial="",
-                choices=("", *COMMANDS),
-                description="start/hold/resume/advance/stop/abort/reset/ack",
-            )
-        )
-        for spec in (
-            TagSpec(f"{n}.chain.state", dtype="str", initial=State.IDLE.value),
-            TagSpec(f"{n}.chain.state_code", dtype="int", initial=OPCUA_CODE[State.IDLE]),
-            TagSpec(f"{n}.chain.recipe", dtype="str", initial=""),
-            TagSpec(f"{n}.chain.test_id", dtype="str", initial=""),
-            TagSpec(
-                f"{n}.chain.cell_id",
-                dtype="str",
-                initial="",
-                description="The cell (or sample) of the test (its metadata; '' when not given)",
-            ),
-            TagSpec(f"{n}.chain.step", dtype="str", initial=""),
-            TagSpec(f"{n}.chain.step_index", dtype="int", initial=0),
-            TagSpec(f"{n}.chain.cycle", dtype="int", initial=0),
-            TagSpec(f"{n}.chain.step_time", unit="s", initial=0.0, history=CLOCK_HISTORY),
-            TagSpec(f"{n}.chain.test_time", unit="s", initial=0.0, history=CLOCK_HISTORY),
-            TagSpec(f"{n}.chain.alarm", dtype="str", initial=""),
-            TagSpec(f"{n}.chain.interlock", dtype="str", initial=""),
-            TagSpec(f"{n}.chain.last_event", dtype="str", initial=""),
-            TagSpec(f"{n}.chain.progress", unit="1", initial=0.0, history=CLOCK_HISTORY),
-            TagSpec(f"{n}.chain.eta_s", unit="s", initial=None, history=CLOCK_HISTORY),
-            TagSpec(f"{n}.chain.internal_resistance", unit="ohm", initial=None),
-            # The test's charge (README "Tags"): what the ``charge`` condition tests.
-            TagSpec(
-                f"{n}.chain.charge_ah",
-                unit="Ah",
-                initial=None,
-                description=(
-                    "The test's charge: the recipe's initial_charge plus the net charge"
-                    " since the start (what a step's `charge` condition tests); none before"
-                    " a recipe is loaded, the final figure kept after the end"
-                ),
-                history=CLOCK_HISTORY,
-            ),
-        ):
-            db.add(spec)
-        for t in db:
-            if t.name.startswith(f"{n}.chain.") or t.name == f"{n}.command":
-                db.update(t, t.spec.initial)
+        add_chain_tags(db, n)
         self._cmd = db[f"{n}.command"]
         self._tags: dict[str, Tag] = {f: db[f"{n}.chain.{f}"] for f in CHAIN_FIELDS}
         tags = self._tags
@@ -297,30 +224,7 @@ class ChainRunner:
         ``program``.
         """
         check_load(self.name, self.state)
-        if snapshot.state not in {s.value for s in ACTIVE}:
-            raise ValueError(f"{self.name}: a {snapshot.state} test is not resumed")
-        if not 0 <= snapshot.step < len(program.steps):
-            raise ValueError(
-                f"{self.name}: step {snapshot.step + 1} is beyond the {len(program.steps)}"
-                f" steps of recipe {program.name}"
-            )
-        # A sleep wakes up into a step of the program, or past its last (the end).
-        if snapshot.sleep_then is not None and snapshot.sleep_then > len(program.steps):
-            raise ValueError(
-                f"{self.name}: the saved sleep goes on to step {snapshot.sleep_then + 1},"
-                f" beyond the {len(program.steps)} steps of recipe {program.name}"
-            )
-        groups = [int(g) for g in snapshot.group_time_s]
-        if any(g >= len(program.groups) for g in groups):
-            raise ValueError(
-                f"{self.name}: the saved group times name group {max(groups) + 1}, beyond the"
-                f" {len(program.groups)} groups of recipe {program.name}"
-            )
-        if snapshot.step_id and program.steps[snapshot.step].id != snapshot.step_id:
-            raise ValueError(
-                f"{self.name}: step {snapshot.step + 1} of recipe {program.name} is"
-                f" {program.steps[snapshot.step].id!r}, the saved test was in {snapshot.step_id!r}"
-            )
+        check_snapshot(self.name, snapshot, program)
         self._install(program)
         now = self.clock.now()
         self._r, away_s = RunState.thaw(snapshot, now, self.clock.to_wall(now))
