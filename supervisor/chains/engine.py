@@ -472,14 +472,19 @@ class ChainRunner:
         st = values["step_time"]
         assert isinstance(st, float)
         # A limit held past its on-delay, a supervision: hold, latched alarm.
-        why = rules.limit_hold(
-            now, values, step, behaviour, st, self.port.armed.value is True, fast
-        ) or rules.supervision(step, r, st, values)
+        why = rules.hold(now, r, step, behaviour, st, values, self.port.armed.value is True, fast)
         if why:
             self._alarm(why)
             self._set_state(State.HOLDING, why)
             return False
-        self._hold(self._interlock_tag, rules.interlock(step, values))
+        # The interlock's text, stamped when it holds the same (``db.update`` would leave
+        # the tag so).
+        text = "" if step.interlock is None else rules.interlock(step, values)
+        tag = self._interlock_tag
+        if text == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+            self.db.stamp(tag)
+        else:
+            self.db.update(tag, text)
         if self._pending_advance:
             self._pending_advance = False
             if step.advance is None:
@@ -487,17 +492,10 @@ class ChainRunner:
             else:
                 self._act(step.advance, "operator advance", now)
                 return False
-        hit = rules.transition(step, values)
-        if hit is None:
-            if behaviour.has_scan or not fast:
-                v, i = values["voltage"], values["current"]
-                resistance = behaviour.scan(
-                    st, v if isinstance(v, float) else None, i if isinstance(i, float) else None
-                )
-                if resistance is not None:
-                    self._set("internal_resistance", resistance)
-                    self._emit("message", f"DC internal resistance {resistance * 1000:.1f} mohm")
-            hit = rules.end(now, r, step, behaviour, st, fast)
+        hit, resistance = rules.next(now, r, step, behaviour, st, values, fast)
+        if resistance is not None:
+            self._set("internal_resistance", resistance)
+            self._emit("message", f"DC internal resistance {resistance * 1000:.1f} mohm")
         if hit is not None:
             self._act(hit[0], hit[1], now)
             return False
@@ -507,14 +505,6 @@ class ChainRunner:
         if self.recorders and now - r.last_rec_t >= self._may_be_due_s[step.index]:
             return not self._record(now, step)
         return True
-
-    def _hold(self, tag: Tag, value: str) -> None:
-        """``tag`` holds ``value`` from now: stamped when it held it already (GOOD, no
-        reason), as its update would leave it, else updated."""
-        if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-            self.db.stamp(tag)
-        else:
-            self.db.update(tag, value)
 
     def setpoint(self) -> float:
         """Current the running step asks for now (A, + charges)."""

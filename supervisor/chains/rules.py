@@ -27,6 +27,7 @@ NEXT = Action(ActionKind.NEXT)
 
 Hit = tuple[Action, str]
 """An action to take and its cause, as the step's events name it."""
+NOTHING: Hit | None = None
 
 
 class StepRules:
@@ -62,19 +63,26 @@ class StepRules:
         """The readings the recipe's limits look at."""
         return frozenset(name for name, _, _ in self.checks)
 
-    def limit_hold(
+    def hold(
         self,
         now: float,
-        values: Values,
+        r: RunState,
         step: CompiledStep,
         behaviour: StepBehaviour,
         step_time_s: float,
+        values: Values,
         armed: bool,
         fast: bool,
     ) -> str:
-        """The recipe's limits and the step's own (a profile row's), armed once the power
-        path is closed (the battery is what they are about): the violation once it has
-        lasted the on-delay, "" while none holds."""
+        """Why the chain must hold with a latched alarm ("" while nothing says so):
+
+        - the recipe's limits and the step's own (a profile row's), armed once the power
+          path is closed (the battery is what they are about), once a violation has lasted
+          the on-delay;
+        - S7-GRAPH supervision, halting the chain until acknowledged: the step's time
+          limit (once per activation: an acknowledged one does not fire again), then its
+          error condition.
+        """
         why = ""
         if not armed:
             pass
@@ -90,6 +98,14 @@ class StepRules:
             self.timing = bool(why)
             if self.delay.update(bool(why), now):
                 return why
+        if (
+            step.max_time_s is not None
+            and r.max_time_acked != r.step_count
+            and step_time_s > step.max_time_s
+        ):
+            return f"supervision: step {step.id} exceeded {step.max_time_s:g} s"
+        if step.error is not None and step.error.evaluate(values) is True:
+            return f"supervision: {step.error.text}"
         return ""
 
     def violation(self, values: Values, step: CompiledStep, own: tuple[LimitCheck, ...]) -> str:
@@ -105,21 +121,6 @@ class StepRules:
         return ""
 
     @staticmethod
-    def supervision(step: CompiledStep, r: RunState, step_time_s: float, values: Values) -> str:
-        """S7-GRAPH supervision, a latched error that halts the chain until acknowledged:
-        the step's time limit (once per activation: an acknowledged one does not fire
-        again), then its error condition."""
-        if (
-            step.max_time_s is not None
-            and r.max_time_acked != r.step_count
-            and step_time_s > step.max_time_s
-        ):
-            return f"supervision: step {step.id} exceeded {step.max_time_s:g} s"
-        if step.error is not None and step.error.evaluate(values) is True:
-            return f"supervision: {step.error.text}"
-        return ""
-
-    @staticmethod
     def interlock(step: CompiledStep, values: Values) -> str:
         """Why the step's outputs are held safe ("" while its interlock holds): they clear
         by themselves, and the transitions are still evaluated."""
@@ -127,44 +128,56 @@ class StepRules:
             return ""
         return f"interlock: {step.interlock.text}"
 
-    def transition(self, step: CompiledStep, values: Values) -> Hit | None:
-        """The first until condition that is true: the step's, then its groups'."""
-        for tr in step.transitions:
-            try:  # ``tr.condition.evaluate(values)``, without the method call
-                hit = tr.condition.fn(values)
-            except ArithmeticError:
-                hit = None
-            if hit is True:
-                return tr.action, f"until #{tr.index}: {tr.text}"
-        for g in step.groups:
-            grp = self.program.groups[g]
-            for tr in grp.transitions:
-                if tr.condition.evaluate(values) is True:
-                    return tr.action, f"group {grp.id} until #{tr.index}: {tr.text}"
-        return None
-
-    def end(
+    def next(
         self,
         now: float,
         r: RunState,
         step: CompiledStep,
         behaviour: StepBehaviour,
         step_time_s: float,
+        values: Values,
         fast: bool,
-    ) -> Hit | None:
-        """The step's end of its own (ADR 0004: after the conditions, before the duration),
-        its duration, its groups' time limits (which leave the group: on to the step after
-        its last one)."""
+    ) -> tuple[Hit | None, float | None]:
+        """What ends the step now, if anything, and a DC internal resistance the
+        behaviour's scan work measured (None: none), in their order:
+
+        - the first until condition that is true: the step's, then its groups';
+        - the behaviour's scan work (a pulse's resistance), then its end of its own (ADR
+          0004: after the conditions, before the duration);
+        - the step's duration, its groups' time limits (which leave the group: on to the
+          step after its last one).
+        """
+        for tr in step.transitions:
+            try:  # ``tr.condition.evaluate(values)``, without the method call
+                hit = tr.condition.fn(values)
+            except ArithmeticError:
+                hit = None
+            if hit is True:
+                return (tr.action, f"until #{tr.index}: {tr.text}"), None
+        groups = step.groups
+        for g in groups:
+            grp = self.program.groups[g]
+            for tr in grp.transitions:
+                if tr.condition.evaluate(values) is True:
+                    return (tr.action, f"group {grp.id} until #{tr.index}: {tr.text}"), None
+        resistance = None
+        if behaviour.has_scan or not fast:
+            v, i = values["voltage"], values["current"]
+            resistance = behaviour.scan(
+                step_time_s,
+                v if isinstance(v, float) else None,
+                i if isinstance(i, float) else None,
+            )
         if behaviour.has_done or not fast:
             done = behaviour.done(step_time_s)
             if done:
-                return NEXT, done
+                return (NEXT, done), resistance
         if step.duration_s is not None and step_time_s >= step.duration_s - EPS_S:
-            return NEXT, "duration elapsed"
-        for g in step.groups:
+            return (NEXT, "duration elapsed"), resistance
+        for g in groups:
             grp = self.program.groups[g]
             t0 = r.group_t0.get(g)
             if grp.duration_s is not None and t0 is not None and now - t0 >= grp.duration_s:
-                target = max(grp.steps) + 1
-                return Action(ActionKind.GOTO, target), f"group {grp.id} duration elapsed"
-        return None
+                goto = Action(ActionKind.GOTO, max(grp.steps) + 1)
+                return (goto, f"group {grp.id} duration elapsed"), resistance
+        return NOTHING, resistance
