@@ -149,10 +149,15 @@ LIMITS = [
 
 
 def recipe_text(
-    steps: list[tuple[float, list[tuple[str, str]]]], limits: str, cycles: int, period_s: float
+    steps: list[tuple[float, list[tuple[str, str]]]],
+    limits: str,
+    cycles: int,
+    period_s: float,
+    group: str = "",
 ) -> str:
-    """Rest steps with their durations and until conditions: the frame the generated kinds
-    are put in (a rest compiles with any end; its kind and setpoint are replaced after)."""
+    """Rest steps with their durations and until conditions, and a group's line: the frame
+    the generated kinds are put in (a rest compiles with any end; its kind and setpoint are
+    replaced after)."""
     lines = [
         "recipe: kinds",
         "chemistry: nimh",
@@ -165,7 +170,7 @@ def recipe_text(
         text += f"  - id: s{k}\n    rest: {duration_s:g} s\n"
         if untils:
             text += "    until:\n" + "".join(f"      - {c}: {a}\n" for c, a in untils)
-    return text
+    return text + (f"groups:\n  - {group}\n" if group else "")
 
 
 @st.composite
@@ -174,7 +179,11 @@ def setpoints(draw: st.DrawFn, n_steps: int) -> dict[str, Any]:
     (a kind reads its own and ignores the others)."""
     times = sorted(draw(st.lists(st.sampled_from([2.0, 4.0, 5.0, 9.0]), max_size=3, unique=True)))
     profile = tuple(
-        ProfilePoint(t_s=t, current_a=draw(st.sampled_from([-0.5, 0.0, 0.3])), v_max=1.5)
+        ProfilePoint(
+            t_s=t,
+            current_a=draw(st.sampled_from([-0.5, 0.0, 0.3])),
+            v_max=draw(st.sampled_from([None, 1.25, 1.5])),
+        )
         for t in [0.0, *times]
     )
     return {
@@ -204,11 +213,23 @@ def programs(draw: st.DrawFn) -> Program:
         )
         for _ in range(n)
     ]
+    # Sometimes a group over the first steps, ended by its time limit or an until.
+    members = ", ".join(f"s{k}" for k in range(draw(st.integers(1, n))))
+    group = draw(
+        st.sampled_from(
+            [
+                "",
+                f"{{id: g, steps: [{members}], duration: 6 s}}",
+                f"{{id: g, steps: [{members}], until: [{{'voltage <= 1.2 V': next}}]}}",
+            ]
+        )
+    )
     text = recipe_text(
         frame,
         draw(st.sampled_from(LIMITS)),
         draw(st.integers(1, 2)),
         draw(st.sampled_from([2.0, 10.0])),
+        group,
     )
     recipe, pos = load_recipe_text(text)
     program = compile_recipe(recipe, pos, "<generated>")
@@ -241,7 +262,7 @@ def same_on_both_paths(max_examples: int, shrink: bool = True) -> Callable[[], N
 
 
 def test_every_registered_kind_runs_the_same_on_the_fast_and_the_plain_path() -> None:
-    same_on_both_paths(150)()
+    same_on_both_paths(300)()
 
 
 # --- a new kind, registered as a maintainer would ------------------------------------------
