@@ -27,6 +27,7 @@ from typing import Any
 from supervisor.app.bench import Bench, build_bench
 from supervisor.chains.compiler import compile_recipe
 from supervisor.chains.engine import State
+from supervisor.chains.kinds import kind_of
 from supervisor.chains.program import Program
 from supervisor.chains.run import ChainSnapshot
 from supervisor.commands.recipes import read_recipe_text
@@ -207,7 +208,7 @@ async def dry_run(
         recipe, pos = load_recipe_text(text, str(recipe_path))
     else:
         recipe, pos = load_recipe(recipe_path)
-    needs_cv = any(s.kind in ("cv", "cccv") for s in recipe.steps)
+    needs_cv = any(kind_of(s.kind).needs_cv for s in recipe.steps)
     if model is None:
         model = "liion-pack" if needs_cv or recipe.chemistry in ("liion", "lfp") else "nimh-aa"
     cap = capacity_ah
@@ -351,7 +352,7 @@ def cap_message(max_hours: float, snap: ChainSnapshot, program: Program) -> str:
         f" {len(program.steps)}) of cycle {snap.cycle} of {program.cycles},"
         f" after {n} step start{'s' if n != 1 else ''}"
     )
-    ends_itself = step.kind in ("pulse", "profile", "sleep", "sleep_until") or step.instant
+    ends_itself = kind_of(step.kind).ends_by_itself
     if step.duration_s is None and step.transitions and not ends_itself:
         text += (
             f"; step {step.id!r} has no duration and none of its until conditions came true"

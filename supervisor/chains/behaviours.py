@@ -13,12 +13,20 @@ One class per step kind or family, chosen once per step when a program is loaded
 - ``entry``: for an instant step, what it does in the scan it is entered (ADR 0004).
 
 Readings are None when their tag is not GOOD.
+
+What the running chain's fast paths may skip is *derived* from each class, never a flag a
+new kind must remember to set (issue 29: a constant-resistance step that inherited "my
+setpoint is a constant" drove 0 A in the dry run): a behaviour is asked for its limits,
+scan work and end when its class overrides those methods, and its setpoint is taken as a
+constant only when the class that defines ``setpoint`` says so (``setpoint_reads``). A
+class that says nothing gets the plain path. The kinds themselves are registered in
+``supervisor.chains.kinds``.
 """
 
 from __future__ import annotations
 
 from bisect import bisect_right
-from collections.abc import Callable
+from typing import Any, ClassVar
 
 from supervisor.chains.program import Action, ActionKind, CompiledStep, ProfilePoint
 
@@ -30,6 +38,30 @@ MIN_POWER_VOLTAGE_V = 0.05
 # (variable, (low, high), unit) as the recipe-limit check reads it.
 LimitCheck = tuple[str, tuple[float | None, float | None], str]
 
+READINGS = frozenset({"voltage", "current", "temperature"})
+"""The channel readings a behaviour's ``scan`` and ``limits`` may look at in the values."""
+
+
+def overrides(cls: type[StepBehaviour], method: str) -> bool:
+    """Whether ``cls`` answers ``method`` otherwise than a rest step (the base class)."""
+    return getattr(cls, method) is not getattr(StepBehaviour, method)
+
+
+def declared(cls: type[StepBehaviour], name: str, methods: tuple[str, ...]) -> Any:
+    """The class attribute ``name`` of ``cls`` when it was set by a class at or below every
+    class that defines one of ``methods`` (a declaration about code it sees); None
+    otherwise. A subclass that overrides ``setpoint`` and inherits ``setpoint_reads``
+    from above has said nothing about its own setpoint."""
+    mro = cls.__mro__
+    at = next((k for k, c in enumerate(mro) if name in vars(c)), None)
+    if at is None:
+        return None
+    for method in methods:
+        defined = next((k for k, c in enumerate(mro) if method in vars(c)), None)
+        if defined is not None and defined < at:
+            return None
+    return vars(mro[at])[name]
+
 
 class StepBehaviour:
     """A step that asks for no current and ends by its duration or conditions (rest)."""
@@ -39,14 +71,34 @@ class StepBehaviour:
     # rated capacity, seed 001's progress bar); None for steps without one.
     progress_current_a: float | None = None
     entry: Action | None = None
-    # What the running scan must ask of this behaviour (issue 13: one call fewer each for
-    # the many steps that answer the base class's constant): ``limits`` gives limits of
-    # its own, ``scan`` does work, ``done`` can end the step, ``setpoint`` depends on the
-    # step time or the voltage. A subclass that overrides one of them says so here.
-    has_limits: bool = False
-    has_scan: bool = False
-    has_done: bool = False
-    setpoint_varies: bool = False
+    # What the behaviour needs, said by the class that defines the method concerned (see
+    # ``declared``; not said: the plain path).
+    setpoint_reads: ClassVar[frozenset[str] | None] = frozenset()
+    """What ``setpoint`` depends on: ``step_time``, ``voltage``; empty: a constant, asked
+    once at load (a rest step's 0 A)."""
+    reads: ClassVar[frozenset[str] | None] = frozenset()
+    """The readings (``READINGS``) ``scan`` and ``limits`` look at."""
+    # Derived for each class (``__init_subclass__``), for the running scan (issue 13: one
+    # call fewer each for the many steps that answer as a rest step does): whether it must
+    # ask ``limits``, ``scan``, ``done``, whether the setpoint must be asked every scan,
+    # and the readings the values must hold for this behaviour.
+    has_limits: ClassVar[bool] = False
+    has_scan: ClassVar[bool] = False
+    has_done: ClassVar[bool] = False
+    setpoint_varies: ClassVar[bool] = False
+    readings: ClassVar[frozenset[str]] = frozenset()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.has_limits = overrides(cls, "limits")
+        cls.has_scan = overrides(cls, "scan")
+        cls.has_done = overrides(cls, "done")
+        cls.setpoint_varies = declared(cls, "setpoint_reads", ("setpoint",)) != frozenset()
+        reads = declared(cls, "reads", ("scan", "limits"))
+        if cls.has_scan or cls.has_limits:
+            cls.readings = READINGS if reads is None else frozenset(reads)
+        else:
+            cls.readings = frozenset()
 
     def __init__(self, step: CompiledStep) -> None:
         self.step = step
@@ -79,8 +131,6 @@ class Rest(StepBehaviour):
 class Sleep(StepBehaviour):
     """Chadèche's timed sleep (``+HH:MM`` as a step): no current for ``sleep_s``."""
 
-    has_done = True
-
     def done(self, step_time_s: float) -> str:
         s = self.step.sleep_s
         return "sleep done" if s is not None and step_time_s >= s - EPS_S else ""
@@ -88,6 +138,8 @@ class Sleep(StepBehaviour):
 
 class ConstantCurrent(StepBehaviour):
     """CC charge or discharge at the step's current."""
+
+    setpoint_reads = frozenset()
 
     def __init__(self, step: CompiledStep) -> None:
         super().__init__(step)
@@ -101,6 +153,8 @@ class ConstantVoltage(StepBehaviour):
     """CV with a current limit, or CC-CV as one step: the source regulates the voltage,
     the chain asks for the current (limit) and the CV target."""
 
+    setpoint_reads = frozenset()
+
     def __init__(self, step: CompiledStep) -> None:
         super().__init__(step)
         if step.voltage_v is not None:
@@ -113,7 +167,7 @@ class ConstantVoltage(StepBehaviour):
 class ConstantPower(StepBehaviour):
     """CP regulated in software: I = P / V from the last GOOD voltage."""
 
-    setpoint_varies = True
+    setpoint_reads = frozenset({"voltage"})
 
     def setpoint(self, step_time_s: float, voltage_v: float | None) -> float:
         p = self.step.power_w
@@ -126,7 +180,8 @@ class Pulse(StepBehaviour):
     """A train of ``pulse_count`` pulses (``pulse_on_s`` at the current, ``pulse_off_s``
     at rest), measuring the DC internal resistance of each pulse."""
 
-    has_scan = has_done = setpoint_varies = True
+    setpoint_reads = frozenset({"step_time"})
+    reads = frozenset({"voltage", "current"})
 
     def __init__(self, step: CompiledStep) -> None:
         super().__init__(step)
@@ -185,7 +240,8 @@ class Profile(StepBehaviour):
     """A drive-cycle profile (seed 002): rows of time and current, each with its own
     V/I/T window, repeated ``profile_repeat`` times."""
 
-    has_limits = has_done = setpoint_varies = True
+    setpoint_reads = frozenset({"step_time"})
+    reads = READINGS
 
     def __init__(self, step: CompiledStep) -> None:
         super().__init__(step)
@@ -251,32 +307,3 @@ class SleepUntil(StepBehaviour):
         super().__init__(step)
         if step.sleep_until is not None:
             self.entry = Action(ActionKind.SLEEP_UNTIL, hhmm=step.sleep_until)
-
-
-BEHAVIOURS: dict[str, Callable[[CompiledStep], StepBehaviour]] = {
-    "rest": Rest,
-    "sleep": Sleep,
-    "sleep_until": SleepUntil,
-    "charge": ConstantCurrent,
-    "discharge": ConstantCurrent,
-    "cv": ConstantVoltage,
-    "cccv": ConstantVoltage,
-    "power": ConstantPower,
-    "pulse": Pulse,
-    "profile": Profile,
-    "goto": Goto,
-    "end_cycle": EndCycle,
-    "end": End,
-}
-
-
-def behaviour_for(step: CompiledStep) -> StepBehaviour:
-    try:
-        make = BEHAVIOURS[step.kind]
-    except KeyError:
-        raise ValueError(f"step {step.id!r}: no behaviour for step kind {step.kind!r}") from None
-    return make(step)
-
-
-def behaviours_for(steps: tuple[CompiledStep, ...]) -> tuple[StepBehaviour, ...]:
-    return tuple(behaviour_for(s) for s in steps)

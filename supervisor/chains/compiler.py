@@ -27,6 +27,7 @@ from supervisor.chains.expr import (
     Signature,
     compile_condition,
 )
+from supervisor.chains.kinds import kind_names, kind_of
 from supervisor.chains.profile_csv import read_profile_csv
 from supervisor.chains.program import (
     Action,
@@ -94,12 +95,10 @@ def reserved_names_text() -> str:
     return "; ".join(f"{kind}s: {', '.join(names)}" for kind, names in RESERVED_NAMES.items())
 
 
-# Step kinds each source can execute (CP is regulated in software from V·I).
-CC_ONLY = frozenset(
-    {"rest", "charge", "discharge", "power", "pulse", "profile", "sleep", "sleep_until"}
-    | {"goto", "end_cycle", "end"}
-)
-WITH_CV = CC_ONLY | {"cv", "cccv"}
+# Step kinds each source can execute (CP is regulated in software from V·I): the kinds
+# registry says which need a constant voltage.
+CC_ONLY = kind_names(cv=False)
+WITH_CV = kind_names()
 
 LIMIT_EPS: Final = 1e-12
 """A value equal to a limit up to float noise is within it."""
@@ -756,7 +755,7 @@ class _Compiler:
                 for g in s.groups
                 if g < len(groups)
             )
-            ends_itself = s.kind in ("pulse", "profile", "sleep", "sleep_until") or s.instant
+            ends_itself = kind_of(s.kind).ends_by_itself
             if (
                 not ends_itself
                 and s.duration_s is None

@@ -21,17 +21,19 @@ publishers of those (``supervisor.publish``).
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections import deque
 from collections.abc import Callable
 
-from supervisor.chains.behaviours import LimitCheck, StepBehaviour, behaviours_for
+from supervisor.chains.behaviours import StepBehaviour
+from supervisor.chains.chaintags import CHAIN_FIELDS, add_chain_tags
 from supervisor.chains.conditions import ConditionValues, Values
+from supervisor.chains.kinds import behaviours_for
 from supervisor.chains.port import ChannelPort
 from supervisor.chains.program import Action, ActionKind, CompiledStep, Program
 from supervisor.chains.progress import Progress
-from supervisor.chains.run import ChainSnapshot, RunState
+from supervisor.chains.rules import StepRules
+from supervisor.chains.run import ChainSnapshot, RunState, check_snapshot
 from supervisor.chains.sampling import LogRules, build_record
 from supervisor.chains.states import (
     ACTIVE,
@@ -49,12 +51,10 @@ from supervisor.chains.states import (
 )
 from supervisor.config.limits import MAX_TRANSITIONS_PER_SCAN
 from supervisor.core.clock import Clock
-from supervisor.core.delay import OnDelay
 from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.core.records import ChainEvent, Record, Sampler
-from supervisor.tags import Access, Tag, TagDB, TagSpec
-from supervisor.tags.spec import HistorySettings
+from supervisor.tags import Tag, TagDB
 
 __all__ = [
     "COMMANDS",
@@ -71,35 +71,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 EVENTS_KEPT = 200
-CLOCK_HISTORY = HistorySettings(min_interval_s=1.0)
-"""The chain's clocks and what follows from them (step and test time, progress, ETA) change
-every scan, linearly: the historian and InfluxDB store them at most once a second (the
-latest value at its own time). At a 10 ms scan they were half of every scan's changes (64
-of 130 in issue 13's load case), 64 points a second of straight lines; screens and OPC UA
-still see every scan's value."""
-
 _GOOD = Quality.GOOD
 _NONE = Reason.NONE
 _RUNNING = State.RUNNING
-EPS_S = 1e-9
-CHAIN_FIELDS = (
-    "state",
-    "state_code",
-    "recipe",
-    "test_id",
-    "step",
-    "step_index",
-    "cycle",
-    "step_time",
-    "test_time",
-    "alarm",
-    "interlock",
-    "last_event",
-    "progress",
-    "eta_s",
-    "internal_resistance",
-    "charge_ah",
-)
 
 
 class ChainRunner:
@@ -151,66 +125,13 @@ class ChainRunner:
         self._setpoints: tuple[float | None, ...] = ()
         self._conditions: ConditionValues | None = None
         self._log_rules: LogRules | None = None
-        self._limits: tuple[LimitCheck, ...] = ()
-        self._limit_delay = OnDelay(0.0)
-        # For the steady scan (``run``), set at load: per step, whether its scans can be
-        # steady and from when a record may be due (``LogRules.may_be_due_s``); the recipe
-        # limits as (name, low, high) with a missing bound infinite; whether the limits'
-        # on-delay was last told of a violation (else telling it of none changes nothing).
-        self._steady: tuple[bool, ...] = ()
+        # The running steps' rules (limits, supervision, interlock, untils, ends), set at
+        # load: one description for the plain and the steady scan.
+        self._rules: StepRules | None = None
+        # Per step, from when a record may be due (``LogRules.may_be_due_s``), set at load.
         self._may_be_due_s: tuple[float, ...] = ()
-        self._limit_bounds: tuple[tuple[str, float, float], ...] = ()
-        self._limit_timing = False
         n = port.name
-        db.add(
-            TagSpec(
-                f"{n}.command",
-                dtype="str",
-                access=Access.OPERATOR,
-                initial="",
-                choices=("", *COMMANDS),
-                description="start/hold/resume/advance/stop/abort/reset/ack",
-            )
-        )
-        for spec in (
-            TagSpec(f"{n}.chain.state", dtype="str", initial=State.IDLE.value),
-            TagSpec(f"{n}.chain.state_code", dtype="int", initial=OPCUA_CODE[State.IDLE]),
-            TagSpec(f"{n}.chain.recipe", dtype="str", initial=""),
-            TagSpec(f"{n}.chain.test_id", dtype="str", initial=""),
-            TagSpec(
-                f"{n}.chain.cell_id",
-                dtype="str",
-                initial="",
-                description="The cell (or sample) of the test (its metadata; '' when not given)",
-            ),
-            TagSpec(f"{n}.chain.step", dtype="str", initial=""),
-            TagSpec(f"{n}.chain.step_index", dtype="int", initial=0),
-            TagSpec(f"{n}.chain.cycle", dtype="int", initial=0),
-            TagSpec(f"{n}.chain.step_time", unit="s", initial=0.0, history=CLOCK_HISTORY),
-            TagSpec(f"{n}.chain.test_time", unit="s", initial=0.0, history=CLOCK_HISTORY),
-            TagSpec(f"{n}.chain.alarm", dtype="str", initial=""),
-            TagSpec(f"{n}.chain.interlock", dtype="str", initial=""),
-            TagSpec(f"{n}.chain.last_event", dtype="str", initial=""),
-            TagSpec(f"{n}.chain.progress", unit="1", initial=0.0, history=CLOCK_HISTORY),
-            TagSpec(f"{n}.chain.eta_s", unit="s", initial=None, history=CLOCK_HISTORY),
-            TagSpec(f"{n}.chain.internal_resistance", unit="ohm", initial=None),
-            # The test's charge (docs/integrator.md "Tags"): what the ``charge`` condition tests.
-            TagSpec(
-                f"{n}.chain.charge_ah",
-                unit="Ah",
-                initial=None,
-                description=(
-                    "The test's charge: the recipe's initial_charge plus the net charge"
-                    " since the start (what a step's `charge` condition tests); none before"
-                    " a recipe is loaded, the final figure kept after the end"
-                ),
-                history=CLOCK_HISTORY,
-            ),
-        ):
-            db.add(spec)
-        for t in db:
-            if t.name.startswith(f"{n}.chain.") or t.name == f"{n}.command":
-                db.update(t, t.spec.initial)
+        add_chain_tags(db, n)
         self._cmd = db[f"{n}.command"]
         self._tags: dict[str, Tag] = {f: db[f"{n}.chain.{f}"] for f in CHAIN_FIELDS}
         tags = self._tags
@@ -259,42 +180,18 @@ class ChainRunner:
         self._setpoints = tuple(
             None if b.setpoint_varies else b.setpoint(0.0, None) for b in behaviours
         )
-        lim = program.limits
-        self._limit_delay = OnDelay(lim.delay_s)
-        self._limit_timing = False
-        # Only the limits with a bound: one without either never finds a violation.
-        self._limits = tuple(
-            check
-            for check in (
-                ("voltage", lim.voltage_v, "V"),
-                ("current", lim.current_a, "A"),
-                ("temperature", lim.temperature_c, "degC"),
-            )
-            if check[1] != (None, None)
-        )
-        # ``x < lo or x > hi`` with a missing bound infinite is the plain test's answer
-        # for every float x (NaN included: no comparison with it holds).
-        self._limit_bounds = tuple(
-            (name, -math.inf if lo is None else lo, math.inf if hi is None else hi)
-            for name, (lo, hi), _ in self._limits
-        )
-        # The readings the running scan looks at besides the conditions' names.
-        readings = {"voltage", *(name for name, _, _ in self._limits)}
-        if any(b.has_limits for b in behaviours):
-            readings |= {"voltage", "current", "temperature"}
-        if any(b.has_scan for b in behaviours):
-            readings |= {"voltage", "current"}
+        rules = self._rules = StepRules(program)
+        # The readings the running scan looks at besides the conditions' names: the
+        # limits' and each behaviour's own (derived from its class, all of them when it
+        # says nothing).
+        readings = {"voltage", *rules.readings}
+        for b in behaviours:
+            readings |= b.readings
         self._conditions = ConditionValues(self.port, self.db, program, readings)
         self._log_rules = log_rules = LogRules(program)
         self._may_be_due_s = log_rules.may_be_due_s
-        # A steady scan runs a step that is not instant, in no group, and whose behaviour
-        # has no limits, scan work or end of its own: what ``_steady_running`` checks.
-        self._steady = tuple(
-            not (step.instant or step.groups or b.has_limits or b.has_scan or b.has_done)
-            for step, b in zip(program.steps, behaviours, strict=True)
-        )
 
-    # --- retained state (docs/design.md "Safety": a restart brings the test back Held) -------
+    # --- retained state (docs/design.md "Safety": a restart brings the test back Held) ---
     def snapshot(self) -> ChainSnapshot | None:
         """The test as a restart needs it (None when no recipe is loaded). Cheap: plain
         values copied in the scan; writing them is someone else's job, off the scan."""
@@ -327,30 +224,7 @@ class ChainRunner:
         ``program``.
         """
         check_load(self.name, self.state)
-        if snapshot.state not in {s.value for s in ACTIVE}:
-            raise ValueError(f"{self.name}: a {snapshot.state} test is not resumed")
-        if not 0 <= snapshot.step < len(program.steps):
-            raise ValueError(
-                f"{self.name}: step {snapshot.step + 1} is beyond the {len(program.steps)}"
-                f" steps of recipe {program.name}"
-            )
-        # A sleep wakes up into a step of the program, or past its last (the end).
-        if snapshot.sleep_then is not None and snapshot.sleep_then > len(program.steps):
-            raise ValueError(
-                f"{self.name}: the saved sleep goes on to step {snapshot.sleep_then + 1},"
-                f" beyond the {len(program.steps)} steps of recipe {program.name}"
-            )
-        groups = [int(g) for g in snapshot.group_time_s]
-        if any(g >= len(program.groups) for g in groups):
-            raise ValueError(
-                f"{self.name}: the saved group times name group {max(groups) + 1}, beyond the"
-                f" {len(program.groups)} groups of recipe {program.name}"
-            )
-        if snapshot.step_id and program.steps[snapshot.step].id != snapshot.step_id:
-            raise ValueError(
-                f"{self.name}: step {snapshot.step + 1} of recipe {program.name} is"
-                f" {program.steps[snapshot.step].id!r}, the saved test was in {snapshot.step_id!r}"
-            )
+        check_snapshot(self.name, snapshot, program)
         self._install(program)
         now = self.clock.now()
         self._r, away_s = RunState.thaw(snapshot, now, self.clock.to_wall(now))
@@ -458,14 +332,16 @@ class ChainRunner:
         """One scan: the command, the running step's checks, the outputs, the tags.
 
         A steady scan — running, nothing commanded, no fault and no latched alarm, in
-        Auto, no sleep or advance pending, in a step whose scans can be steady
-        (``_steady``) — takes a short way (issue 13: nearly every scan of a test is one):
-        the step's checks in one call (``_steady_running``), then the outputs and tags
-        as ``_outputs`` and ``_publish`` write them, with an unchanged tag only stamped,
-        as its update would leave it (``TagDB.stamp``: a GOOD, reason-less tag holding
-        the same value). Whatever happens in the step (an alarm, a transition, a record)
-        ends the scan the plain way. ``tests/unit/test_chain_steady_scan.py`` checks it,
-        tag by tag, against the plain scan (``_fast`` False).
+        Auto, no sleep or advance pending, in a step that takes time — takes a short way
+        (issue 13: nearly every scan of a test is one): the step's rules (``StepRules``,
+        the plain scan's too) without the checks a steady scan cannot need
+        (``_steady_running``), then the outputs and tags as ``_outputs`` and ``_publish``
+        write them, with an unchanged tag only stamped, as its update would leave it
+        (``TagDB.stamp``: a GOOD, reason-less tag holding the same value). Whatever
+        happens in the step (an alarm, a transition, a record) ends the scan the plain
+        way. ``tests/unit/test_chain_steady_scan.py`` and
+        ``tests/unit/test_step_kinds_equivalence.py`` check it, tag by tag, against the
+        plain scan (``_fast`` False).
         """
         port, r = self.port, self._r
         index = r.step
@@ -479,7 +355,7 @@ class ChainRunner:
             and not self._pending_advance
             and r.sleep_until_t is None
             and r.step_count
-            and self._steady[index]
+            and not self._instant[index]
         ):
             self._scan(now, dt)
             return
@@ -497,140 +373,16 @@ class ChainRunner:
             self._outputs()
             self._publish(now)
             return
-        behaviour = self._behaviours[index]
-        db = self.db
-        # A tag that holds is stamped inline (``db.stamp``, without the call).
-        scan_t, update = db.scan_t, db.update
-        # ``_outputs`` of a running step: its setpoint unless its interlock holds it back.
-        amps = 0.0
-        if not self._interlock_tag.value:
-            amps_now = self._setpoints[index]
-            amps = self.setpoint() if amps_now is None else amps_now
-        # Then, in their order, what ``port.request(amps, cv, True)`` writes (Running, no
-        # alarm latched: active) and what ``_publish`` of a running step writes: the step,
-        # its number and the cycle (the same but after an event, which leaves the steady
-        # way), the clocks, the progress.
-        t_step, t_index, t_cycle, t_step_time, t_test_time = self._publish_tags
-        for tag, value in (
-            (port.auto_current, amps),
-            (port.auto_active, True),
-            (port.auto_voltage, behaviour.cv_target_v),
-            (t_step, step.id),
-            (t_index, step.index + 1),
-            (t_cycle, r.cycle),
-        ):
-            if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-                if not tag.forced:
-                    tag.source_t = scan_t
-            else:
-                update(tag, value)
-        update(t_step_time, now - r.t_step0)
-        elapsed_s = now - r.t_test0
-        update(t_test_time, elapsed_s)
-        # ``self.progress.shown`` for an active test, inline (the same expressions; they
-        # cannot raise, so computing the ETA after writing the progress changes nothing).
-        t_progress, t_eta = self._progress_tags
-        est = self.progress.estimated_duration_s
-        # ``min(1.0, x)`` and ``max(0.0, x)`` as expressions (the same answers, NaN
-        # included): ``min`` and ``max`` parse keywords at every call.
-        if est:
-            fraction = elapsed_s / est
-            update(t_progress, fraction if fraction < 1.0 else 1.0)
-            left_s = est - elapsed_s
-            update(t_eta, left_s if left_s > 0.0 else 0.0)
-        else:
-            step_current_a = behaviour.progress_current_a
-            capacity_ah = program.capacity_ah
-            if step_current_a is not None and capacity_ah:
-                charge = port.charge_ah
-                x = charge.value
-                moved = abs((x if type(x) is float else charge.as_float()) - r.step_q0)
-                fraction = moved / capacity_ah
-                update(t_progress, fraction if fraction < 1.0 else 1.0)
-                amps_a = abs(step_current_a)
-                if amps_a > 0:
-                    left_s = (capacity_ah - moved) * 3600.0 / amps_a
-                    update(t_eta, left_s if left_s > 0.0 else 0.0)
-                else:
-                    update(t_eta, None)
-        if self._charge_live:
-            # ``_publish``'s test charge (``ConditionValues.charge_ah``), inline.
-            charge = port.charge_ah
-            x = charge.value
-            update(
-                self._charge_tag,
-                program.initial_charge_ah
-                + (x if type(x) is float else charge.as_float())
-                - r.q0_ah,
-            )
-        if self.samplers:
-            self._sample(now, step)
+        self._steady_outputs(now, r, program, step)
 
     def _steady_running(self, now: float, r: RunState, step: CompiledStep) -> bool:
-        """``_running`` in a steady scan of ``step`` (see ``run``; its checks in the same
-        order, those a steady step cannot need left out): True when the step simply goes
-        on, False when something happened (an alarm, a transition, a record)."""
+        """``_running`` in a steady scan of ``step`` (see ``run``): the voltage observed
+        and the values read in one call, then the step's rules: True when the step simply
+        goes on, False when something happened (an alarm, a transition, a record)."""
         conditions = self._conditions
         assert conditions is not None
         values = conditions.observed_values(now, r)
-        st = values["step_time"]
-        assert isinstance(st, float)
-        # Recipe limits, armed once the power path is closed: a violation is described by
-        # ``_limit_violation`` (which finds the same first one).
-        why = ""
-        if self.port.armed.value is True:
-            for name, lo, hi in self._limit_bounds:
-                x = values[name]  # a reading: always in the dict
-                if isinstance(x, float) and (x < lo or x > hi):
-                    why = self._limit_violation(values, step, ())
-                    break
-        if why or self._limit_timing:
-            self._limit_timing = bool(why)
-            if self._limit_delay.update(bool(why), now):
-                self._alarm(why)
-                self._set_state(State.HOLDING, why)
-                return False
-        if (
-            step.max_time_s is not None
-            and r.max_time_acked != r.step_count
-            and st > step.max_time_s
-        ):
-            why = f"supervision: step {step.id} exceeded {step.max_time_s:g} s"
-            self._alarm(why)
-            self._set_state(State.HOLDING, why)
-            return False
-        if step.error is not None and step.error.evaluate(values) is True:
-            why = f"supervision: {step.error.text}"
-            self._alarm(why)
-            self._set_state(State.HOLDING, why)
-            return False
-        if step.interlock is not None:
-            ok = step.interlock.evaluate(values)
-            self._set("interlock", "" if ok is True else f"interlock: {step.interlock.text}")
-        else:
-            tag = self._interlock_tag
-            if tag.value == "" and tag.quality is _GOOD and tag.reason is _NONE:
-                if not tag.forced:  # ``db.stamp(tag)``, inline
-                    tag.source_t = self.db.scan_t
-            else:
-                self.db.update(tag, "")
-        for tr in step.transitions:
-            try:  # ``tr.condition.evaluate(values)``, without the method call
-                hit = tr.condition.fn(values)
-            except ArithmeticError:
-                hit = None
-            if hit is True:
-                self._act(tr.action, f"until #{tr.index}: {tr.text}", now)
-                return False
-        if step.duration_s is not None and st >= step.duration_s - EPS_S:
-            self._act(Action(ActionKind.NEXT), "duration elapsed", now)
-            return False
-        # ``_record(now, step)`` once a record may be due (it does nothing when none is).
-        # A record calls out to the recorders, which may act on the chain: the plain
-        # outputs and tags follow it.
-        if self.recorders and now - r.last_rec_t >= self._may_be_due_s[step.index]:
-            return not self._record(now, step)
-        return True
+        return self._step_rules(now, r, step, self._behaviours[step.index], values)
 
     def _scan(self, now: float, dt: float) -> None:
         """``run``'s plain way: every case."""
@@ -701,99 +453,58 @@ class ChainRunner:
         # Only the values this chain reads (its conditions, limits and behaviours).
         fast = self._fast
         values = conditions.values_read(now, r) if fast else conditions.values(now, r)
+        self._step_rules(now, r, step, behaviour, values)
+
+    def _step_rules(
+        self,
+        now: float,
+        r: RunState,
+        step: CompiledStep,
+        behaviour: StepBehaviour,
+        values: Values,
+    ) -> bool:
+        """The running step's rules (``StepRules``) for this scan, acted on in their order:
+        True when the step simply goes on, False when something happened (an alarm, a
+        transition, a record)."""
+        rules = self._rules
+        assert rules is not None
+        fast = self._fast
         st = values["step_time"]
         assert isinstance(st, float)
-        # Recipe limits (and the step's own, e.g. a profile row's): hold, latched alarm;
-        # armed once the power path is closed (the battery is what they are about).
-        if port.armed.value is not True:  # not port.limits_armed
-            why = ""
-        elif behaviour.has_limits or not fast:
-            why = self._limit_violation(values, step, behaviour.limits(st))
-        elif self._limits:
-            why = self._limit_violation(values, step, ())
+        # A limit held past its on-delay, a supervision: hold, latched alarm.
+        why = rules.hold(now, r, step, behaviour, st, values, self.port.armed.value is True, fast)
+        if why:
+            self._alarm(why)
+            self._set_state(State.HOLDING, why)
+            return False
+        # The interlock's text, stamped when it holds the same (``db.update`` would leave
+        # the tag so).
+        text = "" if step.interlock is None else rules.interlock(step, values)
+        tag = self._interlock_tag
+        if text == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+            self.db.stamp(tag)
         else:
-            why = ""
-        self._limit_timing = bool(why)
-        if self._limit_delay.update(bool(why), now):
-            self._alarm(why)
-            self._set_state(State.HOLDING, why)
-            return
-        # S7-GRAPH supervision: latched error, chain halts until acknowledged.
-        if (
-            step.max_time_s is not None
-            and r.max_time_acked != r.step_count
-            and st > step.max_time_s
-        ):
-            why = f"supervision: step {step.id} exceeded {step.max_time_s:g} s"
-            self._alarm(why)
-            self._set_state(State.HOLDING, why)
-            return
-        if step.error is not None and step.error.evaluate(values) is True:
-            why = f"supervision: {step.error.text}"
-            self._alarm(why)
-            self._set_state(State.HOLDING, why)
-            return
-        # Interlock: outputs safe while false; clears itself; transitions still evaluated.
-        if step.interlock is not None:
-            ok = step.interlock.evaluate(values)
-            self._set("interlock", "" if ok is True else f"interlock: {step.interlock.text}")
-        else:
-            self.db.update(self._interlock_tag, "")  # self._set("interlock", "")
+            self.db.update(tag, text)
         if self._pending_advance:
             self._pending_advance = False
             if step.advance is None:
                 self._emit("message", f"advance refused in step {step.id}")
             else:
                 self._act(step.advance, "operator advance", now)
-                return
-        # Transitions in order: step's, then its groups'; the first true one wins.
-        for tr in step.transitions:
-            if tr.condition.evaluate(values) is True:
-                self._act(tr.action, f"until #{tr.index}: {tr.text}", now)
-                return
-        for g in step.groups:
-            grp = program.groups[g]
-            for tr in grp.transitions:
-                if tr.condition.evaluate(values) is True:
-                    self._act(tr.action, f"group {grp.id} until #{tr.index}: {tr.text}", now)
-                    return
-        if behaviour.has_scan or not fast:
-            v, i = values["voltage"], values["current"]
-            resistance = behaviour.scan(
-                st, v if isinstance(v, float) else None, i if isinstance(i, float) else None
-            )
-            if resistance is not None:
-                self._set("internal_resistance", resistance)
-                self._emit("message", f"DC internal resistance {resistance * 1000:.1f} mohm")
-        if behaviour.has_done or not fast:
-            done = behaviour.done(st)
-            if done:
-                self._act(Action(ActionKind.NEXT), done, now)
-                return
-        if step.duration_s is not None and st >= step.duration_s - EPS_S:
-            self._act(Action(ActionKind.NEXT), "duration elapsed", now)
-            return
-        for g in step.groups:
-            grp = program.groups[g]
-            t0 = r.group_t0.get(g)
-            if grp.duration_s is not None and t0 is not None and now - t0 >= grp.duration_s:
-                # A group's time limit leaves the group: on to the step after its last one.
-                self._goto(max(grp.steps) + 1, f"group {grp.id} duration elapsed", now)
-                return
-        self._record(now, step)
-
-    def _limit_violation(
-        self, values: Values, step: CompiledStep, own: tuple[LimitCheck, ...]
-    ) -> str:
-        for name, (lo, hi), unit in (*self._limits, *own) if own else self._limits:
-            x = values.get(name)
-            if not isinstance(x, float):
-                continue
-            if lo is not None and x < lo:
-                return f"limit: {name} {x:.4g} {unit} below {lo:g} {unit} in step {step.id}"
-            if hi is not None and x > hi:
-                return f"limit: {name} {x:.4g} {unit} above {hi:g} {unit} in step {step.id}"
-        return ""
+                return False
+        hit, resistance = rules.next(now, r, step, behaviour, st, values, fast)
+        if resistance is not None:
+            self._set("internal_resistance", resistance)
+            self._emit("message", f"DC internal resistance {resistance * 1000:.1f} mohm")
+        if hit is not None:
+            self._act(hit[0], hit[1], now)
+            return False
+        # ``_record(now, step)`` once a record may be due (it does nothing when none is).
+        # A record calls out to the recorders, which may act on the chain: the plain
+        # outputs and tags follow it.
+        if self.recorders and now - r.last_rec_t >= self._may_be_due_s[step.index]:
+            return not self._record(now, step)
+        return True
 
     def setpoint(self) -> float:
         """Current the running step asks for now (A, + charges)."""
@@ -971,6 +682,81 @@ class ChainRunner:
                 amps = self.setpoint() if amps_now is None else amps_now
             cv = self._behaviours[index].cv_target_v
         self.port.request(amps, cv, running)
+
+    def _steady_outputs(
+        self, now: float, r: RunState, program: Program, step: CompiledStep
+    ) -> None:
+        """``_outputs`` then ``_publish`` of a steady scan of ``step`` (see ``run``): the
+        same writes in the same order, with what a steady scan cannot change left out and
+        an unchanged tag only stamped (``tests/unit/test_chain_steady_scan.py``)."""
+        index = step.index
+        behaviour = self._behaviours[index]
+        port = self.port
+        db = self.db
+        stamp, update = db.stamp, db.update
+        # ``_outputs`` of a running step: its setpoint unless its interlock holds it back.
+        amps = 0.0
+        if not self._interlock_tag.value:
+            amps_now = self._setpoints[index]
+            amps = self.setpoint() if amps_now is None else amps_now
+        # Then, in their order, what ``port.request(amps, cv, True)`` writes (Running, no
+        # alarm latched: active) and what ``_publish`` of a running step writes: the step,
+        # its number and the cycle (the same but after an event, which leaves the steady
+        # way), the clocks, the progress.
+        t_step, t_index, t_cycle, t_step_time, t_test_time = self._publish_tags
+        for tag, value in (
+            (port.auto_current, amps),
+            (port.auto_active, True),
+            (port.auto_voltage, behaviour.cv_target_v),
+            (t_step, step.id),
+            (t_index, step.index + 1),
+            (t_cycle, r.cycle),
+        ):
+            if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
+                stamp(tag)
+            else:
+                update(tag, value)
+        update(t_step_time, now - r.t_step0)
+        elapsed_s = now - r.t_test0
+        update(t_test_time, elapsed_s)
+        # ``self.progress.shown`` for an active test, inline (the same expressions; they
+        # cannot raise, so computing the ETA after writing the progress changes nothing).
+        t_progress, t_eta = self._progress_tags
+        est = self.progress.estimated_duration_s
+        # ``min(1.0, x)`` and ``max(0.0, x)`` as expressions (the same answers, NaN
+        # included): ``min`` and ``max`` parse keywords at every call.
+        if est:
+            fraction = elapsed_s / est
+            update(t_progress, fraction if fraction < 1.0 else 1.0)
+            left_s = est - elapsed_s
+            update(t_eta, left_s if left_s > 0.0 else 0.0)
+        else:
+            step_current_a = behaviour.progress_current_a
+            capacity_ah = program.capacity_ah
+            if step_current_a is not None and capacity_ah:
+                charge = port.charge_ah
+                x = charge.value
+                moved = abs((x if type(x) is float else charge.as_float()) - r.step_q0)
+                fraction = moved / capacity_ah
+                update(t_progress, fraction if fraction < 1.0 else 1.0)
+                amps_a = abs(step_current_a)
+                if amps_a > 0:
+                    left_s = (capacity_ah - moved) * 3600.0 / amps_a
+                    update(t_eta, left_s if left_s > 0.0 else 0.0)
+                else:
+                    update(t_eta, None)
+        if self._charge_live:
+            # ``_publish``'s test charge (``ConditionValues.charge_ah``), inline.
+            charge = port.charge_ah
+            x = charge.value
+            update(
+                self._charge_tag,
+                program.initial_charge_ah
+                + (x if type(x) is float else charge.as_float())
+                - r.q0_ah,
+            )
+        if self.samplers:
+            self._sample(now, step)
 
     def _record(self, now: float, step: CompiledStep, reason: str = "") -> bool:
         """A record to the recorders when ``reason`` is given or a logging rule says one is

@@ -92,26 +92,21 @@ class CompiledStep:
     log: LogRule = field(default_factory=LogRule)
     groups: tuple[int, ...] = ()
 
+    # What a kind is (instant, its BDF label) is said once, in ``supervisor.chains.kinds``.
+    # Imported here, not at the top: the registry holds the behaviours, which hold steps.
     @property
     def instant(self) -> bool:
         """Takes no time: goto, end of cycle, end."""
-        return self.kind in ("goto", "end_cycle", "end")
+        from supervisor.chains.kinds import kind_of
+
+        return kind_of(self.kind).instant
 
     @property
     def step_type(self) -> str:
         """BDF step type label."""
-        if self.kind in ("rest", "sleep", "sleep_until"):
-            return "REST"
-        if self.kind in ("charge", "discharge"):  # the kind says it, even at 0 A
-            return "CC_CHG" if self.kind == "charge" else "CC_DCH"
-        if self.kind == "pulse":
-            return "CC_CHG" if self.current_a > 0 else "CC_DCH"
-        return {
-            "cv": "CV_CHG",
-            "cccv": "CCCV_CHG",
-            "power": "CP_CHG" if (self.power_w or 0) > 0 else "CP_DCH",
-            "profile": "PROFILE",
-        }.get(self.kind, self.kind.upper())
+        from supervisor.chains.kinds import kind_of
+
+        return kind_of(self.kind).step_type(self)
 
 
 @dataclass(frozen=True)

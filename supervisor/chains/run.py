@@ -14,7 +14,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from supervisor.chains.states import State
+from supervisor.chains.program import Program
+from supervisor.chains.states import ACTIVE, State
 from supervisor.tags.spec import shown
 
 SNAPSHOT_FORMAT = 1
@@ -288,3 +289,33 @@ _SNAPSHOT_CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
 }
 """What each field of a saved snapshot must be (``freeze`` writes nothing else)."""
 assert set(_SNAPSHOT_CHECKS) == set(_SNAPSHOT_FIELDS), "every snapshot field has its check"
+
+
+def check_snapshot(name: str, snapshot: ChainSnapshot, program: Program) -> None:
+    """A test saved by channel ``name``'s chain can be brought back with ``program``: it
+    was under way, and its step, sleep and groups are the program's. ValueError saying
+    what does not fit."""
+    if snapshot.state not in {s.value for s in ACTIVE}:
+        raise ValueError(f"{name}: a {snapshot.state} test is not resumed")
+    if not 0 <= snapshot.step < len(program.steps):
+        raise ValueError(
+            f"{name}: step {snapshot.step + 1} is beyond the {len(program.steps)}"
+            f" steps of recipe {program.name}"
+        )
+    # A sleep wakes up into a step of the program, or past its last (the end).
+    if snapshot.sleep_then is not None and snapshot.sleep_then > len(program.steps):
+        raise ValueError(
+            f"{name}: the saved sleep goes on to step {snapshot.sleep_then + 1},"
+            f" beyond the {len(program.steps)} steps of recipe {program.name}"
+        )
+    groups = [int(g) for g in snapshot.group_time_s]
+    if any(g >= len(program.groups) for g in groups):
+        raise ValueError(
+            f"{name}: the saved group times name group {max(groups) + 1}, beyond the"
+            f" {len(program.groups)} groups of recipe {program.name}"
+        )
+    if snapshot.step_id and program.steps[snapshot.step].id != snapshot.step_id:
+        raise ValueError(
+            f"{name}: step {snapshot.step + 1} of recipe {program.name} is"
+            f" {program.steps[snapshot.step].id!r}, the saved test was in {snapshot.step_id!r}"
+        )

@@ -21,10 +21,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from supervisor.app.dryrun import DryRunResult, dry_run, settled_heap
-from supervisor.chains.behaviours import BEHAVIOURS, StepBehaviour
+from supervisor.chains.behaviours import StepBehaviour
 from supervisor.chains.compiler import compile_recipe
 from supervisor.chains.conditions import ConditionValues
 from supervisor.chains.engine import ChainRunner
+from supervisor.chains.kinds import KINDS
 from supervisor.chains.port import ChannelPort
 from supervisor.chains.program import CompiledStep
 from supervisor.chains.run import RunState
@@ -95,9 +96,9 @@ def overrides(cls: type[StepBehaviour], name: str) -> bool:
     return getattr(cls, name) is not getattr(StepBehaviour, name)
 
 
-@pytest.mark.parametrize("kind", sorted(BEHAVIOURS))
+@pytest.mark.parametrize("kind", sorted(KINDS))
 def test_a_behaviour_says_which_of_its_answers_differ_from_a_rest_steps(kind: str) -> None:
-    cls = BEHAVIOURS[kind]
+    cls = KINDS[kind].behaviour
     assert isinstance(cls, type)
     assert cls.has_limits == overrides(cls, "limits")
     assert cls.has_scan == overrides(cls, "scan")
@@ -108,7 +109,7 @@ def test_a_behaviour_says_which_of_its_answers_differ_from_a_rest_steps(kind: st
 
 @settings(max_examples=200, deadline=None)
 @given(
-    st.sampled_from(sorted(BEHAVIOURS)),
+    st.sampled_from(sorted(KINDS)),
     st.floats(-2.0, 2.0),
     st.floats(0.0, 1e6),
     st.one_of(st.none(), st.floats(-5.0, 5.0)),
@@ -117,7 +118,7 @@ def test_a_setpoint_said_not_to_vary_is_the_same_at_any_time_and_voltage(
     kind: str, current_a: float, step_time_s: float, voltage_v: float | None
 ) -> None:
     step = CompiledStep(index=0, id="s", kind=kind, current_a=current_a, voltage_v=1.5)
-    behaviour = BEHAVIOURS[kind](step)
+    behaviour = KINDS[kind].behaviour(step)
     if not behaviour.setpoint_varies:
         assert behaviour.setpoint(step_time_s, voltage_v) == behaviour.setpoint(0.0, None)
 

@@ -36,9 +36,6 @@ NOT_TAGS: Counter[tuple[str, str]] = Counter(
         ("supervisor/devices/chadeche/bus.py", "self._a1.value"): 1,
         # A screen client's version: the change feed's version it was last sent.
         ("supervisor/hmi/live.py", "c.version"): 1,
-        # The step chain's steady path stamps its unchanged outputs by hand: it goes with
-        # issue 29 item 2's one description of a step's rules (supervisor/chains).
-        ("supervisor/chains/engine.py", "tag.source_t"): 2,
     }
 )
 

@@ -7,7 +7,6 @@ from typing import Any
 import pytest
 
 from supervisor.chains.behaviours import (
-    BEHAVIOURS,
     ConstantCurrent,
     ConstantPower,
     ConstantVoltage,
@@ -19,9 +18,9 @@ from supervisor.chains.behaviours import (
     Rest,
     Sleep,
     SleepUntil,
-    behaviour_for,
 )
 from supervisor.chains.compiler import WITH_CV
+from supervisor.chains.kinds import KINDS, behaviour_for
 from supervisor.chains.program import Action, ActionKind, CompiledStep, ProfilePoint
 
 
@@ -30,7 +29,7 @@ def step(kind: str, **kw: Any) -> CompiledStep:
 
 
 def test_every_step_kind_a_recipe_may_use_has_a_behaviour() -> None:
-    assert set(BEHAVIOURS) == set(WITH_CV)
+    assert set(KINDS) == set(WITH_CV)
 
 
 @pytest.mark.parametrize(
