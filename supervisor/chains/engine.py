@@ -693,7 +693,7 @@ class ChainRunner:
         behaviour = self._behaviours[index]
         port = self.port
         db = self.db
-        stamp, update = db.stamp, db.update
+        update = db.update
         # ``_outputs`` of a running step: its setpoint unless its interlock holds it back.
         amps = 0.0
         if not self._interlock_tag.value:
@@ -704,18 +704,16 @@ class ChainRunner:
         # its number and the cycle (the same but after an event, which leaves the steady
         # way), the clocks, the progress.
         t_step, t_index, t_cycle, t_step_time, t_test_time = self._publish_tags
-        for tag, value in (
-            (port.auto_current, amps),
-            (port.auto_active, True),
-            (port.auto_voltage, behaviour.cv_target_v),
-            (t_step, step.id),
-            (t_index, step.index + 1),
-            (t_cycle, r.cycle),
-        ):
-            if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-                stamp(tag)
-            else:
-                update(tag, value)
+        db.update_many(
+            (
+                (port.auto_current, amps),
+                (port.auto_active, True),
+                (port.auto_voltage, behaviour.cv_target_v),
+                (t_step, step.id),
+                (t_index, step.index + 1),
+                (t_cycle, r.cycle),
+            )
+        )
         update(t_step_time, now - r.t_step0)
         elapsed_s = now - r.t_test0
         update(t_test_time, elapsed_s)
