@@ -17,7 +17,8 @@ import asyncio
 import gc
 import sys
 from collections import Counter
-from collections.abc import Callable, Coroutine
+from collections.abc import Callable, Coroutine, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
@@ -47,6 +48,39 @@ def _where(frame: FrameType) -> str:
     return f"{filename}:{code.co_firstlineno}:{code.co_name}"
 
 
+class _Collections:
+    """Whether the garbage collector is at work: its first callback raises the flag, its
+    last lowers it, so every other callback is inside, as the finalizers are."""
+
+    def __init__(self) -> None:
+        self.running = False
+
+    def first(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self.running = True
+
+    def last(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "stop":
+            self.running = False
+
+    @contextmanager
+    def watched(self) -> Iterator[_Collections]:
+        """The garbage others left collected first, and no automatic collection inside:
+        one set off by any thread's allocations would run in the middle of the run."""
+        gc.collect()
+        enabled = gc.isenabled()
+        gc.disable()
+        gc.callbacks.insert(0, self.first)
+        gc.callbacks.append(self.last)
+        try:
+            yield self
+        finally:
+            gc.callbacks.remove(self.first)
+            gc.callbacks.remove(self.last)
+            if enabled:
+                gc.enable()
+
+
 def _traced(run: Callable[[], Coroutine[Any, Any, Any]]) -> tuple[Counter[str], Counter[str]]:
     """The bytecodes and calls ``run`` executes, by function, on a new event loop.
 
@@ -60,22 +94,10 @@ def _traced(run: Callable[[], Coroutine[Any, Any, Any]]) -> tuple[Counter[str], 
     asks for itself (``settled_heap``)."""
     ops: Counter[str] = Counter()
     calls: Counter[str] = Counter()
-    collecting = False
-
-    # The first of the collector's callbacks raises the flag, the last lowers it: every
-    # other callback is inside, as the finalizers are.
-    def first_on_gc(phase: str, info: dict[str, int]) -> None:
-        nonlocal collecting
-        if phase == "start":
-            collecting = True
-
-    def last_on_gc(phase: str, info: dict[str, int]) -> None:
-        nonlocal collecting
-        if phase == "stop":
-            collecting = False
+    collections = _Collections()
 
     def on_call(frame: FrameType, event: str, arg: object) -> Any:
-        if collecting or frame.f_code is first_on_gc.__code__:
+        if collections.running or frame.f_code is _Collections.first.__code__:
             return None
         frame.f_trace_opcodes = True
         where = _where(frame)
@@ -96,20 +118,8 @@ def _traced(run: Callable[[], Coroutine[Any, Any, Any]]) -> tuple[Counter[str], 
         finally:
             sys.settrace(previous)
 
-    # The garbage others left collected first, and no automatic collection while traced:
-    # one set off by any thread's allocations would run in the middle of the run.
-    gc.collect()
-    enabled = gc.isenabled()
-    gc.disable()
-    gc.callbacks.insert(0, first_on_gc)
-    gc.callbacks.append(last_on_gc)
-    try:
+    with collections.watched():
         asyncio.run(traced())
-    finally:
-        gc.callbacks.remove(first_on_gc)
-        gc.callbacks.remove(last_on_gc)
-        if enabled:
-            gc.enable()
     return ops, calls
 
 
