@@ -680,17 +680,7 @@ def _read_prm(
             not_recipe.append(f"-{letter} ({NOT_RECIPE[letter]}, line {ln})")
             continue
         if letter not in OPTIONS and letter not in CALIBRATION:
-            known = " ".join(f"-{k}" for k in [*OPTIONS, *CALIBRATION])
-            other = " ".join(f"-{k}" for k in [*IGNORED_IN_PRM, *NOT_RECIPE])
-            errors.append(
-                ConfigError(
-                    f"unknown option -{letter} (recipe and calibration options: {known};"
-                    f" ignored: {other})",
-                    file,
-                    ln,
-                    col,
-                )
-            )
+            errors.append(_unknown_prm_option(letter, file, ln, col))
             continue
         if not value:
             errors.append(ConfigError(f"-{letter} needs a value", file, ln, col))
@@ -710,6 +700,17 @@ def _read_prm(
         )
     if not_recipe:
         warnings.append(f"{file}: {', '.join(not_recipe)} ignored: not a recipe matter")
+
+
+def _unknown_prm_option(letter: str, file: str, ln: int, col: int) -> ConfigError:
+    known = " ".join(f"-{k}" for k in [*OPTIONS, *CALIBRATION])
+    other = " ".join(f"-{k}" for k in [*IGNORED_IN_PRM, *NOT_RECIPE])
+    return ConfigError(
+        f"unknown option -{letter} (recipe and calibration options: {known}; ignored: {other})",
+        file,
+        ln,
+        col,
+    )
 
 
 def _apply_overrides(
@@ -893,31 +894,8 @@ def _check_compiles(
         raise ConfigErrors(mapped) from None
 
 
-def import_chadeche(
-    config_path: str | Path,
-    prm_path: str | Path | None = None,
-    *,
-    name: str | None = None,
-    overrides: Mapping[str, str | float | int] | None = None,
-    simplify: bool = True,
-) -> ImportResult:
-    """Translate a Chadèche sequence file (+ optional ``chadecheN.prm``) into a recipe.
-
-    ``overrides`` are command-line options by letter (``{"-m": 1.1, "-i": 1300}``, the
-    dash is optional); they win over the parameter file, which wins over the defaults.
-    Raises ConfigErrors (every problem, each with file, line and column) for a broken file.
-    """
-    path = Path(config_path)
-    rows, warnings, about = _read_rows(path)
-
-    params = {k: _Param(o.default, o.source) for k, o in OPTIONS.items()}
-    calibration: dict[str, _Param] = {}
-    if prm_path is not None:
-        _read_prm(Path(prm_path), params, calibration, warnings)
-    if overrides:
-        _apply_overrides(overrides, params, calibration, warnings)
-    _check_together(params, str(prm_path if prm_path is not None else path))
-
+def _warn_instant_currents(rows: list[_Row], path: Path, warnings: list[str]) -> None:
+    """A row with a current whose TRUE acts first: the current flows for one scan at most."""
     for r in rows:
         first = next(((c, a) for c, a in r.conditions if a.kind != "I"), None)
         if r.ma and first is not None and first[0] == "true":
@@ -926,6 +904,12 @@ def import_chadeche(
                 "flow for one scan at most"
             )
 
+
+def _recipe_data(
+    path: Path, name: str | None, params: dict[str, _Param], rows: list[_Row], simplify: bool
+) -> tuple[dict[str, Any], dict[str, str], list[list[str]]]:
+    """The recipe as plain data, the note beside each option's line (where its value came
+    from) and the comment lines above each step (its source row, why it is instant)."""
     recipe_params: dict[str, str] = {}
     notes: dict[str, str] = {}
     for letter, opt in OPTIONS.items():
@@ -952,7 +936,18 @@ def import_chadeche(
             note.append(f"  → {_step_kind(step)}: {why}")
         step_notes.append(note)
     recipe["steps"] = steps
+    return recipe, notes, step_notes
 
+
+def _header(
+    path: Path,
+    prm_path: str | Path | None,
+    about: str,
+    rows: list[_Row],
+    params: dict[str, _Param],
+    overridden: bool,
+) -> list[str]:
+    """The recipe file's comment header: where it came from and what was assumed."""
     assumed = [
         f"-{o.letter} {_num(o.default)}{(' ' + o.unit) if o.unit else ''}"
         for o in OPTIONS.values()
@@ -963,29 +958,65 @@ def import_chadeche(
         "§III.D); edit freely, the source is not read again.",
         f"source: {path} ({about}, {len(rows)} rows)",
         f"parameters: {prm_path if prm_path is not None else 'no .prm file'}"
-        + (", with overrides" if overrides else ""),
+        + (", with overrides" if overridden else ""),
         "Row ADR → step s<ADR>; TL TH LmAh HmAh TRUE → until (column order, first true acts);",
         "CTRLZ → advance; each source row is repeated above its step.",
     ]
     if assumed:
         header.append(f"Assumed defaults (the seed does not state them): {', '.join(assumed)}.")
     header.append("A sequence file has no safety limits: add `limits:` (voltage, temperature).")
+    return header
+
+
+def _calibration_out(
+    calibration: dict[str, _Param],
+) -> tuple[dict[str, float] | None, str | None]:
+    """``-1 -2 -s -o`` as I/O-map calibration keys and the YAML lines to paste, or None."""
+    if not calibration:
+        return None, None
+    cal: dict[str, float] = {}
+    lines = ["# Chadèche board calibration (seed §III.F); paste under the board's calibration:"]
+    for letter, (key, what) in CALIBRATION.items():
+        if letter in calibration:
+            cal[key] = calibration[letter].value
+            source = calibration[letter].source
+            lines.append(
+                f"{key + ':':<19} {yaml_float(cal[key]):<8}  # -{letter}: {what} ({source})"
+            )
+    return cal, "\n".join(lines) + "\n"
+
+
+def import_chadeche(
+    config_path: str | Path,
+    prm_path: str | Path | None = None,
+    *,
+    name: str | None = None,
+    overrides: Mapping[str, str | float | int] | None = None,
+    simplify: bool = True,
+) -> ImportResult:
+    """Translate a Chadèche sequence file (+ optional ``chadecheN.prm``) into a recipe.
+
+    ``overrides`` are command-line options by letter (``{"-m": 1.1, "-i": 1300}``, the
+    dash is optional); they win over the parameter file, which wins over the defaults.
+    Raises ConfigErrors (every problem, each with file, line and column) for a broken file.
+    """
+    path = Path(config_path)
+    rows, warnings, about = _read_rows(path)
+
+    params = {k: _Param(o.default, o.source) for k, o in OPTIONS.items()}
+    calibration: dict[str, _Param] = {}
+    if prm_path is not None:
+        _read_prm(Path(prm_path), params, calibration, warnings)
+    if overrides:
+        _apply_overrides(overrides, params, calibration, warnings)
+    _check_together(params, str(prm_path if prm_path is not None else path))
+    _warn_instant_currents(rows, path, warnings)
+
+    recipe, notes, step_notes = _recipe_data(path, name, params, rows, simplify)
+    header = _header(path, prm_path, about, rows, params, bool(overrides))
     text, spans, option_lines = _emit(recipe, header, notes, step_notes)
     by_target = {o.target: params[letter] for letter, o in OPTIONS.items()}
     options = {line: by_target[target] for line, target in option_lines.items()}
     _check_compiles(text, spans, rows, str(path), options)
-
-    cal: dict[str, float] | None = None
-    snippet: str | None = None
-    if calibration:
-        cal = {}
-        lines = ["# Chadèche board calibration (seed §III.F); paste under the board's calibration:"]
-        for letter, (key, what) in CALIBRATION.items():
-            if letter in calibration:
-                cal[key] = calibration[letter].value
-                source = calibration[letter].source
-                lines.append(
-                    f"{key + ':':<19} {yaml_float(cal[key]):<8}  # -{letter}: {what} ({source})"
-                )
-        snippet = "\n".join(lines) + "\n"
+    cal, snippet = _calibration_out(calibration)
     return ImportResult(text, recipe, cal, snippet, warnings)
