@@ -63,12 +63,16 @@ $(STAMP): pyproject.toml
 run: $(STAMP) $(HMI_STAMP) demo-users
 	$(BIN)/supervisor run io_maps/sim.yaml
 
+# The three demo users of a simulated bench that has none yet (never on a real bench):
+# `make demo-users BENCH=io_maps/load16.yaml`; `make run` makes those of io_maps/sim.yaml.
+demo-users: BENCH ?= io_maps/sim.yaml
 demo-users: $(STAMP)
-	@if [ -z "$$($(BIN)/supervisor opcua list-users --io-map io_maps/sim.yaml)" ]; then \
+	@users="$$($(BIN)/supervisor opcua list-users --io-map $(BENCH))" || exit 2; \
+	if [ -z "$$users" ]; then \
 	  for u in viewer operator engineer; do \
-	    echo $$u | $(BIN)/supervisor opcua add-user $$u --role $$u --password-stdin --io-map io_maps/sim.yaml || exit 2; \
+	    echo $$u | $(BIN)/supervisor opcua add-user $$u --role $$u --password-stdin --io-map $(BENCH) || exit 2; \
 	  done; \
-	  echo "demo users (demo only, never on a real bench): viewer/viewer operator/operator engineer/engineer"; \
+	  echo "demo users of $(BENCH) (demo only, never on a real bench): viewer/viewer operator/operator engineer/engineer"; \
 	fi
 
 ## Lint, type-check and the whole test suite.
@@ -106,7 +110,7 @@ $(INFLUXD):
 	GOBIN=$(INFLUXD_CACHE) GOFLAGS=-buildvcs=false go install github.com/influxdata/influxdb/cmd/influxd@v$(INFLUXD_VERSION)
 
 ## Benchmarks: figures are printed, never asserted. Each figure of issue 13's table is
-## also recorded (supervisor/app/benchreport.py) and the last step writes the table:
+## also recorded (supervisor/bench/report.py) and the last step writes the table:
 ## var/bench/results.json and var/bench/results.md (figure | measured | target | reference
 ## | met?, with the machine). BENCH_MEMORY_MIN=30 gives the 30-minute memory figure.
 BENCH_DIR        ?= var/bench

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 from supervisor.core.encoding import storable_text
 
@@ -12,6 +13,11 @@ ROOT = Path(__file__).resolve().parent.parent
 
 # Virtual clock, no leftover tasks: the project's own test helpers.
 pytest_plugins = ["supervisor.testing.plugin", "influxrig"]
+
+# No wall-clock deadline for a hypothesis example: it is a timing assertion, and a loaded
+# machine made one fail (976 ms against 200 ms, a line fit). A hang is pytest-timeout's.
+settings.register_profile("bench-supervisor", deadline=None)
+settings.load_profile("bench-supervisor")
 
 
 @pytest.fixture

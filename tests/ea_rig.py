@@ -20,7 +20,7 @@ from rig_transports import IN_PROCESS, TCP
 from supervisor.core.clock import Clock
 from supervisor.core.quality import Quality, Reason
 from supervisor.devices.ea import EaDriver, EaSimulator, EaTcpSimulator
-from supervisor.devices.ea.transport import (
+from supervisor.fieldbus.scpi_transport import (
     InProcessScpiTransport,
     ScpiTransport,
     TcpScpiTransport,

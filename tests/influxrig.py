@@ -35,7 +35,7 @@ from typing import Any
 import pytest
 import yaml
 
-from supervisor.core.processes import stop_with_parent
+from supervisor.bench.processes import stop_with_parent
 from supervisor.testing import free_tcp_port
 
 __all__ = [

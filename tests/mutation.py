@@ -1,6 +1,6 @@
 """The project's own generator of mutated input files (issue 9, "Hardening").
 
-The promise (README "Commands"): every malformed file a user hands to ``supervisor check`` or
+The promise (docs/operator.md): every malformed file a user hands to ``supervisor check`` or
 ``supervisor import chadeche`` gets one clear message naming file, line and column, exit code
 2, never a traceback and never a hang. This module makes the files that test it: from the
 shipped ``io_maps/*.yaml``, ``recipes/*.yaml``, ``tests/data/chadeche/*.txt`` and ``*.prm``,
@@ -765,7 +765,8 @@ def _null_value(rng: random.Random, src: Source, small: bool) -> Made | None:
 
 
 # Keys of I/O maps and recipes whose number must be more than zero, or at least zero: a
-# period, a timeout, a capacity, a count, a port (README "I/O maps", the models' own text).
+# period, a timeout, a capacity, a count, a port (docs/deployment.md "I/O maps", the models'
+# own text).
 _POSITIVE_KEYS = {
     "period_s",
     "poll_period_s",
@@ -870,7 +871,7 @@ _EXTREME_QUANTITY: tuple[tuple[str, Expect, str], ...] = (
     ("9" * 400, REFUSE, "400 digits (infinite as a double)"),
     ("9" * 5000, REFUSE, "5000 digits"),
     ("1e308", EITHER, "near the largest double"),
-    # README "Recipes": a non-zero literal that reads as 0 is refused (issue 9, 1e-400 A).
+    # docs/recipes.md "Recipes": a non-zero literal that reads as 0 is refused (issue 9, 1e-400 A).
     ("1e-400", REFUSE, "below the double range (reads as 0)"),
     ("0", EITHER, "zero"),
     ("-0", EITHER, "minus zero"),

@@ -1,6 +1,6 @@
 """One bench, one supervisor: an exclusive lock on the bench's state directory.
 
-DESIGN.md "Safety": the lock is taken before any device, simulator or port is touched, so
+docs/design.md "Safety": the lock is taken before any device, simulator or port is touched, so
 a second ``supervisor run`` of the same bench started by mistake never connects to the
 devices the first one drives (it would otherwise switch them safe under a running test).
 
@@ -32,6 +32,15 @@ class BenchBusy(SupervisorError):
         super().__init__(f"bench {bench!r} is already run by {who} (lock {path})")
         self.bench = bench
         self.pid = pid
+        self.path = path
+
+
+class BenchLockFailed(SupervisorError):
+    """The bench's lock could not be taken (its folder not writable, …): not another
+    supervisor (that is ``BenchBusy``)."""
+
+    def __init__(self, path: Path, exc: OSError) -> None:
+        super().__init__(f"cannot take the bench lock {path}: {exc.strerror or exc}")
         self.path = path
 
 

@@ -1,6 +1,6 @@
 """Retained state wiring: what each channel saves, when, and how a restart brings it back.
 
-DESIGN.md "Safety": per channel the state that matters — test id, recipe (its text, file
+docs/design.md "Safety": per channel the state that matters — test id, recipe (its text, file
 name and parameters, so it recompiles the same even if the file changed or moved), chain
 state and step, step time, cycle, the run's time and counter baselines, the Ah/Wh counters
 (the ``retain=True`` tags), the mode — and the bench's latched alarms are persisted; after
@@ -155,7 +155,7 @@ class Retention:
         self._last_save_t = -math.inf
         # A periodic save is put one scan before its period is over: the worker commits it
         # after that scan (milliseconds), so a SIGKILL finds counters on disk at most one
-        # ``period_s`` old (README "Retained state"), not a period plus the write.
+        # ``period_s`` old (docs/operator.md "Retained state"), not a period plus the write.
         self._write_margin_s = bench.cfg.scan.period_s
         # Per channel: when its next periodic save and test summary are due (``_stagger``).
         self._save_due: dict[str, float] = {}

@@ -194,7 +194,7 @@ class ChainRunner:
             TagSpec(f"{n}.chain.progress", unit="1", initial=0.0, history=CLOCK_HISTORY),
             TagSpec(f"{n}.chain.eta_s", unit="s", initial=None, history=CLOCK_HISTORY),
             TagSpec(f"{n}.chain.internal_resistance", unit="ohm", initial=None),
-            # The test's charge (README "Tags"): what the ``charge`` condition tests.
+            # The test's charge (docs/integrator.md "Tags"): what the ``charge`` condition tests.
             TagSpec(
                 f"{n}.chain.charge_ah",
                 unit="Ah",
@@ -294,7 +294,7 @@ class ChainRunner:
             for step, b in zip(program.steps, behaviours, strict=True)
         )
 
-    # --- retained state (DESIGN.md "Safety": a restart brings the test back Held) -------
+    # --- retained state (docs/design.md "Safety": a restart brings the test back Held) -------
     def snapshot(self) -> ChainSnapshot | None:
         """The test as a restart needs it (None when no recipe is loaded). Cheap: plain
         values copied in the scan; writing them is someone else's job, off the scan."""
@@ -647,7 +647,7 @@ class ChainRunner:
                     self._emit("message", str(exc))
         port = self.port
         if port.fault.value and port.trip_aborts and self.state in ACTIVE:
-            # DESIGN.md "Safety": the e-stop aborts the test (a hold would leave it resumable).
+            # docs/design.md "Safety": the e-stop aborts the test (a hold would leave it resumable).
             self._set_state(State.ABORTING, f"channel trip: {self.port.fault_text()}")
         state = self.state
         if state in AUTO_NEXT:

@@ -3,7 +3,7 @@
 A chain reads the channel's measurement, counter, fault and mode tags and requests a
 setpoint through ``chN.auto_current`` / ``chN.auto_voltage`` / ``chN.auto_active``; the
 channel's own logic (run after the chain in the same scan) clamps, protects and drives
-the source, so a chain can never override a trip (DESIGN.md, one scan). The chain never
+the source, so a chain can never override a trip (docs/design.md, one scan). The chain never
 sees the channel object, a driver or a device: only these tags, through the TagDB.
 """
 

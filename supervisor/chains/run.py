@@ -4,7 +4,7 @@ restart).
 ``RunState`` holds times on the running process's monotonic axis (``Clock.now()``); a
 ``ChainSnapshot`` holds the same state with every time relative to the moment it was
 taken, plus that moment's Unix time, so that another process (after a crash or a
-restart, DESIGN.md "Safety", seed 001's context save) can put it back on its own axis.
+restart, docs/design.md "Safety", seed 001's context save) can put it back on its own axis.
 """
 
 from __future__ import annotations

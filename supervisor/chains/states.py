@@ -14,7 +14,7 @@ State model (OPC UA ``StateEnumeration`` numbers in ``chN.chain.state_code``)::
 not change the state; ``advance`` is accepted while Running and stays Running (the
 operator's CTRL-Z of seed 000, acted on by the next scan).
 
-Auto and Manual (DESIGN.md "Recipes"): a mode change is an explicit command, never a side
+Auto and Manual (docs/design.md "Recipes"): a mode change is an explicit command, never a side
 effect. A channel the operator drives in Manual (enable on) is not taken from them by a
 ``start`` or a load: they turn enable off first. A test held in Manual resumes only once
 the channel is handed back to its chain (mode auto).
@@ -41,7 +41,7 @@ class State(StrEnum):
     COMPLETE = "Complete"
 
 
-# OPC UA Part 10 / PackML StateEnumeration numbering (documented in the README;
+# OPC UA Part 10 / PackML StateEnumeration numbering (docs/integrator.md "Tags";
 # reference/semantics.md: "pick the OPC UA one"). Running is Execute, Resuming Unholding.
 OPCUA_CODE = {
     State.STOPPED: 0,

@@ -244,7 +244,7 @@ class Channel:
         self._last_clamp_req: float | None = None
 
     # --- per scan ------------------------------------------------------------------
-    # Two phases of the scan (DESIGN.md "One scan"): ``derive`` first, so interlocks and the
+    # Two phases of the scan (docs/design.md "One scan"): ``derive`` first, so interlocks and the
     # step chain see this scan's measurements and counters; ``drive`` last, so the chain's
     # request is clamped and protected before it reaches the outputs.
     def derive(self, now: float, dt: float) -> None:

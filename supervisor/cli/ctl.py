@@ -148,7 +148,7 @@ def add_parser(sub: Any) -> None:
     st.add_argument(
         "-p", "--param", action="append", default=[], metavar="NAME=VALUE", help="a parameter"
     )
-    # The test's metadata (README "Test records"): the server checks them.
+    # The test's metadata (docs/recipes.md "Test records"): the server checks them.
     st.add_argument("--cell", default="", metavar="ID", help="the cell or sample tested")
     st.add_argument("--chemistry", default="", help="the cell's chemistry (e.g. nimh)")
     st.add_argument("--capacity", default="", help="the cell's nominal capacity (e.g. 2.5 Ah)")

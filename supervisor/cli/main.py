@@ -10,7 +10,6 @@ import argparse
 import asyncio
 import atexit
 import contextlib
-import dataclasses
 import faulthandler
 import io
 import logging
@@ -20,7 +19,6 @@ import os
 import queue
 import re
 import signal
-import statistics
 import sys
 import tempfile
 import time
@@ -28,19 +26,17 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Final, NoReturn
 
+from supervisor.bench import memtrace
 from supervisor.cli import ctl
 from supervisor.config.models import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
-from supervisor.core import memtrace
 from supervisor.core.encoding import StorableFormatter
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
-from supervisor.core.heap import collect_when_idle, settle_after_start
 from supervisor.core.logrepeat import RepeatFilter
 from supervisor.scan.engine import ScanFirstLoop
 
 if TYPE_CHECKING:
-    from supervisor.app import Bench
+    from supervisor.app.service import Supervisor
     from supervisor.config.models import BenchConfig
-    from supervisor.hmi.recipes_api import RecipesConfig
 
 log = logging.getLogger("supervisor")
 
@@ -96,31 +92,36 @@ def _setup_logging(level: str, *, off_thread: bool = False) -> None:
 
 # --- run -----------------------------------------------------------------------------
 async def _run(args: argparse.Namespace) -> int:
-    from supervisor.app.lock import BenchBusy, BenchLock
+    """``supervisor run``: the supervisor the composition root builds
+    (``supervisor.app.service``), told about on stdout, run until SIGINT/SIGTERM."""
+    from supervisor.app.lock import BenchBusy, BenchLockFailed
+    from supervisor.app.service import build_supervisor
     from supervisor.devices.registry import load_bench
 
     cfg = load_bench(args.io_map)
     descriptors = _descriptors_fit(cfg)
     if descriptors is None:
         return EXIT_USAGE
-    # One bench, one supervisor (DESIGN.md "Safety"): the lock comes before anything that
-    # touches a device, a simulator or a port; the kernel drops it when this process dies.
-    lock = BenchLock(cfg.state_dir, cfg.bench)
     try:
-        lock.acquire()
-    except BenchBusy as exc:
+        # One bench, one supervisor (docs/design.md "Safety"): its lock is taken first, before
+        # anything touches a device, a simulator or a port; the kernel drops it when this
+        # process dies. Before anything runs, a test that was under way comes back Held.
+        sup = build_supervisor(
+            cfg,
+            simulate=not args.no_sim,
+            http_port=args.http_port,
+            display_period_s=10.0 if args.verbose else 60.0,
+        )
+    except (BenchBusy, BenchLockFailed) as exc:
         _err(f"supervisor: {exc}")
-        return EXIT_USAGE
-    except OSError as exc:
-        _err(f"supervisor: cannot take the bench lock {lock.path}: {exc.strerror or exc}")
         return EXIT_USAGE
     try:
         # Said once the bench is this process's: a second supervisor refused by the lock
         # prints nothing on stdout.
         _out(descriptors)
-        return await _run_locked(args, cfg)
+        return await _serve(args, cfg, sup)
     finally:
-        lock.release()
+        sup.release()
 
 
 def _descriptors_fit(cfg: BenchConfig) -> str | None:
@@ -143,73 +144,19 @@ def _descriptors_fit(cfg: BenchConfig) -> str | None:
     )
 
 
-async def _run_locked(args: argparse.Namespace, cfg: BenchConfig) -> int:
-    from supervisor.app import build_bench
-    from supervisor.core.clock import RealClock
+async def _serve(args: argparse.Namespace, cfg: BenchConfig, sup: Supervisor) -> int:
+    from supervisor.commands import Verb
 
-    clock = RealClock()
-    bench = build_bench(cfg, clock, simulate=not args.no_sim)
-    # Before anything runs: a test that was under way comes back Held (DESIGN.md "Safety").
-    restored = bench.retain()
-    bench.record_history()
-    try:
-        return await _serve(args, cfg, bench, restored)
-    finally:
-        if bench.retention is not None:  # left before the bench ran (a bad --recipe)
-            bench.retention.close()
-            bench.retention = None
-
-
-async def _serve(
-    args: argparse.Namespace, cfg: BenchConfig, bench: Bench, restored: list[str]
-) -> int:
-    from supervisor.app.descriptors import http_limits
-    from supervisor.app.hmi import build_screens
-    from supervisor.commands import Command, Verb
-    from supervisor.hmi import HttpApi
-    from supervisor.hmi.tests_api import TestsConfig
-
-    clock = bench.clock
-    port = cfg.hmi.port if args.http_port is None else args.http_port
-    # The e-stop button presses the simulated plant's e-stop (seed 002 bench only).
-    estop = bench.sim.press_estop if bench.sim is not None and bench.sim.served else None
-
-    history = bench.historian.query if bench.historian is not None else None
-    recipes = _recipes_config(cfg, bench)
-    api = HttpApi(
-        bench.db,
-        clock,
-        cfg.hmi.host,
-        port,
-        estop=estop,
-        commands=bench.commands,
-        history=history,
-        recipes=recipes,
-        tests=TestsConfig(Path(cfg.state_dir) / "results", bench.results, bench.runners),
-        pacing=bench.engine,
-        allowed_origins=cfg.hmi.allowed_origins,
-        limits=http_limits(cfg),
-    )
-    screens = build_screens(bench, api)  # ConfigError for a bad users file: exit 2
-    opcua = None
-    if cfg.opcua.enabled:
-        from supervisor.app.opcua import build_opcua
-
-        opcua = build_opcua(bench)  # ConfigError for a bad users file: exit 2
+    bench, api, opcua = sup.bench, sup.api, sup.opcua
     starts: list[str] = []
     for spec in args.recipe:
         channel, _, file = spec.partition("=")
         if not file:
             raise ConfigError(f"--recipe {spec!r}: expected CHANNEL=FILE, e.g. ch0=recipes/x.yaml")
-        # The same command path as the HTTP API: loaded (checked and recorded, the recipe
-        # compiled in a worker thread with its time limit) before anything is served;
-        # ``--start`` starts it once the channel's inputs read GOOD (``_start_when_ready``).
+        # Loaded before anything is served; ``--start`` starts it once the channel's
+        # inputs read GOOD (``supervisor.app.service.start_when_ready``).
         verb = Verb.START if args.start else Verb.LOAD
-        # The shell's own file (``local``): not confined to the recipe folders (ADR 0026).
-        load = Command.channel(
-            channel, Verb.LOAD, "command line", recipe=file, parameters=_params(args.param)
-        )
-        result = await bench.commands.execute_async(dataclasses.replace(load, local=True))
+        result = await sup.load(channel, file, _params(args.param))
         if args.start:
             starts.append(channel)
         if not result.accepted:
@@ -217,8 +164,6 @@ async def _serve(
             for line in result.details[1:]:
                 _err(f"  {line}")
             return EXIT_USAGE
-    for display in bench.displays.values():
-        display.period_s = 10.0 if args.verbose else 60.0
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -226,25 +171,16 @@ async def _serve(
     # `kill -USR2 <pid>`: every asyncio task's stack into the log (what it waits for).
     loop.add_signal_handler(signal.SIGUSR2, _dump_tasks)
     try:
-        await api.start()
-        if recipes.checks is not None:
-            recipes.checks.warm()
-        if opcua is not None:
-            await opcua.start()
-        await bench.start()
+        await sup.start()
     except OSError as exc:
         _err(f"supervisor: cannot listen: {exc.strerror or exc} ({exc})")
-        await bench.shutdown()
-        if opcua is not None:
-            await opcua.stop()
-        await api.stop()
         return EXIT_USAGE
     _out(
         f"bench {cfg.bench!r}: {len(bench.db)} tags, {len(bench.channels)} channels,"
         f" scan period {cfg.scan.period_s * 1000:g} ms"
     )
     _out(f"HTTP API listening on {api.url}/tags")
-    login = screens.access.users
+    login = sup.screens.access.users
     _out(
         f"operator screens: http://{api.host}:{api.port}/ ("
         + (f"login: the users of {login.path}" if login is not None else "no login")
@@ -258,7 +194,7 @@ async def _serve(
         for line in bench.sim.addresses():
             _out(f"simulated {line}")
         _out(f'simulated e-stop button: PUT {api.url}/sim/estop {{"pressed": true}}')
-    for line in restored:
+    for line in sup.restored:
         _out(f"retained state: {line}")
     if bench.historian is not None:
         _out(f"history: {bench.historian.path} ({api.url}/history, {api.url}/events)")
@@ -270,30 +206,7 @@ async def _serve(
             f" ({waiting} points waiting)"
         )
     _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
-    unconfirmed: dict[str, str] = {}
-    # Start-up is over: what it built lives as long as the process (ADR 0018). Left in the
-    # collector's generations, the first full collections after start-up — set off by the
-    # first page's allocations — walked it all on the scan's thread (60–130 ms; the
-    # 0.46 s scan.stall of the browser tests on a busy machine; ADR 0019).
-    settle_after_start()
-    bench.engine.idle = collect_when_idle  # the collector's turn between scans (ADR 0021)
-    starter = asyncio.create_task(_start_when_ready(bench, starts)) if starts else None
-    try:
-        await bench.run(stop)
-    finally:
-        if recipes.checks is not None:
-            recipes.checks.kill_all()  # a check under way is abandoned at once (issue 28)
-        if starter is not None:
-            starter.cancel()
-            await asyncio.gather(starter, return_exceptions=True)
-        if opcua is not None:
-            opcua.closing()  # no command while the outputs go safe; clients see them go
-        unconfirmed = await bench.shutdown()
-        if opcua is not None:
-            await opcua.stop()
-        await api.stop()
-        if bench.sim is not None:
-            bench.sim.release()  # the process ends
+    unconfirmed = await sup.run(stop, starts)
     if unconfirmed:
         # Said only when every device confirmed it: an unreachable supply is not "safe".
         for device, why in unconfirmed.items():
@@ -301,80 +214,6 @@ async def _serve(
         return EXIT_FAIL
     _out("stopped: all outputs safe")
     return EXIT_OK
-
-
-def _recipes_config(cfg: BenchConfig, bench: Bench) -> RecipesConfig:
-    """The HMI's recipes: the recipe folders the command path loads from; its dry-run
-    preview in a child process (app/preview.py)."""
-    from supervisor.app.preview import preview_in_child
-    from supervisor.hmi.auth import session_actor, session_role
-    from supervisor.hmi.recipes_api import RecipesConfig, recipe_checks
-
-    # The command path's folders (one path policy, ADR 0026); the editor saves into the
-    # first. A save needs an engineer's session: the same users and roles as the commands.
-    folders = bench.commands.recipe_folders
-    assert folders is not None  # a bench always has its I/O map's
-    # Recipe texts from the network are checked in child processes, killed when abandoned
-    # (issue 28); started now so that the first check does not wait for their imports.
-    checks = recipe_checks(cfg.recipes.check_workers, cfg.recipes.check_memory_mib * 1024 * 1024)
-    return RecipesConfig(
-        folders.folders[0],
-        preview_in_child,
-        validate_timeout_s=cfg.recipes.check_timeout_s,
-        checks=checks,
-        folders=folders,
-        target_of=bench.target,
-        channels=bench.runners,
-        role_of=session_role,
-        actor_of=session_actor,
-    )
-
-
-START_WAIT_S: Final = 10.0
-"""``supervisor run --start``: how long a test waits for its channel's inputs to read GOOD
-after the scan began, before its start is refused."""
-
-
-async def _start_when_ready(bench: Bench, channels: list[str]) -> None:
-    """``--start``: each loaded test started once the inputs its channel's guard checks read
-    GOOD (``ChannelGuard.inputs_not_good``). Started at the first scan, a test whose BMS
-    had not sent its first frames yet tripped its channel at once (Held, with the alarm "BMS
-    value … is BAD (initial value)") on a busy machine. A channel still waiting after
-    ``START_WAIT_S`` is not started: its start is refused in the log, with what it waited
-    for; the operator starts it when the bench is ready."""
-    from supervisor.commands import Command, Verb
-
-    guards = bench.safety.guards
-    deadline = time.monotonic() + START_WAIT_S
-    waiting = list(channels)
-    while waiting:
-        late = time.monotonic() >= deadline
-        for ch in list(waiting):
-            guard = guards.get(ch)
-            missing = guard.inputs_not_good() if guard is not None else []
-            if missing and not late:
-                continue
-            waiting.remove(ch)
-            if missing:
-                log.error(
-                    "--start %s: start refused: its inputs do not read GOOD %g s after the"
-                    " scan began: %s",
-                    ch,
-                    START_WAIT_S,
-                    ", ".join(missing),
-                )
-                continue
-            result = await bench.commands.execute_async(
-                Command.channel(ch, Verb.START, "command line")
-            )
-            if not result.accepted:
-                log.error("--start %s: start refused: %s", ch, result.reason)
-        if waiting:
-            await asyncio.sleep(START_POLL_S)
-
-
-START_POLL_S: Final = 0.05
-"""How often ``_start_when_ready`` looks at the channels still waiting."""
 
 
 def _dump_tasks() -> None:
@@ -385,7 +224,7 @@ def _dump_tasks() -> None:
 
 def cmd_run(args: argparse.Namespace) -> int:
     _setup_logging(args.log_level, off_thread=True)
-    # A debugging switch, off unless $SUPERVISOR_TRACEMALLOC names a folder (core/memtrace.py).
+    # A debugging switch, off unless $SUPERVISOR_TRACEMALLOC names a folder (bench/memtrace.py).
     trace = memtrace.start_from_env()
     # A bench runs for days: `kill -USR1 <pid>` prints every thread's stack to the log
     # (what a stuck supervisor is doing), without stopping it.
@@ -763,118 +602,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 # --- bench ---------------------------------------------------------------------------
 def cmd_bench(args: argparse.Namespace) -> int:
-    from supervisor.app import benchmarks
+    from supervisor.bench.command import run_bench
 
     _setup_logging("warning")
-    if args.what == "scan":
-        return asyncio.run(
-            benchmarks.scan_benchmark(
-                args.tags,
-                args.period_ms / 1000,
-                args.seconds,
-                recipes=args.recipes,
-                settle=not args.no_settle,
-            )
-        )
-    if args.what == "historian":
-        return asyncio.run(
-            benchmarks.historian_benchmark(args.tags, args.period_ms / 1000, args.seconds)
-        )
-    if args.what == "seed002":
-        return asyncio.run(benchmarks.seed002_benchmark(str(DEFAULT_IO_MAP)))
-    if args.what == "faults":
-        from supervisor.app import faults
-
-        for line in faults.table(asyncio.run(faults.run_all())):
-            _out(line)
-        return EXIT_OK
-    if args.what == "estop":
-        logging.disable(logging.ERROR)  # every press trips the channel, logged at ERROR
-        return asyncio.run(
-            benchmarks.estop_benchmark(str(DEFAULT_IO_MAP), args.presses, args.period_ms / 1000)
-        )
-    if args.what == "kill-restart":
-        from supervisor.app.killrestart import kill_restart_benchmark
-
-        return kill_restart_benchmark(args.iterations, args.seed)
-    if args.what == "influx":
-        from supervisor.app.influxbench import influx_benchmark
-
-        return influx_benchmark(args.points, args.rounds)
-    if args.what == "http":
-        from supervisor.app.httpbench import http_benchmark
-
-        return asyncio.run(
-            http_benchmark(
-                args.tags, args.period_ms / 1000, args.seconds, args.http_clients, args.ws_clients
-            )
-        )
-    if args.what == "opcua":
-        return asyncio.run(
-            benchmarks.opcua_benchmark(
-                args.clients, args.seconds, args.opcua_tags, args.period_ms / 1000
-            )
-        )
-    if args.what == "flood":
-        from supervisor.app.floodbench import flood_benchmark
-
-        return flood_benchmark(
-            args.flood_http, args.flood_opcua, args.login_rate, args.login_seconds
-        )
-    if args.what == "validate-attack":
-        from supervisor.app.validatebench import validate_attack_benchmark
-
-        return validate_attack_benchmark()
-    if args.what in ("load", "memory", "report"):
-        from supervisor.app import benchsuite
-
-        return benchsuite.run(args)
-    if args.what == "dry-run" and args.bytecodes:
-        from supervisor.app.dryruncost import scan_cost
-
-        cost = scan_cost(args.recipe)
-        _out(
-            f"dry run of {args.recipe}: {cost.bytecodes:,.0f} bytecodes and {cost.calls:.1f}"
-            f" Python calls a scan (the difference of two traced runs, {cost.scans} scans)"
-        )
-        _out(f"{'bytecodes':>10} {'calls':>6}  function")
-        for where, ops, calls in cost.by_function[:30]:
-            _out(f"{ops:10.1f} {calls:6.2f}  {where}")
-        return EXIT_OK
-    if args.what == "dry-run":
-        from supervisor.app.dryrun import dry_run, format_report
-
-        # Several runs in one process, their median recorded: one run's ratio moves by a
-        # fifth with what else the machine does (issue 13: 25 000–31 000× on the idle
-        # machine), the median of five much less.
-        ratios: list[float] = []
-        walls: list[float] = []
-        for k in range(args.runs):
-            res = asyncio.run(dry_run(args.recipe, soc=0.0))
-            ratios.append(res.ratio)
-            walls.append(res.wall_s)
-            _out(f"run {k + 1} of {args.runs}: {format_report(res)[-1]}")
-        for line in format_report(res)[-3:-1]:
-            _out(line)
-        median = statistics.median(ratios)
-        _out(
-            f"median of {args.runs} runs: {median:,.0f}x"
-            f" (min–max {min(ratios):,.0f}–{max(ratios):,.0f}x)"
-        )
-        from supervisor.app import benchreport
-
-        benchreport.record(
-            f"dry run of {args.recipe}",
-            median,
-            "× real time",
-            ">= 30000",
-            f"median of {args.runs} runs, min–max {min(ratios):,.0f}–{max(ratios):,.0f}×,"
-            f" {res.simulated_s / 3600:.1f} simulated h in {statistics.median(walls):.2f} s"
-            " wall (median)",
-            f"supervisor bench dry-run --recipe {args.recipe} --runs {args.runs}",
-        )
-        return EXIT_OK
-    return asyncio.run(benchmarks.manual_charge_benchmark(args.hours))
+    return run_bench(args, DEFAULT_IO_MAP)
 
 
 # --- opcua ---------------------------------------------------------------------------------

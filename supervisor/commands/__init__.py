@@ -1,4 +1,4 @@
-"""The one command path (DESIGN.md "Safety"): operator commands checked (role, state,
+"""The one command path (docs/design.md "Safety"): operator commands checked (role, state,
 interlocks), executed, recorded with their actor, and answered accepted or refused with
 the reason. Every client — the HTTP API, the command line, OPC UA methods — uses it.
 

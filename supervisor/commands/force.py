@@ -3,7 +3,7 @@ touch, and how a forced value given as text becomes the tag's type.
 
 A force replaces a tag's process value until it is unforced (``TagDB.force``): whatever
 reads the tag reads the forced value. A force must never defeat the e-stop or a channel's
-protection (DESIGN.md "Safety": no command overrides a trip), so every tag the safety phase
+protection (docs/design.md "Safety": no command overrides a trip), so every tag the safety phase
 reads to decide a trip — the e-stop's sense input, an interlock's tag, a channel's voltage,
 current and temperature inputs, permissives, contactor feedback, cross-checks, BMS limits —
 and every tag it writes to hold a channel safe (limits, fault, enable, setpoints, relays)

@@ -234,7 +234,7 @@ class Result:
 
 @dataclass(frozen=True, slots=True)
 class CommandEvent:
-    """The record of one command, accepted or refused (DESIGN.md "Safety": the actor)."""
+    """The record of one command, accepted or refused (docs/design.md "Safety": the actor)."""
 
     t: float  # Clock.now()
     wall: float

@@ -1,4 +1,4 @@
-"""The one command path (DESIGN.md "Safety"): every operator command is checked — role,
+"""The one command path (docs/design.md "Safety"): every operator command is checked — role,
 target, arguments, state, interlocks — executed, recorded with its actor, and answered
 accepted or refused with the reason.
 

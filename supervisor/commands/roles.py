@@ -1,6 +1,6 @@
 """Who may do what: the role hook of the command path.
 
-DESIGN.md "Safety" asks the one command path to check the role of whoever sends a command;
+docs/design.md "Safety" asks the one command path to check the role of whoever sends a command;
 there are no users yet (the HTTP API answers on loopback, OPC UA user/password roles come
 later), so the default lets everyone operate. A real policy implements ``Roles`` — e.g.
 from the OPC UA session's user or an HTTP login — and is given to ``CommandPath``.

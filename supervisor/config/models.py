@@ -180,7 +180,8 @@ class HmiConfig(Strict):
         le=60000,
         description="Open HTTP connections at most (pages, API clients and screens' WebSockets"
         " together); one more is answered 503 at once and closed, so that a flood of clients"
-        ' never takes the file descriptors the devices need (README "Connection limits").',
+        " never takes the file descriptors the devices need"
+        ' (docs/deployment.md "Connection limits").',
     )
     max_websockets: int = Field(
         32,
@@ -271,8 +272,8 @@ class OpcUaConfig(Strict):
         64,
         ge=1,
         le=60000,
-        description="Open OPC UA connections at most; one more is closed at once (README"
-        ' "Connection limits").',
+        description="Open OPC UA connections at most; one more is closed at once"
+        ' (docs/deployment.md "Connection limits").',
     )
     activation_timeout_s: float = Field(
         10.0,
@@ -618,7 +619,7 @@ class ChannelConfig(Strict):
     )
 
 
-# --- safety (DESIGN.md "Safety") --------------------------------------------------------------
+# --- safety (docs/design.md "Safety") --------------------------------------------------------
 Severity = Literal["low", "medium", "high", "critical"]
 
 
@@ -677,7 +678,7 @@ class SimPoint(Strict):
 
 
 class SimWatchdogRelay(SimPoint):
-    """The hardware watchdog relay in series with the contactor coil (DESIGN.md "Safety"),
+    """The hardware watchdog relay in series with the contactor coil (docs/design.md "Safety"),
     fed by the heartbeat relay output ``point`` that the supervisor toggles: its contact is
     closed only while that output changed state within ``timeout_s``."""
 

@@ -5,7 +5,7 @@
     users:
       alice: {role: operator, password: "scrypt$16384$8$1$<salt>$<hash>"}
 
-Roles (DESIGN.md "Tags", access levels): a **viewer** (and an anonymous session) reads and
+Roles (docs/design.md "Tags", access levels): a **viewer** (and an anonymous session) reads and
 subscribes; an **operator** also calls the channel methods and writes operator tags; an
 **engineer** also writes engineer tags (limits). Hashes are scrypt (RFC 7914, n=2^14, r=8,
 p=1: about 50 ms and 16 MB per check, which is what makes a stolen file slow to attack);

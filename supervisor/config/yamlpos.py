@@ -334,8 +334,8 @@ def _yaml11_surprise(text: str) -> str | None:
 
     YAML 1.1 (PyYAML) reads ``010`` as octal (8) and ``1:30`` as base 60 (90): ``cycles:
     010`` would run 8 cycles, ``cycles: 1:30`` 90. Nobody writes either on purpose in a
-    recipe or an I/O map, so both are refused with what to write instead (README "Recipe
-    format"). ``0x1F``, ``0b101`` and ``1_000`` say what they are and stay numbers.
+    recipe or an I/O map, so both are refused with what to write instead (docs/recipes.md
+    "Recipes"). ``0x1F``, ``0b101`` and ``1_000`` say what they are and stay numbers.
     """
     if _OCTAL.match(text) and text.strip("-+_0"):
         digits = ("-" if text.startswith("-") else "") + text.lstrip("-+").lstrip("0_")

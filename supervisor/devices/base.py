@@ -5,7 +5,7 @@ must be the same everywhere: a failed poll never leaves an old value looking GOO
 lost device is logged once and its recovery once (Home Assistant practice), reconnects
 back off exponentially, and the safe state is attempted even when things are failing.
 
-Output writes leave when the scan queues them (DESIGN.md "Safety"): ``write()`` wakes the
+Output writes leave when the scan queues them (docs/design.md "Safety"): ``write()`` wakes the
 driver's own task, which writes the pending outputs at once (:meth:`PolledDriver.flush`),
 between its polls, without reading the inputs; on a virtual clock the scan engine calls
 :meth:`PolledDriver.flush` right after each scan instead. One lock serialises polls,

@@ -3,7 +3,8 @@
 A kind is one folder under ``supervisor/devices/`` (Home Assistant's one package per
 integration): its codec, its config model and point catalog, its driver, its simulator and
 this registration. ``supervisor.devices.registry`` lists the kinds; configuration checks,
-bench wiring and simulation iterate it instead of asking "which kind is this?".
+bench wiring, simulation and the screens' mimic iterate it instead of asking "which kind is
+this?".
 """
 
 from __future__ import annotations
@@ -11,7 +12,8 @@ from __future__ import annotations
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Generic, Protocol, TypeVar
+from enum import StrEnum
+from typing import Final, Generic, Protocol, TypeVar
 
 from supervisor.config.models import BenchConfig, ChannelConfig, DeviceConfig
 from supervisor.core.clock import Clock
@@ -20,6 +22,37 @@ from supervisor.sim.battery import BatteryModel
 from supervisor.sim.plant import BenchPlant
 
 C = TypeVar("C", bound=DeviceConfig)
+
+
+class DeviceRole(StrEnum):
+    """What a device is on the bench, for the screens' mimic of the power path."""
+
+    SUPPLY = "supply"
+    """A power supply that drives a channel through its DC output (the mimic's supply box)."""
+    BMS = "bms"
+    """The battery's management system: its link and its cell figures (the BMS box)."""
+    IO = "io"
+    """Remote I/O: relays, analog inputs, thermocouples (its tags are channels' and alarms')."""
+    CYCLER = "cycler"
+    """Boards that are channels themselves (their channels are the overview's tiles)."""
+
+
+LINK: Final = "connected"
+"""The pseudo-point of :class:`Shown` for the device's link tag (``<device>.connected``, which
+the bench makes for every device); every other ``point`` is one of the kind's points."""
+
+
+@dataclass(frozen=True)
+class Shown:
+    """One line of a device's box on the mimic: a point of the device, and how it reads.
+
+    The screen draws the I/O map's tag bound to this device and ``point`` (no tag: no line),
+    so no screen knows a device's name or a kind's points."""
+
+    label: str
+    point: str
+    format: str
+    """``link`` (ok / LOST) or a number format the screens know (``n2``: two decimals)."""
 
 
 class DeviceSimulator(Protocol):
@@ -77,6 +110,10 @@ class DeviceKind(Generic[C]):
     in_process_only: bool = False
     """Its simulator cannot be served to another process (a simulated SPI bus): the driver of
     a simulated device of this kind always talks to it in process."""
+    role: DeviceRole = DeviceRole.IO
+    """What a device of this kind is on the bench (the mimic's box it fills, if any)."""
+    shows: tuple[Shown, ...] = ()
+    """The lines of its mimic box, in order (its output switch is its channel's, not here)."""
 
     @property
     def name(self) -> str:

@@ -2,7 +2,9 @@
 
 - ``GET /api/bench``: the channels, devices and the mimic's tags, from the I/O map and the
   tag database (a tag the bench does not have is ``null``), so that the page never guesses
-  a tag name.
+  a tag name. Each device says what it is (its kind's role: supply, BMS, I/O, cycler) and
+  the lines of its mimic box (its kind's ``shows``, as the I/O map's tags), from the device
+  registry: the page knows no device name and no kind.
 - ``GET /api/channels/{ch}/program``: the step chain the channel runs, from its compiled
   ``Program`` (chains/program.py: what the engine executes, never the YAML re-parsed), with
   each step's transitions; the active step and the last transition's cause are tags
@@ -26,6 +28,8 @@ from supervisor.config.models import BenchConfig
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver
 from supervisor.core.quality import Quality
+from supervisor.devices.kind import LINK, DeviceRole
+from supervisor.devices.registry import REGISTRY, Registry
 from supervisor.hmi.server import json_dumps, tag_json
 from supervisor.scan.engine import ScanEngine, ScanStats
 from supervisor.tags import TagDB
@@ -91,9 +95,10 @@ def _answer(body: Any, status: int = 200) -> web.Response:
 
 
 class Layout:
-    def __init__(self, bench: BenchView, clock: Clock) -> None:
+    def __init__(self, bench: BenchView, clock: Clock, registry: Registry = REGISTRY) -> None:
         self.bench = bench
         self.clock = clock
+        self.registry = registry
 
     def install(self, app: web.Application) -> None:
         app.add_routes(
@@ -138,9 +143,11 @@ class Layout:
             {
                 "name": name,
                 "kind": d.driver,
+                "role": self.registry.kind_of(d).role.value,
                 "simulated": bool(getattr(d, "simulated", False)),
                 "health_tag": self._tag(f"{name}.connected"),
                 "failures_tag": self._tag(f"{name}.comm_failures"),
+                "shows": self.shows(name),
             }
             for name, d in cfg.devices.items()
         ]
@@ -153,28 +160,49 @@ class Layout:
             "mimic": self.mimic(),
         }
 
+    def shows(self, device: str) -> list[dict[str, str]]:
+        """The lines of ``device``'s mimic box (its kind's ``shows``), each as the tag the
+        bench has for it: the link tag, or the I/O map's tag bound to that point (a point
+        the I/O map maps to no tag has no line)."""
+        cfg = self.bench.cfg
+        by_point = {t.point: t.name for t in cfg.tags if t.device == device}
+        lines = []
+        for shown in self.registry.kind_of(cfg.devices[device]).shows:
+            name = f"{device}.{LINK}" if shown.point == LINK else by_point.get(shown.point)
+            tag = self._tag(name)
+            if tag is not None:
+                lines.append({"label": shown.label, "tag": tag, "format": shown.format})
+        return lines
+
     def mimic(self) -> dict[str, Any]:
         """The power path of the bench's mimic: the e-stop circuit, the supply's output, the
-        battery contactor and the BMS link (the first channel that has each)."""
+        battery contactor (its contacts and its coil) and the BMS link (the first channel
+        that has each), and which devices fill the supply and BMS boxes (by their kind's
+        role, see :meth:`shows`)."""
         cfg = self.bench.cfg
         estop = cfg.safety.estop
-        supply = contactor = bms = None
+        supply = supply_device = contactor = coil = bms = bms_device = None
         channel = None
         for c in cfg.channels:
             if supply is None and self._tag(f"{c.name}.output_fb"):
                 supply, channel = f"{c.name}.output_fb", channel or c.name
+                supply_device = c.source.device
             if contactor is None and (c.contactor_feedback_tag or c.contactor_tag):
                 contactor = self._tag(c.contactor_feedback_tag or c.contactor_tag)
+                coil = self._tag(c.contactor_tag) if c.contactor_feedback_tag else None
                 channel = channel or c.name
         for name, d in cfg.devices.items():
-            if bms is None and d.driver.startswith("bms"):
-                bms = self._tag(f"{name}.connected")
+            if bms is None and self.registry.kind_of(d).role is DeviceRole.BMS:
+                bms, bms_device = self._tag(f"{name}.{LINK}"), name
         return {
             "estop": self._tag(estop.tag) if estop is not None else None,
             "estop_relay": self._tag(estop.relay_tag) if estop is not None else None,
             "supply": supply,
+            "supply_device": supply_device,
             "contactor": contactor,
+            "coil": coil,
             "bms": bms,
+            "bms_device": bms_device,
             "channel": channel,
         }
 

@@ -1,6 +1,6 @@
 """The retained state of a bench on disk: ``<state_dir>/state.sqlite``.
 
-DESIGN.md "Safety": per channel, the state that matters (recipe, step, step time, cycle,
+docs/design.md "Safety": per channel, the state that matters (recipe, step, step time, cycle,
 Ah/Wh counters, test id) is persisted, so that after a restart a channel comes back Held
 with its test resumable (seed 001 saves its context to EEPROM before every alarm, so an
 interrupted test resumes later).

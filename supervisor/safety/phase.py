@@ -1,6 +1,6 @@
 """The safety phase: every check, every scan, in order; a failing check fails safe.
 
-DESIGN.md "One scan": derived values, then interlocks and alarms, then the step chains.
+docs/design.md "One scan": derived values, then interlocks and alarms, then the step chains.
 A check that raises does not stop the others (caproto: an exception in logic is an alarm,
 not a crash): it is counted, logged with its name, and asked to take its own safe action.
 """

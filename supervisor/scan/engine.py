@@ -1,11 +1,11 @@
-"""One scan, as a PLC does it (DESIGN.md "One scan"; docs/adr/0002-scan-timing.md).
+"""One scan, as a PLC does it (docs/design.md "One scan"; docs/adr/0002-scan-timing.md).
 
 1. Inputs: copy every driver image into the tag database in one synchronous step, so
    logic sees one consistent snapshot; an input older than its stale limit turns BAD.
 2. Logic: phases in order (derived values, interlocks and alarms, step chains). An
    exception in a phase is counted and logged; the phase's owner decides what goes safe.
 3. Outputs: output tags whose value changed are queued to their driver (never awaited);
-   the driver's own task sends them at once (DESIGN.md "Safety": output writes leave when
+   the driver's own task sends them at once (docs/design.md "Safety": output writes leave when
    the scan queues them). On a virtual clock the engine flushes them in lockstep right
    after the scan, so virtual-clock runs see the same order of events.
 4. Publish: every publisher gets the scan end; publishers never block the scan.

@@ -1,4 +1,4 @@
-"""The logic phases of one scan, in the order DESIGN.md "One scan" gives them.
+"""The logic phases of one scan, in the order docs/design.md "One scan" gives them.
 
 1. derived values (copied measurements, power, Ah/Wh), so that everything after sees this
    scan's values;

@@ -9,7 +9,7 @@ battery from the last update to ``clock.now()`` with the current that was flowin
 
 The battery contactor (seed 002 §1.5) is closed only while its coil is energised: through
 the ADAM 5060 relay (the software e-stop) and, when fitted, through the contact of a
-hardware watchdog relay in series with it (DESIGN.md "Safety"). That watchdog relay is fed by
+hardware watchdog relay in series with it (docs/design.md "Safety"). That watchdog relay is fed by
 a heartbeat output the supervisor toggles; its contact opens ``watchdog_timeout_s`` after
 the last toggle, so a dead supervisor disconnects the battery. Its opening instant is
 integrated like everything else: the current stops at that instant, not when someone next

@@ -83,6 +83,10 @@ def test_an_operator_logs_in_and_sees_the_bench_mimic_and_a_tile_per_channel(
         wait_for("live values", lambda: page.text_content("#tile-ch0 .big") not in ("", "—"))
         page.wait_for_load_state("networkidle")
         assert page.text_content("#mimic-estop") and "closed" in page.text_content("#mimic-estop")
+        # The supply's and the BMS's lines, as /api/bench describes them (their kinds').
+        supply_box, bms_box = page.text_content("#mimic-supply"), page.text_content("#mimic-bms")
+        assert all(w in supply_box for w in ("output", "voltage", "link")), supply_box
+        assert all(w in bms_box for w in ("link", "pack", "cell min", "temp max")), bms_box
         for ch in ("ch0", "ch1", "ch2", "ch3", "ch4"):
             tile = page.locator(f"#tile-{ch}")
             assert tile.is_visible()

@@ -27,7 +27,7 @@ RECIPE = ROOT / "tests" / "browser" / "short-cycle.yaml"
 pytestmark = pytest.mark.integration
 
 NOT_IN_THE_READERS_LIST = {
-    # BDF 1.3.0 names these (README "Result files", docs/adr/0025); batterydf
+    # BDF 1.3.0 names these (docs/recipes.md "Recipes", docs/adr/0025); batterydf
     # 0.1.0 reads them as columns it does not interpret ("extras"), which BDF allows.
     "Step ID",
     "Step Type",

@@ -20,9 +20,9 @@ from rig_transports import TCP
 
 from supervisor.core.clock import RealClock
 from supervisor.core.errors import DeviceIOError, ProtocolError
-from supervisor.devices.ea.protocol import MAX_LINE_BYTES
 from supervisor.devices.ea.sim import EaTcpSimulator
-from supervisor.devices.ea.transport import TcpScpiTransport
+from supervisor.fieldbus.scpi import MAX_LINE_BYTES
+from supervisor.fieldbus.scpi_transport import TcpScpiTransport
 from supervisor.testing import free_tcp_port, wait_until
 
 pytestmark = pytest.mark.integration

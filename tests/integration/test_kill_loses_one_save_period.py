@@ -1,5 +1,5 @@
 """What a SIGKILL loses of a running test's charge counters: at most one retained-state save
-period (README "Retained state"). A real ``supervisor run`` on the seed 002 bench (its
+period (docs/operator.md "Retained state"). A real ``supervisor run`` on the seed 002 bench (its
 devices simulated in the same process: only the counters matter here) charges the pack at
 a known current; the test reads ``ch4.charged_ah`` over HTTP and kills the process by its
 pid right after the answer, then reads what ``state.sqlite`` holds for the channel (what a
@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from supervisor.app.killrestart import (
+from supervisor.bench.killrestart import (
     _connected,
     _http,
     _in_state,

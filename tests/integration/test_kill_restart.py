@@ -1,5 +1,5 @@
 """The fault case "SIGKILL the supervisor at random points of a running recipe and restart
-it" (DESIGN.md "Safety"; seed 001's resumable context), three times with real processes:
+it" (docs/design.md "Safety"; seed 001's resumable context), three times with real processes:
 ``supervisor sim`` serves the seed 002 devices in one process (their battery outlives the
 supervisor), ``supervisor run --no-sim`` is killed by pid at a seeded random moment and
 started again on the same state directory. ``supervisor bench kill-restart`` runs the same
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from supervisor.app.killrestart import COUNTER_TOLERANCE, kill_restart
+from supervisor.bench.killrestart import COUNTER_TOLERANCE, kill_restart
 
 ROOT = Path(__file__).resolve().parents[2]
 SEED = 2026

@@ -1,4 +1,4 @@
-"""One bench, one supervisor (DESIGN.md "Safety"; users' finding 2, the lock side).
+"""One bench, one supervisor (docs/design.md "Safety"; users' finding 2, the lock side).
 
 A second ``supervisor run`` of a bench that is already running used to connect to the
 running bench's devices and switch them safe before it failed on the HTTP port. The lock

@@ -2,7 +2,7 @@
 connecting at once. The scan keeps its period — shown by its own counters (overruns, missed
 deadlines), never by a timing claim — and the other clients keep their updates.
 
-The clients run in a process of their own (supervisor/app/opcuaclients.py): on the bench's loop
+The clients run in a process of their own (supervisor/bench/opcuaclients.py): on the bench's loop
 they would be part of what is measured.
 """
 
@@ -37,7 +37,7 @@ async def clients(rig: Rig, n: int, seconds: float) -> asyncio.subprocess.Proces
     return await asyncio.create_subprocess_exec(
         sys.executable,
         "-m",
-        "supervisor.app.opcuaclients",
+        "supervisor.bench.opcuaclients",
         rig.server.endpoint,
         rig.server.namespace,
         "--clients",

@@ -1,6 +1,6 @@
 """Retained state: a supervisor that dies brings its tests back Held after a restart.
 
-DESIGN.md "Safety": per channel the recipe, step, step time, cycle, Ah/Wh counters and
+docs/design.md "Safety": per channel the recipe, step, step time, cycle, Ah/Wh counters and
 test id are persisted; after a restart a channel comes back Held with its test resumable,
 never re-energised on its own (seed 001: the context is saved before every alarm so an
 interrupted test resumes later). Here on the virtual clock: the first bench "dies" right
@@ -524,7 +524,7 @@ async def test_a_restored_test_then_ended_closes_its_files_and_the_next_start_is
 async def test_a_running_channel_is_saved_one_scan_before_its_period_is_over(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A SIGKILL loses at most one ``retain.period_s`` of the counters (README "Retained
+    """A SIGKILL loses at most one ``retain.period_s`` of the counters (docs/operator.md "Retained
     state"): the store's worker commits a save after the scan that put it, so the periodic
     saves are put at most one period less one scan apart; a save put a whole period after
     the last one would be on disk a period plus its write after it."""

@@ -20,7 +20,7 @@ import pytest
 from asyncua import Client as UaClient
 from asyncua import ua
 
-from supervisor.app.floodbench import (
+from supervisor.bench.flood import (
     CHANNEL,
     OPERATOR,
     Client,

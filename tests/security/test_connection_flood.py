@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from supervisor.app.floodbench import MIB, NO_ANSWER, REFUSED, bench_run, flood, report
+from supervisor.bench.flood import MIB, NO_ANSWER, REFUSED, bench_run, flood, report
 
 # It asserts the scan kept its timing (no stall, no overrun) under load it makes itself:
 # it runs alone, after the tests that run in parallel (Makefile: the "quiet" marker).

@@ -32,7 +32,8 @@ METHODS = ("get", "put", "post", "delete", "patch", "head", "options", "trace")
 @pytest.fixture
 async def full_api(tmp_path: Path) -> AsyncIterator[tuple[Bench, HttpApi]]:
     """Every route ``supervisor run`` serves on a simulated bench: history, recipes,
-    results, the simulation's e-stop and state, the screens (as cli/main.py assembles)."""
+    results, the simulation's e-stop and state, the screens (as supervisor/app/service.py
+    assembles)."""
     bench = await started_bench(tmp_path)
     api = HttpApi(
         bench.db,

@@ -19,7 +19,7 @@ from typing import Any
 
 import pytest
 
-from supervisor.app.floodbench import (
+from supervisor.bench.flood import (
     OPERATOR,
     Client,
     Supervisor,

@@ -18,7 +18,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from supervisor.app.floodbench import (
+from supervisor.bench.flood import (
     CHANNEL,
     OPERATOR,
     Client,
@@ -29,7 +29,7 @@ from supervisor.app.floodbench import (
     tag,
     wait_ready,
 )
-from supervisor.app.validatebench import (
+from supervisor.bench.validate import (
     VIEWER,
     check_processes,
     gone,

@@ -30,8 +30,8 @@ from adam_rig import (
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 from rig_transports import IN_PROCESS, clock_for, on_both_transports
 
-import supervisor.devices.adam.transport as adam_transport
 import supervisor.devices.base as base
+import supervisor.fieldbus.modbus as modbus_master
 from supervisor.app import build_bench
 from supervisor.core.clock import VirtualClock
 from supervisor.core.errors import DeviceIOError, DeviceTimeout
@@ -39,18 +39,17 @@ from supervisor.core.quality import Quality, Reason
 from supervisor.devices.adam import KIND, unit_of
 from supervisor.devices.adam.config import AdamDevice
 from supervisor.devices.adam.driver import AdamDriver, AdamModule
-from supervisor.devices.adam.protocol import (
-    FC_READ_HOLDING_REGISTERS,
-    FC_READ_INPUT_REGISTERS,
-    ModbusExceptionAnswer,
-    lsb,
-    raw_to_value,
-)
+from supervisor.devices.adam.protocol import lsb, raw_to_value
 from supervisor.devices.adam.sim import AdamSimulator
 from supervisor.devices.adam.transport import InProcessLink, PymodbusTcpLink
 from supervisor.devices.adam.unit import AdamUnit
 from supervisor.devices.kind import DriverWiring, SimWiring
 from supervisor.devices.registry import bench_from_data, load_bench
+from supervisor.fieldbus.modbus import (
+    FC_READ_HOLDING_REGISTERS,
+    FC_READ_INPUT_REGISTERS,
+    ModbusExceptionAnswer,
+)
 from supervisor.sim.plant import make_plant
 
 
@@ -582,7 +581,7 @@ class FakeClient:
 
 @pytest.fixture
 def fake_client(monkeypatch: pytest.MonkeyPatch) -> type[FakeClient]:
-    monkeypatch.setattr(adam_transport, "AsyncModbusTcpClient", FakeClient)
+    monkeypatch.setattr(modbus_master, "AsyncModbusTcpClient", FakeClient)
     monkeypatch.setattr(FakeClient, "made", [])
     monkeypatch.setattr(FakeClient, "outcome", _Answer())
     monkeypatch.setattr(FakeClient, "accept", True)

@@ -15,12 +15,10 @@ from pymodbus.pdu.register_message import ReadHoldingRegistersResponse
 from supervisor.core.errors import SupervisorError
 from supervisor.devices.adam.protocol import (
     ANALOG_READ_FUNCTION,
-    EXCEPTION_MEANINGS,
     MODULE_KINDS,
     OFFSET_BINARY_SPAN,
     TC_OPEN_WIRE_RAW,
     AdamModule,
-    ModbusExceptionAnswer,
     analog_register,
     coil_address,
     coil_slot_channel,
@@ -30,6 +28,7 @@ from supervisor.devices.adam.protocol import (
     register_slot_channel,
     value_to_raw,
 )
+from supervisor.fieldbus.modbus import EXCEPTION_MEANINGS, ModbusExceptionAnswer
 
 ANALOG_KINDS = ("5017", "5018")
 FORMATS = ("offset", "twos")

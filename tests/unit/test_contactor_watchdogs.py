@@ -1,4 +1,4 @@
-"""The battery contactor opens when the supervisor dies: two independent layers (DESIGN.md
+"""The battery contactor opens when the supervisor dies: two independent layers (docs/design.md
 "Safety"), on virtual time.
 
 - The hardware watchdog relay in series with the contactor coil (simulated in the plant):
@@ -31,13 +31,13 @@ from supervisor.core.clock import VirtualClock
 from supervisor.core.errors import ConfigErrors
 from supervisor.devices.adam import AdamDriver, AdamModule, AdamUnit, InProcessLink
 from supervisor.devices.adam.protocol import (
-    FC_READ_HOLDING_REGISTERS,
     HOST_WATCHDOG_SAFE_VALUES_REGISTER,
     HOST_WATCHDOG_TIMEOUT_REGISTER,
     host_watchdog_counts,
 )
 from supervisor.devices.ea import EaSimulator
 from supervisor.devices.registry import bench_from_data
+from supervisor.fieldbus.modbus import FC_READ_HOLDING_REGISTERS
 from supervisor.sim.battery import make_model
 from supervisor.sim.plant import BenchPlant
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from supervisor.app.dryruncost import _traced, scan_cost
+from supervisor.bench.dryruncost import _traced, scan_cost
 from supervisor.cli.main import main
 
 
@@ -113,7 +113,7 @@ def test_the_tasks_of_other_event_loops_are_not_counted() -> None:
 def test_the_bench_command_prints_the_cost_by_function(
     root: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import supervisor.app.dryruncost as cost
+    import supervisor.bench.dryruncost as cost
 
     real = cost.scan_cost
     monkeypatch.setattr(cost, "scan_cost", lambda recipe: real(recipe, hours=0.01))

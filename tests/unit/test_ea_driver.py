@@ -47,9 +47,10 @@ from supervisor.devices.ea import (
     InProcessScpiTransport,
     TcpScpiTransport,
 )
-from supervisor.devices.ea.protocol import MAX_LINE_BYTES, QUES_OCP_BIT, WATCHDOG_ENABLE_HEADER
+from supervisor.devices.ea.protocol import QUES_OCP_BIT, WATCHDOG_ENABLE_HEADER
 from supervisor.devices.ea.sim import LINE_LOG_LENGTH
 from supervisor.devices.registry import bench_from_data
+from supervisor.fieldbus.scpi import MAX_LINE_BYTES
 from supervisor.sim.plant import BenchPlant
 from supervisor.testing import wait_until
 

@@ -1,4 +1,4 @@
-"""Safety-relevant I/O is fast (DESIGN.md "Safety"): output writes leave when the scan queues
+"""Safety-relevant I/O is fast (docs/design.md "Safety"): output writes leave when the scan queues
 them, and the slot holding the e-stop sense is read at the scan rate while the thermocouples
 stay slow.
 

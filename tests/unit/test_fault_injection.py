@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from supervisor.app.faults import CASES, FaultCase, run_case
+from supervisor.bench.faults import CASES, FaultCase, run_case
 
 # The slowest detections by design: a BMS frame is stale after 3 periods (3 s), then the
 # BMS check's 1 s trip delay; a silent device after its 0.5 s reply timeout.

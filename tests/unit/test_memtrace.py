@@ -1,4 +1,4 @@
-"""The memory tracing switch (core/memtrace.py): off unless the environment names a
+"""The memory tracing switch (bench/memtrace.py): off unless the environment names a
 folder; on, it writes snapshots there and tells what grew between two of them, by line."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import time
 import tracemalloc
 from pathlib import Path
 
-from supervisor.core import memtrace
+from supervisor.bench import memtrace
 
 
 def test_tracing_is_off_unless_the_environment_names_a_folder() -> None:

@@ -3,7 +3,7 @@
 A hypothesis sample of each class of ``tests/mutation.py`` (the small profile: no files of
 megabytes) through ``supervisor.cli.main.main`` with stdout and stderr captured, as a user
 would run ``supervisor check FILE`` or ``supervisor import chadeche FILE [--prm P]``
-(README "Commands": one clear message naming file, line and column, exit code 2, never a
+(docs/operator.md "Commands": one clear message naming file, line and column, exit code 2, never a
 traceback), and a certainly invalid variant is never accepted. The sample is fixed
 (``derandomize``): ``make test`` runs the same variants every time. The full run, in
 subprocesses with a time limit, is ``make mutation`` (``tests/mutation_run.py``).

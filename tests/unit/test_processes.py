@@ -16,7 +16,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pr
 
 PARENT = """
 import subprocess, sys
-from supervisor.core.processes import stop_with_parent
+from supervisor.bench.processes import stop_with_parent
 child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"],
                          preexec_fn=stop_with_parent())
 print(child.pid, flush=True)

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from supervisor.cli import main as cli
+from supervisor.app import service
 from supervisor.commands import Command, Result
 
 
@@ -50,7 +50,7 @@ def started(bench: FakeBench) -> list[str]:
 async def test_a_test_starts_once_its_channels_inputs_read_good_and_not_before() -> None:
     bms = FakeGuard(["bms.cell_max BAD (initial value)"])
     bench = FakeBench(FakeSafety({"ch0": FakeGuard([]), "ch12": bms}))
-    task = asyncio.create_task(cli._start_when_ready(bench, ["ch0", "ch12"]))  # type: ignore[arg-type]
+    task = asyncio.create_task(service.start_when_ready(bench, ["ch0", "ch12"]))  # type: ignore[arg-type]
     await asyncio.sleep(0.2)
     assert started(bench) == ["ch0"]  # ch12 waits for its BMS
     bms.missing = []  # the first frames came
@@ -62,10 +62,10 @@ async def test_a_test_starts_once_its_channels_inputs_read_good_and_not_before()
 async def test_a_channel_whose_inputs_never_read_good_is_not_started_and_says_why(
     monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
-    monkeypatch.setattr(cli, "START_WAIT_S", 0.2)
+    monkeypatch.setattr(service, "START_WAIT_S", 0.2)
     bench = FakeBench(FakeSafety({"ch12": FakeGuard(["bms.cell_max BAD (initial value)"])}))
     with caplog.at_level(logging.ERROR):
-        await asyncio.wait_for(cli._start_when_ready(bench, ["ch12"]), 5.0)  # type: ignore[arg-type]
+        await asyncio.wait_for(service.start_when_ready(bench, ["ch12"]), 5.0)  # type: ignore[arg-type]
     assert started(bench) == []
     assert (
         "--start ch12: start refused: its inputs do not read GOOD 0.2 s after the scan began:"

@@ -1,6 +1,6 @@
 """One scan runs its logic in design order: derived values, safety, step chains, outputs.
 
-So a step chain's conditions see this scan's measurements and counters (DESIGN.md "One
+So a step chain's conditions see this scan's measurements and counters (docs/design.md "One
 scan"), and a chain's request still passes the channel's protection before any output.
 """
 

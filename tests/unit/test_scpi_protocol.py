@@ -1,5 +1,6 @@
-"""EA SCPI codecs: golden replies from devices.md and seed 002 §2.2, and fuzzing (every parser
-returns a value or raises ProtocolError, never anything else)."""
+"""SCPI codecs (supervisor.fieldbus.scpi and the EA's): golden replies from devices.md and
+seed 002 §2.2, and fuzzing (every parser returns a value or raises ProtocolError, never
+anything else)."""
 
 from __future__ import annotations
 
@@ -12,29 +13,32 @@ from hypothesis import strategies as st
 
 from supervisor.core.errors import ProtocolError
 from supervisor.devices.ea.protocol import (
+    LockOwner,
+    Measurement,
+    format_meas_array,
+    is_ea,
+    model_matches,
+    normalize_header,
+    parse_command,
+    parse_lock_owner,
+    parse_meas_array,
+)
+from supervisor.fieldbus.scpi import (
     COMMAND_SEPARATOR,
     Command,
     Identity,
     LineFramer,
-    LockOwner,
-    Measurement,
     ScpiError,
     bit_set,
     decode_line,
     encode_line,
     format_error,
     format_idn,
-    format_meas_array,
     format_number,
     format_setting,
     join_commands,
-    model_matches,
-    normalize_header,
-    parse_command,
     parse_error,
     parse_idn,
-    parse_lock_owner,
-    parse_meas_array,
     parse_number,
     parse_on_off,
     parse_register,
@@ -185,7 +189,7 @@ def test_idn_golden_reply_from_seed_002() -> None:
         "2775120003",
         "V3.03 05.10.2022 V3.06 24.05.2023 V1.0.2.20",
     )
-    assert idn.is_ea
+    assert is_ea(idn)
 
 
 def test_idn_tolerates_the_trailing_comma_seen_in_seed_002() -> None:
@@ -194,7 +198,7 @@ def test_idn_tolerates_the_trailing_comma_seen_in_seed_002() -> None:
 
 
 def test_idn_of_another_manufacturer_parses_but_is_not_ea() -> None:
-    assert not parse_idn("Keysight Technologies,N5767A,MY123,A.01").is_ea
+    assert not is_ea(parse_idn("Keysight Technologies,N5767A,MY123,A.01"))
 
 
 @pytest.mark.parametrize("text", ["", "EA Elektro-Automatik", "EA, PSB 10060-60, 123", ", , , "])

@@ -160,7 +160,7 @@ export async function render({ root, app, params }) {
     showResult(out, answer);
     return answer;
   };
-  // The test's metadata (README "Test records"): given fields only; the server checks them.
+  // The test's metadata (docs/recipes.md "Test records"): given fields only; the server checks them.
   const metadata = () => {
     const out = {};
     const cell = $("#load-cell", root).value.trim();

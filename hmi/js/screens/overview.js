@@ -1,4 +1,5 @@
 // Overview: the bench mimic (e-stop, supply, contactor, BMS) and one tile per channel.
+// Every tag it shows is named by /api/bench (supervisor/hmi/layout.py): no device names here.
 // High-performance HMI: grey when normal; colour only for what is abnormal.
 import { bindTags, esc, fmtDuration, $, $$ } from "../dom.js";
 
@@ -71,6 +72,16 @@ export function paintTile(el, ch, live) {
   $(".tile-alarm", el).textContent = abnormal ? (alarms[0]?.message || fault) : "";
 }
 
+const LINK_ATTRS = 'data-true="ok" data-false="LOST" data-abn="false"';
+
+/** The lines of a device's mimic box, as /api/bench describes them (its kind's "shows":
+ * label, tag, format): the screen knows no device name and no kind. */
+function shownRows(device) {
+  return (device?.shows || []).map((s) =>
+    row(s.label, s.tag, s.format === "link" ? LINK_ATTRS : `data-fmt="${esc(s.format)}"`),
+  );
+}
+
 export async function render({ root, app }) {
   root.dataset.title = "Overview";
   const b = app.bench;
@@ -79,9 +90,7 @@ export async function render({ root, app }) {
   const supply = mimicTag(m.supply);
   const contactor = mimicTag(m.contactor);
   const bms = mimicTag(m.bms);
-  const has = (n) => app.tagNames.has(n);
-  const opt = (label, tag, attrs) => (has(tag) ? row(label, tag, attrs) : "");
-  const link = 'data-true="ok" data-false="LOST" data-abn="false"';
+  const device = (name) => b.devices.find((d) => d.name === name);
   const mimic = [];
   if (estop)
     mimic.push(mimicBox("estop", "E-stop", [row("circuit", estop, 'data-true="closed" data-false="PRESSED" data-abn="false" class="big"')]));
@@ -89,29 +98,22 @@ export async function render({ root, app }) {
     mimic.push(
       mimicBox("supply", "Supply", [
         row("output", supply, 'data-true="on" data-false="off"'),
-        opt("voltage", "ea.voltage", 'data-fmt="n2"'),
-        opt("link", "ea.connected", link),
+        ...shownRows(device(m.supply_device)),
       ]),
     );
   if (contactor)
     mimic.push(
       mimicBox("contactor", "Contactor", [
         row("contacts", contactor, 'data-true="closed" data-false="open" class="big"'),
-        contactor !== "contactor.cmd" ? opt("coil", "contactor.cmd", 'data-true="on" data-false="off"') : "",
+        row("coil", mimicTag(m.coil), 'data-true="on" data-false="off"'),
       ]),
     );
   if (bms) {
-    // /api/bench names the BMS's link tag; older supervisors its pack voltage.
-    const isLink = bms.endsWith(".connected");
-    mimic.push(
-      mimicBox("bms", "BMS", [
-        isLink ? row("link", bms, link) : row("pack", bms, 'data-fmt="n2"'),
-        isLink ? opt("pack", "bms.voltage", 'data-fmt="n2"') : opt("link", "bms.connected", link),
-        opt("cell min", "bms.cell_min", 'data-fmt="n3"'),
-        opt("cell max", "bms.cell_max", 'data-fmt="n3"'),
-        opt("temp max", "bms.temp_max", 'data-fmt="n1"'),
-      ]),
-    );
+    // The BMS device's lines (its link first); without them (an older supervisor's answer)
+    // the one tag the mimic names: its link, or on the oldest its pack voltage.
+    const rows = shownRows(device(m.bms_device));
+    const only = bms.endsWith(".connected") ? row("link", bms, LINK_ATTRS) : row("pack", bms, 'data-fmt="n2"');
+    mimic.push(mimicBox("bms", "BMS", rows.length ? rows : [only]));
   }
   root.innerHTML = `
     <h1 class="sr-only">Overview</h1>

@@ -7,11 +7,20 @@ from supervisor.config.models import SimulationConfig
 from supervisor.core.driver import Driver
 from supervisor.devices.adam.config import AdamDevice
 from supervisor.devices.adam.driver import AdamDriver
-from supervisor.devices.adam.protocol import AdamModule, ModbusExceptionAnswer
+from supervisor.devices.adam.protocol import AdamModule
 from supervisor.devices.adam.sim import AdamSimulator, plant_simulator
 from supervisor.devices.adam.transport import InProcessLink, ModbusLink, PymodbusTcpLink
 from supervisor.devices.adam.unit import AdamUnit
-from supervisor.devices.kind import DeviceKind, DeviceSimulator, DriverWiring, SimWiring
+from supervisor.devices.kind import (
+    LINK,
+    DeviceKind,
+    DeviceRole,
+    DeviceSimulator,
+    DriverWiring,
+    Shown,
+    SimWiring,
+)
+from supervisor.fieldbus.modbus import ModbusExceptionAnswer
 
 
 def unit_of(sim: DeviceSimulator) -> AdamUnit:
@@ -49,7 +58,13 @@ def _simulator(name: str, dev: AdamDevice, wiring: SimWiring) -> DeviceSimulator
     return AdamSimulator(unit, host=dev.host, port=dev.port, unit_id=dev.unit_id)
 
 
-KIND = DeviceKind(AdamDevice, _driver, _simulator)
+KIND = DeviceKind(
+    AdamDevice,
+    _driver,
+    _simulator,
+    role=DeviceRole.IO,
+    shows=(Shown("link", LINK, "link"),),
+)
 
 __all__ = [
     "KIND",

@@ -12,7 +12,7 @@ Each poll reads one block per slot that is due
 (:data:`~supervisor.devices.adam.protocol.ANALOG_READ_FUNCTION` for analog slots, FC01 for
 relay slots): a slot may have its own period (``AdamModule.poll_period_s``), so that the
 slot holding the e-stop sense is read at the scan rate while the thermocouples stay slow
-(DESIGN.md "Safety"); the driver polls at its fastest slot's period, and every sample keeps
+(docs/design.md "Safety"); the driver polls at its fastest slot's period, and every sample keeps
 its own acquisition time (stale detection works per slot). A Modbus exception answer makes
 that slot's inputs BAD ``DEVICE_ERROR`` (code in ``last_error`` and ``raw_log``), a short
 answer makes them BAD ``COMM_FAILURE``; other slots are unaffected. A lost or silent
@@ -43,25 +43,16 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import PointInfo, Sample, Value
 from supervisor.core.errors import DeviceIOError, DeviceTimeout, ProtocolError, SupervisorError
 from supervisor.core.quality import Quality, Reason
-from supervisor.devices.adam.config import (
-    HOST_WATCHDOG_POLL_RATIO,
-    MIN_POLL_PERIOD_5017_S,
-    SLOTS,
-    slot_points,
-)
+from supervisor.devices.adam.catalog import MIN_POLL_PERIOD_5017_S, SLOTS, slot_points
+from supervisor.devices.adam.config import HOST_WATCHDOG_POLL_RATIO
 from supervisor.devices.adam.protocol import (
     ANALOG_READ_FUNCTION,
-    FC_READ_COILS,
-    FC_READ_HOLDING_REGISTERS,
-    FC_WRITE_SINGLE_COIL,
-    FC_WRITE_SINGLE_REGISTER,
     HOST_WATCHDOG_NEEDS_REFRESH,
     HOST_WATCHDOG_REFRESH_REGISTER,
     HOST_WATCHDOG_REFRESH_VALUE,
     HOST_WATCHDOG_SAFE_VALUES_REGISTER,
     HOST_WATCHDOG_TIMEOUT_REGISTER,
     AdamModule,
-    ModbusExceptionAnswer,
     analog_register,
     coil_address,
     host_watchdog_counts,
@@ -70,6 +61,13 @@ from supervisor.devices.adam.protocol import (
 )
 from supervisor.devices.adam.transport import ModbusLink
 from supervisor.devices.base import PolledDriver
+from supervisor.fieldbus.modbus import (
+    FC_READ_COILS,
+    FC_READ_HOLDING_REGISTERS,
+    FC_WRITE_SINGLE_COIL,
+    FC_WRITE_SINGLE_REGISTER,
+    ModbusExceptionAnswer,
+)
 
 log = logging.getLogger(__name__)
 

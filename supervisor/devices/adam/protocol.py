@@ -1,7 +1,8 @@
 """ADAM-5000/TCP over Modbus TCP: register map and raw number codecs (no I/O here).
 
 Module facts (slots, channel counts) come from the point catalog,
-:mod:`supervisor.devices.adam.config`. Shared by the driver
+:mod:`supervisor.devices.adam.catalog`; Modbus's own codes from
+:mod:`supervisor.fieldbus.modbus`. Shared by the driver
 (:mod:`supervisor.devices.adam.driver`), its links (:mod:`supervisor.devices.adam.transport`)
 and the simulated unit (:mod:`supervisor.devices.adam.unit`, served by
 :mod:`supervisor.devices.adam.sim`).
@@ -26,44 +27,13 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Final, Literal
 
-from supervisor.devices.adam.config import MODULE_KINDS, SLOTS, ModuleKind
+from supervisor.devices.adam.catalog import MODULE_KINDS, SLOTS, ModuleKind
+from supervisor.fieldbus.modbus import FC_READ_HOLDING_REGISTERS
 
 DEVICE: Final = "adam"
 
 REGISTERS_PER_SLOT: Final = 8
 COILS_PER_SLOT: Final = 16
-
-FC_READ_COILS: Final = 1
-FC_READ_HOLDING_REGISTERS: Final = 3
-FC_READ_INPUT_REGISTERS: Final = 4
-FC_WRITE_SINGLE_COIL: Final = 5
-FC_WRITE_MULTIPLE_COILS: Final = 15
-FC_WRITE_SINGLE_REGISTER: Final = 6
-FC_WRITE_MULTIPLE_REGISTERS: Final = 16
-
-# Modbus exception codes (Modbus Application Protocol V1.1b3 §7) that the ADAM and its
-# simulator answer; the full table is :data:`EXCEPTION_MEANINGS`.
-EXC_ILLEGAL_FUNCTION: Final = 0x01
-EXC_ILLEGAL_ADDRESS: Final = 0x02
-EXC_ILLEGAL_VALUE: Final = 0x03
-EXC_DEVICE_FAILURE: Final = 0x04
-
-EXCEPTION_MEANINGS: Final[Mapping[int, str]] = MappingProxyType(
-    {
-        # Worded as pymodbus names them (``ExcCodes``), so log texts read the same as when
-        # the driver took them from pymodbus; a golden test keeps the codes in step.
-        0x01: "illegal function",
-        0x02: "illegal address",
-        0x03: "illegal value",
-        0x04: "device failure",
-        0x05: "acknowledge",
-        0x06: "device busy",
-        0x07: "negative acknowledge",
-        0x08: "memory parity error",
-        0x0A: "gateway path unavailable",
-        0x0B: "gateway no response",
-    }
-)
 
 ANALOG_READ_FUNCTION: Final[int] = FC_READ_HOLDING_REGISTERS
 """Function code used to read analog values. devices.md: "read with FC04 (or FC03)" [V];
@@ -107,27 +77,6 @@ and +400 °C, never a real battery temperature). In two's complement: ±FS and 0
 costs one valid code (−0.012 °C reads as burn-out) but never lets an open wire look like a
 plausible temperature. The ASCII protocol reports *under*-range as 0x0000 in two's
 complement; that reads 0 °C and cannot be told from a real 0 °C, so it is not flagged."""
-
-
-class ModbusExceptionAnswer(Exception):
-    """The unit answered a request with a Modbus exception (function code | 0x80).
-
-    Slot-local, not a comm loss: the link is fine, the unit refused this one request (an
-    address outside its modules, a module that failed). Deliberately not a
-    :class:`~supervisor.core.errors.SupervisorError`, so that it can never be mistaken
-    for a lost device: the driver turns it into that slot's BAD ``DEVICE_ERROR``.
-    """
-
-    def __init__(self, code: int, what: str = "") -> None:
-        self.code = code
-        self.what = what
-        meaning = EXCEPTION_MEANINGS.get(code, "unknown code")
-        text = f"Modbus exception 0x{code:02X} ({meaning})"
-        super().__init__(f"{what}: {text}" if what else text)
-
-    def about(self, what: str) -> ModbusExceptionAnswer:
-        """The same answer, its message naming the request ``what``."""
-        return ModbusExceptionAnswer(self.code, what)
 
 
 @dataclass(frozen=True)
@@ -256,7 +205,7 @@ def is_burnout(raw: int, fmt: str = DEFAULT_RAW_FORMAT) -> bool:
 
 # --- host (communication) watchdog ----------------------------------------------------
 # The ADAM-5000/TCP's own watchdog: when no host talks to it for its timeout, its outputs
-# go to their safe values (DESIGN.md "Safety": the contactor opens when the supervisor
+# go to their safe values (docs/design.md "Safety": the contactor opens when the supervisor
 # dies). devices.md gives no Modbus register for it, and no Advantech document giving them
 # was found: EVERY address and value below is UNVERIFIED, a placeholder laid out like the
 # host watchdogs of comparable Modbus TCP I/O (a timeout register where 0 disarms, a safe

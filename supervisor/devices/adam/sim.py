@@ -27,9 +27,15 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from supervisor.config.models import SimPoint, SimulationConfig
-from supervisor.devices.adam.config import MODULE_KINDS, SLOTS, AdamDevice
+from supervisor.devices.adam.catalog import MODULE_KINDS, SLOTS
+from supervisor.devices.adam.config import AdamDevice
 from supervisor.devices.adam.protocol import (
     COILS_PER_SLOT,
+    HOST_WATCHDOG_REGISTERS,
+    REGISTERS_PER_SLOT,
+)
+from supervisor.devices.adam.unit import AdamUnit
+from supervisor.fieldbus.modbus import (
     FC_READ_COILS,
     FC_READ_HOLDING_REGISTERS,
     FC_READ_INPUT_REGISTERS,
@@ -37,11 +43,8 @@ from supervisor.devices.adam.protocol import (
     FC_WRITE_MULTIPLE_REGISTERS,
     FC_WRITE_SINGLE_COIL,
     FC_WRITE_SINGLE_REGISTER,
-    HOST_WATCHDOG_REGISTERS,
-    REGISTERS_PER_SLOT,
     ModbusExceptionAnswer,
 )
-from supervisor.devices.adam.unit import AdamUnit
 from supervisor.sim.plant import BenchPlant
 
 log = logging.getLogger(__name__)

@@ -30,19 +30,10 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Final
 
 from supervisor.core.clock import Clock
-from supervisor.devices.adam.config import MODULE_KINDS, SLOTS
+from supervisor.devices.adam.catalog import MODULE_KINDS, SLOTS
 from supervisor.devices.adam.protocol import (
     COILS_PER_SLOT,
     DEFAULT_RAW_FORMAT,
-    EXC_DEVICE_FAILURE,
-    EXC_ILLEGAL_ADDRESS,
-    EXC_ILLEGAL_FUNCTION,
-    EXC_ILLEGAL_VALUE,
-    EXCEPTION_MEANINGS,
-    FC_READ_HOLDING_REGISTERS,
-    FC_READ_INPUT_REGISTERS,
-    FC_WRITE_MULTIPLE_COILS,
-    FC_WRITE_SINGLE_COIL,
     HOST_WATCHDOG_MAX_COUNTS,
     HOST_WATCHDOG_NEEDS_REFRESH,
     HOST_WATCHDOG_REFRESH_REGISTER,
@@ -52,11 +43,22 @@ from supervisor.devices.adam.protocol import (
     HOST_WATCHDOG_TIMEOUT_REGISTER,
     RAW_FORMATS,
     TC_OPEN_WIRE_RAW,
-    ModbusExceptionAnswer,
     coil_slot_channel,
     host_watchdog_seconds,
     register_slot_channel,
     value_to_raw,
+)
+from supervisor.fieldbus.modbus import (
+    EXC_DEVICE_FAILURE,
+    EXC_ILLEGAL_ADDRESS,
+    EXC_ILLEGAL_FUNCTION,
+    EXC_ILLEGAL_VALUE,
+    EXCEPTION_MEANINGS,
+    FC_READ_HOLDING_REGISTERS,
+    FC_READ_INPUT_REGISTERS,
+    FC_WRITE_MULTIPLE_COILS,
+    FC_WRITE_SINGLE_COIL,
+    ModbusExceptionAnswer,
 )
 
 log = logging.getLogger(__name__)

@@ -12,7 +12,15 @@ from supervisor.core.driver import Driver
 from supervisor.devices.bms.config import BmsDevice
 from supervisor.devices.bms.driver import BmsDriver, socketcand_bus_factory
 from supervisor.devices.bms.sim import BmsSimulator, SimulatedBms, plant_values
-from supervisor.devices.kind import DeviceKind, DeviceSimulator, DriverWiring, SimWiring
+from supervisor.devices.kind import (
+    LINK,
+    DeviceKind,
+    DeviceRole,
+    DeviceSimulator,
+    DriverWiring,
+    Shown,
+    SimWiring,
+)
 
 
 def bus_factory(dev: BmsDevice) -> Callable[[], can.BusABC]:
@@ -52,6 +60,18 @@ def _simulator(name: str, dev: BmsDevice, wiring: SimWiring) -> DeviceSimulator:
     )
 
 
-KIND = DeviceKind(BmsDevice, _driver, _simulator)
+KIND = DeviceKind(
+    BmsDevice,
+    _driver,
+    _simulator,
+    role=DeviceRole.BMS,
+    shows=(
+        Shown("link", LINK, "link"),
+        Shown("pack", "pack_voltage", "n2"),
+        Shown("cell min", "min_cell_voltage", "n3"),
+        Shown("cell max", "max_cell_voltage", "n3"),
+        Shown("temp max", "max_temp", "n1"),
+    ),
+)
 
 __all__ = ["KIND", "BmsDevice", "BmsDriver", "BmsSimulator", "SimulatedBms"]

@@ -16,7 +16,15 @@ from supervisor.devices.chadeche.config import ChadecheDevice
 from supervisor.devices.chadeche.driver import RELAY_SETTLE_S, ChadecheDriver
 from supervisor.devices.chadeche.protocol import Calibration
 from supervisor.devices.chadeche.sim import SimBoard, SimChadecheBus, SimulatedBoards
-from supervisor.devices.kind import DeviceKind, DeviceSimulator, DriverWiring, SimWiring
+from supervisor.devices.kind import (
+    LINK,
+    DeviceKind,
+    DeviceRole,
+    DeviceSimulator,
+    DriverWiring,
+    Shown,
+    SimWiring,
+)
 from supervisor.sim.plant import make_cell
 
 
@@ -66,7 +74,14 @@ def _simulator(name: str, dev: ChadecheDevice, wiring: SimWiring) -> DeviceSimul
 
 
 # A simulated SPI bus cannot be served to another process: the driver always talks to it.
-KIND = DeviceKind(ChadecheDevice, _driver, _simulator, in_process_only=True)
+KIND = DeviceKind(
+    ChadecheDevice,
+    _driver,
+    _simulator,
+    in_process_only=True,
+    role=DeviceRole.CYCLER,
+    shows=(Shown("link", LINK, "link"),),
+)
 
 __all__ = [
     "KIND",

@@ -7,13 +7,21 @@ from supervisor.core.driver import Driver
 from supervisor.devices.ea.config import EaDevice
 from supervisor.devices.ea.driver import EaDriver
 from supervisor.devices.ea.sim import EaSimulator, EaTcpSimulator
-from supervisor.devices.ea.transport import (
+from supervisor.devices.kind import (
+    LINK,
+    DeviceKind,
+    DeviceRole,
+    DeviceSimulator,
+    DriverWiring,
+    Shown,
+    SimWiring,
+)
+from supervisor.fieldbus.scpi_transport import (
     InProcessScpiTransport,
     ScpiConnection,
     ScpiTransport,
     TcpScpiTransport,
 )
-from supervisor.devices.kind import DeviceKind, DeviceSimulator, DriverWiring, SimWiring
 
 
 def _driver(name: str, dev: EaDevice, wiring: DriverWiring) -> Driver:
@@ -66,7 +74,13 @@ def _simulator(name: str, dev: EaDevice, wiring: SimWiring) -> DeviceSimulator:
     )
 
 
-KIND = DeviceKind(EaDevice, _driver, _simulator)
+KIND = DeviceKind(
+    EaDevice,
+    _driver,
+    _simulator,
+    role=DeviceRole.SUPPLY,
+    shows=(Shown("voltage", "voltage", "n2"), Shown("link", LINK, "link")),
+)
 
 __all__ = [
     "KIND",

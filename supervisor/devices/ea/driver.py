@@ -27,7 +27,7 @@ Safety of the link (devices.md "EA-PSB 10000"):
   on a timeout or a malformed reply the connection is closed, so a late reply can never be
   taken for the answer to the next question.
 
-The transport (:mod:`supervisor.devices.ea.transport`) is chosen by the composition root:
+The transport (:mod:`supervisor.fieldbus.scpi_transport`) is chosen by the composition root:
 raw-socket SCPI on ``host:port`` for a unit, or the simulator's interpreter in process
 (dry runs, virtual-clock tests).
 
@@ -60,8 +60,14 @@ from supervisor.devices.ea.protocol import (
     QUES_POWER_FAIL_BIT,
     WATCHDOG_ENABLE_HEADER,
     WATCHDOG_TIME_HEADER,
-    Identity,
     LockOwner,
+    is_ea,
+    model_matches,
+    parse_lock_owner,
+    parse_meas_array,
+)
+from supervisor.fieldbus.scpi import (
+    Identity,
     ScpiError,
     bit_set,
     decode_line,
@@ -69,17 +75,14 @@ from supervisor.devices.ea.protocol import (
     format_number,
     format_setting,
     join_commands,
-    model_matches,
     parse_error,
     parse_idn,
-    parse_lock_owner,
-    parse_meas_array,
     parse_number,
     parse_on_off,
     parse_register,
     split_reply,
 )
-from supervisor.devices.ea.transport import ScpiConnection, ScpiTransport
+from supervisor.fieldbus.scpi_transport import ScpiConnection, ScpiTransport
 
 log = logging.getLogger(__name__)
 
@@ -319,7 +322,7 @@ class EaDriver(PolledDriver):
         (idn_text,) = await self._exchange("*IDN?", 1)
         identity = parse_idn(idn_text, self.name)
         raw = idn_text.encode("ascii", "replace")
-        if not identity.is_ea:
+        if not is_ea(identity):
             raise ProtocolError(self.name, f"an EA unit in the *IDN? reply {idn_text!r}", raw)
         if self.expected_model is not None and not model_matches(
             self.expected_model, identity.model

@@ -2,7 +2,7 @@
 
 :class:`EaSimulator` is the unit: its SCPI interpreter (:meth:`EaSimulator.handle_line`), its
 state and the test hooks. It has no socket and no task of its own, so a driver can talk to
-it in process (:class:`~supervisor.devices.ea.transport.InProcessScpiTransport`) on a
+it in process (:class:`~supervisor.fieldbus.scpi_transport.InProcessScpiTransport`) on a
 virtual clock. :class:`EaTcpSimulator` is the same unit served on loopback for drivers in
 another process or on real TCP.
 
@@ -44,6 +44,20 @@ from collections.abc import Callable
 
 from supervisor.core.errors import ProtocolError
 from supervisor.devices.ea.protocol import (
+    OPER_CC_BIT,
+    OPER_CV_BIT,
+    OPER_SINK_BIT,
+    QUES_OCP_BIT,
+    QUES_OPP_BIT,
+    QUES_OVP_BIT,
+    WATCHDOG_ENABLE_HEADER,
+    WATCHDOG_TIME_HEADER,
+    LockOwner,
+    Measurement,
+    format_meas_array,
+    parse_command,
+)
+from supervisor.fieldbus.scpi import (
     ERR_COMMAND,
     ERR_DATA_OUT_OF_RANGE,
     ERR_INVALID_IN_LOCAL,
@@ -51,26 +65,14 @@ from supervisor.devices.ea.protocol import (
     ERR_PARAMETER,
     ERROR_MESSAGES,
     MAX_LINE_BYTES,
-    OPER_CC_BIT,
-    OPER_CV_BIT,
-    OPER_SINK_BIT,
-    QUES_OCP_BIT,
-    QUES_OPP_BIT,
-    QUES_OVP_BIT,
     REPLY_SEPARATOR,
     STB_ERROR_QUEUE_BIT,
     STB_QUES_BIT,
-    WATCHDOG_ENABLE_HEADER,
-    WATCHDOG_TIME_HEADER,
     Command,
     Identity,
-    LockOwner,
-    Measurement,
     decode_line,
     format_error,
     format_idn,
-    format_meas_array,
-    parse_command,
     parse_number,
     parse_on_off,
     split_commands,
@@ -196,7 +198,7 @@ class EaSimulator:
 
     def open_session(self) -> _Session:
         """A new in-process client connection (see
-        :class:`~supervisor.devices.ea.transport.InProcessScpiTransport`)."""
+        :class:`~supervisor.fieldbus.scpi_transport.InProcessScpiTransport`)."""
         if not self.reachable:
             raise ConnectionRefusedError(f"{self.name}: link unplugged (simulator stopped)")
         session = _Session(self)

@@ -1,6 +1,6 @@
 """The embedded historian: every tag's changes and the bench's events in one SQLite file.
 
-The default store of history when no InfluxDB is configured (DESIGN.md "Publishing";
+The default store of history when no InfluxDB is configured (docs/design.md "Publishing";
 docs/adr/0013-historian.md). ``Historian`` is the scan publisher and event sink (it only
 queues); one writer thread owns the file (WAL, one transaction per commit interval,
 retention by age and size in bounded chunks); ``HistoryQuery`` reads it for the HTTP API,

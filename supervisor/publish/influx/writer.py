@@ -1,6 +1,6 @@
 """The InfluxDB writer as the bench sees it: a scan publisher and an event sink.
 
-Three parts, so that the scan never waits (DESIGN.md "Publishing"):
+Three parts, so that the scan never waits (docs/design.md "Publishing"):
 
 1. the scan's side (``InfluxWriter.on_scan``, ``on_event``): the change feed's samples and
    the bench events go to a bounded in-memory queue; the influx.* status tags and alarms

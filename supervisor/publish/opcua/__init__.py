@@ -1,4 +1,4 @@
-"""The OPC UA server of a bench (DESIGN.md "Publishing"; docs/adr/0014-opcua-server.md).
+"""The OPC UA server of a bench (docs/design.md "Publishing"; docs/adr/0014-opcua-server.md).
 
 ``opc.tcp://<host>:4840/supervisor``: the bench's tags under Bench / Channels / Devices /
 Alarms / Diagnostics (NodeIds equal to tag names), analog tags as AnalogItemType with

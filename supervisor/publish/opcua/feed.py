@@ -1,6 +1,6 @@
 """What the scan hands the OPC UA server: changed tags, events and alarm transitions.
 
-The scan never waits on OPC UA (DESIGN.md "One scan"): ``on_scan`` copies the tags that
+The scan never waits on OPC UA (docs/design.md "One scan"): ``on_scan`` copies the tags that
 changed since the last scan (``TagDB.changed_since``, O(changes)) into a pending map under
 a lock held for microseconds, wakes the server and returns. The map holds at most one
 update per tag: a tag that changes again before the server wrote it replaces its pending

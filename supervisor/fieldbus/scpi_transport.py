@@ -1,10 +1,10 @@
-"""The line transport the EA driver speaks SCPI over: whole lines out, whole lines in.
+"""The line transport an SCPI driver speaks over: whole lines out, whole lines in.
 
-:class:`ScpiTransport` opens connections (:class:`ScpiConnection`); the composition root
-chooses the implementation (ophyd-async style injected backend, STYLE.md):
+:class:`ScpiTransport` opens connections (:class:`ScpiConnection`); the kind's registration
+chooses the implementation (an injected backend, as ophyd-async does):
 
 - :class:`TcpScpiTransport`: raw-socket SCPI on ``host:port`` (the I/O map's ``host``/
-  ``port``; EA units listen on 5025, devices.md "EA-PSB 10000"). Timeouts are wall-clock
+  ``port``; most units listen on 5025). Timeouts are wall-clock
   ``asyncio.timeout``: right for a real network;
 - :class:`InProcessScpiTransport`: hands every line to a simulated unit's SCPI interpreter
   in this process (dry runs, virtual-clock tests). A reply that does not come (a muted
@@ -15,7 +15,7 @@ Both report failures as the project's typed errors, naming the device and the li
 reply was awaited: :class:`~supervisor.core.errors.DeviceTimeout` (no reply in time),
 :class:`~supervisor.core.errors.DeviceIOError` (cannot connect, connection closed or
 dropped), :class:`~supervisor.core.errors.ProtocolError` (a reply line longer than
-:data:`~supervisor.devices.ea.protocol.MAX_LINE_BYTES`, with the bytes received). A
+:data:`~supervisor.fieldbus.scpi.MAX_LINE_BYTES`, with the bytes received). A
 connection that raised must be closed by its user and not reused: the driver does, so a
 late reply can never be read as the answer to the next question.
 """
@@ -29,7 +29,7 @@ from typing import Protocol
 
 from supervisor.core.clock import Clock
 from supervisor.core.errors import DeviceIOError, DeviceTimeout, ProtocolError
-from supervisor.devices.ea.protocol import LINE_END, MAX_LINE_BYTES
+from supervisor.fieldbus.scpi import LINE_END, MAX_LINE_BYTES
 
 _CONTEXT_CHARS = 64
 """Received bytes kept in a ProtocolError for an over-long line."""
@@ -165,8 +165,8 @@ class UnitSession(Protocol):
 
 
 class ScpiUnit(Protocol):
-    """What the in-process transport needs of a simulated unit
-    (:class:`supervisor.devices.ea.sim.EaSimulator`)."""
+    """What the in-process transport needs of a simulated unit (its SCPI interpreter, e.g.
+    :class:`supervisor.devices.ea.sim.EaSimulator`)."""
 
     @property
     def name(self) -> str: ...

@@ -24,7 +24,7 @@ from typing import Any
 
 import yaml
 
-from supervisor.core.processes import stop_with_parent
+from supervisor.bench.processes import stop_with_parent
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """OPC UA clients in a process of their own (the load tests and ``supervisor bench opcua``
 must not run clients on the loop they measure).
 
-``python -m supervisor.app.opcuaclients URL NAMESPACE --clients 20 --tags a,b,c --seconds 5``
+``python -m supervisor.bench.opcuaclients URL NAMESPACE --clients 20 --tags a,b,c --seconds 5``
 connects every client at once, subscribes each to the tags, says ``subscribed`` on one
 line when all are, counts the data changes each receives for ``--seconds``, then prints one
 JSON line ``{"updates": [n per client], "errors": [...]}``. ``--seconds 0``: until killed.

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
-from supervisor.app.floodbench import (
+from supervisor.bench.flood import (
     CHANNEL,
     OPERATOR,
     Client,
@@ -332,7 +332,7 @@ def report(fig: AttackFigures) -> list[str]:
 
 
 def validate_attack_benchmark(timeout_s: float | None = None) -> int:
-    from supervisor.app.benchreport import record
+    from supervisor.bench.report import record
     from supervisor.config.limits import RECIPE_CHECK_WORKERS
 
     recipes: dict[str, Any] = {} if timeout_s is None else {"check_timeout_s": timeout_s}

@@ -11,7 +11,7 @@ clients' pages); the growth is the least-squares slope over the other two thirds
 slope over the last third is printed next to it: a leak keeps the same slope in both, a
 cache that reached its ceiling during the run shows a smaller one at the end.
 
-``--trace DIR`` runs the supervisor with the memory tracing switch on (core/memtrace.py:
+``--trace DIR`` runs the supervisor with the memory tracing switch on (bench/memtrace.py:
 slower and bigger, so not the figure to record) and prints what grew, by source line,
 between the snapshot at the end of the warm-up and the last one, and the summary lines
 (RSS, SQLite, glibc's heap, Python's blocks). With ``SUPERVISOR_TRACEMALLOC_FRAMES=0``
@@ -42,9 +42,8 @@ from typing import Final
 
 import yaml
 
-from supervisor.app import benchreport
-from supervisor.app.benchrun import START_TIMEOUT_S, Supervisor, prepare, recipe_args
-from supervisor.core import memtrace
+from supervisor.bench import memtrace, report
+from supervisor.bench.subject import START_TIMEOUT_S, Supervisor, prepare, recipe_args
 
 SIM_MAP = Path("io_maps/sim.yaml")
 RECIPE = Path("benchmarks/load-cycle.yaml")
@@ -175,7 +174,7 @@ def memory_benchmark(
         _print_trace(trace_dir, warm)
     if traced:
         return 0
-    benchreport.record(
+    report.record(
         f"RSS of supervisor run (sim bench, recipes) after {minutes:g} min",
         f.end_b / MB,
         "MB",
@@ -183,7 +182,7 @@ def memory_benchmark(
         f"{f.start_b / MB:.1f} MB at start-up, {f.peak_b / MB:.1f} MB peak",
         cmd,
     )
-    benchreport.record(
+    report.record(
         f"RSS growth per 10 min after {warm:g} s warm-up ({minutes:g} min run)",
         f.growth_b_per_10min / MB,
         "MB",
@@ -308,7 +307,7 @@ TARGET_RUN_MIN: Final = 30.0
 def growth_target(minutes: float) -> str:
     """The growth target as recorded: judged on a run of ``TARGET_RUN_MIN`` or longer. A
     shorter run's slope is mostly its warm-up (the caches filling to their ceilings): it
-    is shown, not judged (``benchreport.met`` gives None, the table a dash)."""
+    is shown, not judged (``report.met`` gives None, the table a dash)."""
     if minutes >= TARGET_RUN_MIN:
         return "<= 1"
     return f"{TARGET_RUN_MIN:g} min run: <= 1 (not judged on {minutes:g} min)"

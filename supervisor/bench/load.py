@@ -8,7 +8,7 @@ sim`` in another process, reached over loopback as real ones are over the bench'
 (``--no-sim``); the Chadèche boards, on the supervisor's own SPI buses, are simulated in
 it. ``sim_in_process`` (``--sim-in-process``) runs them all inside the supervisor instead,
 as ``make run`` does: their servers then share its event loop and interpreter lock.
-Attached for the whole window: 10 subscribed OPC UA clients (``supervisor.app.opcuaclients``,
+Attached for the whole window: 10 subscribed OPC UA clients (``supervisor.bench.opcuaclients``,
 another process) and 3 WebSocket pages (``/api/ws``, in this process). After a warm-up
 the window alternates ``ALTERNATIONS`` times between two kinds of block:
 
@@ -44,8 +44,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from supervisor.app import benchreport
-from supervisor.app.benchrun import Simulators, Supervisor, free_port, prepare, recipe_args
+from supervisor.bench import report
+from supervisor.bench.subject import Simulators, Supervisor, free_port, prepare, recipe_args
 
 log = logging.getLogger(__name__)
 
@@ -134,7 +134,7 @@ async def _opcua_clients(
     proc = await asyncio.create_subprocess_exec(
         sys.executable,
         "-m",
-        "supervisor.app.opcuaclients",
+        "supervisor.bench.opcuaclients",
         endpoint,
         namespace,
         "--clients",
@@ -219,16 +219,16 @@ async def _measure(
         latencies: list[float] = []
         size = 0
         # The CPUs' ticks at each block's start and end, by kind (the hypervisor's steal).
-        ticks: dict[str, list[tuple[benchreport.CpuTicks, benchreport.CpuTicks]]] = {}
+        ticks: dict[str, list[tuple[report.CpuTicks, report.CpuTicks]]] = {}
         for kind, block_s in block_plan(seconds):
             t0 = time.time()
-            ticks0 = benchreport.cpu_ticks()
+            ticks0 = report.cpu_ticks()
             if kind == "quiet":
                 await asyncio.sleep(block_s)
             else:
                 lat, size = await _snapshots(sup.url, http_rate_hz, block_s)
                 latencies += lat
-            ticks1 = benchreport.cpu_ticks()
+            ticks1 = report.cpu_ticks()
             blocks.append((kind, t0, time.time()))
             if ticks0 is not None and ticks1 is not None:
                 ticks.setdefault(kind, []).append((ticks0, ticks1))
@@ -247,7 +247,7 @@ async def _measure(
     return {
         "tags": n_tags,
         "blocks": blocks,
-        "steal": {kind: benchreport.steal_share(spans) for kind, spans in ticks.items()},
+        "steal": {kind: report.steal_share(spans) for kind, spans in ticks.items()},
         "diag": (d0, d1),
         "latencies": latencies,
         "snapshot_bytes": size,
@@ -268,7 +268,7 @@ def load_benchmark(
     sim_in_process: bool = False,
 ) -> int:
     """Run the load case and print (and record) its figures; 0, or 2 without influxd."""
-    from supervisor.app.influxbench import _influxd, _Server
+    from supervisor.bench.influx import _influxd, _Server
     from supervisor.devices.registry import load_bench
     from supervisor.publish.opcua.layout import namespace_uri
 
@@ -382,7 +382,7 @@ def load_benchmark(
         f" {len(lat)} requests, p50 {_pct(lat, 50) * 1000:.1f} ms, p99 {lat_p99:.1f} ms"
         f" (target ≤ 20 ms)"
     )
-    rise_ms, reference = benchreport.jitter_change(jit_quiet, jit_snap)
+    rise_ms, reference = report.jitter_change(jit_quiet, jit_snap)
     steal = res["steal"]
     # The machine's own noise, block by block (a virtual machine's CPUs given to others):
     # a scan at a real-time priority waits for it like anyone else.
@@ -397,10 +397,10 @@ def load_benchmark(
         f"  start jitter p99 without snapshots {jit_quiet:.2f} ms, with {jit_snap:.2f} ms"
         f" ({ALTERNATIONS} blocks of each, alternating): rise {rise_ms:+.3f} ms,"
         f" ratio {jit_ratio:.2f} (target: unchanged, a rise of at most"
-        f" {benchreport.JITTER_UNCHANGED_MS:g} ms)"
+        f" {report.JITTER_UNCHANGED_MS:g} ms)"
     )
     _say(f"  {noise}")
-    rec = benchreport.record
+    rec = report.record
     load = "16 ch, ~1000 tags, 10 ms, every publisher on"
     rec(
         f"scan duration p99 / period ({load})",
@@ -440,7 +440,7 @@ def load_benchmark(
         "scan jitter p99 rise with snapshots (same run)",
         rise_ms,
         "ms",
-        f"<= {benchreport.JITTER_UNCHANGED_MS:g}",
+        f"<= {report.JITTER_UNCHANGED_MS:g}",
         f"{reference}; {ALTERNATIONS} alternating blocks of each; {noise}",
         cmd,
     )

@@ -22,7 +22,7 @@ import sys
 import time
 from typing import Any, Final
 
-from supervisor.app.loadgen import SignalGenerator
+from supervisor.bench.loadgen import SignalGenerator
 from supervisor.channels import Channel, ChannelLimits
 from supervisor.core.clock import RealClock
 from supervisor.core.heap import collect_when_idle, settle_after_start
@@ -59,7 +59,7 @@ class _Jitters:
 
 
 def _engine(n_tags: int, period_s: float) -> ScanEngine:
-    """``bench scan``'s composition (supervisor/app/benchmarks.py::scan_benchmark)."""
+    """``bench scan``'s composition (supervisor/bench/benchmarks.py::scan_benchmark)."""
     clock = RealClock()
     db = TagDB()
     channels, phases = [], []
@@ -146,7 +146,7 @@ async def http_benchmark(
         proc = await asyncio.create_subprocess_exec(
             sys.executable,
             "-m",
-            "supervisor.app.httpbench",
+            "supervisor.bench.http",
             api.url + "/tags",
             f"http://{api.host}:{api.port}/api/ws",
             str(seconds),
@@ -188,13 +188,13 @@ async def http_benchmark(
         f" {hub.dropped} dropped; overruns {engine.stats.overruns},"
         f" skipped {engine.stats.skipped}"
     )
-    from supervisor.app import benchreport
+    from supervisor.bench import report
 
     alone = p(jit.by_phase.get("alone", [0.0]), 99)
     with_clients = p(jit.by_phase.get("clients", [0.0]), 99)
     command = f"supervisor bench http --seconds {seconds:g} --http-clients {http_clients}"
     if lat:
-        benchreport.record(
+        report.record(
             "GET /api/tags p99, scan engine alone (1000 tags, 10 ms)",
             p(lat, 99) * 1000,
             "ms",
@@ -202,13 +202,13 @@ async def http_benchmark(
             f"{len(lat)} requests by {http_clients} clients back to back",
             command,
         )
-    rise_ms, reference = benchreport.jitter_change(alone * 1000, with_clients * 1000)
+    rise_ms, reference = report.jitter_change(alone * 1000, with_clients * 1000)
     _say(f"  start jitter p99 rise with clients {rise_ms:+.3f} ms ({reference})")
-    benchreport.record(
+    report.record(
         "scan jitter p99 rise with HTTP clients, same run",
         rise_ms,
         "ms",
-        f"<= {benchreport.JITTER_UNCHANGED_MS:g}",
+        f"<= {report.JITTER_UNCHANGED_MS:g}",
         reference,
         command,
     )

@@ -9,8 +9,8 @@ import sys
 import time
 from typing import Any
 
-from supervisor.app import benchreport
-from supervisor.app.loadgen import SignalGenerator
+from supervisor.bench import report
+from supervisor.bench.loadgen import SignalGenerator
 from supervisor.channels import Channel, ChannelLimits
 from supervisor.core.clock import RealClock, VirtualClock
 from supervisor.devices.registry import bench_from_data
@@ -127,7 +127,7 @@ async def scan_benchmark(
     _say(f"  duration  p50 {_ms(p(d, 50))}  p99 {_ms(p(d, 99))}  max {_ms(max(d))}")
     _say(f"  jitter    p50 {_ms(p(j, 50))}  p99 {_ms(p(j, 99))}  max {_ms(max(j))}")
     _say(f"  overruns {st.overruns}, deadlines skipped {st.skipped}")
-    benchreport.record(
+    report.record(
         f"scan duration p99 / period (scan alone: {len(db)} tags, no devices, no publishers)",
         p(d, 99) / period_s,
         "",
@@ -430,7 +430,7 @@ async def estop_benchmark(io_map: str, presses: int = 100, period_s: float = 0.0
     _say("  (supply off: plant output off and output_cmd false; contactor open: plant)")
     _say(f"  scans {st.count}, overruns {st.overruns}, deadlines skipped {st.skipped}")
     every = [max(a, b) for a, b in zip(supply_s, contactor_s, strict=True)]
-    benchreport.record(
+    report.record(
         "e-stop press → every output safe p99 (simulated devices over loopback)",
         p(every, 99) * 1000,
         "ms",
@@ -640,7 +640,7 @@ async def _opcua_clients(
     proc = await asyncio.create_subprocess_exec(
         sys.executable,
         "-m",
-        "supervisor.app.opcuaclients",
+        "supervisor.bench.opcuaclients",
         url,
         namespace,
         "--clients",
@@ -820,7 +820,7 @@ async def opcua_benchmark(
     for label, rate, _ in rows[:-1]:
         ratio = rate / bare_rate if bare_rate else float("nan")
         _say(f"  ratio {label} / bare: {ratio:.2f} (target >= 0.8)")
-        benchreport.record(
+        report.record(
             f"OPC UA updates/s to {clients} clients vs bare asyncua ({label})",
             ratio,
             "",

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from supervisor.app.bench import Bench, build_bench
+from supervisor.app import Bench, build_bench
 from supervisor.chains.states import State
 from supervisor.core.clock import VirtualClock
 from supervisor.devices.base import BACKOFF_MAX_S

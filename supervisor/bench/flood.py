@@ -456,7 +456,7 @@ def flood_benchmark(
 ) -> int:
     import tempfile
 
-    from supervisor.app.benchreport import record
+    from supervisor.bench.report import record
 
     with tempfile.TemporaryDirectory(prefix="bench-flood-") as tmp:
         with bench_run(Path(tmp)) as sup:

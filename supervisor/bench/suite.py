@@ -7,13 +7,13 @@ import os
 import sys
 from pathlib import Path
 
-from supervisor.app import benchreport
+from supervisor.bench import report
 from supervisor.core.errors import ConfigError
 
 
 def run(args: argparse.Namespace) -> int:
     if args.what == "load":
-        from supervisor.app.benchload import load_benchmark
+        from supervisor.bench.load import load_benchmark
 
         warm = 10.0 if args.warmup is None else args.warmup
         return load_benchmark(
@@ -24,18 +24,18 @@ def run(args: argparse.Namespace) -> int:
             sim_in_process=args.sim_in_process,
         )
     if args.what == "memory":
-        from supervisor.app.benchmem import memory_benchmark
+        from supervisor.bench.memory import memory_benchmark
 
         trace = Path(args.trace) if args.trace else None
         if args.virtual:
-            from supervisor.app.benchmem import virtual_trace
+            from supervisor.bench.memory import virtual_trace
 
             if trace is None:
                 raise ConfigError("bench memory --virtual: give --trace DIR (the snapshots)")
             return virtual_trace(args.minutes, args.warmup, trace)
         return memory_benchmark(args.minutes, args.warmup, trace_dir=trace)
-    lines = Path(os.environ.get(benchreport.ENV) or Path(args.out) / "results.jsonl")
-    js, md = benchreport.write_report(lines, Path(args.out))
+    lines = Path(os.environ.get(report.ENV) or Path(args.out) / "results.jsonl")
+    js, md = report.write_report(lines, Path(args.out))
     sys.stdout.write(md.read_text(encoding="utf-8"))
     sys.stdout.write(f"written: {js}, {md}\n")
     return 0

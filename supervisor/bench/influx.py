@@ -25,8 +25,8 @@ import urllib.parse
 import urllib.request
 from pathlib import Path
 
-from supervisor.app import benchreport
-from supervisor.core.processes import stop_with_parent
+from supervisor.bench import report
+from supervisor.bench.processes import stop_with_parent
 from supervisor.core.quality import Quality
 from supervisor.publish.changes import Sample
 from supervisor.publish.influx import Forwarder, LineEncoder, Spool, WriteClient
@@ -258,7 +258,7 @@ def influx_benchmark(points: int = 200_000, rounds: int = 3) -> int:
         + f"; median {statistics.median(ratios):.2f} (target ≥ 0.9)"
     )
     _say(f"  encoder (samples → lines, scan thread) {_encoder_rate():,.0f} samples/s")
-    benchreport.record(
+    report.record(
         "InfluxDB ingest through the spool vs raw influxdb-client batches",
         statistics.median(ratios),
         "",

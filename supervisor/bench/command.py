@@ -1,0 +1,132 @@
+"""``supervisor bench WHAT``: the benchmark each ``WHAT`` names, run with the command line's
+arguments (the command line parses them and sets logging; ``supervisor.cli.main``)."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import statistics
+import sys
+from pathlib import Path
+
+
+def _out(msg: str) -> None:
+    sys.stdout.write(msg.rstrip("\n") + "\n")
+    sys.stdout.flush()
+
+
+def run_bench(args: argparse.Namespace, default_io_map: Path) -> int:
+    """Run the benchmark ``args.what`` names; its exit code. ``default_io_map``: the bench
+    of those that run on the simulated seed 002 bench (``seed002``, ``estop``)."""
+    from supervisor.bench import benchmarks
+
+    if args.what == "scan":
+        return asyncio.run(
+            benchmarks.scan_benchmark(
+                args.tags,
+                args.period_ms / 1000,
+                args.seconds,
+                recipes=args.recipes,
+                settle=not args.no_settle,
+            )
+        )
+    if args.what == "historian":
+        return asyncio.run(
+            benchmarks.historian_benchmark(args.tags, args.period_ms / 1000, args.seconds)
+        )
+    if args.what == "seed002":
+        return asyncio.run(benchmarks.seed002_benchmark(str(default_io_map)))
+    if args.what == "faults":
+        from supervisor.bench import faults
+
+        for line in faults.table(asyncio.run(faults.run_all())):
+            _out(line)
+        return 0
+    if args.what == "estop":
+        logging.disable(logging.ERROR)  # every press trips the channel, logged at ERROR
+        return asyncio.run(
+            benchmarks.estop_benchmark(str(default_io_map), args.presses, args.period_ms / 1000)
+        )
+    if args.what == "kill-restart":
+        from supervisor.bench.killrestart import kill_restart_benchmark
+
+        return kill_restart_benchmark(args.iterations, args.seed)
+    if args.what == "influx":
+        from supervisor.bench.influx import influx_benchmark
+
+        return influx_benchmark(args.points, args.rounds)
+    if args.what == "http":
+        from supervisor.bench.http import http_benchmark
+
+        return asyncio.run(
+            http_benchmark(
+                args.tags, args.period_ms / 1000, args.seconds, args.http_clients, args.ws_clients
+            )
+        )
+    if args.what == "opcua":
+        return asyncio.run(
+            benchmarks.opcua_benchmark(
+                args.clients, args.seconds, args.opcua_tags, args.period_ms / 1000
+            )
+        )
+    if args.what == "flood":
+        from supervisor.bench.flood import flood_benchmark
+
+        return flood_benchmark(
+            args.flood_http, args.flood_opcua, args.login_rate, args.login_seconds
+        )
+    if args.what == "validate-attack":
+        from supervisor.bench.validate import validate_attack_benchmark
+
+        return validate_attack_benchmark()
+    if args.what in ("load", "memory", "report"):
+        from supervisor.bench import suite
+
+        return suite.run(args)
+    if args.what == "dry-run" and args.bytecodes:
+        from supervisor.bench.dryruncost import scan_cost
+
+        cost = scan_cost(args.recipe)
+        _out(
+            f"dry run of {args.recipe}: {cost.bytecodes:,.0f} bytecodes and {cost.calls:.1f}"
+            f" Python calls a scan (the difference of two traced runs, {cost.scans} scans)"
+        )
+        _out(f"{'bytecodes':>10} {'calls':>6}  function")
+        for where, ops, calls in cost.by_function[:30]:
+            _out(f"{ops:10.1f} {calls:6.2f}  {where}")
+        return 0
+    if args.what == "dry-run":
+        from supervisor.app.dryrun import dry_run, format_report
+
+        # Several runs in one process, their median recorded: one run's ratio moves by a
+        # fifth with what else the machine does (issue 13: 25 000–31 000× on the idle
+        # machine), the median of five much less.
+        ratios: list[float] = []
+        walls: list[float] = []
+        for k in range(args.runs):
+            res = asyncio.run(dry_run(args.recipe, soc=0.0))
+            ratios.append(res.ratio)
+            walls.append(res.wall_s)
+            _out(f"run {k + 1} of {args.runs}: {format_report(res)[-1]}")
+        for line in format_report(res)[-3:-1]:
+            _out(line)
+        median = statistics.median(ratios)
+        _out(
+            f"median of {args.runs} runs: {median:,.0f}x"
+            f" (min–max {min(ratios):,.0f}–{max(ratios):,.0f}x)"
+        )
+        from supervisor.bench import report
+
+        report.record(
+            f"dry run of {args.recipe}",
+            median,
+            "× real time",
+            ">= 30000",
+            f"median of {args.runs} runs, min–max {min(ratios):,.0f}–{max(ratios):,.0f}×,"
+            f" {res.simulated_s / 3600:.1f} simulated h in {statistics.median(walls):.2f} s"
+            " wall (median)",
+            f"supervisor bench dry-run --recipe {args.recipe} --runs {args.runs}",
+        )
+        return 0
+    return asyncio.run(benchmarks.manual_charge_benchmark(args.hours))
