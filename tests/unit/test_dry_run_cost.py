@@ -36,9 +36,16 @@ def _another_loop_churning() -> Iterator[None]:
 
     async def churn() -> None:
         tasks: list[asyncio.Task[None]] = []
+        turn = 0
         while not stop.is_set():
-            tasks = [*tasks[-20:], asyncio.ensure_future(asyncio.sleep(0.05))]
-            _Finalized()
+            turn += 1
+            tasks.append(asyncio.ensure_future(asyncio.sleep(1)))
+            if turn % 64 == 0:  # from 0 to 63 tasks and back, all the time
+                for task in tasks:
+                    task.cancel()
+                tasks = []
+            for _ in range(turn % 5):
+                _Finalized()
             await asyncio.sleep(0.001)
         for task in tasks:
             task.cancel()
