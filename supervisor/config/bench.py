@@ -276,7 +276,8 @@ class _Checker:
             )
         return spec
 
-    def _channel_refs(self, i: int, ch: ChannelConfig) -> None:
+    def _channel_tags(self, i: int, ch: ChannelConfig) -> None:
+        """The channel's own tags declared, its contactor a relay output."""
         names = self.tag_index
         for field in ("temperature_tag", "voltage_tag", "current_tag", "contactor_tag"):
             ref = getattr(ch, field)
@@ -293,6 +294,10 @@ class _Checker:
                     ("channels", i, "contactor_tag"),
                     f"contactor_tag {ch.contactor_tag!r} must map a relay output (slotN.doK)",
                 )
+
+    def _channel_refs(self, i: int, ch: ChannelConfig) -> None:
+        names = self.tag_index
+        self._channel_tags(i, ch)
         for k, ref in enumerate(ch.permissives):
             if ref not in names:
                 self.err(

@@ -730,6 +730,32 @@ def _is_member(model: Any, element: str | int) -> bool:
     return any(element in _literal_values(info.annotation) for info in model.model_fields.values())
 
 
+def _types_below(tp: Any, element: str | int) -> list[Any]:
+    """The type one step below ``tp`` at ``element`` (a model's field, a mapping's value, a
+    tuple's or a sequence's item), in a list; empty when ``element`` leads nowhere."""
+    if _is_model(tp):
+        for name, info in tp.model_fields.items():
+            if element in _field_keys(name, info):
+                return [info.annotation]
+        return []
+    origin = get_origin(tp)
+    args = get_args(tp)
+    if isinstance(origin, type) and issubclass(origin, Mapping) and len(args) == 2:
+        return [args[1]]
+    if origin is tuple and args and isinstance(element, int):
+        if len(args) == 2 and args[1] is Ellipsis:
+            return [args[0]]
+        return [args[element]] if 0 <= element < len(args) else []
+    if (
+        isinstance(origin, type)
+        and issubclass(origin, (Sequence, set, frozenset))
+        and args
+        and isinstance(element, int)
+    ):
+        return [args[0]]
+    return []
+
+
 def _types_at(model: type[pydantic.BaseModel], loc: Sequence[str | int]) -> list[Any]:
     candidates: list[Any] = [model]
     for element in loc:
@@ -740,30 +766,7 @@ def _types_at(model: type[pydantic.BaseModel], loc: Sequence[str | int]) -> list
             if chosen:
                 candidates = chosen
                 continue
-        following: list[Any] = []
-        for tp in candidates:
-            if _is_model(tp):
-                for name, info in tp.model_fields.items():
-                    if element in _field_keys(name, info):
-                        following.append(info.annotation)
-                        break
-                continue
-            origin = get_origin(tp)
-            args = get_args(tp)
-            if isinstance(origin, type) and issubclass(origin, Mapping) and len(args) == 2:
-                following.append(args[1])
-            elif origin is tuple and args and isinstance(element, int):
-                if len(args) == 2 and args[1] is Ellipsis:
-                    following.append(args[0])
-                elif 0 <= element < len(args):
-                    following.append(args[element])
-            elif (
-                isinstance(origin, type)
-                and issubclass(origin, (Sequence, set, frozenset))
-                and args
-                and isinstance(element, int)
-            ):
-                following.append(args[0])
+        following = [below for tp in candidates for below in _types_below(tp, element)]
         if following:
             candidates = following
         # else: a marker pydantic inserted (e.g. function-after[...]); stay where we are.

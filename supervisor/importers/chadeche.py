@@ -321,20 +321,12 @@ def _read_text(path: Path, not_found: str) -> DecodedText:
         raise ConfigErrors([exc]) from None
 
 
-def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
-    """Parse the sequence file; raise ConfigErrors listing every problem."""
-    file = str(path)
-    decoded = _read_text(path, "file not found")
-    about = f"{decoded.encoding}, {decoded.newline_style}"
+def _sequence_lines(decoded: DecodedText, file: str) -> list[str]:
+    """The file's lines without the trailing empty ones; refused when there is none, or
+    more than a sequence file may have."""
     lines = decoded.lines()
     while lines and not lines[-1].strip(" \t"):
         lines.pop()  # trailing empty lines (and a final line break)
-    errors: list[ConfigError] = []
-    warnings: list[str] = []
-
-    def err(line: int, col: int, msg: str) -> None:
-        errors.append(ConfigError(msg, file, line, col))
-
     if not lines:
         raise ConfigErrors([ConfigError("file is empty: expected a header line", file, 1, 1)])
     if len(lines) > MAX_SEQUENCE_ROWS + 1:  # + the header line
@@ -349,65 +341,112 @@ def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
                 )
             ]
         )
+    return lines
 
-    # --- header ------------------------------------------------------------------------------
-    header = lines[0].rstrip(" \t")
-    hfields = _split_fields(header)
-    expected = "\t".join(COLUMNS)
-    first_row = 1  # 2: the header is missing
-    if _INT.match(hfields[0][0].strip()):
-        err(
-            1,
-            1,
-            "missing header line: the first line must be the column titles "
-            f"({' '.join(COLUMNS)}); the Chadèche program ignores the first line, "
-            "so this sequence would be lost",
-        )
-        first_row = 2  # still check the rows below
-    elif len(hfields) < len(COLUMNS):
-        missing = " ".join(COLUMNS[len(hfields) :])
-        err(
-            1,
-            len(header) + 1,
-            f"short header: {len(hfields)} of {len(COLUMNS)} columns (missing {missing}); "
-            f"expected {expected!r}",
-        )
-    elif len(hfields) > len(COLUMNS):
-        err(
-            1,
-            hfields[len(COLUMNS)][1],
-            f"header has {len(hfields)} columns, expected {len(COLUMNS)}: {expected!r}",
-        )
-    else:
-        odd = [
-            f"{got.strip()!r} for {want}"
-            for (got, _), want in zip(hfields, COLUMNS, strict=True)
-            if got.strip().upper() != want.upper()
-        ]
-        if odd:
-            warnings.append(f"{file}:1: unusual column titles ({', '.join(odd)}); read as usual")
 
-    # --- rows --------------------------------------------------------------------------------
-    rows: list[_Row] = []
+@dataclass
+class _SequenceReader:
+    """One sequence file read row by row: every problem is collected (the caller raises
+    them together, in file order) and a bad row is left out, so that the rows after it
+    are still checked."""
+
+    file: str
+    errors: list[ConfigError] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
     prev_adr: tuple[int, int] | None = None  # (adr, line)
-    adrs: set[int] = set()
-    actions: list[tuple[int, str, _Act]] = []  # (line, column title, action) for goto checks
-    body = list(enumerate(lines, start=1))
-    if first_row == 1:
-        body = body[1:]  # else no header: line 1 is a row too, check it
-    if not body:
-        err(len(lines) + 1, 1, "no sequence rows after the header")
-    for ln, raw in body:
+    adrs: set[int] = field(default_factory=set)
+    actions: list[tuple[int, str, _Act]] = field(default_factory=list)
+    """(line, column title, action) of every action read, for the goto checks."""
+
+    def err(self, line: int, col: int, msg: str) -> None:
+        self.errors.append(ConfigError(msg, self.file, line, col))
+
+    def header_is_missing(self, first: str) -> bool:
+        """Check line 1, the column titles; True when it is a row instead (then it is
+        checked as one: the program would lose it)."""
+        header = first.rstrip(" \t")
+        hfields = _split_fields(header)
+        expected = "\t".join(COLUMNS)
+        if _INT.match(hfields[0][0].strip()):
+            self.err(
+                1,
+                1,
+                "missing header line: the first line must be the column titles "
+                f"({' '.join(COLUMNS)}); the Chadèche program ignores the first line, "
+                "so this sequence would be lost",
+            )
+            return True
+        if len(hfields) < len(COLUMNS):
+            missing = " ".join(COLUMNS[len(hfields) :])
+            self.err(
+                1,
+                len(header) + 1,
+                f"short header: {len(hfields)} of {len(COLUMNS)} columns (missing {missing}); "
+                f"expected {expected!r}",
+            )
+        elif len(hfields) > len(COLUMNS):
+            self.err(
+                1,
+                hfields[len(COLUMNS)][1],
+                f"header has {len(hfields)} columns, expected {len(COLUMNS)}: {expected!r}",
+            )
+        else:
+            odd = [
+                f"{got.strip()!r} for {want}"
+                for (got, _), want in zip(hfields, COLUMNS, strict=True)
+                if got.strip().upper() != want.upper()
+            ]
+            if odd:
+                self.warnings.append(
+                    f"{self.file}:1: unusual column titles ({', '.join(odd)}); read as usual"
+                )
+        return False
+
+    def row(self, ln: int, raw: str) -> _Row | None:
+        """One sequence row, or None when it has an error (each one reported)."""
+        split = self._cells(ln, raw)
+        if split is None:
+            return None
+        cells, cols = split
+        # Every cell is checked, also after a bad one: all of a row's errors at once.
+        adr = self._adr(ln, cells[0].strip(), cols[0])
+        letter = self._letter(ln, cells[1].strip(), cols[1])
+        ma = self._ma(ln, cells[2].strip(), cols[2])
+        sd = self._sd(ln, cells[3].strip(), cols[3])
+        acts = self._actions(ln, cells, cols)
+        comment = cells[10].strip()
+        if not comment.startswith("#"):
+            self.err(ln, cols[10], f"comment {comment!r} must start with '#'")
+            return None
+        if adr is None or letter is None or ma is None or sd is None or acts is None:
+            return None
+        return _Row(
+            line=ln,
+            adr=adr,
+            letter=letter,
+            ma=ma,
+            sd=sd,
+            conditions=[(cond, acts[k - 4]) for k, cond in CONDITIONS],
+            ctrlz=acts[5],
+            comment=comment[1:].strip(),
+            cells=[c.strip() for c in cells],
+        )
+
+    def _cells(self, ln: int, raw: str) -> tuple[list[str], list[int]] | None:
+        """The row's eleven cells (the comment takes the tabs in it) and the column where
+        each starts, or None when the row is empty or has too few or too many fields."""
         line = raw.rstrip(" \t")
         if not line.strip():
-            err(ln, 1, "empty line among the sequences (the Chadèche program stops reading here)")
-            continue
+            self.err(
+                ln, 1, "empty line among the sequences (the Chadèche program stops reading here)"
+            )
+            return None
         fields = _split_fields(line)
         n = len(COLUMNS)
         if len(fields) < n:
             last, last_col = fields[-1]
             if len(fields) > 1 and last.lstrip().startswith("#"):
-                err(
+                self.err(
                     ln,
                     last_col,
                     f"row has {len(fields)} fields, expected {n}: the comment is in the "
@@ -415,131 +454,115 @@ def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
                 )
             else:
                 missing = " ".join(COLUMNS[len(fields) :])
-                err(
+                self.err(
                     ln,
                     len(line) + 1,
                     f"row has {len(fields)} fields, expected {n} (missing {missing})",
                 )
-            continue
+            return None
         if len(fields) > n and not fields[n - 1][0].lstrip().startswith("#"):
-            err(ln, fields[n][1], f"row has {len(fields)} fields, expected {n}")
-            continue
+            self.err(ln, fields[n][1], f"row has {len(fields)} fields, expected {n}")
+            return None
         cells = [f for f, _ in fields[: n - 1]] + ["\t".join(f for f, _ in fields[n - 1 :])]
-        cols = [c for _, c in fields[:n]]
-        bad = False
+        return cells, [c for _, c in fields[:n]]
 
-        adr_text = cells[0].strip()
-        adr = -1
-        if not _INT.match(adr_text):
-            err(
+    def _adr(self, ln: int, text: str, col: int) -> int | None:
+        if not _INT.match(text):
+            self.err(ln, col, f"ADR {_clip(text)!r} is not a whole number{_digits_hint(text)}")
+            return None
+        if _too_large(text):
+            self.err(ln, col, f"ADR {_clip(text)} is too large: at most {C_INT_MAX} (a C int)")
+            return None
+        adr = _whole(text)
+        self.adrs.add(adr)  # a goto to it is not reported as well
+        if self.prev_adr is not None and adr <= self.prev_adr[0]:
+            self.err(
                 ln,
-                cols[0],
-                f"ADR {_clip(adr_text)!r} is not a whole number{_digits_hint(adr_text)}",
+                col,
+                f"ADR {adr} does not increase (line {self.prev_adr[1]} has ADR"
+                f" {self.prev_adr[0]}); addresses must always increase",
             )
-            bad = True
-        elif _too_large(adr_text):
-            err(ln, cols[0], f"ADR {_clip(adr_text)} is too large: at most {C_INT_MAX} (a C int)")
-            bad = True
-        else:
-            adr = _whole(adr_text)
-            adrs.add(adr)
-            if prev_adr is not None and adr <= prev_adr[0]:
-                err(
-                    ln,
-                    cols[0],
-                    f"ADR {adr} does not increase (line {prev_adr[1]} has ADR {prev_adr[0]}); "
-                    "addresses must always increase",
-                )
-                bad = True
-            else:
-                prev_adr = (adr, ln)
+            return None
+        self.prev_adr = (adr, ln)
+        return adr
 
-        letter = cells[1].strip().upper()
+    def _letter(self, ln: int, text: str, col: int) -> str | None:
+        letter = text.upper()
         if letter not in ("C", "D"):
-            err(
-                ln,
-                cols[1],
-                f"unknown C/D letter {cells[1].strip()!r}: expected C (charge) or D (discharge)",
-            )
-            bad = True
+            self.err(ln, col, f"unknown C/D letter {text!r}: expected C (charge) or D (discharge)")
+            return None
+        return letter
 
-        ma_text = cells[2].strip()
-        ma = 0
-        if not _INT.match(ma_text):
-            err(
-                ln,
-                cols[2],
-                f"mA {_clip(ma_text)!r} is not a whole number of mA{_digits_hint(ma_text)}",
-            )
-            bad = True
-        elif _too_large(ma_text):
-            err(ln, cols[2], f"{_clip(ma_text)} mA is over the board's {_MAX_MA} mA maximum")
-            bad = True
-        else:
-            ma = _whole(ma_text)
-            if ma > _MAX_MA:
-                err(ln, cols[2], f"{ma} mA is over the board's {_MAX_MA} mA maximum")
-                bad = True
+    def _ma(self, ln: int, text: str, col: int) -> int | None:
+        if not _INT.match(text):
+            self.err(ln, col, f"mA {_clip(text)!r} is not a whole number of mA{_digits_hint(text)}")
+            return None
+        ma = _MAX_MA + 1 if _too_large(text) else _whole(text)
+        if ma > _MAX_MA:
+            shown = _clip(text) if _too_large(text) else str(ma)
+            self.err(ln, col, f"{shown} mA is over the board's {_MAX_MA} mA maximum")
+            return None
+        return ma
 
-        sd_text = cells[3].strip()
-        sd = 0
-        if not _INT.match(sd_text):
-            err(
+    def _sd(self, ln: int, text: str, col: int) -> int | None:
+        if not _INT.match(text):
+            self.err(
                 ln,
-                cols[3],
-                f"SD {_clip(sd_text)!r} is not a whole number of seconds{_digits_hint(sd_text)}",
+                col,
+                f"SD {_clip(text)!r} is not a whole number of seconds{_digits_hint(text)}",
             )
-            bad = True
-        elif _too_large(sd_text):
-            err(ln, cols[3], f"SD {_clip(sd_text)} is too large: at most {C_INT_MAX} s (a C int)")
-            bad = True
-        else:
-            sd = _whole(sd_text)
+            return None
+        if _too_large(text):
+            self.err(ln, col, f"SD {_clip(text)} is too large: at most {C_INT_MAX} s (a C int)")
+            return None
+        return _whole(text)
 
+    def _actions(self, ln: int, cells: list[str], cols: list[int]) -> list[_Act] | None:
+        """The six action cells (TL TH LmAh HmAh TRUE CTRLZ), or None when one is bad."""
         acts: list[_Act] = []
         for k in range(4, 10):
             parsed = _parse_action(cells[k], cols[k])
             if isinstance(parsed, str):
-                err(ln, cols[k], f"{COLUMNS[k]}: {parsed}")
-                bad = True
+                self.err(ln, cols[k], f"{COLUMNS[k]}: {parsed}")
             else:
                 acts.append(parsed)
-                actions.append((ln, COLUMNS[k], parsed))
+                self.actions.append((ln, COLUMNS[k], parsed))
+        return acts if len(acts) == 6 else None
 
-        comment = cells[10].strip()
-        if not comment.startswith("#"):
-            err(ln, cols[10], f"comment {comment!r} must start with '#'")
-            bad = True
-        if bad:
-            continue
-        rows.append(
-            _Row(
-                line=ln,
-                adr=adr,
-                letter=letter,
-                ma=ma,
-                sd=sd,
-                conditions=[(cond, acts[k - 4]) for k, cond in CONDITIONS],
-                ctrlz=acts[5],
-                comment=comment[1:].strip(),
-                cells=[c.strip() for c in cells],
-            )
-        )
+    def check_actions(self) -> None:
+        """Every goto to an ADR of the file (any row with a whole-number ADR counts, even
+        one with other errors); a sleep-for, which the program did not implement, said."""
+        for ln, name, act in self.actions:
+            if act.kind == "N" and int(act.value) not in self.adrs:
+                known = ", ".join(str(a) for a in sorted(self.adrs)[:30])
+                self.err(
+                    ln,
+                    act.col,
+                    f"{name}: goto to a missing ADR {act.value} (this file has: {known})",
+                )
+            if act.kind == "PLUS":
+                self.warnings.append(
+                    f"{self.file}:{ln}:{act.col}: {act.value} (sleep for) was not implemented in"
+                    " the Chadèche program (seed §III.D.1); here it sleeps, then goes on"
+                )
 
-    # --- goto targets (any row with a whole-number ADR counts, even one with other errors) ---
-    for ln, name, act in actions:
-        if act.kind == "N" and int(act.value) not in adrs:
-            known = ", ".join(str(a) for a in sorted(adrs)[:30])
-            err(ln, act.col, f"{name}: goto to a missing ADR {act.value} (this file has: {known})")
-        if act.kind == "PLUS":
-            warnings.append(
-                f"{file}:{ln}:{act.col}: {act.value} (sleep for) was not implemented in"
-                " the Chadèche program (seed §III.D.1); here it sleeps, then goes on"
-            )
-    if errors:
-        errors.sort(key=lambda e: (e.line or 0, e.col or 0))
-        raise ConfigErrors(errors)
-    return rows, warnings, about
+
+def _read_rows(path: Path) -> tuple[list[_Row], list[str], str]:
+    """Parse the sequence file; raise ConfigErrors listing every problem."""
+    reader = _SequenceReader(str(path))
+    decoded = _read_text(path, "file not found")
+    lines = _sequence_lines(decoded, reader.file)
+    body = list(enumerate(lines, start=1))
+    if not reader.header_is_missing(lines[0]):
+        body = body[1:]  # else line 1 is a row too: check it
+    if not body:
+        reader.err(len(lines) + 1, 1, "no sequence rows after the header")
+    rows = [row for ln, raw in body if (row := reader.row(ln, raw)) is not None]
+    reader.check_actions()
+    if reader.errors:
+        reader.errors.sort(key=lambda e: (e.line or 0, e.col or 0))
+        raise ConfigErrors(reader.errors)
+    return rows, reader.warnings, f"{decoded.encoding}, {decoded.newline_style}"
 
 
 # --------------------------------------------------------------------------------------------
@@ -657,17 +680,7 @@ def _read_prm(
             not_recipe.append(f"-{letter} ({NOT_RECIPE[letter]}, line {ln})")
             continue
         if letter not in OPTIONS and letter not in CALIBRATION:
-            known = " ".join(f"-{k}" for k in [*OPTIONS, *CALIBRATION])
-            other = " ".join(f"-{k}" for k in [*IGNORED_IN_PRM, *NOT_RECIPE])
-            errors.append(
-                ConfigError(
-                    f"unknown option -{letter} (recipe and calibration options: {known};"
-                    f" ignored: {other})",
-                    file,
-                    ln,
-                    col,
-                )
-            )
+            errors.append(_unknown_prm_option(letter, file, ln, col))
             continue
         if not value:
             errors.append(ConfigError(f"-{letter} needs a value", file, ln, col))
@@ -687,6 +700,17 @@ def _read_prm(
         )
     if not_recipe:
         warnings.append(f"{file}: {', '.join(not_recipe)} ignored: not a recipe matter")
+
+
+def _unknown_prm_option(letter: str, file: str, ln: int, col: int) -> ConfigError:
+    known = " ".join(f"-{k}" for k in [*OPTIONS, *CALIBRATION])
+    other = " ".join(f"-{k}" for k in [*IGNORED_IN_PRM, *NOT_RECIPE])
+    return ConfigError(
+        f"unknown option -{letter} (recipe and calibration options: {known}; ignored: {other})",
+        file,
+        ln,
+        col,
+    )
 
 
 def _apply_overrides(
@@ -870,31 +894,8 @@ def _check_compiles(
         raise ConfigErrors(mapped) from None
 
 
-def import_chadeche(
-    config_path: str | Path,
-    prm_path: str | Path | None = None,
-    *,
-    name: str | None = None,
-    overrides: Mapping[str, str | float | int] | None = None,
-    simplify: bool = True,
-) -> ImportResult:
-    """Translate a Chadèche sequence file (+ optional ``chadecheN.prm``) into a recipe.
-
-    ``overrides`` are command-line options by letter (``{"-m": 1.1, "-i": 1300}``, the
-    dash is optional); they win over the parameter file, which wins over the defaults.
-    Raises ConfigErrors (every problem, each with file, line and column) for a broken file.
-    """
-    path = Path(config_path)
-    rows, warnings, about = _read_rows(path)
-
-    params = {k: _Param(o.default, o.source) for k, o in OPTIONS.items()}
-    calibration: dict[str, _Param] = {}
-    if prm_path is not None:
-        _read_prm(Path(prm_path), params, calibration, warnings)
-    if overrides:
-        _apply_overrides(overrides, params, calibration, warnings)
-    _check_together(params, str(prm_path if prm_path is not None else path))
-
+def _warn_instant_currents(rows: list[_Row], path: Path, warnings: list[str]) -> None:
+    """A row with a current whose TRUE acts first: the current flows for one scan at most."""
     for r in rows:
         first = next(((c, a) for c, a in r.conditions if a.kind != "I"), None)
         if r.ma and first is not None and first[0] == "true":
@@ -903,6 +904,12 @@ def import_chadeche(
                 "flow for one scan at most"
             )
 
+
+def _recipe_data(
+    path: Path, name: str | None, params: dict[str, _Param], rows: list[_Row], simplify: bool
+) -> tuple[dict[str, Any], dict[str, str], list[list[str]]]:
+    """The recipe as plain data, the note beside each option's line (where its value came
+    from) and the comment lines above each step (its source row, why it is instant)."""
     recipe_params: dict[str, str] = {}
     notes: dict[str, str] = {}
     for letter, opt in OPTIONS.items():
@@ -929,7 +936,18 @@ def import_chadeche(
             note.append(f"  → {_step_kind(step)}: {why}")
         step_notes.append(note)
     recipe["steps"] = steps
+    return recipe, notes, step_notes
 
+
+def _header(
+    path: Path,
+    prm_path: str | Path | None,
+    about: str,
+    rows: list[_Row],
+    params: dict[str, _Param],
+    overridden: bool,
+) -> list[str]:
+    """The recipe file's comment header: where it came from and what was assumed."""
     assumed = [
         f"-{o.letter} {_num(o.default)}{(' ' + o.unit) if o.unit else ''}"
         for o in OPTIONS.values()
@@ -940,29 +958,65 @@ def import_chadeche(
         "§III.D); edit freely, the source is not read again.",
         f"source: {path} ({about}, {len(rows)} rows)",
         f"parameters: {prm_path if prm_path is not None else 'no .prm file'}"
-        + (", with overrides" if overrides else ""),
+        + (", with overrides" if overridden else ""),
         "Row ADR → step s<ADR>; TL TH LmAh HmAh TRUE → until (column order, first true acts);",
         "CTRLZ → advance; each source row is repeated above its step.",
     ]
     if assumed:
         header.append(f"Assumed defaults (the seed does not state them): {', '.join(assumed)}.")
     header.append("A sequence file has no safety limits: add `limits:` (voltage, temperature).")
+    return header
+
+
+def _calibration_out(
+    calibration: dict[str, _Param],
+) -> tuple[dict[str, float] | None, str | None]:
+    """``-1 -2 -s -o`` as I/O-map calibration keys and the YAML lines to paste, or None."""
+    if not calibration:
+        return None, None
+    cal: dict[str, float] = {}
+    lines = ["# Chadèche board calibration (seed §III.F); paste under the board's calibration:"]
+    for letter, (key, what) in CALIBRATION.items():
+        if letter in calibration:
+            cal[key] = calibration[letter].value
+            source = calibration[letter].source
+            lines.append(
+                f"{key + ':':<19} {yaml_float(cal[key]):<8}  # -{letter}: {what} ({source})"
+            )
+    return cal, "\n".join(lines) + "\n"
+
+
+def import_chadeche(
+    config_path: str | Path,
+    prm_path: str | Path | None = None,
+    *,
+    name: str | None = None,
+    overrides: Mapping[str, str | float | int] | None = None,
+    simplify: bool = True,
+) -> ImportResult:
+    """Translate a Chadèche sequence file (+ optional ``chadecheN.prm``) into a recipe.
+
+    ``overrides`` are command-line options by letter (``{"-m": 1.1, "-i": 1300}``, the
+    dash is optional); they win over the parameter file, which wins over the defaults.
+    Raises ConfigErrors (every problem, each with file, line and column) for a broken file.
+    """
+    path = Path(config_path)
+    rows, warnings, about = _read_rows(path)
+
+    params = {k: _Param(o.default, o.source) for k, o in OPTIONS.items()}
+    calibration: dict[str, _Param] = {}
+    if prm_path is not None:
+        _read_prm(Path(prm_path), params, calibration, warnings)
+    if overrides:
+        _apply_overrides(overrides, params, calibration, warnings)
+    _check_together(params, str(prm_path if prm_path is not None else path))
+    _warn_instant_currents(rows, path, warnings)
+
+    recipe, notes, step_notes = _recipe_data(path, name, params, rows, simplify)
+    header = _header(path, prm_path, about, rows, params, bool(overrides))
     text, spans, option_lines = _emit(recipe, header, notes, step_notes)
     by_target = {o.target: params[letter] for letter, o in OPTIONS.items()}
     options = {line: by_target[target] for line, target in option_lines.items()}
     _check_compiles(text, spans, rows, str(path), options)
-
-    cal: dict[str, float] | None = None
-    snippet: str | None = None
-    if calibration:
-        cal = {}
-        lines = ["# Chadèche board calibration (seed §III.F); paste under the board's calibration:"]
-        for letter, (key, what) in CALIBRATION.items():
-            if letter in calibration:
-                cal[key] = calibration[letter].value
-                source = calibration[letter].source
-                lines.append(
-                    f"{key + ':':<19} {yaml_float(cal[key]):<8}  # -{letter}: {what} ({source})"
-                )
-        snippet = "\n".join(lines) + "\n"
+    cal, snippet = _calibration_out(calibration)
     return ImportResult(text, recipe, cal, snippet, warnings)

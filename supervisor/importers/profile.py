@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import os
 import re
+from collections.abc import Sequence
 from pathlib import Path
 
 from supervisor.chains.compiler import Target, compile_recipe
@@ -51,6 +52,19 @@ def _row(p: ProfilePoint) -> str:
     return "{" + ", ".join(f"{k}: {yaml_float(v)}" for k, v in items if v is not None) + "}"
 
 
+def _check_points(points: Sequence[ProfilePoint], file: str) -> None:
+    """Every value finite and no time negative; raise ConfigErrors naming each bad row."""
+    problems: list[ConfigError] = []
+    for k, p in enumerate(points, start=1):
+        values = [p.t_s, p.current_a, *(getattr(p, f) for f in _FIELDS)]
+        if not all(math.isfinite(v) for v in values if v is not None):
+            problems.append(ConfigError(f"profile row {k}: a value is not a finite number", file))
+        elif p.t_s < 0:
+            problems.append(ConfigError(f"profile row {k}: time {p.t_s:g} s is negative", file))
+    if problems:
+        raise ConfigErrors(problems)
+
+
 def import_profile(
     csv_path: str | Path, *, name: str | None = None, output: str | Path | None = None
 ) -> str:
@@ -68,16 +82,7 @@ def import_profile(
         points = read_profile_csv(path)
     except ConfigError as exc:
         raise ConfigErrors([exc]) from None
-    problems: list[ConfigError] = []
-    for k, p in enumerate(points, start=1):
-        values = [p.t_s, p.current_a, *(getattr(p, f) for f in _FIELDS)]
-        if not all(math.isfinite(v) for v in values if v is not None):
-            problems.append(ConfigError(f"profile row {k}: a value is not a finite number", file))
-        elif p.t_s < 0:
-            problems.append(ConfigError(f"profile row {k}: time {p.t_s:g} s is negative", file))
-    if problems:
-        raise ConfigErrors(problems)
-
+    _check_points(points, file)
     span = points[-1].t_s - points[0].t_s
     header = [
         "# Imported by supervisor.importers.profile from a load profile (seed 002 §2.3).",
