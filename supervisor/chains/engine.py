@@ -717,32 +717,7 @@ class ChainRunner:
         update(t_step_time, now - r.t_step0)
         elapsed_s = now - r.t_test0
         update(t_test_time, elapsed_s)
-        # ``self.progress.shown`` for an active test, inline (the same expressions; they
-        # cannot raise, so computing the ETA after writing the progress changes nothing).
-        t_progress, t_eta = self._progress_tags
-        est = self.progress.estimated_duration_s
-        # ``min(1.0, x)`` and ``max(0.0, x)`` as expressions (the same answers, NaN
-        # included): ``min`` and ``max`` parse keywords at every call.
-        if est:
-            fraction = elapsed_s / est
-            update(t_progress, fraction if fraction < 1.0 else 1.0)
-            left_s = est - elapsed_s
-            update(t_eta, left_s if left_s > 0.0 else 0.0)
-        else:
-            step_current_a = behaviour.progress_current_a
-            capacity_ah = program.capacity_ah
-            if step_current_a is not None and capacity_ah:
-                charge = port.charge_ah
-                x = charge.value
-                moved = abs((x if type(x) is float else charge.as_float()) - r.step_q0)
-                fraction = moved / capacity_ah
-                update(t_progress, fraction if fraction < 1.0 else 1.0)
-                amps_a = abs(step_current_a)
-                if amps_a > 0:
-                    left_s = (capacity_ah - moved) * 3600.0 / amps_a
-                    update(t_eta, left_s if left_s > 0.0 else 0.0)
-                else:
-                    update(t_eta, None)
+        self._steady_progress(elapsed_s, r, program, behaviour)
         if self._charge_live:
             # ``_publish``'s test charge (``ConditionValues.charge_ah``), inline.
             charge = port.charge_ah
@@ -755,6 +730,37 @@ class ChainRunner:
             )
         if self.samplers:
             self._sample(now, step)
+
+    def _steady_progress(
+        self, elapsed_s: float, r: RunState, program: Program, behaviour: StepBehaviour
+    ) -> None:
+        """``self.progress.shown`` for an active test, inline (the same expressions; they
+        cannot raise, so computing the ETA after writing the progress changes nothing)."""
+        update = self.db.update
+        t_progress, t_eta = self._progress_tags
+        est = self.progress.estimated_duration_s
+        # ``min(1.0, x)`` and ``max(0.0, x)`` as expressions (the same answers, NaN
+        # included): ``min`` and ``max`` parse keywords at every call.
+        if est:
+            fraction = elapsed_s / est
+            update(t_progress, fraction if fraction < 1.0 else 1.0)
+            left_s = est - elapsed_s
+            update(t_eta, left_s if left_s > 0.0 else 0.0)
+            return
+        step_current_a = behaviour.progress_current_a
+        capacity_ah = program.capacity_ah
+        if step_current_a is not None and capacity_ah:
+            charge = self.port.charge_ah
+            x = charge.value
+            moved = abs((x if type(x) is float else charge.as_float()) - r.step_q0)
+            fraction = moved / capacity_ah
+            update(t_progress, fraction if fraction < 1.0 else 1.0)
+            amps_a = abs(step_current_a)
+            if amps_a > 0:
+                left_s = (capacity_ah - moved) * 3600.0 / amps_a
+                update(t_eta, left_s if left_s > 0.0 else 0.0)
+            else:
+                update(t_eta, None)
 
     def _record(self, now: float, step: CompiledStep, reason: str = "") -> bool:
         """A record to the recorders when ``reason`` is given or a logging rule says one is

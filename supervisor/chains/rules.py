@@ -16,6 +16,7 @@ that check it against asking everything.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 from supervisor.chains.behaviours import EPS_S, LimitCheck, StepBehaviour
 from supervisor.chains.conditions import Values
@@ -155,11 +156,10 @@ class StepRules:
             if hit is True:
                 return (tr.action, f"until #{tr.index}: {tr.text}"), None
         groups = step.groups
-        for g in groups:
-            grp = self.program.groups[g]
-            for tr in grp.transitions:
-                if tr.condition.evaluate(values) is True:
-                    return (tr.action, f"group {grp.id} until #{tr.index}: {tr.text}"), None
+        if groups:
+            group_hit = self._group_until(groups, values)
+            if group_hit is not None:
+                return group_hit, None
         resistance = None
         if behaviour.has_scan or not fast:
             v, i = values["voltage"], values["current"]
@@ -181,3 +181,12 @@ class StepRules:
                 goto = Action(ActionKind.GOTO, max(grp.steps) + 1)
                 return (goto, f"group {grp.id} duration elapsed"), resistance
         return NOTHING, resistance
+
+    def _group_until(self, groups: Sequence[int], values: Values) -> Hit | None:
+        """The first until condition of the step's groups that is true (None: none)."""
+        for g in groups:
+            grp = self.program.groups[g]
+            for tr in grp.transitions:
+                if tr.condition.evaluate(values) is True:
+                    return tr.action, f"group {grp.id} until #{tr.index}: {tr.text}"
+        return None

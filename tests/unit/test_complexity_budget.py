@@ -6,8 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
-from tests.complexity import (
+from complexity import (
     ALLOW_LIST,
     Figures,
     _ruff_complexities,
