@@ -168,6 +168,9 @@ class _Compiler:
         # declared and read by nothing is warned of (issue 26, finding 6: capacity-test's
         # i_discharge was given on the command line and changed nothing).
         self.used: set[str] = set()
+        # Where a bare action word names a step too ("end" with a step 'end'): the word is
+        # the action, which its author may not have meant (warned, not refused).
+        self.shadowed: list[tuple[tuple[str | int, ...], str]] = []
         # Each distinct condition text compiled once against this recipe's signature (the
         # same for every step): an anchored condition used as the `until` of N steps is
         # tokenised once, not N times (issue 28: 100 uses of a 100 kB condition took a
@@ -235,22 +238,7 @@ class _Compiler:
             self._time(r.limits.delay, ("limits", "delay")) or 0.0,
         )
         self._check_windows(limits)
-        # A warning, not a refusal: a recipe imported from a Chadèche sequence declares the
-        # seed's command-line values (-m -M -c -C) whether its rows read them or not.
-        warnings = []
-        for name in r.parameters:
-            if name not in self.used:
-                m = self.pos.key(("parameters", name)) or self.pos.nearest(("parameters", name))
-                warnings.append(
-                    ConfigError(
-                        f"parameter {name!r} is declared but nothing reads it (a condition,"
-                        f" a setpoint such as 'discharge: {name}', or initial_charge): giving"
-                        " it changes nothing; use it or remove it",
-                        self.file,
-                        m.line,
-                        m.col,
-                    )
-                )
+        warnings = self._warnings(r)
         if self.errors:
             self.errors.sort(key=lambda e: (e.line or 0, e.col or 0))
             raise ConfigErrors(self.errors)
@@ -399,6 +387,38 @@ class _Compiler:
         self.err(path, msg, at_key=at_key, offset=compiled.offset)
         return None
 
+    def _warnings(self, r: Recipe) -> list[ConfigError]:
+        """What ``check`` says without refusing: parameters nothing reads, and bare action
+        words that also name a step."""
+        # A warning, not a refusal: a recipe imported from a Chadèche sequence declares the
+        # seed's command-line values (-m -M -c -C) whether its rows read them or not.
+        warnings: list[ConfigError] = []
+        for name in r.parameters:
+            if name not in self.used:
+                m = self.pos.key(("parameters", name)) or self.pos.nearest(("parameters", name))
+                warnings.append(
+                    ConfigError(
+                        f"parameter {name!r} is declared but nothing reads it (a condition,"
+                        f" a setpoint such as 'discharge: {name}', or initial_charge): giving"
+                        " it changes nothing; use it or remove it",
+                        self.file,
+                        m.line,
+                        m.col,
+                    )
+                )
+        for path, word in self.shadowed:
+            m = self.pos.value(path) or self.pos.nearest(path)
+            warnings.append(
+                ConfigError(
+                    f"{word!r} is the action {word}, not the step {word!r}: write"
+                    f" 'goto {word}' to go to the step",
+                    self.file,
+                    m.line,
+                    m.col,
+                )
+            )
+        return warnings
+
     def action(self, text: str, path: tuple[str | int, ...]) -> Action | None:
         control = _CONTROL.search(str(text))
         if control is not None:
@@ -414,6 +434,8 @@ class _Compiler:
         head = words[0] if words else ""
         rest = words[1] if len(words) > 1 else ""
         if t in ("next", "next_cycle", "end", "hold"):
+            if t in self.ids:
+                self.shadowed.append((path, t))
             return Action(ActionKind(t))
         if HHMM.match(t) or (head == "sleep_until" and HHMM.match(rest)):
             hh, mm = (t if HHMM.match(t) else rest).split(":")

@@ -107,3 +107,33 @@ def test_a_parameter_with_a_free_name_is_still_read_by_the_conditions() -> None:
     recipe, pos = load_recipe_text(text, "r.yaml")
     program = compile_recipe(recipe, pos, "r.yaml")
     assert program.parameters == {"v_end": pytest.approx(1.1)}
+
+
+ACTION_WORD_STEP = """\
+recipe: shadowed-step
+capacity: 2 Ah
+steps:
+  - id: charge
+    charge: 1 A
+    until:
+      - voltage >= 1.5 V: end
+      - step_time >= 1 h: goto end
+  - {id: end, rest: 1 min}
+"""
+
+
+def test_a_bare_action_word_that_is_also_a_step_id_is_the_action_and_is_warned_where_written() -> (
+    None
+):
+    # The mutation corpus found it (issue 28's round): a step 'hold' and [true: hold] held
+    # the chain; nimh-ds2710.yaml ships a step 'end'. The bare word stays the action.
+    recipe, pos = load_recipe_text(ACTION_WORD_STEP, "r.yaml")
+    program = compile_recipe(recipe, pos, "r.yaml")
+    (warning,) = [w.location_message() for w in program.warnings]
+    assert warning == (
+        "r.yaml:7:27: 'end' is the action end, not the step 'end': write 'goto end' to go"
+        " to the step"
+    )
+    first, second = program.steps[0].transitions
+    assert first.action.kind.value == "end"  # the action, as before
+    assert second.action.target_id == "end"  # goto names the step
