@@ -328,19 +328,17 @@ class Channel:
 
     def _integrate(self, dt: float) -> None:
         """Ah/Wh with a zero-order hold: the current read last scan flowed during ``dt``."""
-        update = self.db.update
         i_prev, p_prev = self._prev_i, self._prev_p
         if dt > 0 and i_prev is not None:
             dq_ah = i_prev * dt / 3600.0
-            update(self.charge_ah, self.charge_ah.as_float() + dq_ah)
             # The side counters only grow: charged what went in, discharged what came out.
-            side = self.charged_ah if dq_ah >= 0 else self.discharged_ah
-            update(side, side.as_float() + abs(dq_ah))
+            side_ah = self.charged_ah if dq_ah >= 0 else self.discharged_ah
+            moves = [(self.charge_ah, dq_ah), (side_ah, abs(dq_ah))]
             if p_prev is not None:
                 de_wh = p_prev * dt / 3600.0
-                update(self.energy_wh, self.energy_wh.as_float() + de_wh)
-                side = self.charged_wh if de_wh >= 0 else self.discharged_wh
-                update(side, side.as_float() + abs(de_wh))
+                side_wh = self.charged_wh if de_wh >= 0 else self.discharged_wh
+                moves += [(self.energy_wh, de_wh), (side_wh, abs(de_wh))]
+            self.db.add_many(moves)  # each: update(tag, tag.as_float() + delta)
         current = self.current
         self._prev_i = current.as_float() if current.quality is _GOOD else None
 

@@ -108,3 +108,81 @@ def test_a_tags_value_as_a_float_is_the_plain_rule(dtype: str, value: Any, defau
     assert repr(got) == repr(expected)
     if isinstance(got, float) and not math.isnan(got):
         assert type(got) is float
+
+
+deltas = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.sampled_from([0.0, -0.0, 1e-9, -1.5, 1e308]),
+    st.integers(-3, 3),
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    st.lists(st.tuples(st.sampled_from(DTYPES), initials), min_size=4, max_size=4),
+    st.lists(
+        st.tuples(
+            st.lists(process, max_size=4),
+            st.lists(st.tuples(st.integers(0, 3), st.booleans()), max_size=2),
+            st.lists(st.tuples(st.integers(0, 3), deltas), max_size=6),  # the increments
+        ),
+        max_size=8,
+    ),
+)
+def test_increments_are_each_update_of_the_value_plus_its_delta_in_turn(
+    specs: list[tuple[str, Any]], steps: list[Any]
+) -> None:
+    many, one = _declared(specs), _declared(specs)
+    tags_many, tags_one = list(many), list(one)
+    for scan, (moves, forcing, increments) in enumerate(steps):
+        for db, tags in ((many, tags_many), (one, tags_one)):
+            _process_side(db, tags, specs, float(scan + 1), moves, forcing)
+        pairs_many = [(tags_many[k], delta) for k, delta in increments]
+        pairs_one = [(tags_one[k], delta) for k, delta in increments]
+        outcome_many = _outcome(many.add_many, pairs_many)
+        outcome_one = _outcome(_one_by_one, one, pairs_one)
+        assert outcome_many == outcome_one
+        assert state(many) == state(one)
+
+
+def _declared(specs: list[tuple[str, Any]]) -> TagDB:
+    db = TagDB()
+    for k, (dtype, initial) in enumerate(specs):
+        try:
+            db.add(TagSpec(f"t{k}", dtype=dtype, initial=initial))  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            db.add(TagSpec(f"t{k}", dtype=dtype))  # type: ignore[arg-type]
+    return db
+
+
+def _process_side(
+    db: TagDB,
+    tags: list[Any],
+    specs: list[tuple[str, Any]],
+    scan_t: float,
+    moves: list[Any],
+    forcing: list[tuple[int, bool]],
+) -> None:
+    """Before a batch: the process side moves some tags, someone forces or unforces some."""
+    db.set_scan_time(scan_t)
+    for k, value, quality, reason, source_t in moves:
+        db.update(tags[k], value, quality, reason, source_t)
+    for k, force in forcing:
+        if force and not tags[k].forced:
+            db.force(f"t{k}", FORCED[specs[k][0]])
+        elif not force:
+            db.unforce(f"t{k}")
+
+
+def _one_by_one(db: TagDB, pairs: list[tuple[Any, float]]) -> None:
+    for tag, delta in pairs:
+        db.update(tag, tag.as_float() + delta)
+
+
+def _outcome(run: Any, *args: Any) -> str:
+    """'done', or 'overflow' for an int beyond the double range (as the plain rule raises)."""
+    try:
+        run(*args)
+    except OverflowError:
+        return "overflow"
+    return "done"
