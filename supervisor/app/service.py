@@ -136,6 +136,10 @@ class Supervisor:
         await self.api.stop()
         if bench.sim is not None:
             bench.sim.release()  # the process ends
+        if self.recipes.checks is not None:
+            # Killed above; now reaped: an embedding process goes on after the stop, and a
+            # killed check's pipes left to the collector are an unclosed transport there.
+            await self.recipes.checks.close()
         self.unconfirmed = unconfirmed
         return unconfirmed
 

@@ -62,3 +62,7 @@ async def test_one_call_runs_a_whole_supervisor_whose_tags_read_over_http(tmp_pa
     # Stopped: every output safe, the bench released for the next supervisor.
     assert sup.unconfirmed == {}
     BenchLock(cfg.state_dir, cfg.bench).acquire().release()
+    # Nothing of it left running in the embedding process: the recipe checks' spare
+    # processes were killed *and reaped* (an unreaped one's pipes were an unclosed
+    # transport that failed the next test in this process).
+    assert [t for t in asyncio.all_tasks() if t is not asyncio.current_task()] == []
