@@ -61,24 +61,11 @@ def state(db: TagDB) -> list[str]:
 def test_a_batch_of_updates_is_each_update_in_turn(
     specs: list[tuple[str, Any]], steps: list[Any]
 ) -> None:
-    many, one = TagDB(), TagDB()
-    for db in (many, one):
-        for k, (dtype, initial) in enumerate(specs):
-            try:
-                db.add(TagSpec(f"t{k}", dtype=dtype, initial=initial))  # type: ignore[arg-type]
-            except (TypeError, ValueError):
-                db.add(TagSpec(f"t{k}", dtype=dtype))  # type: ignore[arg-type]
+    many, one = _declared(specs), _declared(specs)
     tags_many, tags_one = list(many), list(one)
     for scan, (moves, forcing, batch) in enumerate(steps):
         for db, tags in ((many, tags_many), (one, tags_one)):
-            db.set_scan_time(float(scan + 1))
-            for k, value, quality, reason, source_t in moves:
-                db.update(tags[k], value, quality, reason, source_t)
-            for k, force in forcing:
-                if force and not tags[k].forced:
-                    db.force(f"t{k}", FORCED[specs[k][0]])
-                elif not force:
-                    db.unforce(f"t{k}")
+            _process_side(db, tags, specs, float(scan + 1), moves, forcing)
         many.update_many([(tags_many[k], value) for k, value in batch])
         for k, value in batch:
             one.update(tags_one[k], value)
