@@ -80,7 +80,7 @@ def run_bench(args: argparse.Namespace, default_io_map: Path) -> int:
         from supervisor.bench.validate import validate_attack_benchmark
 
         return validate_attack_benchmark()
-    if args.what in ("load", "memory", "report"):
+    if args.what in ("load", "memory", "pi-budget", "report"):
         from supervisor.bench import suite
 
         return suite.run(args)

@@ -18,7 +18,7 @@ import sys
 import time
 import urllib.error
 import urllib.request
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -78,11 +78,14 @@ class Supervisor:
         args: list[str],
         log_path: Path,
         env: Mapping[str, str] | None = None,
+        prefix: Sequence[str] = (),
     ) -> None:
+        """``prefix``: a command the supervisor runs under (``supervisor bench pi-budget``:
+        valgrind's instruction counter)."""
         self.url = f"http://127.0.0.1:{http_port}"
         self.log_path = log_path
         self._log = log_path.open("ab")
-        cmd = [sys.executable, "-m", "supervisor.cli.main", "run", str(io_map), *args]
+        cmd = [*prefix, sys.executable, "-m", "supervisor.cli.main", "run", str(io_map), *args]
         cmd += ["--log-level", "warning"]
         self.proc = subprocess.Popen(
             cmd,

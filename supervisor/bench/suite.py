@@ -1,4 +1,5 @@
-"""``supervisor bench load|memory|report``: the whole-supervisor benchmarks and the table."""
+"""``supervisor bench load|memory|pi-budget|report``: the whole-supervisor benchmarks, the
+table."""
 
 from __future__ import annotations
 
@@ -34,6 +35,10 @@ def run(args: argparse.Namespace) -> int:
                 raise ConfigError("bench memory --virtual: give --trace DIR (the snapshots)")
             return virtual_trace(args.minutes, args.warmup, trace)
         return memory_benchmark(args.minutes, args.warmup, trace_dir=trace)
+    if args.what == "pi-budget":
+        from supervisor.bench.pibudget import WARMUP_S, pi_budget_benchmark
+
+        return pi_budget_benchmark(args.seconds, WARMUP_S if args.warmup is None else args.warmup)
     lines = Path(os.environ.get(report.ENV) or Path(args.out) / "results.jsonl")
     js, md = report.write_report(lines, Path(args.out))
     sys.stdout.write(md.read_text(encoding="utf-8"))

@@ -798,6 +798,7 @@ def build_parser() -> argparse.ArgumentParser:
             "http",
             "load",
             "memory",
+            "pi-budget",
             "report",
             "flood",
             "validate-attack",
