@@ -23,9 +23,12 @@ HMI_STAMP   := hmi/node_modules/.installed
 # The browser the HMI's browser tests drive (tests/browser/): Debian's Chromium, never a
 # browser downloaded by Playwright.
 CHROMIUM    := /usr/bin/chromium
+# The instruction counter of `supervisor bench pi-budget` (valgrind's callgrind): Debian's
+# valgrind.
+VALGRIND    := /usr/bin/valgrind
 SUDO        := $(if $(filter 0,$(shell id -u)),,sudo)
 
-.PHONY: run demo-users test lint typecheck unit bench mutation schema check clean influxd node_modules hmi chromium
+.PHONY: run demo-users test lint typecheck unit bench mutation schema check clean influxd node_modules hmi chromium valgrind
 
 influxd: $(INFLUXD)
 
@@ -50,6 +53,14 @@ $(CHROMIUM):
 	$(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y chromium \
 	  || { $(SUDO) apt-get update && $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y chromium; } \
 	  || { echo "install the Debian package chromium (apt-get install chromium) for tests/browser/"; exit 2; }
+
+valgrind: $(VALGRIND)
+
+$(VALGRIND):
+	@echo "installing Debian's valgrind for supervisor bench pi-budget"
+	$(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y valgrind \
+	  || { $(SUDO) apt-get update && $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y valgrind; } \
+	  || { echo "install the Debian package valgrind (apt-get install valgrind) for bench pi-budget"; exit 2; }
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "Python 3.11+ is required")'
@@ -99,7 +110,7 @@ TEST_JOBS ?= 2
 PYTEST    := $(BIN)/pytest -q -n $(TEST_JOBS) --dist loadfile
 WALL      := tests/integration tests/interop tests/security tests/browser
 
-unit: $(STAMP) $(INFLUXD) $(NODE_STAMP) $(HMI_STAMP) $(CHROMIUM)
+unit: $(STAMP) $(INFLUXD) $(NODE_STAMP) $(HMI_STAMP) $(CHROMIUM) $(VALGRIND)
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(PYTEST) tests/unit
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(PYTEST) -m "not quiet" $(WALL)
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/pytest -q -m quiet $(WALL)
@@ -117,7 +128,7 @@ BENCH_DIR        ?= var/bench
 BENCH_LOAD_S     ?= 60
 BENCH_MEMORY_MIN ?= 3
 BENCH_ENV        := SUPERVISOR_BENCH_RESULTS=$(BENCH_DIR)/results.jsonl SUPERVISOR_INFLUXD=$(INFLUXD)
-bench: $(STAMP) $(INFLUXD) $(HMI_STAMP) $(CHROMIUM)
+bench: $(STAMP) $(INFLUXD) $(HMI_STAMP) $(CHROMIUM) $(VALGRIND)
 	mkdir -p $(BENCH_DIR) && rm -f $(BENCH_DIR)/results.jsonl
 	$(BENCH_ENV) $(BIN)/supervisor bench scan --tags 1000 --period-ms 10 --seconds 10
 	$(BENCH_ENV) $(BIN)/supervisor bench manual --hours 10
@@ -139,6 +150,9 @@ bench: $(STAMP) $(INFLUXD) $(HMI_STAMP) $(CHROMIUM)
 	# The load case (io_maps/load16.yaml): scan p99/period, overruns, jitter, GET /api/tags.
 	$(BENCH_ENV) $(BIN)/supervisor bench load --seconds $(BENCH_LOAD_S)
 	$(BENCH_ENV) $(BIN)/supervisor bench memory --minutes $(BENCH_MEMORY_MIN)
+	# Seed 000's four-Chadèche bench as a share of a Raspberry Pi 4 core: instructions per
+	# scan counted by valgrind over a 60 s window, converted by published Pi 4 Python runs.
+	$(BENCH_ENV) $(BIN)/supervisor bench pi-budget --seconds 60
 	# The HMI in Chromium: update latency tag change -> page (p50/p99) and the page's weight
 	# (tests/artifacts/hmi-figures.json).
 	$(BIN)/pytest -q -s -p no:cacheprovider tests/browser -k "logs_in or update_latency"

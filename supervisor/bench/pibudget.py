@@ -42,6 +42,7 @@ over-counted.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import re
@@ -59,6 +60,8 @@ import yaml
 
 from supervisor.bench import report
 from supervisor.bench.subject import Supervisor, prepare, recipe_args
+
+log = logging.getLogger(__name__)
 
 PI_MAP: Final = Path("io_maps/chadeche-rpi.yaml")
 """The Pi's own map (seed 000): its scan period and the Chadèche driver's periods."""
@@ -88,6 +91,8 @@ class PublishedRun:
 
 REFERENCE_ADDITIONS: Final = 10_000_000
 """The pure-Python reference loop of the benchmarks: ten million additions."""
+REFERENCE_COUNT_UNITS: Final = 1_000_000
+"""The reference loop's additions counted here (and twice as many)."""
 
 REFERENCE_LOOP_SRC: Final = """
 def run(n):
@@ -328,19 +333,54 @@ def _env() -> dict[str, str]:
     return {**os.environ, "PYTHONHASHSEED": "0"}
 
 
-def count_snippet(source: str, units: int, tmp: Path) -> int:
-    """The instructions of ``python -c SOURCE; run(UNITS)``, start-up and exit included."""
-    out = tmp / f"snippet-{units}.out"
-    cmd = [*_valgrind(out, True), sys.executable, "-c", f"{source}\nrun({units})\n"]
+SEGMENT_MARK: Final = "time_sleep"
+"""The C function of ``time.sleep``: callgrind dumps its counter before each call
+(``--dump-before``), so ``time.sleep(0)`` between two pieces of a script cuts the count."""
+
+
+def segments_script(workloads: list[tuple[str, int]]) -> str:
+    """A script that runs each ``(source, units)`` for ``units`` then ``2 * units``, with
+    ``time.sleep(0)`` before the first run and after every run: its dumps are the start-up,
+    then the runs in that order."""
+    lines = ["import time", "time.sleep(0)"]
+    for k, (source, units) in enumerate(workloads):
+        lines.append(f"w{k} = {{}}")
+        lines.append(f"exec({source!r}, w{k})")
+        lines.append(f"w{k}['run']({units})")
+        lines.append("time.sleep(0)")
+        lines.append(f"w{k}['run']({2 * units})")
+        lines.append("time.sleep(0)")
+    return "\n".join(lines) + "\n"
+
+
+def per_unit_of_segments(segments: list[int], workloads: list[tuple[str, int]]) -> list[float]:
+    """Instructions per unit of each workload from the dumps of :func:`segments_script`
+    (the start-up first): its run of ``2 * units`` less its run of ``units``. The segments
+    hold the code around the runs too (the ``exec`` of the next source, a call): the
+    difference cancels what both runs do once."""
+    if len(segments) != 1 + 2 * len(workloads):
+        raise ValueError(f"{len(segments)} dumps for {len(workloads)} workloads")
+    return [
+        per_unit(segments[1 + 2 * k], segments[2 + 2 * k], units, 2 * units)
+        for k, (_, units) in enumerate(workloads)
+    ]
+
+
+def count_per_unit(workloads: list[tuple[str, int]], tmp: Path) -> list[float]:
+    """Instructions per unit of each ``(source, units)`` (a ``run(units)`` function), all
+    counted in one process under callgrind: one interpreter start-up, not two a workload."""
+    out = tmp / "workloads.out"
+    cmd = [
+        *_valgrind(out, True),
+        f"--dump-before={SEGMENT_MARK}",
+        sys.executable,
+        "-c",
+        segments_script(workloads),
+    ]
     subprocess.run(cmd, check=True, env=_env(), capture_output=True)
-    return callgrind_total(out.read_text(encoding="utf-8", errors="replace"))
-
-
-def snippet_per_unit(source: str, units: int, tmp: Path) -> float:
-    """Instructions per unit of ``source``'s ``run``: a run of ``2 * units`` less one of
-    ``units``."""
-    return per_unit(count_snippet(source, units, tmp), count_snippet(source, 2 * units, tmp),
-                    units, 2 * units)  # fmt: skip
+    dumps = sorted(tmp.glob("workloads.out.*"), key=lambda p: int(p.suffix[1:]))
+    segments = [callgrind_total(p.read_text(encoding="utf-8", errors="replace")) for p in dumps]
+    return per_unit_of_segments(segments, workloads)
 
 
 def time_reference_loop() -> float:
@@ -459,15 +499,31 @@ def budget(w: Window, period_s: float, per_unit_here: dict[str, float]) -> Budge
     return Budget(per_scan, per_s, rates, rate, pi4_share(per_s, rate))
 
 
-def pi_budget_benchmark(window_s: float = 60.0, warmup_s: float = WARMUP_S) -> int:
-    """``supervisor bench pi-budget``: print (and record) the figure and its references."""
+def pi_budget_benchmark(
+    window_s: float = 60.0, warmup_s: float = WARMUP_S, count_scale: float = 1.0
+) -> int:
+    """``supervisor bench pi-budget``: print (and record) the figure and its references.
+    ``count_scale`` shrinks the reference workloads' counted runs (a test's quick pass: one
+    unit costs the same instructions in a shorter run, less start-up's share cancelled)."""
     period_s = float(budget_map()["scan"]["period_s"])
     with tempfile.TemporaryDirectory(prefix="bench-pi-budget-") as tmp:
         root = Path(tmp)
+        t0 = time.monotonic()
         w = measure_window(window_s, warmup_s, root)
+        t1 = time.monotonic()
         loop_wall_s = time_reference_loop()
-        loop_per_addition = snippet_per_unit(REFERENCE_LOOP_SRC, 1_000_000, root)
-        here = {run.name: snippet_per_unit(run.source, run.count_units, root) for run in PUBLISHED}
+        workloads = [(REFERENCE_LOOP_SRC, REFERENCE_COUNT_UNITS)]
+        workloads += [(run.source, run.count_units) for run in PUBLISHED]
+        counted = count_per_unit(
+            [(src, max(1, round(units * count_scale))) for src, units in workloads], root
+        )
+        loop_per_addition = counted[0]
+        here = {run.name: n for run, n in zip(PUBLISHED, counted[1:], strict=True)}
+        log.info(
+            "pi budget: the window's run took %.0f s, the references' counts %.0f s",
+            t1 - t0,
+            time.monotonic() - t1,
+        )
     b = budget(w, period_s, here)
     _say(
         f"pi budget: supervisor run, seed 000's four Chadèche boards (simulated), scan"
