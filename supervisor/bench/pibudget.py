@@ -499,32 +499,19 @@ def budget(w: Window, period_s: float, per_unit_here: dict[str, float]) -> Budge
     return Budget(per_scan, per_s, rates, rate, pi4_share(per_s, rate))
 
 
-def pi_budget_benchmark(
-    window_s: float = 60.0, warmup_s: float = WARMUP_S, count_scale: float = 1.0
-) -> int:
-    """``supervisor bench pi-budget``: print (and record) the figure and its references.
-    ``count_scale`` shrinks the reference workloads' counted runs (a test's quick pass: one
-    unit costs the same instructions in a shorter run, less start-up's share cancelled)."""
-    period_s = float(budget_map()["scan"]["period_s"])
-    with tempfile.TemporaryDirectory(prefix="bench-pi-budget-") as tmp:
-        root = Path(tmp)
-        t0 = time.monotonic()
-        w = measure_window(window_s, warmup_s, root)
-        t1 = time.monotonic()
-        loop_wall_s = time_reference_loop()
-        workloads = [(REFERENCE_LOOP_SRC, REFERENCE_COUNT_UNITS)]
-        workloads += [(run.source, run.count_units) for run in PUBLISHED]
-        counted = count_per_unit(
-            [(src, max(1, round(units * count_scale))) for src, units in workloads], root
-        )
-        loop_per_addition = counted[0]
-        here = {run.name: n for run, n in zip(PUBLISHED, counted[1:], strict=True)}
-        log.info(
-            "pi budget: the window's run took %.0f s, the references' counts %.0f s",
-            t1 - t0,
-            time.monotonic() - t1,
-        )
-    b = budget(w, period_s, here)
+def count_references(root: Path, count_scale: float = 1.0) -> tuple[float, dict[str, float]]:
+    """Instructions of one addition of the reference loop and of one unit of each published
+    run (by name), counted here. ``count_scale`` shrinks the counted runs (a test's quick
+    pass: a unit costs the same instructions in a shorter run)."""
+    workloads = [(REFERENCE_LOOP_SRC, REFERENCE_COUNT_UNITS)]
+    workloads += [(run.source, run.count_units) for run in PUBLISHED]
+    counted = count_per_unit(
+        [(src, max(1, round(units * count_scale))) for src, units in workloads], root
+    )
+    return counted[0], {run.name: n for run, n in zip(PUBLISHED, counted[1:], strict=True)}
+
+
+def _print_budget(w: Window, b: Budget, here: dict[str, float], period_s: float) -> None:
     _say(
         f"pi budget: supervisor run, seed 000's four Chadèche boards (simulated), scan"
         f" {period_s * 1000:g} ms, history + OPC UA + HTTP on (no client), {RECIPE} on all"
@@ -542,6 +529,28 @@ def pi_budget_benchmark(
             f" ({here[run.name]:,.0f} a unit here; {run.citation})"
         )
     _say(f"  share of one Raspberry Pi 4 core: {b.share * 100:.2f} % (target ≤ 10 %)")
+
+
+def pi_budget_benchmark(
+    window_s: float = 60.0, warmup_s: float = WARMUP_S, count_scale: float = 1.0
+) -> int:
+    """``supervisor bench pi-budget``: print (and record) the figure and its references
+    (``count_scale``: :func:`count_references`)."""
+    period_s = float(budget_map()["scan"]["period_s"])
+    with tempfile.TemporaryDirectory(prefix="bench-pi-budget-") as tmp:
+        root = Path(tmp)
+        t0 = time.monotonic()
+        w = measure_window(window_s, warmup_s, root)
+        t1 = time.monotonic()
+        loop_wall_s = time_reference_loop()
+        loop_per_addition, here = count_references(root, count_scale)
+        log.info(
+            "pi budget: the window's run took %.0f s, the references' counts %.0f s",
+            t1 - t0,
+            time.monotonic() - t1,
+        )
+    b = budget(w, period_s, here)
+    _print_budget(w, b, here, period_s)
     loop_instructions = loop_per_addition * REFERENCE_ADDITIONS
     pi_loop_s = loop_instructions / b.rate
     _say(

@@ -844,9 +844,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--flood-http", type=int, default=2000, help="flood: idle HTTP connections")
     b.add_argument("--flood-opcua", type=int, default=200, help="flood: idle OPC UA connections")
     b.add_argument("--login-rate", type=float, default=100.0, help="flood: wrong logins per second")
-    b.add_argument(
-        "--login-seconds", type=float, default=30.0, help="flood: seconds of wrong logins"
-    )
+    b.add_argument("--login-seconds", type=float, default=30.0, help="flood: seconds of bad logins")
     b.add_argument("--warmup", type=float, default=None, help="load, memory: warm-up seconds")
     b.add_argument(
         "--trace",

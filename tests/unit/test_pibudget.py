@@ -31,6 +31,7 @@ from supervisor.bench.pibudget import (
     window_scans,
 )
 from supervisor.cli.main import build_parser
+from supervisor.devices.chadeche.config import ChadecheDevice
 from supervisor.devices.registry import load_bench
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -156,7 +157,9 @@ def test_the_budget_s_bench_is_the_pi_s_map_with_seed_000_s_four_simulated_board
     assert [c.name for c in cfg.channels] == ["ch0", "ch1", "ch2", "ch3"]
     assert {c.source.board for c in cfg.channels} == {0, 1, 2, 3}
     chadeche = cfg.devices["chadeche"]
+    assert isinstance(chadeche, ChadecheDevice)
     assert chadeche.backend == "sim"
+    assert len(chadeche.boards) == 4
     assert chadeche.poll_period_s == pi.devices["chadeche"].poll_period_s
     assert cfg.history.enabled is True
     assert cfg.opcua.enabled is True
