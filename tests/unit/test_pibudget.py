@@ -161,6 +161,8 @@ def test_the_budget_s_bench_is_the_pi_s_map_with_seed_000_s_four_simulated_board
     assert chadeche.backend == "sim"
     assert len(chadeche.boards) == 4
     assert chadeche.poll_period_s == pi.devices["chadeche"].poll_period_s
+    # Stale later than on the Pi: valgrind holds the loop for seconds (not for the count).
+    assert chadeche.stale_after_s == pibudget.STALE_UNDER_VALGRIND_S
     assert cfg.history.enabled is True
     assert cfg.opcua.enabled is True
     assert cfg.scan.realtime_priority is None
