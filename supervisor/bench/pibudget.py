@@ -77,12 +77,12 @@ CALLGRIND_CONTROL: Final = "callgrind_control"
 @dataclass(frozen=True, slots=True)
 class PublishedRun:
     """A pure-Python workload whose wall time on a Raspberry Pi 4 is published: ``units``
-    of its work (``run(units)`` of ``source``) took ``seconds`` there."""
+    of its work (``run(units)`` of ``source``) took ``wall_s`` there."""
 
     name: str
     source: str
     units: int
-    seconds: float
+    wall_s: float
     count_units: int
     """How many units are counted here (and twice as many: the difference is one unit's
     instructions times ``count_units``); valgrind runs some fifty times slower."""
@@ -182,7 +182,7 @@ NBODY: Final = PublishedRun(
     name="N-body",
     source=NBODY_SRC,
     units=5_000_000,
-    seconds=158.263,
+    wall_s=158.263,
     count_units=20_000,
     citation="C. Mehta, Performance Analysis of Languages on Raspberry Pi (2020-01-28): Python"
     " N-body, 5,000,000 steps in 158.263 s, Pi 4 B Rev 1.1 at 1.5 GHz, performance governor",
@@ -191,7 +191,7 @@ PI_BENCH: Final = PublishedRun(
     name="cpu-benchmark",
     source=PI_BENCH_SRC,
     units=10_000,
-    seconds=79.216,
+    wall_s=79.216,
     count_units=2,
     citation="A. Dedyura, cpu-benchmark README (2024-01-12): Raspberry Pi 4, Ubuntu 22.04.3"
     " (Python 3.10), 79.216 s a 10,000-round attempt, mean of 10",
@@ -244,9 +244,9 @@ def per_unit(count_small: int, count_big: int, units_small: int, units_big: int)
 def pi4_rate(instructions_per_unit: float, run: PublishedRun) -> float:
     """How many of this machine's Python instructions a Pi 4 core runs a second: a
     published run's work (its units, counted here) over its published seconds."""
-    if run.seconds <= 0 or run.units <= 0:
+    if run.wall_s <= 0 or run.units <= 0:
         raise ValueError("a published run has units and seconds > 0")
-    return instructions_per_unit * run.units / run.seconds
+    return instructions_per_unit * run.units / run.wall_s
 
 
 def pi4_share(instructions_per_s: float, rate_per_s: float) -> float:
