@@ -392,7 +392,7 @@ ISSUE30_ROWS: Final = (
         "load case start jitter p99 − scan alone's, same run",
         "<= 0.2",
         "ms",
-        ("start jitter p99 − scan alone's",),
+        ("start jitter p99 −", "scan alone's"),
     ),
     _Issue30Spec("load case overruns in the window", "== 0", "", ("overruns in", "(same load)")),
     _Issue30Spec(
