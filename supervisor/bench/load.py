@@ -55,6 +55,7 @@ import sys
 import tempfile
 import time
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -501,21 +502,11 @@ def load_benchmark(
                 alone = _run_alone(copy, root, args, warmup_s, reference_s)
                 sup = Supervisor(copy, http_port, args, root / "run.log")
                 sup.wait_ready()
-                if clients_nice:
-                    # Started at the supervisor's priority (it inherits ours); from here on
-                    # this process (the pages, the snapshots, the OPC UA clients it starts)
-                    # and influxd run below it.
-                    # The simulated devices keep the supervisor's priority: real ones answer
-                    # in their own time, whatever this machine does.
-                    os.setpriority(os.PRIO_PROCESS, influx.proc.pid, clients_nice)
-                    os.nice(clients_nice)
                 endpoint = f"opc.tcp://127.0.0.1:{opcua_port}/supervisor"
-                res = asyncio.run(
-                    _measure(
-                        sup, endpoint, namespace_uri(cfg.bench), seconds, warmup_s, http_rate_hz
-                    )
-                )
-                browse = asyncio.run(_browse_block(sup, endpoint, browse_s, http_rate_hz))
+                with _clients_below(clients_nice, influx.proc.pid):
+                    uri = namespace_uri(cfg.bench)
+                    res = asyncio.run(_measure(sup, endpoint, uri, seconds, warmup_s, http_rate_hz))
+                    browse = asyncio.run(_browse_block(sup, endpoint, browse_s, http_rate_hz))
             finally:
                 # The supervisor first: its stop drives the simulated devices safe.
                 if sup is not None:
@@ -555,6 +546,29 @@ def load_benchmark(
     _record_window(w, res, period_s, seconds, http_rate_hz, len(channels), cmd)
     _record_vs_alone(w, alone, cmd)
     return 0
+
+
+@contextlib.contextmanager
+def _clients_below(nice: int, influx_pid: int) -> Iterator[None]:
+    """The supervisor was started at our priority (it inherits it); inside, this process
+    (the pages, the snapshots, the OPC UA clients it starts) and influxd run ``nice``
+    below it. The simulated devices keep the supervisor's priority: real ones answer in
+    their own time, whatever this machine does. After, this process's priority back where
+    the system lets it (root may; a user may not lower a niceness): the same-run reference
+    loop is timed after the benchmark, at the priority said."""
+    if not nice:
+        yield
+        return
+    was = os.getpriority(os.PRIO_PROCESS, 0)
+    os.setpriority(os.PRIO_PROCESS, influx_pid, nice)
+    os.nice(nice)
+    try:
+        yield
+    finally:
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, was)
+        except PermissionError:
+            _say(f"  (this process stays at nice {was + nice}: its reference loop is timed there)")
 
 
 def _block_samples(

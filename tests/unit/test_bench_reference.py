@@ -264,3 +264,29 @@ def test_results_md_and_json_end_with_issue_30s_table(results: Path, tmp_path: P
     assert "| load case p99/period at 10 ms | not measured | <= 0.3 |  | — |" in table
     doc = json.loads(js.read_text(encoding="utf-8"))
     assert [r["figure"] for r in doc["issue30"]] == [s.figure for s in report.ISSUE30_ROWS]
+
+
+def test_the_load_case_clients_run_below_the_supervisor_and_this_process_comes_back_after(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import os
+
+    from supervisor.bench import load
+
+    calls: list[tuple[str, int, int]] = []
+    monkeypatch.setattr(os, "getpriority", lambda which, who: 0)
+    monkeypatch.setattr(os, "setpriority", lambda which, who, n: calls.append(("set", who, n)))
+    monkeypatch.setattr(os, "nice", lambda n: calls.append(("nice", 0, n)) or n)
+    with load._clients_below(10, influx_pid=4242):
+        assert calls == [("set", 4242, 10), ("nice", 0, 10)]
+    # Back to nice 0: the same-run reference loop is timed after the benchmark.
+    assert calls[-1] == ("set", 0, 0)
+
+    def refused(which: int, who: int, n: int) -> None:
+        if who == 0:
+            raise PermissionError("a user may not lower a niceness")
+
+    monkeypatch.setattr(os, "setpriority", refused)
+    with load._clients_below(10, influx_pid=4242):
+        pass
+    assert "stays at nice 10" in capsys.readouterr().out
