@@ -205,7 +205,7 @@ async def serve(fd: int) -> int:
     try:
         await asyncio.wait({pump, stopped}, return_when=asyncio.FIRST_COMPLETED)
         failed = pump.exception() if pump.done() and not pump.cancelled() else None
-        if failed is not None and not isinstance(failed, EOFError):
+        if failed is not None and not isinstance(failed, EOFError | ConnectionError):
             log.error("OPC UA server's pipe failed: %r", failed)
     finally:
         for task in (status, pump, stopped):

@@ -84,9 +84,13 @@ class OpcUaProcess:
         self.throttle = throttle
         self.endpoint = settings.endpoint
         self.namespace = layout.uri
+        self.hang_s = HANG_S
+        """Silent this long, the child is killed and started again."""
         self.starts = 0
         """Children started (1 after ``start``; each restart adds one)."""
         self.pid: int | None = None
+        self.serving = False
+        """The current child listens (False while it is being started again)."""
         self._closing = False
         self._stopping = False
         self._proc: subprocess.Popen[bytes] | None = None
@@ -101,7 +105,11 @@ class OpcUaProcess:
         """Start the server's process and wait until it listens. ``OSError`` when it could
         not (the port taken: its errno and message, as an in-process server raises)."""
         link = await self._spawn()
-        await link  # raises what the child reported
+        try:
+            await asyncio.wait_for(link, START_TIMEOUT_S)  # raises what the child reported
+        except BaseException:
+            await self._end_child(ask=False)
+            raise
         self._supervisor = asyncio.create_task(self._supervise(), name="opcua-process")
         log.info(
             "OPC UA server listening on %s (namespace %s; process %s)",
@@ -216,6 +224,7 @@ class OpcUaProcess:
             else:
                 self.throttle.succeeded(str(user), str(address))
         elif kind == "ready":
+            self.serving = True
             if not ready.done():
                 ready.set_result(None)
         elif kind == "failed":
@@ -259,7 +268,7 @@ class OpcUaProcess:
             await asyncio.sleep(STATUS_CHECK_S)
             code = proc.poll()
             silent_s = time.monotonic() - self._heard
-            if code is None and silent_s < HANG_S:
+            if code is None and silent_s < self.hang_s:
                 if silent_s < 2 * STATUS_CHECK_S:
                     pause_s = RESTART_FIRST_S  # healthy again: the next restart is quick
                 continue
@@ -290,6 +299,7 @@ class OpcUaProcess:
     async def _end_child(self, *, ask: bool) -> None:
         proc, writer = self._proc, self._writer
         self._writer = None
+        self.serving = False
         for task in list(self._tasks):
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
