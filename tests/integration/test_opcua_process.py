@@ -72,6 +72,7 @@ async def test_a_killed_server_is_started_again_while_the_bench_scans_on(rig: Ri
         lambda: server.starts == 2 and server.serving, "the server started again", RESTART_WAIT_S
     )
     assert server.pid != first
+    await wait_until(lambda: rig.bench.db["opcua.restarts"].value == 1, "the restart shown")
     seen = await voltage_over_opcua(rig)
     assert seen.StatusCode.is_good()
     assert seen.Value.Value == pytest.approx(rig.bench.db["ch0.voltage"].value, abs=0.05)

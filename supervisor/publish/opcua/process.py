@@ -162,6 +162,7 @@ class OpcUaProcess:
             theirs.close()
         self._proc, self.pid = proc, proc.pid
         self.starts += 1
+        self.feed.restarts = self.starts - 1  # a diagnostic tag (opcua.restarts)
         reader, writer = await asyncio.open_connection(sock=ours)
         self._writer = writer
         self._heard = time.monotonic()
