@@ -242,6 +242,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     _normal_priority()
     _die_with_parent()
+    # Ctrl-C in a terminal reaches the whole process group: the bench stops its server
+    # itself once its outputs are safe (clients see them go), so the child waits for that.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(StorableFormatter(LOG_FORMAT))
     logging.getLogger().addHandler(handler)
