@@ -77,7 +77,15 @@ async def test_supervisor_run_serves_opc_ua_and_stops_safe_on_sigterm(tmp_path: 
         client.set_password("s3cret")
         async with client:
             ns = await client.get_namespace_index("urn:bench-supervisor:bench:sim")
-            voltage = await client.get_node(ua.NodeId("ch0.voltage", ns)).read_data_value()
+            node = client.get_node(ua.NodeId("ch0.voltage", ns))
+            # The banner is printed once the server listens, before the first scan: its
+            # first values are BadWaitingForInitialData until the scan's first hand-over
+            # reaches the server's process (ADR 0029).
+            for _ in range(200):
+                voltage = await node.read_data_value(raise_on_bad_status=False)
+                if voltage.StatusCode.value != ua.StatusCodes.BadWaitingForInitialData:
+                    break
+                await asyncio.sleep(0.05)
             assert voltage.StatusCode.is_good() and 0.5 < voltage.Value.Value < 2.0
             req = ua.CallMethodRequest()
             req.ObjectId = ua.NodeId("/Bench/Channels/ch0", ns)
