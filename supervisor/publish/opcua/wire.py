@@ -49,22 +49,22 @@ thousands of tags is a few hundred KiB)."""
 STATUS_PERIOD_S: Final = 1.0
 """The server's heartbeat: its clients and values written, this often."""
 
-Row = tuple[int, str, Any, int, str, float, float]
-"""An ``Update`` as it crosses the pipe: enums as their values (pickled by reference, an
-enum member costs a lookup on each side; a plain tuple pickles several times faster)."""
+Row = tuple[int, str, Any, Quality, Reason, float, float]
+"""An ``Update`` as it crosses the pipe: a plain tuple. A named tuple pickles by its class
+and its ``__new__`` for each item (1.4 ms for 1000 updates); a plain tuple of the same
+fields 0.3 ms, the enum members memoised after their first occurrence."""
 
 
 def tag_row(u: Update) -> Row:
-    return (u.tag_index, u.name, u.value, int(u.quality), u.reason.value, u.source_t, u.server_t)
-
-
-_QUALITY = {int(q): q for q in Quality}
-_REASON = {r.value: r for r in Reason}
+    return tuple(u)  # type: ignore[return-value]
 
 
 def update_of(row: Row) -> Update:
-    index, name, value, quality, reason, source_t, server_t = row
-    return Update(index, name, value, _QUALITY[quality], _REASON[reason], source_t, server_t)
+    return _new_update(Update, row)
+
+
+_new_update = tuple.__new__
+"""``Update(...)`` without its generated ``__new__`` (a named tuple is a tuple)."""
 
 
 @dataclass(frozen=True, slots=True)
