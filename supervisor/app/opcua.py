@@ -61,18 +61,7 @@ def build_opcua(
     layout = plan(bench.cfg, bench.db, [a.id for a in alarms] if alarms is not None else [])
     bench.commands.roles = OpcUaRoles(users, bench.commands.roles)
 
-    async def operate(req: Request) -> Answer:
-        verb = Verb.parse(req.verb)
-        if verb is None:
-            return Answer(False, f"unknown command {req.verb!r}", "not found")
-        if req.kind == "channel":
-            command = Command(Target.channel(req.target), verb, dict(req.args), req.actor)
-        elif req.kind == "alarm":
-            command = Command(Target.alarm(req.target), verb, dict(req.args), req.actor)
-        else:
-            command = Command(Target.bench(), verb, dict(req.args), req.actor)
-        result = await bench.commands.execute_async(command)
-        return Answer(result.accepted, result.reason, "" if result.accepted else result.kind.value)
+    operate = command_path_of(bench)
 
     def views() -> list[AlarmView]:
         return [] if alarms is None else [alarm_view(a, None, bench.clock) for a in alarms]
@@ -102,6 +91,25 @@ def build_opcua(
     if alarms is not None:
         _listen(alarms, feed, bench.clock)
     return server
+
+
+def command_path_of(bench: Bench) -> Operate:
+    """A server's request run by the bench's one command path (ADR 0008)."""
+
+    async def operate(req: Request) -> Answer:
+        verb = Verb.parse(req.verb)
+        if verb is None:
+            return Answer(False, f"unknown command {req.verb!r}", "not found")
+        if req.kind == "channel":
+            command = Command(Target.channel(req.target), verb, dict(req.args), req.actor)
+        elif req.kind == "alarm":
+            command = Command(Target.alarm(req.target), verb, dict(req.args), req.actor)
+        else:
+            command = Command(Target.bench(), verb, dict(req.args), req.actor)
+        result = await bench.commands.execute_async(command)
+        return Answer(result.accepted, result.reason, "" if result.accepted else result.kind.value)
+
+    return operate
 
 
 def _in_process(
