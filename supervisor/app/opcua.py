@@ -11,18 +11,24 @@ and the event feed meet the server here; the server itself imports none of them,
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from supervisor.app.bench import Bench
 from supervisor.app.events import EventFeed
 from supervisor.app.logins import login_throttle
 from supervisor.commands import Command, Target, Verb
 from supervisor.core.clock import Clock
+from supervisor.core.logins import LoginThrottle
 from supervisor.publish.opcua import (
     AlarmView,
     Answer,
+    Layout,
     OpcUaFeed,
+    OpcUaProcess,
     OpcUaRoles,
     OpcUaServer,
     OpcUaSettings,
+    Operate,
     Request,
     UserStore,
     plan,
@@ -33,11 +39,19 @@ __all__ = ["build_opcua"]
 
 
 def build_opcua(
-    bench: Bench, settings: OpcUaSettings | None = None, *, threaded: bool = True
-) -> OpcUaServer:
+    bench: Bench,
+    settings: OpcUaSettings | None = None,
+    *,
+    threaded: bool = True,
+    process: bool = False,
+) -> OpcUaServer | OpcUaProcess:
     """The OPC UA server of ``bench`` (not started: ``await server.start()`` before the scan
     runs, ``await server.stop()`` after the bench's shutdown). Raises ``ConfigError`` for a
-    bad users file."""
+    bad users file.
+
+    ``process``: the server in a process of its own (``OpcUaProcess``, ADR 0029: what
+    ``supervisor run`` does on a real clock), else on a thread of the bench's process
+    (``threaded``) or on its own loop (a virtual clock's tests)."""
     settings = settings or OpcUaSettings.of(bench.cfg)
     users = UserStore(settings.users_file)
     throttle = login_throttle(bench)  # declares its alarm: before the layout is planned
@@ -46,6 +60,41 @@ def build_opcua(
     alarms = bench.alarms
     layout = plan(bench.cfg, bench.db, [a.id for a in alarms] if alarms is not None else [])
     bench.commands.roles = OpcUaRoles(users, bench.commands.roles)
+
+    operate = command_path_of(bench)
+
+    def views() -> list[AlarmView]:
+        return [] if alarms is None else [alarm_view(a, None, bench.clock) for a in alarms]
+
+    # HistoryRead from the embedded historian when the bench records one (record_history
+    # before this call); without it no tag is historised.
+    history = bench.historian.query if bench.historian is not None else None
+    server: OpcUaServer | OpcUaProcess
+    if process:
+        server = OpcUaProcess(
+            settings,
+            bench.db,
+            layout,
+            feed,
+            operate,
+            views,
+            history_file=history.path if history is not None else None,
+            throttle=throttle,
+        )
+    else:
+        server = _in_process(
+            bench, settings, layout, feed, operate, users, views, threaded, throttle
+        )
+    events = EventFeed()
+    events.sinks.append(feed)
+    events.attach(bench)
+    if alarms is not None:
+        _listen(alarms, feed, bench.clock)
+    return server
+
+
+def command_path_of(bench: Bench) -> Operate:
+    """A server's request run by the bench's one command path (ADR 0008)."""
 
     async def operate(req: Request) -> Answer:
         verb = Verb.parse(req.verb)
@@ -60,13 +109,22 @@ def build_opcua(
         result = await bench.commands.execute_async(command)
         return Answer(result.accepted, result.reason, "" if result.accepted else result.kind.value)
 
-    def views() -> list[AlarmView]:
-        return [] if alarms is None else [alarm_view(a, None, bench.clock) for a in alarms]
+    return operate
 
-    # HistoryRead from the embedded historian when the bench records one (record_history
-    # before this call); without it no tag is historised.
+
+def _in_process(
+    bench: Bench,
+    settings: OpcUaSettings,
+    layout: Layout,
+    feed: OpcUaFeed,
+    operate: Operate,
+    users: UserStore,
+    views: Callable[[], list[AlarmView]],
+    threaded: bool,
+    throttle: LoginThrottle,
+) -> OpcUaServer:
     history = bench.historian.query if bench.historian is not None else None
-    server = OpcUaServer(
+    return OpcUaServer(
         settings,
         bench.db,
         bench.clock,
@@ -80,12 +138,6 @@ def build_opcua(
         gate=bench.gate if threaded else None,  # on the scan's own loop it needs none
         throttle=throttle,
     )
-    events = EventFeed()
-    events.sinks.append(feed)
-    events.attach(bench)
-    if alarms is not None:
-        _listen(alarms, feed, bench.clock)
-    return server
 
 
 def _listen(alarms: AlarmManager, feed: OpcUaFeed, clock: Clock) -> None:

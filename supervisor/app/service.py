@@ -39,7 +39,7 @@ from supervisor.hmi.screens import Screens
 from supervisor.hmi.tests_api import TestsConfig
 
 if TYPE_CHECKING:
-    from supervisor.publish.opcua import OpcUaServer
+    from supervisor.publish.opcua import OpcUaProcess, OpcUaServer
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +62,8 @@ class Supervisor:
     bench: Bench
     api: HttpApi
     screens: Screens
-    opcua: OpcUaServer | None
+    opcua: OpcUaServer | OpcUaProcess | None
+    """On a real clock, in a process of its own (ADR 0029)."""
     recipes: RecipesConfig
     restored: list[str]
     """What the restore of the retained state did or could not do, one line each."""
@@ -223,7 +224,10 @@ def _serve_bench(
     if cfg.opcua.enabled:
         from supervisor.app.opcua import build_opcua
 
-        opcua = build_opcua(bench)  # ConfigError for a bad users file
+        # On a real clock the server runs in a process of its own: its clients cost the scan
+        # neither the interpreter lock nor turns of its loop (ADR 0029). A virtual clock's
+        # bench has no real time to protect, and its tests step the server with the scan.
+        opcua = build_opcua(bench, process=not bench.clock.virtual)  # ConfigError: users file
     return Supervisor(bench, api, screens, opcua, recipes, restored)
 
 

@@ -5,10 +5,14 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import functools
 import logging
 import statistics
 import sys
+from collections.abc import Callable
 from pathlib import Path
+
+from supervisor.bench import report as same_run
 
 
 def _out(msg: str) -> None:
@@ -16,6 +20,24 @@ def _out(msg: str) -> None:
     sys.stdout.flush()
 
 
+def _with_reference(
+    run: Callable[[argparse.Namespace, Path], int],
+) -> Callable[[argparse.Namespace, Path], int]:
+    """Each benchmark followed by its same-run reference (issue 30: the hypervisor's steal
+    while it ran, the pure-Python reference loop), printed and kept with its figures; the
+    report times its own loop."""
+
+    @functools.wraps(run)
+    def with_reference(args: argparse.Namespace, default_io_map: Path) -> int:
+        if args.what == "report":
+            return run(args, default_io_map)
+        with same_run.same_run_reference(_out):
+            return run(args, default_io_map)
+
+    return with_reference
+
+
+@_with_reference
 def run_bench(args: argparse.Namespace, default_io_map: Path) -> int:
     """Run the benchmark ``args.what`` names; its exit code. ``default_io_map``: the bench
     of those that run on the simulated seed 002 bench (``seed002``, ``estop``)."""

@@ -5,6 +5,14 @@ must not run clients on the loop they measure).
 connects every client at once, subscribes each to the tags, says ``subscribed`` on one
 line when all are, counts the data changes each receives for ``--seconds``, then prints one
 JSON line ``{"updates": [n per client], "errors": [...]}``. ``--seconds 0``: until killed.
+
+``... --browse 10000 --seconds 20``: instead, one client that browses the server's address
+space in a loop, as an engineer's OPC UA browser does node by node (issue 30's browse
+row): a breadth-first walk from the Objects folder, one Browse request (hierarchical
+references, forward) per node, a pass ending after 10,000 nodes (the walk starts over
+from the Objects folder whenever the tree ends first). It says ``browsing`` once
+connected, browses for ``--seconds``, then prints ``{"browsed": n, "passes": k,
+"distinct": d, "errors": [...]}``.
 """
 
 from __future__ import annotations
@@ -42,6 +50,61 @@ async def one(
         await stop.wait()
 
 
+class Browsed:
+    """What the browsing client did: Browse requests answered, whole passes, node ids."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.passes = 0
+        self.seen: set[str] = set()
+
+
+async def browse_pass(client: Client, nodes: int, browsed: Browsed) -> None:
+    """One pass: ``nodes`` Browse requests, breadth first from the Objects folder (again
+    from it whenever the tree ends first), each counted as it is answered."""
+    objects = client.nodes.objects
+    queue = [objects]
+    for _ in range(nodes):
+        if not queue:
+            queue = [objects]
+        node = queue.pop(0)
+        refs = await node.get_references(
+            refs=ua.ObjectIds.HierarchicalReferences, direction=ua.BrowseDirection.Forward
+        )
+        browsed.n += 1
+        browsed.seen.add(node.nodeid.to_string())
+        queue += [client.get_node(r.NodeId) for r in refs]
+    browsed.passes += 1
+
+
+async def browse(url: str, nodes: int, seconds: float) -> dict[str, Any]:
+    """Browse passes of ``nodes`` nodes for ``seconds`` (the pass under way at the end
+    counts its requests, not as a pass)."""
+    browsed = Browsed()
+    errors: list[str] = []
+    client = Client(url, timeout=60)
+    async with client:
+        sys.stdout.write("browsing\n")
+        sys.stdout.flush()
+
+        async def passes() -> None:
+            while True:
+                await browse_pass(client, nodes, browsed)
+
+        try:
+            await asyncio.wait_for(passes(), timeout=seconds)
+        except TimeoutError:
+            pass
+        except Exception as exc:  # said in the result, what was browsed kept
+            errors.append(repr(exc))
+    return {
+        "browsed": browsed.n,
+        "passes": browsed.passes,
+        "distinct": len(browsed.seen),
+        "errors": errors,
+    }
+
+
 async def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser()
     p.add_argument("url")
@@ -49,8 +112,13 @@ async def main(argv: list[str]) -> int:
     p.add_argument("--clients", type=int, default=1)
     p.add_argument("--tags", default="scan.count")
     p.add_argument("--seconds", type=float, default=5.0)
+    p.add_argument("--browse", type=int, default=0, help="browse N nodes a pass instead")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
+    if args.browse:
+        result = await browse(args.url, args.browse, args.seconds)
+        sys.stdout.write(json.dumps(result) + "\n")
+        return 0 if not result["errors"] else 1
     tags = args.tags.split(",")
     counters = [Counter() for _ in range(args.clients)]
     readies = [asyncio.Event() for _ in counters]

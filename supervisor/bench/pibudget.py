@@ -43,7 +43,6 @@ over-counted.
 from __future__ import annotations
 
 import logging
-import math
 import os
 import re
 import shutil
@@ -89,19 +88,22 @@ class PublishedRun:
     citation: str
 
 
-REFERENCE_ADDITIONS: Final = 10_000_000
-"""The pure-Python reference loop of the benchmarks: ten million additions."""
+REFERENCE_ADDITIONS: Final = report.REFERENCE_LOOP_ADDITIONS
+"""The benchmarks' pure-Python reference loop: ten million additions (``report``)."""
 REFERENCE_COUNT_UNITS: Final = 1_000_000
 """The reference loop's additions counted here (and twice as many)."""
 
-REFERENCE_LOOP_SRC: Final = """
+REFERENCE_LOOP_SRC: Final = r"""
+LOOP = "s = 0\nfor i in range(n):\n    s += i\n"
+
 def run(n):
-    total = 0
-    for i in range(n):
-        total += i
-    return total
+    # The loop as report.REFERENCE_LOOP runs it: module-level code, s and i global names.
+    names = {"n": n}
+    exec(LOOP, names)
+    return names["s"]
 """
-"""The reference loop, as counted (under valgrind) and as timed (here, natively)."""
+"""The reference loop as counted under valgrind, ``n`` additions a run; it is timed by
+``report.reference_loop_s``."""
 
 NBODY_SRC: Final = """
 PI = 3.14159265358979323
@@ -391,19 +393,6 @@ def count_per_unit(workloads: list[tuple[str, int]], tmp: Path) -> list[float]:
     return per_unit_of_segments(segments, workloads)
 
 
-def time_reference_loop() -> float:
-    """Wall seconds of the reference loop here, natively (the best of three)."""
-    space: dict[str, Any] = {}
-    exec(REFERENCE_LOOP_SRC, space)  # our own constant source
-    run = space["run"]
-    best = math.inf
-    for _ in range(3):
-        t0 = time.perf_counter()
-        run(REFERENCE_ADDITIONS)
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
 @dataclass(frozen=True, slots=True)
 class Window:
     instructions: int
@@ -564,7 +553,7 @@ def pi_budget_benchmark(
         t0 = time.monotonic()
         w = measure_window(window_s, warmup_s, root)
         t1 = time.monotonic()
-        loop_wall_s = time_reference_loop()
+        loop_wall_s = report.reference_loop_s()
         loop_per_addition, here = count_references(root, count_scale)
         log.info(
             "pi budget: the window's run took %.0f s, the references' counts %.0f s",

@@ -120,11 +120,21 @@ class Supervisor:
             time.sleep(0.2)
 
     def rss_kib(self) -> int:
-        """VmRSS of the child (``/proc/<pid>/status``), in KiB."""
-        for line in Path(f"/proc/{self.pid}/status").read_text(encoding="utf-8").splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-        raise RuntimeError(f"no VmRSS in /proc/{self.pid}/status")
+        """VmRSS of the supervisor and every process it started (its OPC UA server, ADR
+        0029, and its recipe checks, ADR 0027): the bench's memory, in KiB."""
+        total = 0
+        for pid in process_tree(self.pid):
+            try:
+                text = Path(f"/proc/{pid}/status").read_text(encoding="utf-8")
+            except OSError:
+                continue  # ended meanwhile
+            total += next(
+                (int(line.split()[1]) for line in text.splitlines() if line.startswith("VmRSS:")),
+                0,
+            )
+        if total == 0:
+            raise RuntimeError(f"no VmRSS in /proc/{self.pid}/status")
+        return total
 
     def tail(self, n: int = 15) -> str:
         if not self._log.closed:
@@ -204,4 +214,22 @@ def recipe_args(channels: list[str], recipe: Path) -> list[str]:
     out = ["--start"]
     for ch in channels:
         out += ["--recipe", f"{ch}={recipe.resolve()}"]
+    return out
+
+
+def process_tree(pid: int) -> list[int]:
+    """``pid`` and its descendants (``/proc/<pid>/task/<tid>/children``), parents first."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop(0)
+        out.append(p)
+        try:
+            tasks = list(Path(f"/proc/{p}/task").iterdir())
+        except OSError:
+            continue
+        for task in tasks:
+            try:
+                todo.extend(int(c) for c in (task / "children").read_text().split())
+            except (OSError, ValueError):
+                continue
     return out

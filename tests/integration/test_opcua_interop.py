@@ -37,9 +37,11 @@ def node() -> str:
     return found
 
 
-@pytest.fixture
-async def running(tmp_path: Path) -> AsyncIterator[Rig]:
-    async with opcua_rig(tmp_path, real_clock=True) as r:
+@pytest.fixture(params=[False, True], ids=["thread", "process"])
+async def running(tmp_path: Path, request: pytest.FixtureRequest) -> AsyncIterator[Rig]:
+    """The server on a thread of the bench's process, and in a process of its own (what
+    ``supervisor run`` runs, ADR 0029): an independent client sees the same server."""
+    async with opcua_rig(tmp_path, real_clock=True, process=request.param) as r:
         yield r
 
 

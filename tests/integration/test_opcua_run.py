@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 import yaml
 from asyncua import Client, ua
+from asyncua.common.node import Node
 from commandrig import chadeche_map
 
 from supervisor.testing import free_tcp_port
@@ -40,6 +41,18 @@ def supervisor(*args: str, cwd: Path, stdin: str | None = None) -> subprocess.Co
         text=True,
         timeout=60,
     )
+
+
+async def first_value(node: Node) -> ua.DataValue:
+    """The banner is printed once the server listens, before the first scan: its first
+    values are BadWaitingForInitialData until the scan's first hand-over reaches the
+    server's process (ADR 0029)."""
+    for _ in range(200):
+        value = await node.read_data_value(raise_on_bad_status=False)
+        if value.StatusCode.value != ua.StatusCodes.BadWaitingForInitialData:
+            break
+        await asyncio.sleep(0.05)
+    return value
 
 
 async def test_supervisor_run_serves_opc_ua_and_stops_safe_on_sigterm(tmp_path: Path) -> None:
@@ -77,7 +90,7 @@ async def test_supervisor_run_serves_opc_ua_and_stops_safe_on_sigterm(tmp_path: 
         client.set_password("s3cret")
         async with client:
             ns = await client.get_namespace_index("urn:bench-supervisor:bench:sim")
-            voltage = await client.get_node(ua.NodeId("ch0.voltage", ns)).read_data_value()
+            voltage = await first_value(client.get_node(ua.NodeId("ch0.voltage", ns)))
             assert voltage.StatusCode.is_good() and 0.5 < voltage.Value.Value < 2.0
             req = ua.CallMethodRequest()
             req.ObjectId = ua.NodeId("/Bench/Channels/ch0", ns)

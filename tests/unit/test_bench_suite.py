@@ -206,10 +206,18 @@ def test_the_memory_benchmark_runs_the_simulated_bench_and_records_its_figures(
 def test_the_load_benchmark_runs_the_load_case_with_its_clients_and_records_its_figures(
     at_root: Path, results: Path
 ) -> None:
-    assert load_benchmark(seconds=2.0, warmup_s=1.0, http_rate_hz=5.0) == 0
+    assert (
+        load_benchmark(seconds=2.0, warmup_s=1.0, http_rate_hz=5.0, reference_s=2.0, browse_s=2.0)
+        == 0
+    )
     figures = report.read(results)
     names = [f.figure for f in figures]
-    assert len(names) == 6
+    assert len(names) == 9
+    # Issue 30: against the scan alone of the same run, and the browse block's overruns.
+    for row in report.issue30_table(figures)[:5]:
+        assert row.measured is not None, row.figure
+    (alone,) = [f for f in figures if "scan alone's p99" in f.figure]
+    assert "no OPC UA server, historian or InfluxDB spool" in alone.reference
     assert any("GET /api/tags" in n for n in names)
     assert any("overruns" in n for n in names)
     # "Scan jitter unchanged" is judged as the rise of its p99 in ms, both p99s shown.
@@ -260,7 +268,10 @@ def test_the_load_benchmark_reaches_its_networked_devices_in_a_simulator_process
         return code
 
     monkeypatch.setattr(Simulators, "stop", spy)
-    assert load_benchmark(seconds=1.0, warmup_s=1.0, http_rate_hz=5.0) == 0
+    assert (
+        load_benchmark(seconds=1.0, warmup_s=1.0, http_rate_hz=5.0, reference_s=1.0, browse_s=1.0)
+        == 0
+    )
     assert stopped_with == [0]  # stopped (SIGTERM, by its pid) after the supervisor
     (log,) = logs
     # The supervisor (--no-sim) reached the ADAM-5000/TCP of the other process.

@@ -232,7 +232,13 @@ def test_the_feed_keeps_one_update_per_tag_and_counts_the_replaced_ones() -> Non
     feed = OpcUaFeed(db)
     woken: list[int] = []
     first = feed.start(db, lambda: woken.append(1))
-    assert {u.name for u in first} == {"a", "opcua.dropped", "opcua.queue_depth", "opcua.clients"}
+    assert {u.name for u in first} == {
+        "a",
+        "opcua.dropped",
+        "opcua.queue_depth",
+        "opcua.clients",
+        "opcua.restarts",
+    }
     for k in range(5):  # five scans while the server does not take anything
         db.update(a, float(k))
         feed.on_scan(db, float(k))

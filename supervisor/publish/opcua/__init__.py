@@ -11,6 +11,7 @@ from supervisor.config.users import ROLES, UserStore, add_user, remove_user
 from supervisor.publish.opcua.feed import AlarmView, OpcUaFeed
 from supervisor.publish.opcua.layout import Layout, namespace_uri, plan
 from supervisor.publish.opcua.ports import Answer, Operate, Request
+from supervisor.publish.opcua.process import OpcUaProcess
 from supervisor.publish.opcua.security import ACTOR_PREFIX, OpcUaRoles
 from supervisor.publish.opcua.server import OpcUaServer, OpcUaSettings
 
@@ -21,6 +22,7 @@ __all__ = [
     "Answer",
     "Layout",
     "OpcUaFeed",
+    "OpcUaProcess",
     "OpcUaRoles",
     "OpcUaServer",
     "OpcUaSettings",

@@ -98,6 +98,7 @@ class OpcUaFeed:
         self._started = False
         self.dropped = 0
         self.clients = 0  # set by the server (an int: read atomically by the scan)
+        self.restarts = 0  # set by the server's process supervisor (process.py)
         self.wake: Callable[[], None] | None = None  # set by the server once it serves
         self.sampling_interval_s = 0.0
         """Hand changes over at most this often (0: every scan); set by the server."""
@@ -106,6 +107,9 @@ class OpcUaFeed:
         self._dropped_tag = _declare(db, "opcua.dropped", "int", "Updates and events lost")
         self._depth_tag = _declare(db, "opcua.queue_depth", "int", "Updates waiting for OPC UA")
         self._clients_tag = _declare(db, "opcua.clients", "int", "OPC UA clients connected")
+        self._restarts_tag = _declare(
+            db, "opcua.restarts", "int", "OPC UA server's process started again (died or hung)"
+        )
 
     # --- the scan side (never blocks) ---------------------------------------------------
     def on_scan(self, db: TagDB, t: float) -> None:
@@ -127,6 +131,7 @@ class OpcUaFeed:
         db.update(self._dropped_tag, dropped)
         db.update(self._depth_tag, depth)
         db.update(self._clients_tag, self.clients)
+        db.update(self._restarts_tag, self.restarts)
         wake = self.wake
         changed = db.changed_since(self._version)
         self._version = db.version
