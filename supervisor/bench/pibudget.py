@@ -51,7 +51,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
@@ -321,20 +321,40 @@ def budget_map(pi_map: Path = PI_MAP, sim_map: Path = SIM_MAP) -> dict[str, Any]
     }
 
 
-def _valgrind(out_file: Path, instr_at_start: bool) -> list[str]:
+def _valgrind(out_file: Path, instr_at_start: bool, children: bool = False) -> list[str]:
+    """valgrind's callgrind command prefix; ``children``: every process the command starts
+    runs under it too (the OPC UA server's process, ADR 0029), each writing
+    ``out_file.<pid>``."""
     exe = shutil.which(VALGRIND)
     if exe is None:
         raise RuntimeError(
             "valgrind is missing: `make valgrind` installs Debian's valgrind"
             " (apt-get install valgrind)"
         )
+    out = f"{out_file}.%p" if children else str(out_file)
     return [
         exe,
         "--tool=callgrind",
-        f"--callgrind-out-file={out_file}",
+        f"--callgrind-out-file={out}",
         f"--instr-atstart={'yes' if instr_at_start else 'no'}",
         "--dump-line=no",  # the totals only: no per-line tables to write at each dump
+        *(["--trace-children=yes"] if children else []),
     ]
+
+
+def children_of(pid: int, proc: Path = Path("/proc")) -> list[int]:
+    """The processes whose parent is ``pid`` (``/proc/<pid>/stat``'s fourth field)."""
+    found = []
+    for stat in proc.glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text(encoding="utf-8", errors="replace")
+        except OSError:  # gone meanwhile
+            continue
+        # "pid (comm) state ppid ...": the name may hold spaces and parentheses.
+        fields = text[text.rfind(")") + 2 :].split()
+        if len(fields) > 1 and int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return sorted(found)
 
 
 def _env() -> dict[str, str]:
@@ -402,13 +422,25 @@ class Window:
     overruns: float
     chains_running: int
     channels: int
+    processes: list[int] = field(default_factory=list)
+    """The window's instructions by process: the supervisor's first, then its children's."""
 
 
-def _control(pid: int, *args: str) -> None:
+def _control_all(pids: list[int], *args: str) -> None:
+    """``callgrind_control ARGS PID`` for every process at once: one after the other, the
+    switches of four processes took seconds (each reaches its process through vgdb), and
+    the scans counted around them were that much less certain."""
     exe = shutil.which(CALLGRIND_CONTROL)
     if exe is None:
         raise RuntimeError("callgrind_control is missing (it comes with valgrind)")
-    subprocess.run([exe, *args, str(pid)], check=True, capture_output=True, timeout=300)
+    procs = [
+        subprocess.Popen([exe, *args, str(pid)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        for pid in pids
+    ]
+    for pid, proc in zip(pids, procs, strict=True):
+        _, err = proc.communicate(timeout=300)
+        if proc.returncode != 0:
+            raise RuntimeError(f"callgrind_control {' '.join(args)} {pid}: {err.decode()}")
 
 
 def _chains_running(sup: Supervisor) -> int:
@@ -449,7 +481,7 @@ def measure_window(window_s: float, warmup_s: float, root: Path) -> Window:
         recipe_args(channels, RECIPE),
         root / "run.log",
         env=_env(),
-        prefix=_valgrind(out, instr_at_start=False),
+        prefix=_valgrind(out, instr_at_start=False, children=True),
     )
     try:
         sup.wait_ready(START_TIMEOUT_S)
@@ -460,29 +492,40 @@ def measure_window(window_s: float, warmup_s: float, root: Path) -> Window:
             return float(sup.get("/api/diagnostics", timeout_s=60.0)["scan"]["count"])
 
         overruns0 = float(sup.get("/api/diagnostics", timeout_s=60.0)["scan"]["overruns"])
+        # The supervisor and the processes it started (its OPC UA server): a Pi runs them all.
+        pids = [sup.pid, *children_of(sup.pid)]
         t0 = time.monotonic()
-        start = bracket(scans, lambda: _control(sup.pid, "-i", "on"))
+        start = bracket(scans, lambda: _control_all(pids, "-i", "on"))
         time.sleep(window_s)
-        end = bracket(scans, lambda: _control(sup.pid, "-d"))
+        end = bracket(scans, lambda: _control_all(pids, "-d"))
         wall_s = time.monotonic() - t0
         diag = sup.get("/api/diagnostics", timeout_s=60.0)
         running = _chains_running(sup)
+        if children_of(sup.pid) != pids[1:]:
+            raise RuntimeError(
+                f"the supervisor's processes changed during the window ({pids[1:]} before,"
+                f" {children_of(sup.pid)} after: a restart?): no figure"
+            )
     finally:
         code = sup.stop()
         if code != 0:
             _say(f"  supervisor run exited with {code}: {sup.tail()}")
-    dumps = sorted(root.glob("callgrind.out.*"), key=lambda p: int(p.suffix[1:]))
-    if not dumps:
-        raise RuntimeError(f"callgrind wrote no dump: {sup.tail()}")
+    by_pid = {}
+    for pid in pids:
+        dump = root / f"callgrind.out.{pid}.1"
+        if not dump.is_file():
+            raise RuntimeError(f"callgrind wrote no dump for process {pid}: {sup.tail()}")
+        by_pid[pid] = callgrind_total(dump.read_text(encoding="utf-8", errors="replace"))
     n, err = window_scans(start, end)
     return Window(
-        instructions=callgrind_total(dumps[0].read_text(encoding="utf-8", errors="replace")),
+        instructions=sum(by_pid.values()),
         scans=n,
         scans_error=err,
         wall_s=wall_s,
         overruns=float(diag["scan"]["overruns"]) - overruns0,
         chains_running=running,
         channels=len(channels),
+        processes=[by_pid[p] for p in pids],
     )
 
 
@@ -533,6 +576,11 @@ def _print_budget(w: Window, b: Budget, here: dict[str, float], period_s: float)
         f" {w.scans_error:.1f} scans, {w.wall_s:.0f} s wall under valgrind"
         f" ({w.scans / w.wall_s:.1f} scans/s, {w.overruns:.0f} overruns)"
     )
+    if len(w.processes) > 1:
+        _say(
+            f"  by process: the supervisor {w.processes[0]:,}, the processes it started"
+            f" (its OPC UA server) {', '.join(f'{n:,}' for n in w.processes[1:])}"
+        )
     _say(f"  {b.per_scan:,.0f} instructions per scan, {b.per_s:,.0f} per second at the scan")
     for run in PUBLISHED:
         _say(

@@ -208,3 +208,21 @@ def test_each_workload_s_unit_is_its_long_run_less_its_short_run() -> None:
 def test_a_missing_dump_is_an_error_not_a_shifted_count() -> None:
     with pytest.raises(ValueError, match="dumps"):
         pibudget.per_unit_of_segments([1, 2, 3, 4], [("loop", 1000), ("nbody", 10)])
+
+
+def test_the_processes_counted_are_the_supervisor_s_children_by_their_parent_id(
+    tmp_path: Path,
+) -> None:
+    # /proc/<pid>/stat: "pid (name) state ppid ..."; a name may hold spaces and parentheses.
+    stats = {
+        100: "100 (python) S 1 100",
+        201: "201 (python -m supervisor.publish.opcua.child) S 100 100",
+        202: "202 (a (b) c) R 100 100",
+        300: "300 (valgrind) S 201 100",  # a grandchild: not the supervisor's own
+    }
+    for pid, text in stats.items():
+        (tmp_path / str(pid)).mkdir()
+        (tmp_path / str(pid) / "stat").write_text(text + " 0 0 0\n", encoding="utf-8")
+    (tmp_path / "self").mkdir()
+    assert pibudget.children_of(100, proc=tmp_path) == [201, 202]
+    assert pibudget.children_of(999, proc=tmp_path) == []
