@@ -9,10 +9,11 @@ CPU instructions a piece of work executes does not, so the figure is built from 
    Pi's own map io_maps/chadeche-rpi.yaml (100 ms scan, its poll and staleness periods),
    the historian, the OPC UA server and the HTTP server on (no client attached),
    benchmarks/load-cycle.yaml started on every channel (:func:`budget_map`). The process
-   runs under valgrind's callgrind with its counter off through the start-up; after a
-   warm-up the counter is switched on (``callgrind_control -i on``), and after the window
-   it is dumped (``callgrind_control -d``): the dump holds the window's instructions, of
-   every thread, start-up excluded. The scans of the window are the scan counter of
+   and those it starts (its OPC UA server's, ADR 0029) run under valgrind's callgrind with
+   the counter off through the start-up; after a warm-up the counters are switched on
+   (``callgrind_control -i on``), and after the window they are dumped (``callgrind_control
+   -d``): the dumps hold the window's instructions, of every thread of every process,
+   start-up excluded; the figure is their sum. The scans of the window are the scan counter of
    ``/api/diagnostics`` read on both sides of each switch (:func:`bracket`).
    Callgrind rather than cachegrind (which the dry-run figure uses, docs/performance.md):
    both count the same guest instructions (``Ir``), but only callgrind can be switched on
