@@ -467,6 +467,17 @@ def _wait_running(sup: Supervisor, channels: int) -> None:
         time.sleep(1.0)
 
 
+def _window_counts(root: Path, pids: list[int], sup: Supervisor) -> list[int]:
+    """Each process's instructions in the window: its first dump (``callgrind.out.PID.1``)."""
+    counts = []
+    for pid in pids:
+        dump = root / f"callgrind.out.{pid}.1"
+        if not dump.is_file():
+            raise RuntimeError(f"callgrind wrote no dump for process {pid}: {sup.tail()}")
+        counts.append(callgrind_total(dump.read_text(encoding="utf-8", errors="replace")))
+    return counts
+
+
 def measure_window(window_s: float, warmup_s: float, root: Path) -> Window:
     """Run the budget's bench under callgrind; the instructions and scans of a window of
     ``window_s`` wall seconds after ``warmup_s`` seconds of scanning."""
@@ -511,22 +522,17 @@ def measure_window(window_s: float, warmup_s: float, root: Path) -> Window:
         code = sup.stop()
         if code != 0:
             _say(f"  supervisor run exited with {code}: {sup.tail()}")
-    by_pid = {}
-    for pid in pids:
-        dump = root / f"callgrind.out.{pid}.1"
-        if not dump.is_file():
-            raise RuntimeError(f"callgrind wrote no dump for process {pid}: {sup.tail()}")
-        by_pid[pid] = callgrind_total(dump.read_text(encoding="utf-8", errors="replace"))
+    counts = _window_counts(root, pids, sup)
     n, err = window_scans(start, end)
     return Window(
-        instructions=sum(by_pid.values()),
+        instructions=sum(counts),
         scans=n,
         scans_error=err,
         wall_s=wall_s,
         overruns=float(diag["scan"]["overruns"]) - overruns0,
         chains_running=running,
         channels=len(channels),
-        processes=[by_pid[p] for p in pids],
+        processes=counts,
     )
 
 
