@@ -80,6 +80,10 @@ def run_bench(args: argparse.Namespace, default_io_map: Path) -> int:
         from supervisor.bench.validate import validate_attack_benchmark
 
         return validate_attack_benchmark()
+    if args.what == "cli":
+        from supervisor.bench.cli import cli_benchmark
+
+        return cli_benchmark(args.runs)
     if args.what in ("load", "memory", "report"):
         from supervisor.bench import suite
 

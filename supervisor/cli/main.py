@@ -801,6 +801,7 @@ def build_parser() -> argparse.ArgumentParser:
             "report",
             "flood",
             "validate-attack",
+            "cli",
         ],
     )
     b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
@@ -810,7 +811,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=5,
         choices=range(1, 101),
         metavar="1..100",
-        help="dry-run: runs in this process, the median ratio recorded",
+        help="dry-run: runs in this process, the median ratio recorded; cli: runs of each"
+        " command, a fresh process each, the median recorded",
     )
     b.add_argument(
         "--bytecodes",

@@ -1,0 +1,114 @@
+"""``supervisor bench cli``: how long the command line takes to check a recipe (issue 30).
+
+Most of a short command's wall time is the interpreter starting and the imports before the
+file is read; a machine twice as slow takes twice as long for both. So each run of the
+command is timed beside the same run's references: the interpreter's own start
+(``python -c pass``) and the package's (``python -c "import supervisor"``), each a fresh
+process, the three interleaved round after round (what else the machine does falls on all
+of them alike). The figure is the median of the runs; the references are printed and
+recorded beside it.
+"""
+
+from __future__ import annotations
+
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Final
+
+from supervisor.bench import report
+
+CLI_RECIPE: Final = "recipes/nimh-ds2710.yaml"
+"""The file the issue's figure checks."""
+
+CHECK_TARGET_S: Final = 0.3
+"""Issue 30: ``supervisor check recipes/nimh-ds2710.yaml`` in at most 0.3 s wall."""
+
+# What the console script ``supervisor`` runs (pyproject's [project.scripts]), with the
+# interpreter running this benchmark: the one whose start is the reference.
+_MAIN: Final = "import sys; from supervisor.cli.main import main; sys.exit(main())"
+
+
+@dataclass(frozen=True, slots=True)
+class Timed:
+    """One command's wall times, seconds, a fresh process each run."""
+
+    label: str
+    argv: tuple[str, ...]
+    walls_s: tuple[float, ...]
+
+    @property
+    def median_s(self) -> float:
+        return statistics.median(self.walls_s)
+
+    def line(self) -> str:
+        return (
+            f"  {self.label:<48} median {self.median_s * 1000:7.1f} ms"
+            f"  (min–max {min(self.walls_s) * 1000:.1f}–{max(self.walls_s) * 1000:.1f} ms)"
+        )
+
+
+def _wall_s(argv: Sequence[str]) -> float:
+    """Wall time of one run; a run that fails stops the benchmark (it would time an error)."""
+    t0 = time.perf_counter()
+    done = subprocess.run(argv, capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise RuntimeError(
+            f"{' '.join(argv)}: exit {done.returncode}: {done.stderr.strip() or done.stdout}"
+        )
+    return wall
+
+
+def time_commands(commands: dict[str, Sequence[str]], runs: int) -> list[Timed]:
+    """Each command run ``runs`` times, round after round (one run of each per round), after
+    one untimed round (the files into the page cache, as on any second run)."""
+    for argv in commands.values():
+        _wall_s(argv)
+    walls: dict[str, list[float]] = {label: [] for label in commands}
+    for _ in range(runs):
+        for label, argv in commands.items():
+            walls[label].append(_wall_s(argv))
+    return [Timed(label, tuple(commands[label]), tuple(w)) for label, w in walls.items()]
+
+
+def cli_commands(python: str = sys.executable) -> dict[str, Sequence[str]]:
+    """The timed commands, references first: the figure's, then two more checks shown."""
+    return {
+        "python -c pass": (python, "-c", "pass"),
+        'python -c "import supervisor"': (python, "-c", "import supervisor"),
+        f"supervisor check {CLI_RECIPE}": (python, "-c", _MAIN, "check", CLI_RECIPE),
+        "supervisor check io_maps/sim.yaml": (python, "-c", _MAIN, "check", "io_maps/sim.yaml"),
+        "supervisor --help": (python, "-c", _MAIN, "--help"),
+    }
+
+
+def cli_benchmark(runs: int) -> int:
+    """Print the median wall time of ``runs`` runs of each command; record the figure."""
+    commands = cli_commands()
+    timed = {t.label: t for t in time_commands(commands, runs)}
+    sys.stdout.write(f"cli benchmark: median of {runs} runs, a fresh process each\n")
+    for t in timed.values():
+        sys.stdout.write(t.line() + "\n")
+    bare, package = timed["python -c pass"], timed['python -c "import supervisor"']
+    check = timed[f"supervisor check {CLI_RECIPE}"]
+    beyond_ms = (check.median_s - bare.median_s) * 1000
+    sys.stdout.write(
+        f"  the check takes {beyond_ms:.1f} ms beyond the interpreter's start"
+        f" (target: the check ≤ {CHECK_TARGET_S * 1000:.0f} ms)\n"
+    )
+    sys.stdout.flush()
+    report.record(
+        f"`supervisor check {CLI_RECIPE}` wall time",
+        check.median_s,
+        "s",
+        f"<= {CHECK_TARGET_S}",
+        f"same run: interpreter start (python -c pass) {bare.median_s * 1000:.1f} ms,"
+        f" python -c 'import supervisor' {package.median_s * 1000:.1f} ms; median of {runs}"
+        f" runs, min–max {min(check.walls_s) * 1000:.0f}–{max(check.walls_s) * 1000:.0f} ms",
+        f"supervisor bench cli --runs {runs}",
+    )
+    return 0
