@@ -32,7 +32,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
-from supervisor.channels.activity import activity_label
 
 if TYPE_CHECKING:
     from asyncua import Client
@@ -575,6 +574,8 @@ def status_table(channels: Sequence[str], rows: Sequence[dict[str, Any]]) -> lis
     supervisor/channels/activity.py), its chain's state, recipe, step (number and id), V, I,
     and the test's charge (``chN.chain.charge_ah``, the figure the display line and the
     screens show; the raw counters are not the test's charge)."""
+    from supervisor.channels.activity import activity_label
+
     head = ("channel", "channel state", "chain", "recipe", "step", "V", "I (A)", "charge (Ah)")
     body = []
     for ch, v in zip(channels, rows, strict=True):

@@ -26,13 +26,11 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Final, NoReturn
 
-from supervisor.bench import memtrace
 from supervisor.cli import ctl
-from supervisor.config.models import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
+from supervisor.config.limits import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core.encoding import StorableFormatter
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 from supervisor.core.logrepeat import RepeatFilter
-from supervisor.scan.engine import ScanFirstLoop
 
 if TYPE_CHECKING:
     from supervisor.app.service import Supervisor
@@ -223,6 +221,11 @@ def _dump_tasks() -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    # Imported by the command that runs a bench, not by the parser (issue 30: each command
+    # imports what it needs; ``check`` none of the scan's or the lab's modules).
+    from supervisor.bench import memtrace
+    from supervisor.scan.engine import ScanFirstLoop
+
     _setup_logging(args.log_level, off_thread=True)
     # A debugging switch, off unless $SUPERVISOR_TRACEMALLOC names a folder (bench/memtrace.py).
     trace = memtrace.start_from_env()
@@ -301,18 +304,21 @@ def _check_one(
     path: Path, warnings: list[str] | None = None
 ) -> tuple[list[ConfigError], tuple[ConfigError, ...]]:
     """The errors of one file, a recipe's warnings (a parameter nothing reads); an I/O
-    map's network exposure appended to ``warnings``."""
-    from supervisor.chains.compiler import compile_recipe
-    from supervisor.config.exposure import exposure_warnings
-    from supervisor.config.recipe import load_recipe
+    map's network exposure appended to ``warnings``. Each kind of file imports only what
+    checks it: a recipe neither the device kinds nor the I/O map's models (issue 30)."""
     from supervisor.config.yamlpos import load_yaml
-    from supervisor.devices.registry import load_bench
 
     try:
         data, _ = load_yaml(path)
         if isinstance(data, dict) and "recipe" in data:
+            from supervisor.chains.compiler import compile_recipe
+            from supervisor.config.recipe import load_recipe
+
             recipe, pos = load_recipe(path)
             return [], compile_recipe(recipe, pos, str(path)).warnings
+        from supervisor.config.exposure import exposure_warnings
+        from supervisor.devices.registry import load_bench
+
         cfg = load_bench(path)
         if warnings is not None:
             warnings.extend(exposure_warnings(cfg))
