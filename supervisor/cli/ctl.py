@@ -19,7 +19,6 @@ use ``--security``, exit 2.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import contextlib
 import getpass
 import logging
@@ -31,7 +30,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
-
 
 if TYPE_CHECKING:
     from asyncua import Client
@@ -223,6 +221,8 @@ def cmd_ctl(args: argparse.Namespace) -> int:
 
 
 def _ctl(args: argparse.Namespace) -> int:
+    import asyncio  # here, not at the top: the parser (add_parser) needs no loop (issue 30)
+
     try:
         _check_security_options(args)
         if args.what == "cert":
@@ -671,6 +671,8 @@ async def _alarms(bench: Bench) -> int:
 async def _watch(bench: Bench, args: argparse.Namespace) -> int:
     """A subscription on each channel's state and step: a line at each change, and every
     ``--every`` s a line per channel with its V, I and Ah."""
+    import asyncio
+
     channels = bench.channels
     if args.channel is not None:
         bench.check_channel(args.channel)

@@ -7,16 +7,13 @@ mistake gets one clear message naming file:line:col, never a traceback.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import atexit
 import contextlib
 import faulthandler
 import io
 import logging
-import logging.handlers
 import math
 import os
-import queue
 import re
 import signal
 import sys
@@ -75,11 +72,15 @@ def _setup_logging(level: str, *, off_thread: bool = False) -> None:
     handler.setFormatter(StorableFormatter(LOG_FORMAT))  # core/encoding.py
     repeats = RepeatFilter(time.monotonic)
     if off_thread:
+        # Imported here (with socket and pickle): only ``run`` logs off its thread.
+        import queue
+        from logging.handlers import QueueHandler, QueueListener
+
         records: queue.SimpleQueue[logging.LogRecord] = queue.SimpleQueue()
-        listener = logging.handlers.QueueListener(records, handler)
+        listener = QueueListener(records, handler)
         listener.start()
         atexit.register(listener.stop)
-        queued = logging.handlers.QueueHandler(records)
+        queued = QueueHandler(records)
         queued.addFilter(repeats)
         root.addHandler(queued)
     else:
@@ -143,6 +144,8 @@ def _descriptors_fit(cfg: BenchConfig) -> str | None:
 
 
 async def _serve(args: argparse.Namespace, cfg: BenchConfig, sup: Supervisor) -> int:
+    import asyncio
+
     from supervisor.commands import Verb
 
     bench, api, opcua = sup.bench, sup.api, sup.opcua
@@ -215,6 +218,8 @@ async def _serve(args: argparse.Namespace, cfg: BenchConfig, sup: Supervisor) ->
 
 
 def _dump_tasks() -> None:
+    import asyncio
+
     for task in asyncio.all_tasks():
         log.warning("task %s:", task.get_name())
         task.print_stack(file=sys.stderr)
@@ -222,7 +227,9 @@ def _dump_tasks() -> None:
 
 def cmd_run(args: argparse.Namespace) -> int:
     # Imported by the command that runs a bench, not by the parser (issue 30: each command
-    # imports what it needs; ``check`` none of the scan's or the lab's modules).
+    # imports what it needs; ``check`` none of the scan's or the lab's modules, nor asyncio).
+    import asyncio
+
     from supervisor.bench import memtrace
     from supervisor.scan.engine import ScanFirstLoop
 
@@ -248,6 +255,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 # --- sim -----------------------------------------------------------------------------
 async def _sim(args: argparse.Namespace) -> int:
+    import asyncio
+
     from supervisor.app.simulation import build_simulation
     from supervisor.core.clock import RealClock
     from supervisor.devices.registry import load_bench
@@ -292,6 +301,8 @@ async def _sim(args: argparse.Namespace) -> int:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
+    import asyncio
+
     _setup_logging(args.log_level)
     if not Path(args.io_map).exists():
         _err(f"{args.io_map}: no such I/O map")
@@ -467,6 +478,8 @@ def _params(items: list[str]) -> dict[str, str]:
 
 
 def cmd_dry_run(args: argparse.Namespace) -> int:
+    import asyncio
+
     from supervisor.app.dryrun import dry_run, format_report
 
     _setup_logging("warning")
