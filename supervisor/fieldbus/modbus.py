@@ -15,13 +15,17 @@ from __future__ import annotations
 
 from collections.abc import Awaitable, Callable, Mapping
 from types import MappingProxyType
-from typing import Final
-
-from pymodbus.client import AsyncModbusTcpClient
-from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
-from pymodbus.pdu import ModbusPDU
+from typing import TYPE_CHECKING, Final
 
 from supervisor.core.errors import DeviceIOError, DeviceTimeout
+
+if TYPE_CHECKING:
+    from pymodbus.client import AsyncModbusTcpClient
+    from pymodbus.pdu import ModbusPDU
+
+# pymodbus (and through its package, its simulator's web server) is imported by the master
+# that talks, not with the codes: ``supervisor check`` of an I/O map reads the codes only
+# (issue 30).
 
 FC_READ_COILS: Final = 1
 FC_READ_HOLDING_REGISTERS: Final = 3
@@ -112,6 +116,8 @@ class ModbusTcpMaster:
         return self._client is not None and self._client.connected
 
     async def connect(self) -> None:
+        from pymodbus.client import AsyncModbusTcpClient
+
         await self.close()
         client = AsyncModbusTcpClient(
             self.host,
@@ -163,6 +169,8 @@ class ModbusTcpMaster:
         self, request: Callable[[AsyncModbusTcpClient], Awaitable[ModbusPDU]]
     ) -> ModbusPDU:
         """One transaction, pymodbus's failures mapped to the link's."""
+        from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
         client = self._client
         # pymodbus would silently reconnect on its own: reconnecting is PolledDriver's job.
         if client is None or not client.connected:
