@@ -320,12 +320,13 @@ def _check_one(
     from supervisor.config.yamlpos import load_yaml
 
     try:
-        data, _ = load_yaml(path)
+        data, pos = load_yaml(path)
         if isinstance(data, dict) and "recipe" in data:
             from supervisor.chains.compiler import compile_recipe
-            from supervisor.config.recipe import load_recipe
+            from supervisor.config.recipe import recipe_of
 
-            recipe, pos = load_recipe(path)
+            # The document parsed above, not the file read again (load_recipe's checks).
+            recipe = recipe_of(data, pos, str(path))
             return [], compile_recipe(recipe, pos, str(path)).warnings
         from supervisor.config.exposure import exposure_warnings
         from supervisor.devices.registry import load_bench
