@@ -136,6 +136,8 @@ bench: $(STAMP) $(INFLUXD) $(HMI_STAMP) $(CHROMIUM)
 	# Issue 28: three 150 KB alias-amplified recipe texts posted at once by a viewer to
 	# /api/recipes/validate: stalls, jitter p99 and RSS before/after, SIGTERM to exit.
 	$(BENCH_ENV) $(BIN)/supervisor bench validate-attack
+	# Issue 30: `supervisor check recipes/nimh-ds2710.yaml` wall time beside python's own start.
+	$(BENCH_ENV) $(BIN)/supervisor bench cli --runs 11
 	# The load case (io_maps/load16.yaml): scan p99/period, overruns, jitter, GET /api/tags.
 	$(BENCH_ENV) $(BIN)/supervisor bench load --seconds $(BENCH_LOAD_S)
 	$(BENCH_ENV) $(BIN)/supervisor bench memory --minutes $(BENCH_MEMORY_MIN)
