@@ -114,3 +114,24 @@ def test_a_recipe_check_does_not_build_the_io_map_model() -> None:
         )
         == []
     )
+
+
+def test_pymodbus_comes_with_a_modbus_master_made_at_wiring_not_with_the_codes() -> None:
+    """The codes (an I/O map's check) import no pymodbus; a master imports it when the bench
+    is wired, so that its first connect, on the running loop, does not (tens of ms)."""
+    script = (
+        "import sys\n"
+        "from supervisor.fieldbus import modbus\n"
+        "print('pymodbus' in sys.modules)\n"
+        "modbus.ModbusTcpMaster('adam1', '127.0.0.1', 502)\n"
+        "print(all(m in sys.modules for m in ('pymodbus.client', 'pymodbus.exceptions')))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=ROOT,
+        check=True,
+    )
+    assert done.stdout.split() == ["False", "True"]
