@@ -41,7 +41,8 @@ def test_bench_cli_records_the_checks_median_with_the_interpreters_start_beside_
 def test_each_command_is_timed_as_often_as_asked_in_a_fresh_process() -> None:
     timed = cli.time_commands({"bare": (sys.executable, "-c", "pass")}, runs=3)
     assert [t.label for t in timed] == ["bare"]
-    assert len(timed[0].walls_s) == 3
+    assert len(timed[0].walls_s) == len(timed[0].cpus_s) == 3
+    assert all(cpu >= 0 for cpu in timed[0].cpus_s)
 
 
 def test_a_command_that_fails_stops_the_benchmark_with_its_message() -> None:
