@@ -149,7 +149,7 @@ bench: $(STAMP) $(INFLUXD) $(HMI_STAMP) $(CHROMIUM)
 	# Issue 30: `supervisor check recipes/nimh-ds2710.yaml` wall time (median of fresh
 	# processes), and the four-Chadèche bench's share of a Raspberry Pi 4 core
 	# (instructions per second counted by valgrind, converted).
-	$(BENCH_ENV) $(BIN)/supervisor bench cli
+	$(BENCH_ENV) $(BIN)/supervisor bench cli --runs 11
 	$(BENCH_ENV) $(BIN)/supervisor bench pi-budget
 	# The HMI in Chromium: update latency tag change -> page (p50/p99) and the page's weight
 	# (tests/artifacts/hmi-figures.json).
