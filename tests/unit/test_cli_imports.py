@@ -135,3 +135,14 @@ def test_pymodbus_comes_with_a_modbus_master_made_at_wiring_not_with_the_codes()
         check=True,
     )
     assert done.stdout.split() == ["False", "True"]
+
+
+def test_the_opc_ua_users_file_is_kept_without_the_opc_ua_stack(tmp_path: Path) -> None:
+    """``supervisor opcua list-users`` reads a users file: no asyncua, no cryptography (the
+    server's settings live apart from the server, ``publish/opcua/settings.py``)."""
+    io_map = tmp_path / "bench.yaml"
+    text = (ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8")
+    io_map.write_text(text.replace("state_dir: var/sim", f"state_dir: {tmp_path}"), "utf-8")
+    code, out, imported = imported_by("opcua", "list-users", "--io-map", str(io_map))
+    assert code == 0, out
+    assert sorted(packages(imported)) == []
