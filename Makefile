@@ -161,7 +161,7 @@ bench: $(STAMP) $(INFLUXD) $(HMI_STAMP) $(CHROMIUM) $(VALGRIND)
 	# processes), and the four-Chadèche bench's share of a Raspberry Pi 4 core
 	# (instructions per scan counted by valgrind over a 60 s window, converted by published
 	# Pi 4 Python runs).
-	$(BENCH_ENV) $(BIN)/supervisor bench cli
+	$(BENCH_ENV) $(BIN)/supervisor bench cli --runs 11
 	$(BENCH_ENV) $(BIN)/supervisor bench pi-budget --seconds 60
 	# The HMI in Chromium: update latency tag change -> page (p50/p99) and the page's weight
 	# (tests/artifacts/hmi-figures.json).

@@ -102,11 +102,23 @@ def run_bench(args: argparse.Namespace, default_io_map: Path) -> int:
         from supervisor.bench.validate import validate_attack_benchmark
 
         return validate_attack_benchmark()
+    if args.what == "cli":
+        from supervisor.bench.cli import cli_benchmark
+
+        return cli_benchmark(args.runs)
     if args.what in ("load", "memory", "pi-budget", "report"):
         from supervisor.bench import suite
 
         return suite.run(args)
-    if args.what == "dry-run" and args.bytecodes:
+    if args.what == "dry-run":
+        return _dry_run(args)
+    return asyncio.run(benchmarks.manual_charge_benchmark(args.hours))
+
+
+def _dry_run(args: argparse.Namespace) -> int:
+    """``bench dry-run``: the ratio to real time (the median of ``--runs``), or with
+    ``--bytecodes`` one scan's cost by function."""
+    if args.bytecodes:
         from supervisor.bench.dryruncost import scan_cost
 
         cost = scan_cost(args.recipe)
@@ -118,37 +130,35 @@ def run_bench(args: argparse.Namespace, default_io_map: Path) -> int:
         for where, ops, calls in cost.by_function[:30]:
             _out(f"{ops:10.1f} {calls:6.2f}  {where}")
         return 0
-    if args.what == "dry-run":
-        from supervisor.app.dryrun import dry_run, format_report
+    from supervisor.app.dryrun import dry_run, format_report
 
-        # Several runs in one process, their median recorded: one run's ratio moves by a
-        # fifth with what else the machine does (issue 13: 25 000–31 000× on the idle
-        # machine), the median of five much less.
-        ratios: list[float] = []
-        walls: list[float] = []
-        for k in range(args.runs):
-            res = asyncio.run(dry_run(args.recipe, soc=0.0))
-            ratios.append(res.ratio)
-            walls.append(res.wall_s)
-            _out(f"run {k + 1} of {args.runs}: {format_report(res)[-1]}")
-        for line in format_report(res)[-3:-1]:
-            _out(line)
-        median = statistics.median(ratios)
-        _out(
-            f"median of {args.runs} runs: {median:,.0f}x"
-            f" (min–max {min(ratios):,.0f}–{max(ratios):,.0f}x)"
-        )
-        from supervisor.bench import report
+    # Several runs in one process, their median recorded: one run's ratio moves by a
+    # fifth with what else the machine does (issue 13: 25 000–31 000× on the idle
+    # machine), the median of five much less.
+    ratios: list[float] = []
+    walls: list[float] = []
+    for k in range(args.runs):
+        res = asyncio.run(dry_run(args.recipe, soc=0.0))
+        ratios.append(res.ratio)
+        walls.append(res.wall_s)
+        _out(f"run {k + 1} of {args.runs}: {format_report(res)[-1]}")
+    for line in format_report(res)[-3:-1]:
+        _out(line)
+    median = statistics.median(ratios)
+    _out(
+        f"median of {args.runs} runs: {median:,.0f}x"
+        f" (min–max {min(ratios):,.0f}–{max(ratios):,.0f}x)"
+    )
+    from supervisor.bench import report
 
-        report.record(
-            f"dry run of {args.recipe}",
-            median,
-            "× real time",
-            ">= 30000",
-            f"median of {args.runs} runs, min–max {min(ratios):,.0f}–{max(ratios):,.0f}×,"
-            f" {res.simulated_s / 3600:.1f} simulated h in {statistics.median(walls):.2f} s"
-            " wall (median)",
-            f"supervisor bench dry-run --recipe {args.recipe} --runs {args.runs}",
-        )
-        return 0
-    return asyncio.run(benchmarks.manual_charge_benchmark(args.hours))
+    report.record(
+        f"dry run of {args.recipe}",
+        median,
+        "× real time",
+        ">= 30000",
+        f"median of {args.runs} runs, min–max {min(ratios):,.0f}–{max(ratios):,.0f}×,"
+        f" {res.simulated_s / 3600:.1f} simulated h in {statistics.median(walls):.2f} s"
+        " wall (median)",
+        f"supervisor bench dry-run --recipe {args.recipe} --runs {args.runs}",
+    )
+    return 0

@@ -19,7 +19,6 @@ use ``--security``, exit 2.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import contextlib
 import getpass
 import logging
@@ -31,8 +30,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
-
-from supervisor.channels.activity import activity_label
 
 if TYPE_CHECKING:
     from asyncua import Client
@@ -224,6 +221,8 @@ def cmd_ctl(args: argparse.Namespace) -> int:
 
 
 def _ctl(args: argparse.Namespace) -> int:
+    import asyncio  # here, not at the top: the parser (add_parser) needs no loop (issue 30)
+
     try:
         _check_security_options(args)
         if args.what == "cert":
@@ -575,6 +574,8 @@ def status_table(channels: Sequence[str], rows: Sequence[dict[str, Any]]) -> lis
     supervisor/channels/activity.py), its chain's state, recipe, step (number and id), V, I,
     and the test's charge (``chN.chain.charge_ah``, the figure the display line and the
     screens show; the raw counters are not the test's charge)."""
+    from supervisor.channels.activity import activity_label
+
     head = ("channel", "channel state", "chain", "recipe", "step", "V", "I (A)", "charge (Ah)")
     body = []
     for ch, v in zip(channels, rows, strict=True):
@@ -670,6 +671,8 @@ async def _alarms(bench: Bench) -> int:
 async def _watch(bench: Bench, args: argparse.Namespace) -> int:
     """A subscription on each channel's state and step: a line at each change, and every
     ``--every`` s a line per channel with its V, I and Ah."""
+    import asyncio
+
     channels = bench.channels
     if args.channel is not None:
         bench.check_channel(args.channel)

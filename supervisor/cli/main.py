@@ -7,16 +7,13 @@ mistake gets one clear message naming file:line:col, never a traceback.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import atexit
 import contextlib
 import faulthandler
 import io
 import logging
-import logging.handlers
 import math
 import os
-import queue
 import re
 import signal
 import sys
@@ -26,13 +23,12 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Final, NoReturn
 
-from supervisor.bench import memtrace
+from supervisor.bench import args as bench_args
 from supervisor.cli import ctl
-from supervisor.config.models import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
+from supervisor.config.limits import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core.encoding import StorableFormatter
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 from supervisor.core.logrepeat import RepeatFilter
-from supervisor.scan.engine import ScanFirstLoop
 
 if TYPE_CHECKING:
     from supervisor.app.service import Supervisor
@@ -77,11 +73,15 @@ def _setup_logging(level: str, *, off_thread: bool = False) -> None:
     handler.setFormatter(StorableFormatter(LOG_FORMAT))  # core/encoding.py
     repeats = RepeatFilter(time.monotonic)
     if off_thread:
+        # Imported here (with socket and pickle): only ``run`` logs off its thread.
+        import queue
+        from logging.handlers import QueueHandler, QueueListener
+
         records: queue.SimpleQueue[logging.LogRecord] = queue.SimpleQueue()
-        listener = logging.handlers.QueueListener(records, handler)
+        listener = QueueListener(records, handler)
         listener.start()
         atexit.register(listener.stop)
-        queued = logging.handlers.QueueHandler(records)
+        queued = QueueHandler(records)
         queued.addFilter(repeats)
         root.addHandler(queued)
     else:
@@ -145,9 +145,10 @@ def _descriptors_fit(cfg: BenchConfig) -> str | None:
 
 
 async def _serve(args: argparse.Namespace, cfg: BenchConfig, sup: Supervisor) -> int:
+    import asyncio
+
     from supervisor.commands import Verb
 
-    bench, api, opcua = sup.bench, sup.api, sup.opcua
     starts: list[str] = []
     for spec in args.recipe:
         channel, _, file = spec.partition("=")
@@ -175,6 +176,21 @@ async def _serve(args: argparse.Namespace, cfg: BenchConfig, sup: Supervisor) ->
     except OSError as exc:
         _err(f"supervisor: cannot listen: {exc.strerror or exc} ({exc})")
         return EXIT_USAGE
+    _banner(args, cfg, sup)
+    _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
+    unconfirmed = await sup.run(stop, starts)
+    if unconfirmed:
+        # Said only when every device confirmed it: an unreachable supply is not "safe".
+        for device, why in unconfirmed.items():
+            _out(f"stopped: safe state NOT confirmed for {device}: {why}")
+        return EXIT_FAIL
+    _out("stopped: all outputs safe")
+    return EXIT_OK
+
+
+def _banner(args: argparse.Namespace, cfg: BenchConfig, sup: Supervisor) -> None:
+    """What listens where, what was restored, where the history goes (stdout)."""
+    bench, api, opcua = sup.bench, sup.api, sup.opcua
     _out(
         f"bench {cfg.bench!r}: {len(bench.db)} tags, {len(bench.channels)} channels,"
         f" scan period {cfg.scan.period_s * 1000:g} ms"
@@ -205,24 +221,24 @@ async def _serve(args: argparse.Namespace, cfg: BenchConfig, sup: Supervisor) ->
             f"InfluxDB: {influx.url} bucket {influx.bucket!r}, spool {influx.spool_path}"
             f" ({waiting} points waiting)"
         )
-    _out("Ctrl-C or SIGTERM stops the bench; every output goes to its safe state.")
-    unconfirmed = await sup.run(stop, starts)
-    if unconfirmed:
-        # Said only when every device confirmed it: an unreachable supply is not "safe".
-        for device, why in unconfirmed.items():
-            _out(f"stopped: safe state NOT confirmed for {device}: {why}")
-        return EXIT_FAIL
-    _out("stopped: all outputs safe")
-    return EXIT_OK
 
 
 def _dump_tasks() -> None:
+    import asyncio
+
     for task in asyncio.all_tasks():
         log.warning("task %s:", task.get_name())
         task.print_stack(file=sys.stderr)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    # Imported by the command that runs a bench, not by the parser (issue 30: each command
+    # imports what it needs; ``check`` none of the scan's or the lab's modules, nor asyncio).
+    import asyncio
+
+    from supervisor.bench import memtrace
+    from supervisor.scan.engine import ScanFirstLoop
+
     _setup_logging(args.log_level, off_thread=True)
     # A debugging switch, off unless $SUPERVISOR_TRACEMALLOC names a folder (bench/memtrace.py).
     trace = memtrace.start_from_env()
@@ -245,6 +261,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 # --- sim -----------------------------------------------------------------------------
 async def _sim(args: argparse.Namespace) -> int:
+    import asyncio
+
     from supervisor.app.simulation import build_simulation
     from supervisor.core.clock import RealClock
     from supervisor.devices.registry import load_bench
@@ -289,6 +307,8 @@ async def _sim(args: argparse.Namespace) -> int:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
+    import asyncio
+
     _setup_logging(args.log_level)
     if not Path(args.io_map).exists():
         _err(f"{args.io_map}: no such I/O map")
@@ -301,18 +321,22 @@ def _check_one(
     path: Path, warnings: list[str] | None = None
 ) -> tuple[list[ConfigError], tuple[ConfigError, ...]]:
     """The errors of one file, a recipe's warnings (a parameter nothing reads); an I/O
-    map's network exposure appended to ``warnings``."""
-    from supervisor.chains.compiler import compile_recipe
-    from supervisor.config.exposure import exposure_warnings
-    from supervisor.config.recipe import load_recipe
+    map's network exposure appended to ``warnings``. Each kind of file imports only what
+    checks it: a recipe neither the device kinds nor the I/O map's models (issue 30)."""
     from supervisor.config.yamlpos import load_yaml
-    from supervisor.devices.registry import load_bench
 
     try:
-        data, _ = load_yaml(path)
+        data, pos = load_yaml(path)
         if isinstance(data, dict) and "recipe" in data:
-            recipe, pos = load_recipe(path)
+            from supervisor.chains.compiler import compile_recipe
+            from supervisor.config.recipe import recipe_of
+
+            # The document parsed above, not the file read again (load_recipe's checks).
+            recipe = recipe_of(data, pos, str(path))
             return [], compile_recipe(recipe, pos, str(path)).warnings
+        from supervisor.config.exposure import exposure_warnings
+        from supervisor.devices.registry import load_bench
+
         cfg = load_bench(path)
         if warnings is not None:
             warnings.extend(exposure_warnings(cfg))
@@ -461,6 +485,8 @@ def _params(items: list[str]) -> dict[str, str]:
 
 
 def cmd_dry_run(args: argparse.Namespace) -> int:
+    import asyncio
+
     from supervisor.app.dryrun import dry_run, format_report
 
     _setup_logging("warning")
@@ -781,98 +807,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     ctl.add_parser(sub)
 
-    b = sub.add_parser("bench", help="benchmarks that print figures")
-    b.add_argument(
-        "what",
-        choices=[
-            "scan",
-            "manual",
-            "seed002",
-            "dry-run",
-            "faults",
-            "estop",
-            "kill-restart",
-            "historian",
-            "influx",
-            "opcua",
-            "http",
-            "load",
-            "memory",
-            "pi-budget",
-            "report",
-            "flood",
-            "validate-attack",
-        ],
-    )
-    b.add_argument("--recipe", default="recipes/nimh-25h-slow-cycle.yaml", help="dry-run: recipe")
-    b.add_argument(
-        "--runs",
-        type=int,
-        default=5,
-        choices=range(1, 101),
-        metavar="1..100",
-        help="dry-run: runs in this process, the median ratio recorded",
-    )
-    b.add_argument(
-        "--bytecodes",
-        action="store_true",
-        help="dry-run: instead of the speed, one scan's Python bytecodes and calls by function"
-        " (a figure the machine's load does not move; traced: slow)",
-    )
-    b.add_argument("--tags", type=int, default=1000, help="scan, historian: number of tags")
-    b.add_argument(
-        "--period-ms", type=float, default=10.0, help="scan, estop, historian: period in ms"
-    )
-    b.add_argument("--presses", type=int, default=100, help="estop: e-stop presses")
-    b.add_argument(
-        "--seconds", type=float, default=10.0, help="scan, historian: wall seconds to run"
-    )
-    b.add_argument("--recipes", action="store_true", help="scan: a step chain on every channel")
-    b.add_argument(
-        "--no-settle", action="store_true", help="scan: no gc collect+freeze after warm-up"
-    )
-    b.add_argument("--hours", type=float, default=10.0, help="manual: simulated hours")
-    b.add_argument("--iterations", type=int, default=20, help="kill-restart: kills")
-    b.add_argument("--seed", type=int, default=1, help="kill-restart: seed of the kill times")
-    b.add_argument("--points", type=int, default=200_000, help="influx: points per round")
-    b.add_argument("--rounds", type=int, default=3, help="influx: rounds of each writer")
-    b.add_argument("--clients", type=int, default=10, help="opcua: subscribed clients")
-    b.add_argument("--opcua-tags", type=int, default=100, help="opcua: analog tags changing")
-    b.add_argument("--http-clients", type=int, default=4, help="http: GET /api/tags loops")
-    b.add_argument("--ws-clients", type=int, default=3, help="http: WebSocket pages")
-    b.add_argument("--minutes", type=float, default=30.0, help="memory: minutes to run")
-    b.add_argument("--flood-http", type=int, default=2000, help="flood: idle HTTP connections")
-    b.add_argument("--flood-opcua", type=int, default=200, help="flood: idle OPC UA connections")
-    b.add_argument("--login-rate", type=float, default=100.0, help="flood: wrong logins per second")
-    b.add_argument("--login-seconds", type=float, default=30.0, help="flood: seconds of bad logins")
-    b.add_argument("--warmup", type=float, default=None, help="load, memory: warm-up seconds")
-    b.add_argument(
-        "--trace",
-        default=None,
-        metavar="DIR",
-        help="memory: tracemalloc snapshots into DIR, what grew printed (not the figure)",
-    )
-    b.add_argument(
-        "--virtual",
-        action="store_true",
-        help="memory --trace: the bench in process on the virtual clock (minutes simulated)",
-    )
-    b.add_argument("--http-rate", type=float, default=10.0, help="load: GET /api/tags per s")
-    b.add_argument(
-        "--clients-nice",
-        type=int,
-        default=10,
-        choices=range(20),
-        metavar="0..19",
-        help="load: niceness of the clients and influxd (they stand for other machines)",
-    )
-    b.add_argument(
-        "--sim-in-process",
-        action="store_true",
-        help="load: simulators inside the supervisor (default: a supervisor sim process)",
-    )
-    b.add_argument("--out", default="var/bench", help="report: folder of results.json|md")
-    b.set_defaults(func=cmd_bench)
+    bench_args.add_parser(sub).set_defaults(func=cmd_bench)
     return p
 
 

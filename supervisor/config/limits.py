@@ -32,12 +32,14 @@ __all__ = [
     "MAX_PROFILE_ROWS",
     "MAX_RECIPE_GROUPS",
     "MAX_RECIPE_STEPS",
+    "MAX_SCAN_PERIOD_S",
     "MAX_SEQUENCE_ROWS",
     "MAX_TEXT_BYTES",
     "MAX_TRANSITIONS_PER_SCAN",
     "MAX_YAML_BYTES",
     "MAX_YAML_TEXT_CHARS",
     "MAX_YAML_VALUES",
+    "MIN_SCAN_PERIOD_S",
     "RECIPE_CHECK_MEMORY_BYTES",
     "RECIPE_CHECK_WORKERS",
     "RECIPE_COMPILE_TIMEOUT_S",
@@ -45,6 +47,11 @@ __all__ = [
     "read_limited",
     "size_text",
 ]
+
+MIN_SCAN_PERIOD_S: Final = 0.001
+MAX_SCAN_PERIOD_S: Final = 10.0
+"""Scan period bounds (also those of ``supervisor dry-run --period-s``). Here, not beside
+the I/O map's models, so that the command line's parser has them without the models."""
 
 KIB: Final = 1024
 MIB: Final = 1024 * KIB

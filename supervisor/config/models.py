@@ -32,6 +32,8 @@ from pydantic import (
 )
 
 from supervisor.config.limits import (
+    MAX_SCAN_PERIOD_S,
+    MIN_SCAN_PERIOD_S,
     RECIPE_CHECK_MEMORY_BYTES,
     RECIPE_CHECK_WORKERS,
     RECIPE_COMPILE_TIMEOUT_S,
@@ -59,10 +61,6 @@ Pair = Annotated[tuple[float, float], LIST_AS_TUPLE]
 """``[low, high]`` or ``[a, b]`` as YAML writes it."""
 OpenPair = Annotated[tuple[float | None, float | None], LIST_AS_TUPLE]
 """``[low, high]`` where ``null`` leaves that side open."""
-
-MIN_SCAN_PERIOD_S: Final = 0.001
-MAX_SCAN_PERIOD_S: Final = 10.0
-"""Scan period bounds (also those of ``supervisor dry-run --period-s``)."""
 
 
 class ScanConfig(Strict):

@@ -505,14 +505,23 @@ class Recipe(Strict):
 
 def load_recipe(path: str | Path) -> tuple[Recipe, Positions]:
     """Load a recipe file; shape errors as ConfigErrors with file:line:col."""
-    from supervisor.config.yamlpos import load_yaml, validate
+    from supervisor.config.yamlpos import load_yaml
 
     try:
         data, pos = load_yaml(path)
     except ConfigError as exc:
         raise ConfigErrors([exc]) from None
-    check_sizes(data, pos, str(path))
-    return validate(Recipe, data, pos, str(path)), pos
+    return recipe_of(data, pos, str(path)), pos
+
+
+def recipe_of(data: object, pos: Positions, file: str) -> Recipe:
+    """The recipe of a YAML document already parsed (``load_yaml``'s data and positions):
+    what :func:`load_recipe` checks, without reading and parsing the file again (``supervisor
+    check`` parses a file once to tell a recipe from an I/O map)."""
+    from supervisor.config.yamlpos import validate
+
+    check_sizes(data, pos, file)
+    return validate(Recipe, data, pos, file)
 
 
 def load_recipe_text(text: str, file: str = "<recipe>") -> tuple[Recipe, Positions]:

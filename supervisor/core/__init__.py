@@ -1,6 +1,7 @@
 """Foundation shared by every layer: quality model, clocks, errors, driver protocol."""
 
-from supervisor.core.clock import Clock, RealClock, VirtualClock
+from typing import TYPE_CHECKING, Any
+
 from supervisor.core.errors import (
     ConfigError,
     DeviceIOError,
@@ -10,6 +11,9 @@ from supervisor.core.errors import (
     SupervisorError,
 )
 from supervisor.core.quality import Quality, Reason
+
+if TYPE_CHECKING:
+    from supervisor.core.clock import Clock, RealClock, VirtualClock
 
 __all__ = [
     "Clock",
@@ -24,3 +28,13 @@ __all__ = [
     "SupervisorError",
     "VirtualClock",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    # The clocks import asyncio: imported when asked for, not with every ``supervisor.core.*``
+    # module (``supervisor check`` runs no loop; issue 30).
+    if name in ("Clock", "RealClock", "VirtualClock"):
+        from supervisor.core import clock
+
+        return getattr(clock, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -16,6 +16,7 @@ from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any, ClassVar
 
+import pymodbus.client
 import pytest
 import yaml
 from adam_rig import (
@@ -31,7 +32,6 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 from rig_transports import IN_PROCESS, clock_for, on_both_transports
 
 import supervisor.devices.base as base
-import supervisor.fieldbus.modbus as modbus_master
 from supervisor.app import build_bench
 from supervisor.core.clock import VirtualClock
 from supervisor.core.errors import DeviceIOError, DeviceTimeout
@@ -581,7 +581,8 @@ class FakeClient:
 
 @pytest.fixture
 def fake_client(monkeypatch: pytest.MonkeyPatch) -> type[FakeClient]:
-    monkeypatch.setattr(modbus_master, "AsyncModbusTcpClient", FakeClient)
+    # The master imports pymodbus's client when it connects (not with the Modbus codes).
+    monkeypatch.setattr(pymodbus.client, "AsyncModbusTcpClient", FakeClient)
     monkeypatch.setattr(FakeClient, "made", [])
     monkeypatch.setattr(FakeClient, "outcome", _Answer())
     monkeypatch.setattr(FakeClient, "accept", True)

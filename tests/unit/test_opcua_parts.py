@@ -25,7 +25,7 @@ from supervisor.publish.opcua.methods import (
     parse_parameters,
     request,
 )
-from supervisor.publish.opcua.server import sampling_interval_s
+from supervisor.publish.opcua.settings import sampling_interval_s
 from supervisor.publish.opcua.statuses import REFUSAL_STATUS, quality_status
 from supervisor.publish.opcua.units import eu_information, unit_id
 from supervisor.tags import Access, TagDB, TagSpec

@@ -4,14 +4,11 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-
-import can
+from typing import TYPE_CHECKING, Any
 
 from supervisor.config.models import SimulationConfig
 from supervisor.core.driver import Driver
 from supervisor.devices.bms.config import BmsDevice
-from supervisor.devices.bms.driver import BmsDriver, socketcand_bus_factory
-from supervisor.devices.bms.sim import BmsSimulator, SimulatedBms, plant_values
 from supervisor.devices.kind import (
     LINK,
     DeviceKind,
@@ -22,9 +19,23 @@ from supervisor.devices.kind import (
     SimWiring,
 )
 
+if TYPE_CHECKING:
+    import can
+
+    from supervisor.devices.bms.driver import BmsDriver
+    from supervisor.devices.bms.sim import BmsSimulator, SimulatedBms
+
+# The driver and the simulator speak CAN through python-can and decode with cantools: both
+# imported when a driver or a simulator is built, not with the kind's registration
+# (``supervisor check`` of an I/O map; issue 30).
+
 
 def bus_factory(dev: BmsDevice) -> Callable[[], can.BusABC]:
     """How the driver opens its bus, from the I/O map entry."""
+    import can
+
+    from supervisor.devices.bms.driver import socketcand_bus_factory
+
     if dev.interface == "socketcand":
         # Probes the server first: python-can's client otherwise spins while it is down.
         return socketcand_bus_factory(dev.host, dev.port, dev.channel)
@@ -32,6 +43,9 @@ def bus_factory(dev: BmsDevice) -> Callable[[], can.BusABC]:
 
 
 def _driver(name: str, dev: BmsDevice, wiring: DriverWiring) -> Driver:
+    from supervisor.devices.bms.driver import BmsDriver
+    from supervisor.devices.bms.sim import SimulatedBms
+
     factory = bus_factory(dev)
     sim = wiring.simulator
     if isinstance(sim, SimulatedBms):  # in process: no socket, frames pumped on the clock
@@ -46,6 +60,8 @@ def _driver(name: str, dev: BmsDevice, wiring: DriverWiring) -> Driver:
 
 
 def _simulator(name: str, dev: BmsDevice, wiring: SimWiring) -> DeviceSimulator:
+    from supervisor.devices.bms.sim import SimulatedBms, plant_values
+
     sc = wiring.bench.simulation or SimulationConfig()
     cells = sc.pack.cells_series or 1
     return SimulatedBms(
@@ -75,3 +91,15 @@ KIND = DeviceKind(
 )
 
 __all__ = ["KIND", "BmsDevice", "BmsDriver", "BmsSimulator", "SimulatedBms"]
+
+
+def __getattr__(name: str) -> Any:
+    if name == "BmsDriver":
+        from supervisor.devices.bms import driver
+
+        return driver.BmsDriver
+    if name in ("BmsSimulator", "SimulatedBms"):
+        from supervisor.devices.bms import sim
+
+        return getattr(sim, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

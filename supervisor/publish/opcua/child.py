@@ -35,7 +35,8 @@ from supervisor.core.logins import LoginThrottle
 from supervisor.publish.historian import HistoryQuery
 from supervisor.publish.opcua.feed import OpcUaFeed, Update
 from supervisor.publish.opcua.ports import Answer, Request
-from supervisor.publish.opcua.server import OpcUaServer, OpcUaSettings
+from supervisor.publish.opcua.server import OpcUaServer
+from supervisor.publish.opcua.settings import OpcUaSettings
 from supervisor.publish.opcua.wire import (
     STATUS_PERIOD_S,
     Hello,

@@ -36,7 +36,7 @@ from supervisor.core.logins import LoginThrottle
 from supervisor.publish.opcua.feed import AlarmView, OpcUaFeed
 from supervisor.publish.opcua.layout import Layout
 from supervisor.publish.opcua.ports import Answer, Operate, Request
-from supervisor.publish.opcua.server import OpcUaSettings
+from supervisor.publish.opcua.settings import OpcUaSettings
 from supervisor.publish.opcua.wire import Hello, frame, read_frame, tag_row
 from supervisor.tags import TagDB
 

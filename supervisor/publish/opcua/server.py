@@ -26,9 +26,7 @@ import gc
 import logging
 import threading
 from collections.abc import Awaitable, Callable, Sequence
-from dataclasses import dataclass
 from datetime import UTC, datetime
-from pathlib import Path
 from typing import Any, Final, TypeVar
 
 from asyncua import Server, ua
@@ -37,7 +35,6 @@ from asyncua.crypto.permission_rules import UserRole
 from asyncua.server.address_space import AttributeService
 
 from supervisor.config.limits import RECIPE_COMPILE_TIMEOUT_S
-from supervisor.config.models import BenchConfig
 from supervisor.config.users import ROLE_ACCESS, UserStore
 from supervisor.core.clock import Clock
 from supervisor.core.gate import ScanGate
@@ -61,6 +58,7 @@ from supervisor.publish.opcua.security import (
     current_user,
 )
 from supervisor.publish.opcua.sessions import BenchServer
+from supervisor.publish.opcua.settings import OpcUaSettings
 from supervisor.publish.opcua.shelf import ensure_shelf
 from supervisor.publish.opcua.space import Built, build_space
 from supervisor.publish.opcua.statuses import NO_VALUE, quality_status, refusal_status
@@ -79,72 +77,12 @@ a subscriber, ecosystem.md)."""
 BENCH_CALL_TIMEOUT_S: Final = 10.0
 """A method call or write waits this long at most for the bench's loop."""
 STOP_TIMEOUT_S: Final = 10.0
-PATH: Final = "supervisor"
 
 POLICIES: Final = {
     "none": ua.SecurityPolicyType.NoSecurity,
     "sign": ua.SecurityPolicyType.Basic256Sha256_Sign,
     "sign_and_encrypt": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
 }
-
-
-@dataclass(frozen=True, slots=True)
-class OpcUaSettings:
-    """The I/O map's ``opcua:`` section with its paths resolved."""
-
-    bench: str
-    description: str
-    host: str
-    port: int
-    security: tuple[str, ...]
-    anonymous: bool
-    users_file: Path
-    pki_dir: Path
-    scan_period_s: float
-    sampling_interval_s: float = 0.0
-    """How often the scan hands changed tags to the server (``OpcUaFeed``); 0: every scan."""
-    max_connections: int = 64
-    """Open connections at most (``opcua.max_connections``): one more is closed at once."""
-    activation_timeout_s: float = 10.0
-    """A connection without an activated session this long is closed."""
-
-    @classmethod
-    def of(cls, cfg: BenchConfig) -> OpcUaSettings:
-        o = cfg.opcua
-        base = Path(cfg.state_dir) / "opcua"
-        return cls(
-            bench=cfg.bench,
-            description=cfg.description,
-            host=o.host,
-            port=o.port,
-            security=o.security_modes,
-            anonymous=o.anonymous,
-            users_file=Path(o.users_file) if o.users_file else base / "users.yaml",
-            pki_dir=Path(o.pki_dir) if o.pki_dir else base / "pki",
-            scan_period_s=cfg.scan.period_s,
-            sampling_interval_s=sampling_interval_s(cfg.scan.period_s, o.sampling_interval_s),
-            max_connections=o.max_connections,
-            activation_timeout_s=o.activation_timeout_s,
-        )
-
-    @property
-    def endpoint(self) -> str:
-        return f"opc.tcp://{self.host}:{self.port}/{PATH}"
-
-
-MIN_SAMPLING_S: Final = 0.05
-"""The shortest default sampling interval: 20 values a second is what the fastest SCADA
-trends ask; at a 10 ms scan, handing the server every scan's changes cost the scan's
-process about a third of its CPU (issue 13's load case, py-spy) for values no client
-samples that fast."""
-
-
-def sampling_interval_s(scan_period_s: float, configured_s: float | None) -> float:
-    """The interval the server samples the scan at: ``opcua.sampling_interval_s``, else the
-    scan period but at least ``MIN_SAMPLING_S``; never shorter than the scan period (the
-    tags do not change faster)."""
-    wanted = configured_s if configured_s is not None else max(scan_period_s, MIN_SAMPLING_S)
-    return max(wanted, scan_period_s)
 
 
 class OpcUaServer:
