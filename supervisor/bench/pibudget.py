@@ -586,7 +586,8 @@ def _print_budget(w: Window, b: Budget, here: dict[str, float], period_s: float)
     if len(w.processes) > 1:
         _say(
             f"  by process: the supervisor {w.processes[0]:,}, the processes it started"
-            f" (its OPC UA server) {', '.join(f'{n:,}' for n in w.processes[1:])}"
+            f" (its OPC UA server, the recipe checks' workers)"
+            f" {', '.join(f'{n:,}' for n in w.processes[1:])}"
         )
     _say(f"  {b.per_scan:,.0f} instructions per scan, {b.per_s:,.0f} per second at the scan")
     for run in PUBLISHED:
