@@ -51,6 +51,7 @@ from supervisor.chains.states import (
 )
 from supervisor.config.limits import MAX_TRANSITIONS_PER_SCAN
 from supervisor.core.clock import Clock
+from supervisor.core.driver import Value
 from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.core.records import ChainEvent, Record, Sampler
@@ -687,13 +688,12 @@ class ChainRunner:
         self, now: float, r: RunState, program: Program, step: CompiledStep
     ) -> None:
         """``_outputs`` then ``_publish`` of a steady scan of ``step`` (see ``run``): the
-        same writes in the same order, with what a steady scan cannot change left out and
-        an unchanged tag only stamped (``tests/unit/test_chain_steady_scan.py``)."""
+        same writes in the same order, with what a steady scan cannot change left out, in
+        one ``TagDB.update_many`` (every value is computed before the first is written:
+        none of them reads a tag written here; ``tests/unit/test_chain_steady_scan.py``)."""
         index = step.index
         behaviour = self._behaviours[index]
         port = self.port
-        db = self.db
-        update = db.update
         # ``_outputs`` of a running step: its setpoint unless its interlock holds it back.
         amps = 0.0
         if not self._interlock_tag.value:
@@ -702,65 +702,56 @@ class ChainRunner:
         # Then, in their order, what ``port.request(amps, cv, True)`` writes (Running, no
         # alarm latched: active) and what ``_publish`` of a running step writes: the step,
         # its number and the cycle (the same but after an event, which leaves the steady
-        # way), the clocks, the progress.
+        # way), the clocks, the progress, the test's charge.
         t_step, t_index, t_cycle, t_step_time, t_test_time = self._publish_tags
-        db.update_many(
-            (
-                (port.auto_current, amps),
-                (port.auto_active, True),
-                (port.auto_voltage, behaviour.cv_target_v),
-                (t_step, step.id),
-                (t_index, step.index + 1),
-                (t_cycle, r.cycle),
-            )
-        )
-        update(t_step_time, now - r.t_step0)
         elapsed_s = now - r.t_test0
-        update(t_test_time, elapsed_s)
-        self._steady_progress(elapsed_s, r, program, behaviour)
+        writes: list[tuple[Tag, Value | None]] = [
+            (port.auto_current, amps),
+            (port.auto_active, True),
+            (port.auto_voltage, behaviour.cv_target_v),
+            (t_step, step.id),
+            (t_index, index + 1),
+            (t_cycle, r.cycle),
+            (t_step_time, now - r.t_step0),
+            (t_test_time, elapsed_s),
+        ]
+        writes += self._steady_progress(elapsed_s, r, program, behaviour)
         if self._charge_live:
             # ``_publish``'s test charge (``ConditionValues.charge_ah``), inline.
-            charge = port.charge_ah
-            x = charge.value
-            update(
-                self._charge_tag,
-                program.initial_charge_ah
-                + (x if type(x) is float else charge.as_float())
-                - r.q0_ah,
-            )
+            charge_ah = program.initial_charge_ah + port.charge_ah.number - r.q0_ah
+            writes.append((self._charge_tag, charge_ah))
+        self.db.update_many(writes)
         if self.samplers:
             self._sample(now, step)
 
     def _steady_progress(
         self, elapsed_s: float, r: RunState, program: Program, behaviour: StepBehaviour
-    ) -> None:
-        """``self.progress.shown`` for an active test, inline (the same expressions; they
-        cannot raise, so computing the ETA after writing the progress changes nothing)."""
-        update = self.db.update
+    ) -> tuple[tuple[Tag, float | None], ...]:
+        """What ``self.progress.shown`` for an active test has ``_publish`` write, inline
+        (the same expressions): the progress and the ETA, or nothing."""
         t_progress, t_eta = self._progress_tags
         est = self.progress.estimated_duration_s
         # ``min(1.0, x)`` and ``max(0.0, x)`` as expressions (the same answers, NaN
         # included): ``min`` and ``max`` parse keywords at every call.
         if est:
             fraction = elapsed_s / est
-            update(t_progress, fraction if fraction < 1.0 else 1.0)
             left_s = est - elapsed_s
-            update(t_eta, left_s if left_s > 0.0 else 0.0)
-            return
+            return (
+                (t_progress, fraction if fraction < 1.0 else 1.0),
+                (t_eta, left_s if left_s > 0.0 else 0.0),
+            )
         step_current_a = behaviour.progress_current_a
         capacity_ah = program.capacity_ah
-        if step_current_a is not None and capacity_ah:
-            charge = self.port.charge_ah
-            x = charge.value
-            moved = abs((x if type(x) is float else charge.as_float()) - r.step_q0)
-            fraction = moved / capacity_ah
-            update(t_progress, fraction if fraction < 1.0 else 1.0)
-            amps_a = abs(step_current_a)
-            if amps_a > 0:
-                left_s = (capacity_ah - moved) * 3600.0 / amps_a
-                update(t_eta, left_s if left_s > 0.0 else 0.0)
-            else:
-                update(t_eta, None)
+        if step_current_a is None or not capacity_ah:
+            return ()
+        moved = abs(self.port.charge_ah.number - r.step_q0)
+        fraction = moved / capacity_ah
+        amps_a = abs(step_current_a)
+        eta_s = None
+        if amps_a > 0:
+            left_s = (capacity_ah - moved) * 3600.0 / amps_a
+            eta_s = left_s if left_s > 0.0 else 0.0
+        return ((t_progress, fraction if fraction < 1.0 else 1.0), (t_eta, eta_s))
 
     def _record(self, now: float, step: CompiledStep, reason: str = "") -> bool:
         """A record to the recorders when ``reason`` is given or a logging rule says one is
