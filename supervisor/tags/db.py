@@ -212,8 +212,7 @@ class TagDB:
                 tag.value = tag.number = value
                 tag.quality = _GOOD
                 tag.reason = _NONE
-                self.version = version = self.version + 1
-                tag.version = version
+                self.version = tag.version = self.version + 1
                 self._order.move_to_end(tag.index)
             else:
                 self.update(tag, value)
@@ -227,26 +226,20 @@ class TagDB:
         scan_t = self.scan_t
         for tag, delta in increments:
             v = tag.value
-            value = (v if type(v) is float else tag.as_float()) + delta
-            if tag.forced:
-                continue
-            if not tag.is_float or type(value) is not float:
-                self.update(tag, value)
-                continue
-            # ``update``'s float path, inline: a finite float is GOOD, else BAD.
-            if value - value != 0.0:
-                quality, reason = _BAD, _OUT_OF_RANGE
-            else:
-                quality, reason = _GOOD, _NONE
-            tag.source_t = scan_t
-            if value != v or quality is not tag.quality or reason is not tag.reason:
-                tag.value = tag.number = value
-                tag.quality = quality
-                tag.reason = reason
-                tag.server_t = scan_t
-                self.version = version = self.version + 1
-                tag.version = version
-                self._order.move_to_end(tag.index)
+            if type(v) is float and tag.is_float and not tag.forced:
+                value = v + delta
+                if type(value) is float and value - value == 0.0:
+                    # ``update``'s float path, inline: a finite float is GOOD.
+                    tag.source_t = scan_t
+                    if value != v or tag.quality is not _GOOD or tag.reason is not _NONE:
+                        tag.value = tag.number = value
+                        tag.quality = _GOOD
+                        tag.reason = _NONE
+                        tag.server_t = scan_t
+                        self.version = tag.version = self.version + 1
+                        self._order.move_to_end(tag.index)
+                    continue
+            self.update(tag, tag.as_float() + delta)
 
     def stamp(self, tag: Tag, source_t: float | None = None) -> None:
         """The source says the tag's value still holds: its source time moves to
