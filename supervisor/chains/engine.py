@@ -688,9 +688,9 @@ class ChainRunner:
         self, now: float, r: RunState, program: Program, step: CompiledStep
     ) -> None:
         """``_outputs`` then ``_publish`` of a steady scan of ``step`` (see ``run``): the
-        same writes in the same order, with what a steady scan cannot change left out, in
-        one ``TagDB.update_many`` (every value is computed before the first is written:
-        none of them reads a tag written here; ``tests/unit/test_chain_steady_scan.py``)."""
+        same writes in the same order, what a steady scan cannot change left out, in one
+        ``TagDB.update_many`` (each value computed before the first is written: none reads
+        a tag written here; ``tests/unit/test_chain_steady_scan.py``)."""
         index = step.index
         behaviour = self._behaviours[index]
         port = self.port
@@ -715,7 +715,22 @@ class ChainRunner:
             (t_step_time, now - r.t_step0),
             (t_test_time, elapsed_s),
         ]
-        writes += self._steady_progress(elapsed_s, r, program, behaviour)
+        # ``self.progress.shown`` of an active test, inline (the same expressions, with
+        # ``min(1.0, x)`` and ``max(0.0, x)`` as conditional ones: the same answers, NaN
+        # included): the fraction done and the time left (None: unknown), if shown.
+        est, current_a = self.progress.estimated_duration_s, behaviour.progress_current_a
+        shown: tuple[float, float | None] | None = None
+        if est:
+            shown = (elapsed_s / est, est - elapsed_s)
+        elif current_a is not None and program.capacity_ah:
+            moved = abs(port.charge_ah.number - r.step_q0)
+            amps_a = abs(current_a)
+            left = (program.capacity_ah - moved) * 3600.0 / amps_a if amps_a > 0 else None
+            shown = (moved / program.capacity_ah, left)
+        if shown is not None:
+            (fraction, left_s), (t_progress, t_eta) = shown, self._progress_tags
+            eta_s = None if left_s is None else left_s if left_s > 0.0 else 0.0
+            writes += ((t_progress, fraction if fraction < 1.0 else 1.0), (t_eta, eta_s))
         if self._charge_live:
             # ``_publish``'s test charge (``ConditionValues.charge_ah``), inline.
             charge_ah = program.initial_charge_ah + port.charge_ah.number - r.q0_ah
@@ -723,35 +738,6 @@ class ChainRunner:
         self.db.update_many(writes)
         if self.samplers:
             self._sample(now, step)
-
-    def _steady_progress(
-        self, elapsed_s: float, r: RunState, program: Program, behaviour: StepBehaviour
-    ) -> tuple[tuple[Tag, float | None], ...]:
-        """What ``self.progress.shown`` for an active test has ``_publish`` write, inline
-        (the same expressions): the progress and the ETA, or nothing."""
-        t_progress, t_eta = self._progress_tags
-        est = self.progress.estimated_duration_s
-        # ``min(1.0, x)`` and ``max(0.0, x)`` as expressions (the same answers, NaN
-        # included): ``min`` and ``max`` parse keywords at every call.
-        if est:
-            fraction = elapsed_s / est
-            left_s = est - elapsed_s
-            return (
-                (t_progress, fraction if fraction < 1.0 else 1.0),
-                (t_eta, left_s if left_s > 0.0 else 0.0),
-            )
-        step_current_a = behaviour.progress_current_a
-        capacity_ah = program.capacity_ah
-        if step_current_a is None or not capacity_ah:
-            return ()
-        moved = abs(self.port.charge_ah.number - r.step_q0)
-        fraction = moved / capacity_ah
-        amps_a = abs(step_current_a)
-        eta_s = None
-        if amps_a > 0:
-            left_s = (capacity_ah - moved) * 3600.0 / amps_a
-            eta_s = left_s if left_s > 0.0 else 0.0
-        return ((t_progress, fraction if fraction < 1.0 else 1.0), (t_eta, eta_s))
 
     def _record(self, now: float, step: CompiledStep, reason: str = "") -> bool:
         """A record to the recorders when ``reason`` is given or a logging rule says one is

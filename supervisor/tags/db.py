@@ -205,9 +205,10 @@ class TagDB:
                 continue  # ``update`` leaves a forced tag as it is
             if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
                 tag.source_t = scan_t
-            elif tag.is_float and type(value) is float and value - value == 0.0:
-                # ``update``'s float path, inline: a finite float is GOOD, and it changes
-                # the tag (its value, quality or reason differs: the test above).
+            elif type(value) is float and value - value == 0.0:
+                # ``update`` of a finite float, inline (any tag: a float tag takes it as it
+                # is, GOOD, and so does every other): it changes the tag (its value,
+                # quality or reason differs: the test above).
                 tag.source_t = tag.server_t = scan_t
                 tag.value = tag.number = value
                 tag.quality = _GOOD
