@@ -435,8 +435,7 @@ class ChainRunner:
             return
         voltage = port.voltage
         if voltage.quality is _GOOD:
-            x = voltage.value
-            conditions.observe(now, x if type(x) is float else voltage.as_float())
+            conditions.observe(now, voltage.number)
         index = r.step
         step = program.steps[index]
         behaviour = self._behaviours[index]
@@ -747,11 +746,10 @@ class ChainRunner:
         assert self._log_rules is not None
         r, port = self._r, self.port
         vt, it = port.voltage, port.current
-        # ``tag.as_float()`` inlined: every running scan asks whether a record is due.
-        x = vt.value
-        v = (x if type(x) is float else vt.as_float()) if vt.quality is _GOOD else None
-        x = it.value
-        i = (x if type(x) is float else it.as_float()) if it.quality is _GOOD else None
+        # ``Tag.number``: ``as_float()`` without a call (every running scan asks whether a
+        # record is due).
+        v = vt.number if vt.quality is _GOOD else None
+        i = it.number if it.quality is _GOOD else None
         if not reason:
             reason = self._log_rules.reason(step.index, now, r, v, i)
             if not reason:

@@ -83,12 +83,15 @@ def _number(value: Value | None) -> float:
     on what a reader may ask later)."""
     if type(value) is float:
         return value
-    if isinstance(value, int) and not isinstance(value, bool):
+    if isinstance(value, _NUMBER) and type(value) is not bool:
         try:
             return float(value)
         except OverflowError:
             return math.inf if value > 0 else -math.inf
     return 0.0
+
+
+_NUMBER = (int, float)
 
 
 class TagDB:
