@@ -265,7 +265,10 @@ class ChannelGuard:
                 self.reset("operator")
             except OperatorError as exc:
                 log.warning("%s", exc)
-        self._publish_trips()
+        if self.alarms.writes == self._trips_writes and fast:
+            db.update_many(self._trips_out)  # ``_publish_trips``: the trips found last
+        else:
+            self._publish_trips()
         # The admission is a function of ``_admission_reads`` (and the frozen
         # configuration): computed again only when one of them changed since.
         if not fast or max(map(_version, self._admission_reads)) > self._admission_version:

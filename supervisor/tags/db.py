@@ -230,10 +230,11 @@ class TagDB:
         scan_t = self.scan_t
         for tag, delta in increments:
             v = tag.value
-            if type(v) is float and tag.is_float and not tag.forced:
+            if type(v) is float and not tag.forced:
                 value = v + delta
                 if type(value) is float and value - value == 0.0:
-                    # ``update``'s float path, inline: a finite float is GOOD.
+                    # ``update`` of a finite float, inline (any tag: a float tag takes it
+                    # as it is, GOOD, and so does every other).
                     tag.source_t = scan_t
                     if value != v or tag.quality is not _GOOD or tag.reason is not _NONE:
                         tag.value = tag.number = value
