@@ -29,7 +29,7 @@ class Mode(StrEnum):
 _MANUAL = Mode.MANUAL.value
 _AUTO = Mode.AUTO.value
 """The mode values as plain texts: ``Mode.MANUAL`` is an attribute lookup on an enum
-class, about seven times the cost of the comparison, and ``_drive`` compares up to three
+class, about seven times the cost of the comparison, and ``drive`` compares up to three
 times a scan."""
 
 
@@ -274,9 +274,44 @@ class Channel:
             self._failed(exc)
 
     def drive(self, now: float, dt: float) -> None:
-        """Setpoint selection, clamping to what safety allows, the output commands."""
+        """Setpoint selection, clamping to what safety allows, the output commands: the
+        request, clamped, and the outputs and state that follow from it, written in one
+        ``update_many`` (each tag as its ``update`` would leave it)."""
         try:
-            self._drive()
+            if self.fault.value:
+                request, active = 0.0, False
+            else:
+                # The request and whether the stage is active, in one look at the mode.
+                mode = self.mode.value
+                if mode == _MANUAL:
+                    active = bool(self.enable.value)
+                    request = self.manual_current.number if active else 0.0
+                else:
+                    active = bool(self.auto_active.value)
+                    request = self.auto_current.number if active and mode == _AUTO else 0.0
+            command, clamped = self._clamp(request)
+            cmd = self.current_cmd
+            outputs: list[tuple[Tag, Value]] = [(self.clamped, clamped), (cmd, command)]
+            if self.voltage_cmd is not None:
+                vlo, vhi = self.limits.voltage_v
+                target = self.auto_voltage.number if self.mode.value == _AUTO else 0.0
+                cv = min(max(target, vlo), vhi) if target > 0 else vhi
+                outputs.append((self.voltage_cmd, cv))
+            # Power stage: output and contactor follow "active"; the current is 0 when not.
+            if self.output_cmd is not None:
+                outputs.append((self.output_cmd, active))
+            if self._contactor is not None:
+                outputs.append((self._contactor, active))
+            # The state's name, from the fault and the command the source gets: the one
+            # written here (``update`` stores a number as a float that compares the same),
+            # or a forced one.
+            if self.fault.value:
+                state = "faulted"
+            else:
+                c = cmd.number if cmd.forced else command
+                state = "idle" if c == 0.0 else "charging" if c > 0 else "discharging"
+            outputs.append((self.state, state))
+            self.db.update_many(outputs)
         except Exception as exc:
             self._failed(exc)
         else:
@@ -295,43 +330,6 @@ class Channel:
         self.go_safe()
         # The safety phase trips the channel on it (latched, until reset).
         self.db.update(self.logic_error, f"{type(exc).__name__}: {exc}")
-
-    def _drive(self) -> None:
-        """The request, clamped, and the outputs and state that follow from it: written in
-        one ``update_many`` (each tag as its ``update`` would leave it)."""
-        if self.fault.value:
-            request, active = 0.0, False
-        else:
-            # The request and whether the stage is active, in one look at the mode.
-            mode = self.mode.value
-            if mode == _MANUAL:
-                active = bool(self.enable.value)
-                request = self.manual_current.number if active else 0.0
-            else:
-                active = bool(self.auto_active.value)
-                request = self.auto_current.number if active and mode == _AUTO else 0.0
-        command, clamped = self._clamp(request)
-        cmd = self.current_cmd
-        outputs: list[tuple[Tag, Value]] = [(self.clamped, clamped), (cmd, command)]
-        if self.voltage_cmd is not None:
-            vlo, vhi = self.limits.voltage_v
-            target = self.auto_voltage.number if self.mode.value == _AUTO else 0.0
-            outputs.append((self.voltage_cmd, min(max(target, vlo), vhi) if target > 0 else vhi))
-        # Power stage: output and contactor follow "active"; current is already 0 when not.
-        if self.output_cmd is not None:
-            outputs.append((self.output_cmd, active))
-        if self._contactor is not None:
-            outputs.append((self._contactor, active))
-        # The state's name, from the fault and the command the source gets: the one
-        # written here (``update`` stores a number as a float that compares the same),
-        # or a forced one.
-        if self.fault.value:
-            state = "faulted"
-        else:
-            c = cmd.number if cmd.forced else command
-            state = "idle" if c == 0.0 else "charging" if c > 0 else "discharging"
-        outputs.append((self.state, state))
-        self.db.update_many(outputs)
 
     def _integrate(self, dt: float) -> None:
         """Ah/Wh with a zero-order hold: the current read last scan flowed during ``dt``."""
