@@ -718,16 +718,17 @@ class ChainRunner:
         # ``min(1.0, x)`` and ``max(0.0, x)`` as conditional ones: the same answers, NaN
         # included): the fraction done and the time left (None: unknown), if shown.
         est, current_a = self.progress.estimated_duration_s, behaviour.progress_current_a
-        shown: tuple[float, float | None] | None = None
+        fraction: float | None = None  # None: no progress shown
+        left_s: float | None = None  # None: no time left known
         if est:
-            shown = (elapsed_s / est, est - elapsed_s)
+            fraction, left_s = elapsed_s / est, est - elapsed_s
         elif current_a is not None and program.capacity_ah:
             moved = abs(port.charge_ah.number - r.step_q0)
-            amps_a = abs(current_a)
-            left = (program.capacity_ah - moved) * 3600.0 / amps_a if amps_a > 0 else None
-            shown = (moved / program.capacity_ah, left)
-        if shown is not None:
-            (fraction, left_s), (t_progress, t_eta) = shown, self._progress_tags
+            fraction, amps_a = moved / program.capacity_ah, abs(current_a)
+            if amps_a > 0:
+                left_s = (program.capacity_ah - moved) * 3600.0 / amps_a
+        if fraction is not None:
+            t_progress, t_eta = self._progress_tags
             eta_s = None if left_s is None else left_s if left_s > 0.0 else 0.0
             writes += ((t_progress, fraction if fraction < 1.0 else 1.0), (t_eta, eta_s))
         if self._charge_live:

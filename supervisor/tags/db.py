@@ -83,7 +83,7 @@ def _number(value: Value | None) -> float:
     on what a reader may ask later)."""
     if type(value) is float:
         return value
-    if isinstance(value, _NUMBER) and type(value) is not bool:
+    if type(value) is int or (isinstance(value, _NUMBER) and type(value) is not bool):
         try:
             return float(value)
         except OverflowError:
