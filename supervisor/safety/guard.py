@@ -26,7 +26,6 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from operator import attrgetter
 
 from supervisor.config.models import ChannelConfig
 from supervisor.core.delay import OnDelay
@@ -34,10 +33,6 @@ from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality
 from supervisor.safety.alarms import Alarm, AlarmManager, Severity
 from supervisor.tags import Tag, TagDB
-
-_version = attrgetter("version")
-"""A tag's version: ``max(map(_version, tags))`` is the last change among ``tags``, found
-without a Python call or loop per tag (issue 29: every scan looks at a dozen)."""
 
 log = logging.getLogger(__name__)
 
@@ -251,12 +246,13 @@ class ChannelGuard:
         # alarm was written since the last pass (issue 13: nearly every scan of a slow test):
         # each would be skipped by ``_evaluate_checks``'s own test (see ``_quiet``).
         writes = self.alarms.writes
-        quiet = (
-            fast
-            and self._quiet
-            and writes == self._alarm_writes
-            and max(map(_version, self._gate_tags or ()), default=-1) <= self._quiet_version
-        )
+        quiet = fast and self._quiet and writes == self._alarm_writes
+        if quiet:
+            seen = self._quiet_version
+            for tag in self._gate_tags or ():
+                if tag.version > seen:
+                    quiet = False
+                    break
         if not quiet:
             self._evaluate_checks(now)
         if self._ack.value:
@@ -271,7 +267,13 @@ class ChannelGuard:
             self._publish_trips()
         # The admission is a function of ``_admission_reads`` (and the frozen
         # configuration): computed again only when one of them changed since.
-        if not fast or max(map(_version, self._admission_reads)) > self._admission_version:
+        seen = self._admission_version
+        moved = not fast
+        for tag in self._admission_reads:
+            if tag.version > seen:
+                moved = True
+                break
+        if moved:
             charge, discharge = self._admission()
             self._limits_a = ((self._charge_limit, charge), (self._discharge_limit, discharge))
             self._admission_version = db.version
