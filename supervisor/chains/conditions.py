@@ -141,23 +141,16 @@ class ConditionValues:
         q = port.charge_ah.as_float()
         energy = port.energy_wh.as_float()
         vt, i, t, p = port.voltage, port.current, port.temperature, port.power
-        # ``tag.as_float()`` inlined for the readings (every scan of every chain).
-        x = vt.value
-        v = (x if type(x) is float else vt.as_float()) if vt.quality is good else None
+        v = vt.as_float() if vt.quality is good else None
         peak = self.peak_v
         values = self._values
         if not values:
             values.update(dict.fromkeys(CHANNEL_VALUE_NAMES))
             values.update(self._parameters)
         values["voltage"] = v
-        x = i.value
-        values["current"] = (x if type(x) is float else i.as_float()) if i.quality is good else None
-        x = t.value
-        values["temperature"] = (
-            (x if type(x) is float else t.as_float()) if t.quality is good else None
-        )
-        x = p.value
-        values["power"] = (x if type(x) is float else p.as_float()) if p.quality is good else None
+        values["current"] = i.as_float() if i.quality is good else None
+        values["temperature"] = t.as_float() if t.quality is good else None
+        values["power"] = p.as_float() if p.quality is good else None
         values["charge"] = self._initial_charge_ah + q - run.q0_ah
         values["energy"] = energy
         values["step_charge"] = q - run.step_q0
@@ -197,22 +190,15 @@ class ConditionValues:
         it."""
         port = self._port
         vt = port.voltage
-        x = vt.value
-        v = (x if type(x) is float else vt.as_float()) if vt.quality is _GOOD else None
+        v = vt.number if vt.quality is _GOOD else None
         values = self._read_values
         values["voltage"] = v
         if self._reads_current:
             i = port.current
-            x = i.value
-            values["current"] = (
-                (x if type(x) is float else i.as_float()) if i.quality is _GOOD else None
-            )
+            values["current"] = i.number if i.quality is _GOOD else None
         if self._reads_temperature:
             t = port.temperature
-            x = t.value
-            values["temperature"] = (
-                (x if type(x) is float else t.as_float()) if t.quality is _GOOD else None
-            )
+            values["temperature"] = t.number if t.quality is _GOOD else None
         values["step_time"] = now - run.t_step0
         if self._reads_peak:
             peak = self.peak_v
@@ -230,8 +216,7 @@ class ConditionValues:
         vt = self._voltage
         v: float | None
         if vt.quality is _GOOD:
-            x = vt.value
-            v = x if type(x) is float else vt.as_float()
+            v = vt.number
             if self._keeps_window:  # observe(now, v), inline
                 ts, vs = self._dv_t, self._dv_v
                 ts.append(now)
@@ -248,16 +233,10 @@ class ConditionValues:
         values["voltage"] = v
         if self._reads_current:
             i = self._port.current
-            x = i.value
-            values["current"] = (
-                (x if type(x) is float else i.as_float()) if i.quality is _GOOD else None
-            )
+            values["current"] = i.number if i.quality is _GOOD else None
         if self._reads_temperature:
             t = self._port.temperature
-            x = t.value
-            values["temperature"] = (
-                (x if type(x) is float else t.as_float()) if t.quality is _GOOD else None
-            )
+            values["temperature"] = t.number if t.quality is _GOOD else None
         values["step_time"] = now - run.t_step0
         if self._reads_peak:
             values["delta_peak"] = (peak - v) if (peak is not None and v is not None) else None
@@ -284,10 +263,7 @@ class ConditionValues:
         ) = self._need
         if power:
             p = port.power
-            x = p.value
-            values["power"] = (
-                (x if type(x) is float else p.as_float()) if p.quality is _GOOD else None
-            )
+            values["power"] = p.number if p.quality is _GOOD else None
         if charge or step_charge:
             q = port.charge_ah.as_float()
             if charge:

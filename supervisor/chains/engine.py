@@ -51,6 +51,7 @@ from supervisor.chains.states import (
 )
 from supervisor.config.limits import MAX_TRANSITIONS_PER_SCAN
 from supervisor.core.clock import Clock
+from supervisor.core.driver import Value
 from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.core.records import ChainEvent, Record, Sampler
@@ -434,8 +435,7 @@ class ChainRunner:
             return
         voltage = port.voltage
         if voltage.quality is _GOOD:
-            x = voltage.value
-            conditions.observe(now, x if type(x) is float else voltage.as_float())
+            conditions.observe(now, voltage.number)
         index = r.step
         step = program.steps[index]
         behaviour = self._behaviours[index]
@@ -687,13 +687,12 @@ class ChainRunner:
         self, now: float, r: RunState, program: Program, step: CompiledStep
     ) -> None:
         """``_outputs`` then ``_publish`` of a steady scan of ``step`` (see ``run``): the
-        same writes in the same order, with what a steady scan cannot change left out and
-        an unchanged tag only stamped (``tests/unit/test_chain_steady_scan.py``)."""
+        same writes in the same order, what a steady scan cannot change left out, in one
+        ``TagDB.update_many`` (each value computed before the first is written: none reads
+        a tag written here; ``tests/unit/test_chain_steady_scan.py``)."""
         index = step.index
         behaviour = self._behaviours[index]
         port = self.port
-        db = self.db
-        update = db.update
         # ``_outputs`` of a running step: its setpoint unless its interlock holds it back.
         amps = 0.0
         if not self._interlock_tag.value:
@@ -702,65 +701,43 @@ class ChainRunner:
         # Then, in their order, what ``port.request(amps, cv, True)`` writes (Running, no
         # alarm latched: active) and what ``_publish`` of a running step writes: the step,
         # its number and the cycle (the same but after an event, which leaves the steady
-        # way), the clocks, the progress.
+        # way), the clocks, the progress, the test's charge.
         t_step, t_index, t_cycle, t_step_time, t_test_time = self._publish_tags
-        db.update_many(
-            (
-                (port.auto_current, amps),
-                (port.auto_active, True),
-                (port.auto_voltage, behaviour.cv_target_v),
-                (t_step, step.id),
-                (t_index, step.index + 1),
-                (t_cycle, r.cycle),
-            )
-        )
-        update(t_step_time, now - r.t_step0)
         elapsed_s = now - r.t_test0
-        update(t_test_time, elapsed_s)
-        self._steady_progress(elapsed_s, r, program, behaviour)
+        writes: list[tuple[Tag, Value | None]] = [
+            (port.auto_current, amps),
+            (port.auto_active, True),
+            (port.auto_voltage, behaviour.cv_target_v),
+            (t_step, step.id),
+            (t_index, index + 1),
+            (t_cycle, r.cycle),
+            (t_step_time, now - r.t_step0),
+            (t_test_time, elapsed_s),
+        ]
+        # ``self.progress.shown`` of an active test, inline (the same expressions, with
+        # ``min(1.0, x)`` and ``max(0.0, x)`` as conditional ones: the same answers, NaN
+        # included): the fraction done and the time left (None: unknown), if shown.
+        est, current_a = self.progress.estimated_duration_s, behaviour.progress_current_a
+        fraction: float | None = None  # None: no progress shown
+        left_s: float | None = None  # None: no time left known
+        if est:
+            fraction, left_s = elapsed_s / est, est - elapsed_s
+        elif current_a is not None and program.capacity_ah:
+            moved = abs(port.charge_ah.number - r.step_q0)
+            fraction, amps_a = moved / program.capacity_ah, abs(current_a)
+            if amps_a > 0:
+                left_s = (program.capacity_ah - moved) * 3600.0 / amps_a
+        if fraction is not None:
+            t_progress, t_eta = self._progress_tags
+            eta_s = None if left_s is None else left_s if left_s > 0.0 else 0.0
+            writes += ((t_progress, fraction if fraction < 1.0 else 1.0), (t_eta, eta_s))
         if self._charge_live:
             # ``_publish``'s test charge (``ConditionValues.charge_ah``), inline.
-            charge = port.charge_ah
-            x = charge.value
-            update(
-                self._charge_tag,
-                program.initial_charge_ah
-                + (x if type(x) is float else charge.as_float())
-                - r.q0_ah,
-            )
+            charge_ah = program.initial_charge_ah + port.charge_ah.number - r.q0_ah
+            writes.append((self._charge_tag, charge_ah))
+        self.db.update_many(writes)
         if self.samplers:
             self._sample(now, step)
-
-    def _steady_progress(
-        self, elapsed_s: float, r: RunState, program: Program, behaviour: StepBehaviour
-    ) -> None:
-        """``self.progress.shown`` for an active test, inline (the same expressions; they
-        cannot raise, so computing the ETA after writing the progress changes nothing)."""
-        update = self.db.update
-        t_progress, t_eta = self._progress_tags
-        est = self.progress.estimated_duration_s
-        # ``min(1.0, x)`` and ``max(0.0, x)`` as expressions (the same answers, NaN
-        # included): ``min`` and ``max`` parse keywords at every call.
-        if est:
-            fraction = elapsed_s / est
-            update(t_progress, fraction if fraction < 1.0 else 1.0)
-            left_s = est - elapsed_s
-            update(t_eta, left_s if left_s > 0.0 else 0.0)
-            return
-        step_current_a = behaviour.progress_current_a
-        capacity_ah = program.capacity_ah
-        if step_current_a is not None and capacity_ah:
-            charge = self.port.charge_ah
-            x = charge.value
-            moved = abs((x if type(x) is float else charge.as_float()) - r.step_q0)
-            fraction = moved / capacity_ah
-            update(t_progress, fraction if fraction < 1.0 else 1.0)
-            amps_a = abs(step_current_a)
-            if amps_a > 0:
-                left_s = (capacity_ah - moved) * 3600.0 / amps_a
-                update(t_eta, left_s if left_s > 0.0 else 0.0)
-            else:
-                update(t_eta, None)
 
     def _record(self, now: float, step: CompiledStep, reason: str = "") -> bool:
         """A record to the recorders when ``reason`` is given or a logging rule says one is
@@ -770,11 +747,10 @@ class ChainRunner:
         assert self._log_rules is not None
         r, port = self._r, self.port
         vt, it = port.voltage, port.current
-        # ``tag.as_float()`` inlined: every running scan asks whether a record is due.
-        x = vt.value
-        v = (x if type(x) is float else vt.as_float()) if vt.quality is _GOOD else None
-        x = it.value
-        i = (x if type(x) is float else it.as_float()) if it.quality is _GOOD else None
+        # ``Tag.number``: ``as_float()`` without a call (every running scan asks whether a
+        # record is due).
+        v = vt.number if vt.quality is _GOOD else None
+        i = it.number if it.quality is _GOOD else None
         if not reason:
             reason = self._log_rules.reason(step.index, now, r, v, i)
             if not reason:

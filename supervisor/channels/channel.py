@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass
 from enum import StrEnum
 
+from supervisor.core.driver import Value
 from supervisor.core.quality import Quality, Reason
 from supervisor.tags.db import Tag, TagDB
 from supervisor.tags.spec import Access, HistorySettings, TagSpec
@@ -28,7 +29,7 @@ class Mode(StrEnum):
 _MANUAL = Mode.MANUAL.value
 _AUTO = Mode.AUTO.value
 """The mode values as plain texts: ``Mode.MANUAL`` is an attribute lookup on an enum
-class, about seven times the cost of the comparison, and ``_drive`` compares up to three
+class, about seven times the cost of the comparison, and ``drive`` compares up to three
 times a scan."""
 
 
@@ -263,7 +264,7 @@ class Channel:
             # Power: a value computed from a Bad input is Bad.
             v, i, power = self.voltage, self.current, self.power
             if v.quality is _GOOD and i.quality is _GOOD:
-                p = v.as_float() * i.as_float()
+                p = v.number * i.number
                 update(power, p)
                 self._prev_p = p
             else:
@@ -273,9 +274,44 @@ class Channel:
             self._failed(exc)
 
     def drive(self, now: float, dt: float) -> None:
-        """Setpoint selection, clamping to what safety allows, the output commands."""
+        """Setpoint selection, clamping to what safety allows, the output commands: the
+        request, clamped, and the outputs and state that follow from it, written in one
+        ``update_many`` (each tag as its ``update`` would leave it)."""
         try:
-            self._drive()
+            if self.fault.value:
+                request, active = 0.0, False
+            else:
+                # The request and whether the stage is active, in one look at the mode.
+                mode = self.mode.value
+                if mode == _MANUAL:
+                    active = bool(self.enable.value)
+                    request = self.manual_current.number if active else 0.0
+                else:
+                    active = bool(self.auto_active.value)
+                    request = self.auto_current.number if active and mode == _AUTO else 0.0
+            command, clamped = self._clamp(request)
+            cmd = self.current_cmd
+            outputs: list[tuple[Tag, Value]] = [(self.clamped, clamped), (cmd, command)]
+            if self.voltage_cmd is not None:
+                vlo, vhi = self.limits.voltage_v
+                target = self.auto_voltage.number if self.mode.value == _AUTO else 0.0
+                cv = min(max(target, vlo), vhi) if target > 0 else vhi
+                outputs.append((self.voltage_cmd, cv))
+            # Power stage: output and contactor follow "active"; the current is 0 when not.
+            if self.output_cmd is not None:
+                outputs.append((self.output_cmd, active))
+            if self._contactor is not None:
+                outputs.append((self._contactor, active))
+            # The state's name, from the fault and the command the source gets: the one
+            # written here (``update`` stores a number as a float that compares the same),
+            # or a forced one.
+            if self.fault.value:
+                state = "faulted"
+            else:
+                c = cmd.number if cmd.forced else command
+                state = "idle" if c == 0.0 else "charging" if c > 0 else "discharging"
+            outputs.append((self.state, state))
+            self.db.update_many(outputs)
         except Exception as exc:
             self._failed(exc)
         else:
@@ -295,37 +331,6 @@ class Channel:
         # The safety phase trips the channel on it (latched, until reset).
         self.db.update(self.logic_error, f"{type(exc).__name__}: {exc}")
 
-    def _drive(self) -> None:
-        db = self.db
-        if self.fault.value:
-            request, active = 0.0, False
-        else:
-            # The request and whether the stage is active, in one look at the mode.
-            mode = self.mode.value
-            if mode == _MANUAL:
-                active = bool(self.enable.value)
-                request = self.manual_current.as_float() if active else 0.0
-            else:
-                active = bool(self.auto_active.value)
-                request = self.auto_current.as_float() if active and mode == _AUTO else 0.0
-        db.update(self.current_cmd, self._clamp(request))
-        if self.voltage_cmd is not None:
-            vlo, vhi = self.limits.voltage_v
-            target = self.auto_voltage.as_float() if self.mode.value == _AUTO else 0.0
-            db.update(self.voltage_cmd, min(max(target, vlo), vhi) if target > 0 else vhi)
-        # Power stage: output and contactor follow "active"; current is already 0 when not.
-        if self.output_cmd is not None:
-            db.update(self.output_cmd, active)
-        if self._contactor is not None:
-            db.update(self._contactor, active)
-        # The state's name, from the fault and the command just written.
-        if self.fault.value:
-            state = "faulted"
-        else:
-            c = self.current_cmd.as_float()
-            state = "idle" if c == 0.0 else "charging" if c > 0 else "discharging"
-        db.update(self.state, state)
-
     def _integrate(self, dt: float) -> None:
         """Ah/Wh with a zero-order hold: the current read last scan flowed during ``dt``."""
         i_prev, p_prev = self._prev_i, self._prev_p
@@ -340,11 +345,12 @@ class Channel:
                 moves += [(self.energy_wh, de_wh), (side_wh, abs(de_wh))]
             self.db.add_many(moves)  # each: update(tag, tag.as_float() + delta)
         current = self.current
-        self._prev_i = current.as_float() if current.quality is _GOOD else None
+        self._prev_i = current.number if current.quality is _GOOD else None
 
-    def _clamp(self, request: float) -> float:
+    def _clamp(self, request: float) -> tuple[float, bool]:
         """Into the hard current limits, and into what the safety phase allows this scan
-        (nothing towards a crossed voltage limit, less near a BMS cell limit)."""
+        (nothing towards a crossed voltage limit, less near a BMS cell limit): the current
+        allowed, and whether it is not the one requested (for ``chN.clamped``)."""
         lo, hi = self.limits.current_a
         if not math.isfinite(request):
             raise ValueError(f"non-finite current request {request!r}")
@@ -362,8 +368,7 @@ class Channel:
                 "%s: setpoint %.4f A clamped to %.4f A (%s)", self.name, request, allowed, why
             )
         self._last_clamp_req = request if clamped else None
-        self.db.update(self.clamped, clamped)
-        return allowed
+        return allowed, clamped
 
     def go_safe(self) -> None:
         """Request zero current (used at shutdown before the drivers' own safe state)."""

@@ -261,7 +261,10 @@ class ChannelGuard:
                 self.reset("operator")
             except OperatorError as exc:
                 log.warning("%s", exc)
-        self._publish_trips()
+        if self.alarms.writes == self._trips_writes and fast:
+            db.update_many(self._trips_out)  # ``_publish_trips``: the trips found last
+        else:
+            self._publish_trips()
         # The admission is a function of ``_admission_reads`` (and the frozen
         # configuration): computed again only when one of them changed since.
         seen = self._admission_version
@@ -387,7 +390,7 @@ class ChannelGuard:
         charge, discharge = hi, -lo
         v = self._v
         if v.quality is _GOOD:
-            vv = v.as_float()
+            vv = v.number
             if vv >= self._vhi:
                 charge = 0.0
             if vv <= self._vlo:
@@ -398,19 +401,19 @@ class ChannelGuard:
             lo_v, hi_v = bms.cell_voltage_v
             band = bms.derate_band_v
             if cmax is not None:
-                charge *= _derate(cmax, hi_v - cmax.as_float(), band)
+                charge *= _derate(cmax, hi_v - cmax.number, band)
             if cmin is not None:
-                discharge *= _derate(cmin, cmin.as_float() - lo_v, band)
+                discharge *= _derate(cmin, cmin.number - lo_v, band)
         return charge, discharge
 
     # --- conditions -----------------------------------------------------------------------
     def _intended_a(self) -> float:
         """The current asked for (Manual setpoint, or the chain's request) — or flowing."""
         if self._mode.value == AUTO:
-            asked = self._auto.as_float() if self._auto_active.value else 0.0
+            asked = self._auto.number if self._auto_active.value else 0.0
         else:
-            asked = self._manual.as_float() if self._enable.value else 0.0
-        return asked if asked != 0.0 else self._cmd.as_float()
+            asked = self._manual.number if self._enable.value else 0.0
+        return asked if asked != 0.0 else self._cmd.number
 
     def _active(self) -> bool:
         if self._mode.value == AUTO:
@@ -462,14 +465,14 @@ class ChannelGuard:
 
     def _voltage_high(self) -> str:
         v, hi = self._v, self._vhi
-        if v.quality is _GOOD and self._intended_a() > 0 and v.as_float() >= hi:
-            return f"voltage {v.as_float():.3f} V at or above hard limit {hi} V while charging"
+        if v.quality is _GOOD and self._intended_a() > 0 and v.number >= hi:
+            return f"voltage {v.number:.3f} V at or above hard limit {hi} V while charging"
         return ""
 
     def _voltage_low(self) -> str:
         v, lo = self._v, self._vlo
-        if v.quality is _GOOD and self._intended_a() < 0 and v.as_float() <= lo:
-            return f"voltage {v.as_float():.3f} V at or below hard limit {lo} V while discharging"
+        if v.quality is _GOOD and self._intended_a() < 0 and v.number <= lo:
+            return f"voltage {v.number:.3f} V at or below hard limit {lo} V while discharging"
         return ""
 
     def _temperature(self) -> str:
@@ -479,7 +482,7 @@ class ChannelGuard:
             if self._intended_a() == 0.0:
                 return ""
             return f"temperature input {t.quality.name} ({t.reason})"
-        tv = t.as_float()
+        tv = t.number
         if thi is not None and tv >= thi:
             return f"temperature {tv:.1f} degC at or above limit {thi} degC"
         if tlo is not None and tv <= tlo:
@@ -529,14 +532,14 @@ class ChannelGuard:
     def _current_discrepancy(self) -> str:
         tol = self._current_tol
         assert tol is not None
-        cmd, i = self._cmd.as_float(), self._i
+        cmd, i = self._cmd.number, self._i
         if self._cmd.version != self._cmd_version:
             # A new setpoint restarts the settling time (the on-delay restarts with it).
             self._cmd_version = self._cmd.version
             return ""
         if not i.good or not self._power_path_closed():
             return ""
-        ii = i.as_float()
+        ii = i.number
         if cmd * ii < 0 and abs(ii) > tol:
             return f"current {ii:.3f} A flows the wrong way for a setpoint of {cmd:.3f} A"
         if abs(ii) > abs(cmd) + tol:
@@ -551,20 +554,20 @@ class ChannelGuard:
         if not v.good:
             return False
         vlo, vhi = self.cfg.limits.voltage_v
-        cv = self._auto_voltage.as_float() if self._mode.value == AUTO else 0.0
+        cv = self._auto_voltage.number if self._mode.value == AUTO else 0.0
         target = (cv if cv > 0 else vhi) if cmd > 0 else vlo
-        return abs(v.as_float() - target) <= REGULATION_MARGIN * abs(target)
+        return abs(v.number - target) <= REGULATION_MARGIN * abs(target)
 
     def _voltage_disagrees(self, other: Tag, tolerance_v: float) -> Callable[[], str]:
         def condition() -> str:
             v = self._v
             if not (v.good and other.good and self._power_path_closed()):
                 return ""
-            diff = v.as_float() - other.as_float()
+            diff = v.number - other.number
             if abs(diff) <= tolerance_v:
                 return ""
             return (
-                f"voltage {v.as_float():.3f} V and {other.name} {other.as_float():.3f} V"
+                f"voltage {v.number:.3f} V and {other.name} {other.number:.3f} V"
                 f" disagree by {abs(diff):.3f} V (tolerance {tolerance_v:g} V)"
             )
 
@@ -579,7 +582,7 @@ class ChannelGuard:
                 if self._intended_a() == 0.0:
                     continue
                 return f"BMS value {tag.name} is {tag.quality.name} ({tag.reason})"
-            x = tag.as_float()
+            x = tag.number
             if key == "cell_max" and x > hi_v:
                 return f"BMS cell voltage {x:.3f} V above {hi_v:g} V"
             if key == "cell_min" and x < lo_v:

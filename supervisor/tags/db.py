@@ -8,6 +8,7 @@ N is, and the database keeps no log that grows with the number of changes.
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from collections.abc import Iterable, Iterator
 
@@ -29,6 +30,7 @@ class Tag:
         "forced",
         "index",
         "is_float",
+        "number",
         "quality",
         "reason",
         "server_t",
@@ -43,6 +45,9 @@ class Tag:
         self.index = index
         self.is_float = spec.dtype == "float"  # read by every update: no spec lookup
         self.value: Value | None = spec.initial
+        self.number = _number(spec.initial)
+        """The value as a float, 0.0 when it is not a number: ``as_float()`` read without
+        a call (kept by ``TagDB`` with the value; the channel reads it every scan)."""
         self.quality = Quality.UNCERTAIN if spec.initial is not None else Quality.BAD
         self.reason = Reason.INITIAL
         self.source_t = 0.0
@@ -70,6 +75,23 @@ class Tag:
     def __repr__(self) -> str:
         forced = " FORCED" if self.forced else ""
         return f"<Tag {self.name}={self.value!r} {self.quality.name}({self.reason}){forced}>"
+
+
+def _number(value: Value | None) -> float:
+    """``Tag.as_float()``'s answer for ``value``, but an int beyond a float's range, for
+    which ``as_float`` raises, reads as an infinity of its sign (no write of a tag fails
+    on what a reader may ask later)."""
+    if type(value) is float:
+        return value
+    if type(value) is int or (isinstance(value, _NUMBER) and type(value) is not bool):
+        try:
+            return float(value)
+        except OverflowError:
+            return math.inf if value > 0 else -math.inf
+    return 0.0
+
+
+_NUMBER = (int, float)
 
 
 class TagDB:
@@ -158,6 +180,7 @@ class TagDB:
         tag.source_t = self.scan_t if source_t is None else source_t
         if value != tag.value or quality is not tag.quality or reason is not tag.reason:
             tag.value = value
+            tag.number = value if type(value) is float else _number(value)
             tag.quality = quality
             tag.reason = reason
             tag.server_t = self.scan_t
@@ -171,16 +194,30 @@ class TagDB:
         """``update(tag, value)`` for each pair in turn: GOOD, without a reason, at this
         scan's time.
 
-        For the outputs a phase writes every scan (the channel guard's trips and limits),
-        most of them unchanged: a tag that already holds its value, GOOD and without a
-        reason, only has its source time moved, as its update would (a GOOD float tag
-        holds a finite float), here rather than in one ``update`` call each (issue 29: a
-        profile of the dry run). ``test_tagdb_update_many.py`` proves it equal to the
-        updates one by one for every kind of tag and value."""
+        For the outputs a phase writes every scan (the channel's commands, the guard's
+        trips and limits, a step chain's request and clocks), most of them unchanged: a
+        tag that already holds its value, GOOD and without a reason, only has its source
+        time moved, as its update would (a GOOD float tag holds a finite float); a float
+        tag given a new finite float takes it as its update would; both here rather than
+        in one ``update`` call each (issue 29: a profile of the dry run).
+        ``test_tagdb_update_many.py`` proves it equal to the updates one by one for every
+        kind of tag and value."""
+        scan_t = self.scan_t
         for tag, value in writes:
+            if tag.forced:
+                continue  # ``update`` leaves a forced tag as it is
             if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-                if not tag.forced:
-                    tag.source_t = self.scan_t
+                tag.source_t = scan_t
+            elif type(value) is float and value - value == 0.0:
+                # ``update`` of a finite float, inline (any tag: a float tag takes it as it
+                # is, GOOD, and so does every other): it changes the tag (its value,
+                # quality or reason differs: the test above).
+                tag.source_t = tag.server_t = scan_t
+                tag.value = tag.number = value
+                tag.quality = _GOOD
+                tag.reason = _NONE
+                self.version = tag.version = self.version + 1
+                self._order.move_to_end(tag.index)
             else:
                 self.update(tag, value)
 
@@ -193,26 +230,21 @@ class TagDB:
         scan_t = self.scan_t
         for tag, delta in increments:
             v = tag.value
-            value = (v if type(v) is float else tag.as_float()) + delta
-            if tag.forced:
-                continue
-            if not tag.is_float or type(value) is not float:
-                self.update(tag, value)
-                continue
-            # ``update``'s float path, inline: a finite float is GOOD, else BAD.
-            if value - value != 0.0:
-                quality, reason = _BAD, _OUT_OF_RANGE
-            else:
-                quality, reason = _GOOD, _NONE
-            tag.source_t = scan_t
-            if value != v or quality is not tag.quality or reason is not tag.reason:
-                tag.value = value
-                tag.quality = quality
-                tag.reason = reason
-                tag.server_t = scan_t
-                self.version = version = self.version + 1
-                tag.version = version
-                self._order.move_to_end(tag.index)
+            if type(v) is float and not tag.forced:
+                value = v + delta
+                if type(value) is float and value - value == 0.0:
+                    # ``update`` of a finite float, inline (any tag: a float tag takes it
+                    # as it is, GOOD, and so does every other).
+                    tag.source_t = scan_t
+                    if value != v or tag.quality is not _GOOD or tag.reason is not _NONE:
+                        tag.value = tag.number = value
+                        tag.quality = _GOOD
+                        tag.reason = _NONE
+                        tag.server_t = scan_t
+                        self.version = tag.version = self.version + 1
+                        self._order.move_to_end(tag.index)
+                    continue
+            self.update(tag, tag.as_float() + delta)
 
     def stamp(self, tag: Tag, source_t: float | None = None) -> None:
         """The source says the tag's value still holds: its source time moves to

@@ -24,7 +24,18 @@ from supervisor.tags import Tag, TagDB, TagSpec
 ROOT = Path(__file__).parents[2]
 PACKAGE = ROOT / "supervisor"
 TAG_STATE = frozenset(
-    {"value", "quality", "reason", "source_t", "server_t", "version", "forced", "index", "spec"}
+    {
+        "value",
+        "number",
+        "quality",
+        "reason",
+        "source_t",
+        "server_t",
+        "version",
+        "forced",
+        "index",
+        "spec",
+    }
 )
 """``Tag``'s attributes (its ``__slots__``, checked below)."""
 ALARM_STATE = frozenset(f.name for f in dataclasses.fields(Alarm))

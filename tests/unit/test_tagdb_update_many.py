@@ -1,7 +1,8 @@
-"""``TagDB.update_many`` (the channel guard's outputs, every scan: issue 29's profile of the
-dry run) leaves every tag and the change feed exactly as ``TagDB.update`` called for each
-pair in turn does, for every kind of tag, value, quality, reason and forcing; and
-``Tag.as_float`` is the plain rule for every kind of value."""
+"""``TagDB.update_many`` (the outputs of the channels, guards and chains, every scan: issue
+29's profile of the dry run) leaves every tag and the change feed exactly as
+``TagDB.update`` called for each pair in turn does, for every kind of tag, value, quality,
+reason and forcing; ``Tag.as_float`` is the plain rule for every kind of value; and
+``Tag.number``, kept by every way a tag changes, is always ``as_float()`` of its value."""
 
 from __future__ import annotations
 
@@ -11,14 +12,23 @@ from typing import Any
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality, Reason
 from supervisor.tags import TagDB, TagSpec
+from supervisor.tags.spec import Access
 
 DTYPES = ("float", "int", "bool", "str")
 FORCED: dict[str, Any] = {"float": 1.5, "int": 2, "bool": True, "str": "idle"}
+
+
+class Real(float):
+    """A float of another type (as a numeric library hands over): a number all the same."""
+
+
 values = st.one_of(
     st.none(),
     st.floats(allow_nan=True, allow_infinity=True),
+    st.floats(allow_nan=False).map(Real),
     st.sampled_from([0.0, -0.0, 1.0, 1.5, 2.0]),
     st.integers(-3, 3),
     st.integers(),
@@ -26,6 +36,12 @@ values = st.one_of(
     st.sampled_from(["", "idle", "charging", "1.5"]),
 )
 initials = st.one_of(st.none(), values)
+deltas = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    # Non-finite sums (BAD, out of range) drawn often, not left to luck.
+    st.sampled_from([0.0, -0.0, 1e-9, -1.5, 1e308, math.inf, -math.inf, math.nan]),
+    st.integers(-3, 3),
+)
 # Before each batch: the process side moves some tags (any value, quality and reason),
 # someone forces or unforces some, then the batch writes some (a tag may come twice).
 process = st.tuples(
@@ -46,11 +62,25 @@ rounds = st.lists(
 
 
 def state(db: TagDB) -> list[str]:
+    """Every tag's state and the change feed, after checking that each tag's ``number`` is
+    its value as a float (whichever way the tag last changed)."""
+    for t in db:
+        assert repr(t.number) == repr(number_of(t.value)), t
+        assert type(t.number) is float
     tags = [
         repr((t.value, t.quality, t.reason, t.source_t, t.server_t, t.version, t.forced))
         for t in db
     ]
     return [*tags, repr(db.version), repr([t.name for t in db.changed_since(0)])]
+
+
+def number_of(value: Any) -> float:
+    """``plain_as_float(value, 0.0)``, an int beyond a float's range an infinity of its sign
+    (where the plain rule raises)."""
+    try:
+        return plain_as_float(value, 0.0)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
 
 
 @settings(max_examples=400, deadline=None)
@@ -70,6 +100,46 @@ def test_a_batch_of_updates_is_each_update_in_turn(
         for k, value in batch:
             one.update(tags_one[k], value)
         assert state(many) == state(one)
+
+
+OPERATIONS = ("update", "write", "force", "unforce", "set_quality", "add_many")
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(st.tuples(st.sampled_from(DTYPES), initials), min_size=4, max_size=4),
+    st.lists(
+        st.tuples(st.sampled_from(OPERATIONS), st.integers(0, 3), values | deltas), max_size=24
+    ),
+)
+def test_a_tags_number_is_its_value_as_a_float_however_it_changed(
+    specs: list[tuple[str, Any]], operations: list[tuple[str, int, Any]]
+) -> None:
+    """Declared with any initial value, then changed every way there is (a write or a force
+    of a value its type refuses, an increment of a value beyond a float's range: refused
+    as the plain rule refuses them, nothing changed)."""
+    db = _declared(specs, Access.ENGINEER)
+    tags = list(db)
+    state(db)
+    for scan, (operation, k, value) in enumerate(operations):
+        db.set_scan_time(float(scan))
+        tag = tags[k]
+        try:
+            if operation == "update":
+                db.update(tag, value)
+            elif operation == "write":
+                db.write(tag.name, value, Access.ENGINEER)
+            elif operation == "force":
+                db.force(tag.name, value)
+            elif operation == "unforce":
+                db.unforce(tag.name)
+            elif operation == "set_quality":
+                db.set_quality(tag, Quality.BAD, Reason.STALE)
+            else:
+                db.add_many([(tag, value if isinstance(value, int | float) else 1.0)])
+        except (OperatorError, TypeError, ValueError, OverflowError):
+            pass
+        state(db)
 
 
 def plain_as_float(value: Any, default: float) -> float:
@@ -95,14 +165,6 @@ def test_a_tags_value_as_a_float_is_the_plain_rule(dtype: str, value: Any, defau
     assert repr(got) == repr(expected)
     if isinstance(got, float) and not math.isnan(got):
         assert type(got) is float
-
-
-deltas = st.one_of(
-    st.floats(allow_nan=True, allow_infinity=True),
-    # Non-finite sums (BAD, out of range) drawn often, not left to luck.
-    st.sampled_from([0.0, -0.0, 1e-9, -1.5, 1e308, math.inf, -math.inf, math.nan]),
-    st.integers(-3, 3),
-)
 
 
 @settings(max_examples=400, deadline=None)
@@ -133,13 +195,13 @@ def test_increments_are_each_update_of_the_value_plus_its_delta_in_turn(
         assert state(many) == state(one)
 
 
-def _declared(specs: list[tuple[str, Any]]) -> TagDB:
+def _declared(specs: list[tuple[str, Any]], access: Access = Access.READ_ONLY) -> TagDB:
     db = TagDB()
     for k, (dtype, initial) in enumerate(specs):
         try:
-            db.add(TagSpec(f"t{k}", dtype=dtype, initial=initial))  # type: ignore[arg-type]
+            db.add(TagSpec(f"t{k}", dtype=dtype, initial=initial, access=access))  # type: ignore[arg-type]
         except (TypeError, ValueError):
-            db.add(TagSpec(f"t{k}", dtype=dtype))  # type: ignore[arg-type]
+            db.add(TagSpec(f"t{k}", dtype=dtype, access=access))  # type: ignore[arg-type]
     return db
 
 

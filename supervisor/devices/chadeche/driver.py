@@ -233,8 +233,8 @@ class ChadecheDriver(PolledDriver):
             and self._connected
             and not self._pending
             and not self._lost_logged
-            and self._io_cycle.free()
-            and self._io_lock.free()
+            and not self._io_cycle.users  # ``free()``, without the call
+            and not self._io_lock.users
         ):
             return False
         now = self.clock.now()
@@ -290,7 +290,7 @@ class ChadecheDriver(PolledDriver):
         """:meth:`PolledDriver.flush` does nothing without a queued write while
         connected; on an in-process bus with the I/O lock free that is known without
         taking it (True: done). False: ``flush()`` must be awaited."""
-        return self._direct and not (self._connected and self._pending) and self._io_cycle.free()
+        return self._direct and not (self._connected and self._pending) and not self._io_cycle.users
 
     # --- PolledDriver hooks ----------------------------------------------------
     async def _connect(self) -> None:
