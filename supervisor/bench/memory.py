@@ -130,6 +130,7 @@ def memory_benchmark(
     cfg = load_bench(io_map)
     channels = [c.name for c in cfg.channels]
     samples: list[tuple[float, float]] = []  # (s since ready, bytes)
+    shares: dict[str, int] = {}  # KiB by process, at the last sample
     env = dict(os.environ)
     if trace_dir is not None:
         env[memtrace.ENV] = str(trace_dir.resolve())
@@ -144,7 +145,8 @@ def memory_benchmark(
             t0 = time.monotonic()
             while True:
                 t = time.monotonic() - t0
-                samples.append((t, sup.rss_kib() * 1024.0))
+                total_kib, shares = sup.memory_kib()
+                samples.append((t, total_kib * 1024.0))
                 if t >= total_s:
                     break
                 time.sleep(min(sample_s, max(0.0, total_s - t)))
@@ -159,12 +161,14 @@ def memory_benchmark(
     cmd = f"supervisor bench memory --minutes {minutes:g}"
     _say(
         f"memory benchmark: supervisor run {io_map} ({len(channels)} channels, recipes on all),"
-        f" VmRSS every {sample_s:g} s for {minutes:g} min, warm-up the first {warm:g} s"
-        + (" (memory tracing on: not the figure)" if traced else "")
+        f" its processes' memory (PSS) every {sample_s:g} s for {minutes:g} min, warm-up the"
+        f" first {warm:g} s" + (" (memory tracing on: not the figure)" if traced else "")
     )
     _say(f"  at start-up {_both(f.start_b)}, peak {_both(f.peak_b)}")
     _say(f"  warm-up: {f.warmup_rise_b / MB:+.2f} MB in the first {warm:g} s")
     _say(f"  after {minutes:g} min {_both(f.end_b)} (target ≤ 150 MB)")
+    by_process = ", ".join(f"{name} {kib * 1024 / MB:.1f} MB" for name, kib in shares.items())
+    _say(f"  by process at the end: {by_process}")
     _say(
         f"  growth after the warm-up {f.growth_b_per_10min / MB:+.2f} MB per 10 min over"
         f" {f.after_samples} samples (target ≤ 1 MB per 10 min); over the last third"
@@ -179,7 +183,8 @@ def memory_benchmark(
         f.end_b / MB,
         "MB",
         "<= 150",
-        f"{f.start_b / MB:.1f} MB at start-up, {f.peak_b / MB:.1f} MB peak",
+        f"{f.start_b / MB:.1f} MB at start-up, {f.peak_b / MB:.1f} MB peak; PSS of the"
+        f" supervisor and its processes, at the end: {by_process}",
         cmd,
     )
     report.record(

@@ -119,22 +119,24 @@ class Supervisor:
                 raise RuntimeError(f"supervisor run did not start in {timeout_s:.0f} s")
             time.sleep(0.2)
 
-    def rss_kib(self) -> int:
-        """VmRSS of the supervisor and every process it started (its OPC UA server, ADR
-        0029, and its recipe checks, ADR 0027): the bench's memory, in KiB."""
+    def memory_kib(self) -> tuple[int, dict[str, int]]:
+        """The bench's memory, in KiB: the proportional set size (PSS: a page shared by
+        several processes counted once, split among them) of the supervisor and every
+        process it started — its OPC UA server (ADR 0029) and its recipe checks (ADR 0027)
+        — and each process's share by what it runs. ``VmRSS`` where the kernel gives no
+        ``smaps_rollup``."""
         total = 0
+        by: dict[str, int] = {}
         for pid in process_tree(self.pid):
-            try:
-                text = Path(f"/proc/{pid}/status").read_text(encoding="utf-8")
-            except OSError:
+            kib = _pss_kib(pid)
+            if kib is None:
                 continue  # ended meanwhile
-            total += next(
-                (int(line.split()[1]) for line in text.splitlines() if line.startswith("VmRSS:")),
-                0,
-            )
+            total += kib
+            label = _label(pid)
+            by[label] = by.get(label, 0) + kib
         if total == 0:
-            raise RuntimeError(f"no VmRSS in /proc/{self.pid}/status")
-        return total
+            raise RuntimeError(f"no memory figures in /proc/{self.pid}")
+        return total, by
 
     def tail(self, n: int = 15) -> str:
         if not self._log.closed:
@@ -233,3 +235,36 @@ def process_tree(pid: int) -> list[int]:
             except (OSError, ValueError):
                 continue
     return out
+
+
+def _pss_kib(pid: int) -> int | None:
+    for name, key in (("smaps_rollup", "Pss:"), ("status", "VmRSS:")):
+        try:
+            text = Path(f"/proc/{pid}/{name}").read_text(encoding="utf-8")
+        except OSError:
+            continue
+        for line in text.splitlines():
+            if line.startswith(key):
+                return int(line.split()[1])
+    return None
+
+
+_ROLES = {
+    "supervisor.cli.main": "supervisor",
+    "supervisor.publish.opcua.child": "OPC UA server",
+    "supervisor.commands.childjob": "recipe checks",
+}
+
+
+def _label(pid: int) -> str:
+    """What a process of the bench runs: its module after ``-m`` (the supervisor's own
+    command line for the supervisor)."""
+    try:
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return str(pid)
+    words = [a.decode(errors="replace") for a in argv if a]
+    if "-m" in words and words.index("-m") + 1 < len(words):
+        module = words[words.index("-m") + 1]
+        return _ROLES.get(module, module)
+    return words[0] if words else str(pid)

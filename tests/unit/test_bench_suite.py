@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -351,3 +352,31 @@ def test_bench_dry_run_records_the_median_of_its_runs_with_their_spread(
 def test_bench_dry_run_runs_five_times_unless_told() -> None:
     args = build_parser().parse_args(["bench", "dry-run"])
     assert args.runs == 5
+
+
+def test_the_benchs_memory_counts_every_process_it_started_by_what_it_runs() -> None:
+    """Issue 30 moved the OPC UA server into a process of its own (ADR 0029): the memory
+    figure is the supervisor's and its children's, shared pages counted once (PSS)."""
+    import socket
+    import subprocess as sp
+    import sys
+
+    from supervisor.bench.subject import Supervisor, process_tree
+
+    ours, theirs = socket.socketpair()
+    module = "supervisor.publish.opcua.child"  # waits for its hello on the socket
+    child = sp.Popen(
+        [sys.executable, "-m", module, str(theirs.fileno())], pass_fds=[theirs.fileno()]
+    )
+    try:
+        sup = Supervisor.__new__(Supervisor)
+        sup.pid = os.getpid()
+        total, by = sup.memory_kib()
+        assert child.pid in process_tree(os.getpid())
+        assert total == sum(by.values()) and total > 0
+        assert set(by) >= {"OPC UA server"}
+    finally:
+        child.kill()
+        child.wait()
+        ours.close()
+        theirs.close()
