@@ -142,14 +142,7 @@ def memory_benchmark(
         sup = Supervisor(copy, http_port, args, root / "run.log", env=env)
         try:
             sup.wait_ready(START_TIMEOUT_S if trace_dir is None else TRACE_START_TIMEOUT_S)
-            t0 = time.monotonic()
-            while True:
-                t = time.monotonic() - t0
-                total_kib, shares = sup.memory_kib()
-                samples.append((t, total_kib * 1024.0))
-                if t >= total_s:
-                    break
-                time.sleep(min(sample_s, max(0.0, total_s - t)))
+            shares = _sample(sup, samples, total_s, sample_s)
         finally:
             code = sup.stop()
             if code != 0:
@@ -197,6 +190,21 @@ def memory_benchmark(
         cmd,
     )
     return 0
+
+
+def _sample(
+    sup: Supervisor, samples: list[tuple[float, float]], total_s: float, sample_s: float
+) -> dict[str, int]:
+    """The bench's memory every ``sample_s`` for ``total_s`` into ``samples`` (s since
+    ready, bytes); each process's share at the last sample, in KiB."""
+    t0 = time.monotonic()
+    while True:
+        t = time.monotonic() - t0
+        total_kib, shares = sup.memory_kib()
+        samples.append((t, total_kib * 1024.0))
+        if t >= total_s:
+            return shares
+        time.sleep(min(sample_s, max(0.0, total_s - t)))
 
 
 def _print_trace(trace_dir: Path, warmup_s: float) -> None:
