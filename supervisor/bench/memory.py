@@ -172,7 +172,7 @@ def memory_benchmark(
     if traced:
         return 0
     report.record(
-        f"RSS of supervisor run (sim bench, recipes) after {minutes:g} min",
+        f"memory (PSS) of supervisor run and its processes (sim bench, recipes) after {minutes:g} min",
         f.end_b / MB,
         "MB",
         "<= 150",
@@ -181,7 +181,7 @@ def memory_benchmark(
         cmd,
     )
     report.record(
-        f"RSS growth per 10 min after {warm:g} s warm-up ({minutes:g} min run)",
+        f"memory growth per 10 min after {warm:g} s warm-up ({minutes:g} min run)",
         f.growth_b_per_10min / MB,
         "MB",
         growth_target(minutes),
