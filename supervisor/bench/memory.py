@@ -172,8 +172,7 @@ def memory_benchmark(
     if traced:
         return 0
     report.record(
-        f"memory (PSS) of supervisor run and its processes (sim bench, recipes)"
-        f" after {minutes:g} min",
+        f"memory (PSS) of supervisor run and its processes after {minutes:g} min",
         f.end_b / MB,
         "MB",
         "<= 150",
