@@ -27,6 +27,7 @@ def http_limits(cfg: BenchConfig) -> ConnectionLimits:
 def descriptor_budget(cfg: BenchConfig) -> DescriptorBudget:
     """What ``supervisor run`` of ``cfg`` may hold at most."""
     listeners = {"HTTP": http_limits(cfg).descriptors}
-    if cfg.opcua.enabled:
-        listeners["OPC UA"] = cfg.opcua.max_connections + OPCUA_BACKLOG
-    return DescriptorBudget(listeners=listeners, devices=PER_DEVICE * len(cfg.devices))
+    # The OPC UA server runs in a process of its own (ADR 0029): a flood of its clients
+    # takes that process's descriptors, never the devices'.
+    apart = {"OPC UA": cfg.opcua.max_connections + OPCUA_BACKLOG} if cfg.opcua.enabled else {}
+    return DescriptorBudget(listeners=listeners, devices=PER_DEVICE * len(cfg.devices), apart=apart)

@@ -67,6 +67,9 @@ class DescriptorBudget:
     devices: int = 0
     files: int = FILES
     margin: int = MARGIN
+    apart: dict[str, int] = field(default_factory=dict)
+    """Listeners in processes of their own (the OPC UA server, ADR 0029): their caps count
+    against their own process's descriptors (each with a margin), not the bench's."""
 
     @property
     def needed(self) -> int:
@@ -75,12 +78,14 @@ class DescriptorBudget:
     def describe(self) -> str:
         parts = [f"{name} {n}" for name, n in self.listeners.items()]
         parts += [f"devices {self.devices}", f"files {self.files}", f"margin {self.margin}"]
-        return f"{self.needed} ({' + '.join(parts)})"
+        own = "".join(f"; {name} {n} in its own process" for name, n in self.apart.items())
+        return f"{self.needed} ({' + '.join(parts)}){own}"
 
     def problem(self, limit: NofileLimit) -> str | None:
         """None when the budget fits under the soft limit, else what to change."""
         soft = limit.soft
-        if soft == resource.RLIM_INFINITY or self.needed <= soft:
+        largest = max([self.needed, *(n + self.margin for n in self.apart.values())])
+        if soft == resource.RLIM_INFINITY or largest <= soft:
             return None
         return (
             f"file descriptors: the connection caps need {self.describe()} but the soft"

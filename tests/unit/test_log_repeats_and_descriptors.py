@@ -59,6 +59,19 @@ def test_the_budget_names_every_owner_and_refuses_caps_over_the_soft_limit() -> 
     assert "HTTP 4000" in problem and "LimitNOFILE=8192" in problem
 
 
+def test_a_listener_in_a_process_of_its_own_counts_against_that_process_not_the_benchs() -> None:
+    """ADR 0029: OPC UA's connections are the server process's descriptors; the line
+    ``supervisor run`` prints says so, and its cap alone must still fit the soft limit."""
+    budget = DescriptorBudget(listeners={"HTTP": 416}, devices=16, apart={"OPC UA": 164})
+    assert budget.needed == 416 + 16 + 64 + 64
+    assert budget.describe() == (
+        "560 (HTTP 416 + devices 16 + files 64 + margin 64); OPC UA 164 in its own process"
+    )
+    assert budget.problem(NofileLimit(1024, 1024, 1024)) is None
+    huge = DescriptorBudget(listeners={"HTTP": 416}, apart={"OPC UA": 2000})
+    assert huge.problem(NofileLimit(1024, 1024, 1024)) is not None
+
+
 @pytest.mark.parametrize(("max_connections", "ok"), [(256, True), (2000, False)])
 def test_supervisor_run_s_configuration_fits_under_1024_descriptors_with_the_default_caps(
     max_connections: int, ok: bool
