@@ -155,8 +155,7 @@ class OpcUaProcess:
             proc = subprocess.Popen(  # noqa: ASYNC220
                 [sys.executable, "-m", "supervisor.publish.opcua.child", str(theirs.fileno())],
                 pass_fds=(theirs.fileno(),),
-                stdin=subprocess.DEVNULL,
-                env=_child_env(),
+                stdin=subprocess.DEVNULL,  # the environment inherited, as the recipe checks'
             )
         finally:
             theirs.close()
@@ -332,13 +331,3 @@ def _wait(proc: subprocess.Popen[bytes], timeout_s: float) -> int | None:
         return proc.wait(timeout_s)
     except subprocess.TimeoutExpired:
         return None
-
-
-def _child_env() -> dict[str, str]:
-    """The bench's environment, with the package importable as the parent imported it."""
-    env = dict(os.environ)
-    root = str(Path(__file__).resolve().parents[3])
-    paths = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]
-    if root not in paths:
-        env["PYTHONPATH"] = os.pathsep.join([root, *paths])
-    return env
