@@ -26,7 +26,7 @@ from typing import NamedTuple, Protocol
 
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Value
-from supervisor.core.quality import Quality
+from supervisor.core.quality import Quality, Reason
 from supervisor.tags import Tag, TagDB
 
 __all__ = [
@@ -53,9 +53,11 @@ class Sample(NamedTuple):
     wall: float  # the same instant in Unix time (s)
 
 
-RawChange = tuple[Tag, "Value | None", Quality, float]
-"""A changed tag as the scan left it: (tag, value, quality, source time). Only the tag's
-spec and index are read from ``tag`` later (they never change)."""
+RawChange = tuple[Tag, "Value | None", Quality, Reason, float, float]
+"""A changed tag as the scan left it: (tag, value, quality, reason, source time, server
+time). Only the tag's spec and index are read from ``tag`` later (they never change). The
+historian and InfluxDB store it at its source time, or the server's when the logic set it
+without one; the OPC UA server serves all of it."""
 
 
 class ChangeBatch(NamedTuple):
@@ -70,21 +72,21 @@ class ChangeBatch(NamedTuple):
 class ChangeSnapshots:
     """``db``'s changes since the last call, copied (the scan's half: no filtering)."""
 
-    def __init__(self, db: TagDB, clock: Clock) -> None:
+    def __init__(self, db: TagDB, clock: Clock | None, *, since: int = 0) -> None:
         self.db = db
-        self.clock = clock
-        self._version = 0
+        self.clock = clock  # None: a reader that needs neither ``now`` nor wall times
+        self._version = since  # 0: the first batch is every tag
 
     def snapshot(self) -> ChangeBatch:
         db, clock = self.db, self.clock
         first = self._version == 0
         changed = db.changed_since(self._version)
         self._version = db.version
-        # ``tag.source_t or tag.server_t``: a value set by the logic has no source time.
         return ChangeBatch(
-            [(t, t.value, t.quality, t.source_t or t.server_t) for t in changed],
-            clock.now(),
-            clock.to_wall(0.0),  # one call per scan (RealClock.to_wall reads two clocks)
+            [(t, t.value, t.quality, t.reason, t.source_t, t.server_t) for t in changed],
+            0.0 if clock is None else clock.now(),
+            # One call per scan (RealClock.to_wall reads two clocks).
+            0.0 if clock is None else clock.to_wall(0.0),
             first,
         )
 
@@ -134,7 +136,7 @@ class ChangeFilter:
         last_of = self._last
         append = out.append
         for change in batch.changes:
-            tag, value, quality, t = change
+            tag, value, quality, _, t, server_t = change
             history = tag.spec.history
             if not history.enabled:
                 continue
@@ -149,6 +151,7 @@ class ChangeFilter:
             last = last_of.get(index)
             if last is not None and quality is last[1] and value == last[0]:
                 continue
+            t = t or server_t  # a value set by the logic has no source time
             last_of[index] = (value, quality, t)
             append(_new_sample(Sample, (tag.spec.name, value, quality, t, t + offset)))
         return out
@@ -159,10 +162,11 @@ class ChangeFilter:
         """The sample for ``change``, or None when it is not worth storing.
         ``released_t``: the value was held back by the minimum interval and is stored now
         (at its own acquisition time, which stays the truth)."""
-        tag, value, quality, t = change
+        tag, value, quality, _, t, server_t = change
         history = tag.spec.history
         if not history.enabled:
             return None
+        t = t or server_t  # a value set by the logic has no source time
         index = tag.index
         if self._pending:
             # A newer change replaces a held-back one: held again below, stored, or not
