@@ -115,19 +115,8 @@ class ChangeFilter:
         if batch.first:
             self._last.clear()
             self._pending.clear()
-        out: list[Sample] = []
         offset = batch.wall_offset
-        if self._pending:
-            in_batch = {c[0].index for c in batch.changes}
-            now = batch.now
-            for index, change in list(self._pending.items()):
-                last_t = self._last[index][2]
-                if now - last_t >= change[0].spec.history.min_interval_s:
-                    del self._pending[index]
-                    if index not in in_batch:  # else its newer change comes below
-                        sample = self._keep(change, offset, now)
-                        if sample is not None:
-                            out.append(sample)
+        out = self._released(batch) if self._pending else []
         # ``_keep`` inlined for what nearly every change is (a tag stored at every change:
         # no deadband, no minimum interval): a hundred changes a scan in the load case,
         # where the call, the named tuple's own constructor and the attribute lookups were
@@ -154,6 +143,20 @@ class ChangeFilter:
             t = t or server_t  # a value set by the logic has no source time
             last_of[index] = (value, quality, t)
             append(_new_sample(Sample, (tag.spec.name, value, quality, t, t + offset)))
+        return out
+
+    def _released(self, batch: ChangeBatch) -> list[Sample]:
+        """The held-back values whose minimum interval has passed at ``batch.now``."""
+        out: list[Sample] = []
+        in_batch = {c[0].index for c in batch.changes}
+        now = batch.now
+        for index, change in list(self._pending.items()):
+            if now - self._last[index][2] >= change[0].spec.history.min_interval_s:
+                del self._pending[index]
+                if index not in in_batch:  # else its newer change comes in the batch
+                    sample = self._keep(change, batch.wall_offset, now)
+                    if sample is not None:
+                        out.append(sample)
         return out
 
     def _keep(

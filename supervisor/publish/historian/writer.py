@@ -381,19 +381,7 @@ class HistoryWriter:
                         known = self._now_wall
                         retention_wall = known if known is not None else self._wall()
                 if take:
-                    if self.gate is not None:
-                        self.gate.wait()  # the batch's rows are made while no scan runs
-                    self._in_flight = (_rows_of(taken), len(events), upto)
-                    samples = self._filtered(taken)
-                    n_rows = sum(len(b) for b in samples)
-                    self._in_flight = (n_rows, len(events), upto)
-                    if not n_rows and not events:
-                        self._nothing_to_write(upto)
-                        self._in_flight = None
-                        next_commit = time.monotonic() + settings.commit_interval_s
-                        continue
-                    ok = self._write_batch(samples, events, upto)
-                    self._in_flight = None
+                    ok, samples = self._write_queued(taken, events, upto)
                     if ok:
                         next_commit = time.monotonic() + settings.commit_interval_s
                     else:
@@ -426,6 +414,23 @@ class HistoryWriter:
                 with contextlib.suppress(sqlite3.Error):
                     self._conn.close()
                 self._conn = None
+
+    def _write_queued(
+        self, taken: deque[Sequence[Sample] | ChangeBatch], events: deque[BenchEvent], upto: int
+    ) -> tuple[bool, deque[Sequence[Sample]]]:
+        """Filter what was taken from the queue and write it: (written, the samples)."""
+        if self.gate is not None:
+            self.gate.wait()  # the batch's rows are made while no scan runs
+        self._in_flight = (_rows_of(taken), len(events), upto)
+        samples = self._filtered(taken)
+        self._in_flight = (sum(len(b) for b in samples), len(events), upto)
+        if not samples and not events:
+            self._nothing_to_write(upto)
+            ok = True
+        else:
+            ok = self._write_batch(samples, events, upto)
+        self._in_flight = None
+        return ok, samples
 
     def _filtered(self, items: deque[Sequence[Sample] | ChangeBatch]) -> deque[Sequence[Sample]]:
         """The queued batches of changes as samples (``ChangeFilter``, this thread's alone),

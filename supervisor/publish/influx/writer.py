@@ -478,6 +478,17 @@ class InfluxWriter:
         for spec in _status_tags():
             tag = self._tags[spec.name] = db.get(spec.name) or db.add(spec)
             db.update(tag, initial[spec.dtype])  # never None, before the first scan too
+        self._watch_tests(db, channels)
+        self._alarms: dict[str, tuple[bool, str]] = {}
+        self._alarms_active: tuple[bool, ...] = (False,) * 5  # as the last scan saw them
+        self._status_t = float("-inf")  # the scan time the status tags were last set
+        self._spool_problem = ""
+        self._started = False
+        self._floor_t = clock.now()
+        self._floor_wall = clock.to_wall(self._floor_t)
+
+    def _watch_tests(self, db: TagDB, channels: Sequence[str]) -> None:
+        """Each channel's (test id, recipe, cell id) tags: the tags of its points."""
         self._tests = {
             ch: (
                 db.get(f"{ch}.chain.test_id"),
@@ -493,13 +504,6 @@ class InfluxWriter:
         # (their text 16 times a scan was a tenth of this publisher's time, issue 30).
         self._test_tags = [tag for tags in self._tests.values() for tag in tags if tag is not None]
         self._tests_version = self._test_tags_version()
-        self._alarms: dict[str, tuple[bool, str]] = {}
-        self._alarms_active: tuple[bool, ...] = (False,) * 5  # as the last scan saw them
-        self._status_t = float("-inf")  # the scan time the status tags were last set
-        self._spool_problem = ""
-        self._started = False
-        self._floor_t = clock.now()
-        self._floor_wall = clock.to_wall(self._floor_t)
 
     def _dtype_of(self, name: str) -> str | None:
         tag = self.db.get(name)
