@@ -167,7 +167,8 @@ async def test_timestamps_are_the_sample_time_and_the_scan_time(rig: Rig) -> Non
         async with rig.client() as c:
             ns = await rig.ns(c)
             params = ua.ReadParameters()  # asyncua's read_data_value asks for Source only
-            params.NodesToRead = [ua.ReadValueId(ua.NodeId("ch1.voltage", ns), ua.AttributeIds.Value)]
+            voltage = ua.ReadValueId(ua.NodeId("ch1.voltage", ns), ua.AttributeIds.Value)
+            params.NodesToRead = [voltage]
             params.TimestampsToReturn = ua.TimestampsToReturn.Both
             (dv,) = await c.uaclient.read(params)
         assert dv.Value.Value == tag.value
