@@ -180,6 +180,13 @@ def test_integers_subtract_exactly_near_the_int64_limits() -> None:
 
 
 # --- what is refused, with which code ----------------------------------------------------------
+def test_a_filter_as_decoded_from_the_wire_is_one() -> None:
+    # asyncua decodes the protocol's class; ``ua.DataChangeFilter`` is a subclass of it.
+    wire = ua.uaprotocol_auto.DataChangeFilter(T.StatusValue, ua.DeadbandType.Absolute, 0.5)
+    assert checked(wire) == ValueFilter(T.StatusValue, 0.5)
+    assert checked(ua.uaprotocol_auto.EventFilter()) == S.BadFilterNotAllowed
+
+
 def test_no_filter_is_status_value_without_deadband() -> None:
     assert checked(None) == ValueFilter(T.StatusValue, None)
     assert checked(ua.ExtensionObject()) == ValueFilter(T.StatusValue, None)  # null on the wire

@@ -37,6 +37,10 @@ from asyncua import ua
 
 S = ua.StatusCodes
 Trigger = ua.DataChangeTrigger
+# The filter classes as decoded from the wire: ``ua.DataChangeFilter`` is a subclass with
+# asyncua's own defaults (uaprotocol_hand), of which a decoded filter is no instance.
+DATA_CHANGE_FILTER: Final = ua.uaprotocol_auto.DataChangeFilter
+EVENT_FILTER: Final = ua.uaprotocol_auto.EventFilter
 DEFAULT_TRIGGER: Final = Trigger.StatusValue
 """Part 4 §7.22.2: what an item without a DataChangeFilter reports."""
 
@@ -66,9 +70,9 @@ def value_filter(
     DataType is a Number; ``eu_range``: its EURange (Low, High), None when it has none."""
     if flt is None or (isinstance(flt, ua.ExtensionObject) and not flt):
         return NO_FILTER  # no filter: a null ExtensionObject on the wire
-    if isinstance(flt, ua.EventFilter):
+    if isinstance(flt, EVENT_FILTER):
         return int(S.BadFilterNotAllowed)  # events are monitored on EventNotifier, not a value
-    if not isinstance(flt, ua.DataChangeFilter):
+    if not isinstance(flt, DATA_CHANGE_FILTER):
         # An AggregateFilter (not offered), or an ExtensionObject of a type not known.
         return int(S.BadMonitoredItemFilterUnsupported)
     try:
