@@ -279,7 +279,9 @@ async def test_a_counter_under_a_deadband_of_five_is_reported_about_nine_times_i
     assert got == part4(COUNT_SAMPLES, 5) == [0, 6, 12, 18, 24, 30, 36, 42, 48, 200]
 
 
-async def test_a_percent_deadband_is_that_share_of_the_eu_range_the_client_reads(seen: Seen) -> None:
+async def test_a_percent_deadband_is_that_share_of_the_eu_range_the_client_reads(
+    seen: Seen,
+) -> None:
     assert seen.ready["ranges"][RAMP] == {"low": RAMP_RANGE[0], "high": RAMP_RANGE[1]}
     ramp_band = band_of(seen, RAMP, 15.0)  # 0.12 A
     noise_band = band_of(seen, NOISE, 5.0)  # 0.1 A
