@@ -205,8 +205,8 @@ class BenchMonitoredItems(MonitoredItemService):  # type: ignore[misc]
                 result.StatusCode = ua.StatusCode(rule)
                 return result
             item.rule, item.ttr = rule, ttr
-        elif wanted.Filter is not None:
-            mdata.filter = wanted.Filter  # an event item: asyncua's
+        elif wanted.Filter:
+            mdata.filter = wanted.Filter  # an event item's select clauses, as asyncua does
         result.RevisedSamplingInterval = self.isub.data.RevisedPublishingInterval
         result.RevisedQueueSize = self._revise_queue_size(wanted.QueueSize)
         mdata.queue_size = result.RevisedQueueSize
