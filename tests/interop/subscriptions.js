@@ -5,7 +5,7 @@
 //
 // node subscriptions.js '{"endpoint": ..., "namespace": ..., "items": [{"name": ...,
 //     "tag": ..., "deadband": "absolute" | "percent" | null, "value": <number>,
-//     "timestamps": "Both" | "Source" | ...}], "ranges": [<tag>, ...], "user": ...,
+//     "trigger": "Status" | "StatusValue" | ..., "timestamps": "Both" | "Source" | ...}], "ranges": [<tag>, ...], "user": ...,
 //     "password": ..., "applicationUri": ..., "cert": ..., "key": ..., "pki": ...}'
 //
 // It talks with the test in lines: each of its own starts with "@@ " and is one JSON
@@ -87,11 +87,15 @@ function readWith(session, nodeId, timestampsToReturn) {
 }
 
 function filterOf(item) {
-  if (!item.deadband) return null;
+  if (!item.deadband && !item.trigger) return null;
   return new DataChangeFilter({
-    trigger: DataChangeTrigger.StatusValue,
-    deadbandType: item.deadband === "percent" ? DeadbandType.Percent : DeadbandType.Absolute,
-    deadbandValue: item.value,
+    trigger: DataChangeTrigger[item.trigger || "StatusValue"],
+    deadbandType: !item.deadband
+      ? DeadbandType.None
+      : item.deadband === "percent"
+        ? DeadbandType.Percent
+        : DeadbandType.Absolute,
+    deadbandValue: item.value || 0,
   });
 }
 

@@ -62,6 +62,7 @@ ITEMS: list[dict[str, Any]] = [
     {"name": "text_abs", "tag": TEXT, "deadband": "absolute", "value": 1.0},
     {"name": "count_source", "tag": COUNT, "deadband": None, "timestamps": "Source"},
     {"name": "count_neither", "tag": COUNT, "deadband": None, "timestamps": "Neither"},
+    {"name": "count_status", "tag": COUNT, "deadband": None, "trigger": "Status"},
 ]
 LAST = {"ramp_abs": -0.35, "ramp_pct": -0.35, "noise_abs": 1.95, "noise_pct": 1.95}
 LAST |= {"count_abs": 200, "count_source": 200, "count_neither": 200}
@@ -99,7 +100,8 @@ class Seen:
     ready: dict[str, Any]
     received: dict[str, list[dict[str, Any]]]
     read: dict[str, dict[str, Any]]
-    heard_ms: float  # the scan's last hand-over before the read, ms since 1970
+    heard_ms: float  # the last scan's time before the read, ms since 1970
+    sampling_ms: float  # the server's sampling interval (a hand-over at most this often)
     changed_ms: float  # when the counter last changed
     log: list[str] = field(default_factory=list)
 
@@ -216,6 +218,7 @@ async def drive(rig: Rig, tmp: Path) -> Seen:
             received,
             read,
             heard_ms=clock.to_wall(heard_t) * 1000.0,
+            sampling_ms=settings.sampling_interval_s * 1000.0,
             changed_ms=clock.to_wall(changed_t) * 1000.0,
         )
     finally:
@@ -257,6 +260,7 @@ async def test_every_item_is_created_but_those_a_deadband_does_not_apply_to(seen
         "text_abs": "BadFilterNotAllowed",
         "count_source": "Good",
         "count_neither": "Good",
+        "count_status": "Good",
     }
 
 
@@ -295,6 +299,12 @@ async def test_no_deadband_reports_every_change(seen: Seen) -> None:
     assert values(seen, "count_source") == COUNT_SAMPLES
 
 
+async def test_the_trigger_status_reports_status_changes_only(seen: Seen) -> None:
+    # The counter stayed Good: its first value only (the others' last values have come,
+    # and they were queued after every sample of this item).
+    assert values(seen, "count_status") == [COUNT_SAMPLES[0]]
+
+
 # --- finding 6: timestamps -----------------------------------------------------------------------
 async def test_a_read_returns_the_timestamps_asked_for(seen: Seen) -> None:
     present = {
@@ -324,9 +334,11 @@ async def test_the_server_timestamp_of_an_unchanged_value_is_when_it_was_last_kn
     both = seen.read["Both"]
     assert both["value"] == COUNT_SAMPLES[-1]
     # The value changed IDLE_SCANS scans ago: its source time says when; the server knew it
-    # current at the scan's last hand-over, 3 s later (a JS Date holds milliseconds).
+    # current at the scan's last hand-over, 3 s later: the last scan's time, or the one
+    # before when the last scan changed nothing before its hand-over (the scan's own counters
+    # are set after its publishers ran). A JS Date holds milliseconds.
     assert both["source"] == pytest.approx(seen.changed_ms, abs=1.0)
-    assert both["server"] == pytest.approx(seen.heard_ms, abs=1.0)
+    assert seen.heard_ms - seen.sampling_ms - 1.0 <= both["server"] <= seen.heard_ms + 1.0
     assert both["server"] - both["source"] > 2000.0
 
 
