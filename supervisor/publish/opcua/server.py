@@ -48,6 +48,7 @@ from supervisor.publish.opcua.events import EventPublisher
 from supervisor.publish.opcua.feed import AlarmView, OpcUaFeed, Update
 from supervisor.publish.opcua.history import HistoryService, HistorySpace
 from supervisor.publish.opcua.layout import Layout
+from supervisor.publish.opcua.monitoring import serve_subscriptions
 from supervisor.publish.opcua.ports import Answer, Operate, Request
 from supervisor.publish.opcua.security import (
     PasswordUsers,
@@ -62,6 +63,8 @@ from supervisor.publish.opcua.settings import OpcUaSettings
 from supervisor.publish.opcua.shelf import ensure_shelf
 from supervisor.publish.opcua.space import Built, build_space
 from supervisor.publish.opcua.statuses import NO_VALUE, quality_status, refusal_status
+from supervisor.publish.opcua.timestamps import Freshness
+from supervisor.publish.opcua.timestamps import read as read_timestamps
 from supervisor.tags import Access, TagDB
 
 log = logging.getLogger(__name__)
@@ -130,6 +133,8 @@ class OpcUaServer:
         self._events: EventPublisher | None = None
         self._by_index: dict[int, tuple[ua.NodeId, str]] = {}
         self._by_node: dict[ua.NodeId, str] = {}
+        self.fresh = Freshness(self._by_node)
+        """A tag's ServerTimestamp: when the scan last handed over (timestamps.py)."""
         self._bench_loop: asyncio.AbstractEventLoop | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake: asyncio.Event | None = None
@@ -292,6 +297,9 @@ class OpcUaServer:
         # asyncua's server, but no password in clear and each request run as the session
         # whose token it carries (``sessions.py``).
         server = BenchServer(user_manager=PasswordUsers(self.users, s.anonymous, self.throttle))
+        # Deadbands and TimestampsToReturn on monitored items (monitoring.py), before
+        # ``init`` binds ConditionRefresh to the subscription service it finds.
+        serve_subscriptions(server.iserver, self.fresh.stamp)
         # ConditionRefresh replays the retained alarm conditions (asyncua keeps them).
         server.iserver.bind_condition_methods = True
         # Issue 27, finding 3: a flood of clients must not take the descriptors the devices
@@ -465,6 +473,14 @@ class OpcUaServer:
             self.written += 1
             if n % WRITE_CHUNK == 0:
                 await asyncio.sleep(0)  # let the publish task send notifications
+        self._heard(updates)
+
+    def _heard(self, updates: list[Update]) -> None:
+        """The scan's changes are in: every tag is known current as of the latest of them
+        (a hand-over carries the scan's counters, which change every scan)."""
+        latest = max((u.server_t for u in updates), default=0.0)
+        if latest > 0.0 or (updates and self.clock.virtual):
+            self.fresh.heard(_utc(self.clock.to_wall(latest)))
 
     def _value(self, u: Update, kind: str) -> ua.DataValue:
         clock = self.clock
@@ -833,7 +849,8 @@ class GuardedWrites(AttributeService):  # type: ignore[misc]
                 executable = self.owner.user_executable(rv.NodeId, user)
                 if executable is not None:
                     results[i] = ua.DataValue(ua.Variant(executable, VT.Boolean))
-        return results
+        # The timestamps asked for, a tag's ServerTimestamp when it was last known current.
+        return read_timestamps(params, results, self.owner.fresh)
 
     async def write(self, params: ua.WriteParameters, user: UaUser = _ADMIN) -> list[ua.StatusCode]:
         if user.role is UserRole.Admin:
