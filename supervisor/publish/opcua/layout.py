@@ -3,18 +3,22 @@ a server).
 
 ::
 
-    Objects/Bench
-      Channels/ch0 …      the channel's tags under friendly names (Voltage, Current, …,
-                          State as the ISA-88/PackML state enumeration) and its methods
-      Devices/adam …      each device's health (Connected, CommFailures) and the tags the
-                          I/O map takes from its points (browse name = tag name)
-      Alarms/<id> …       one object per alarm (its state, severity, message)
-      Diagnostics         scan.*, opcua.*, retain.* (scan time, jitter, overruns, queues)
+    Objects/Bench         a BenchType (objecttypes.py)
+      Channels/ch0 …      ChannelType: the channel's tags under friendly names (Voltage,
+                          Current, …), its StateMachine (CurrentState: the test's PackML
+                          state, its Number ``chain.state_code``) and its methods
+      Devices/adam …      one type per kind (``Adam5000tcpDeviceType``): each device's
+                          health (Connected, CommFailures) and the tags the I/O map takes
+                          from its points (``estop.ok`` → EstopOk)
+      Alarms/<id> …       one AlarmConditionType object per alarm (its state, severity …)
+      Diagnostics         scan.*, opcua.*, retain.* (``scan.period_s`` → ScanPeriodS)
       Tags                any tag none of the above claims
 
-Every variable's NodeId is ``ns=<bench namespace>;s=<tag name>`` so ``ch0.voltage`` is
-addressed directly; objects, methods and types have NodeIds starting with ``/`` (a tag name
-never does, config ``TAG_PATTERN``), so they can never collide with a tag.
+One naming rule: browse names are PascalCase (``camel`` of the tag's name where no friendly
+name is fixed); every variable's NodeId is ``ns=<bench namespace>;s=<tag name>`` so
+``ch0.voltage`` is addressed directly; objects, methods and types have NodeIds starting
+with ``/`` (a tag name never does, config ``TAG_PATTERN``), so they can never collide with a
+tag.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ from supervisor.tags import Access, Tag
 
 URN_PREFIX: Final = "urn:bench-supervisor:bench:"
 
-Kind = Literal["analog", "int", "bool", "str", "state"]
+Kind = Literal["analog", "int", "bool", "str", "state", "statename"]
 
 # A channel's tags by their suffix after ``<channel>.``: the names SCADA screens use.
 CHANNEL_NAMES: Final[dict[str, str]] = {
@@ -40,8 +44,6 @@ CHANNEL_NAMES: Final[dict[str, str]] = {
     "chain.charge_ah": "Charge",  # the test's charge (the display line's figure)
     "charge_ah": "ChargeCounter",  # the net counter, not the test's charge
     "energy_wh": "Energy",
-    "chain.state_code": "State",
-    "chain.state": "StateName",
     "mode": "Mode",
     "chain.recipe": "Recipe",
     "chain.step_index": "Step",
@@ -52,13 +54,17 @@ CHANNEL_NAMES: Final[dict[str, str]] = {
     "chain.eta_s": "ETA",
     "chain.test_id": "TestId",
     "chain.test_time": "TestTime",
-    "state": "ChannelState",
+    "state": "DriveState",  # the power stage: idle, charging, discharging, faulted
     "enable": "Enable",
     "manual_current": "ManualCurrent",
 }
 STATE_SUFFIX: Final = "chain.state_code"
-"""The chain's state as its OPC UA number (``chains/states.py::OPCUA_CODE``): shown with the
-PackML state enumeration as its DataType."""
+"""The chain's state as its OPC UA number (``chains/states.py::OPCUA_CODE``): the Number of
+the channel's StateMachine/CurrentState."""
+STATE_NAME_SUFFIX: Final = "chain.state"
+"""The chain's state by its name: the channel's StateMachine/CurrentState (one variable for
+the test's state, shown by its PackML name, its number beside it)."""
+STATE_MACHINE: Final = "StateMachine"
 
 DEVICE_NAMES: Final[dict[str, str]] = {"connected": "Connected", "comm_failures": "CommFailures"}
 DIAGNOSTIC_PREFIXES: Final = ("scan.", "opcua.", "retain.")
@@ -72,6 +78,27 @@ def namespace_uri(bench: str) -> str:
 def camel(text: str) -> str:
     """``limit.charge_a`` → ``LimitChargeA``."""
     return "".join(p[:1].upper() + p[1:] for p in re.split(r"[._]", text) if p)
+
+
+def device_type(driver: str) -> str:
+    """The object type of a device of this kind: ``adam5000tcp`` → ``Adam5000tcpDeviceType``."""
+    return f"{camel(driver)}DeviceType"
+
+
+def unique_names(tags: Iterable[str], used: set[str] | None = None) -> dict[str, str]:
+    """Each tag's browse name in one folder: ``camel`` of its name, numbered from 2 when two
+    tags would share one (``a.b_c`` and ``a_b.c``)."""
+    taken = set() if used is None else used
+    out: dict[str, str] = {}
+    for tag in tags:
+        base = camel(tag)
+        name, k = base, 2
+        while name in taken:
+            name = f"{base}{k}"
+            k += 1
+        taken.add(name)
+        out[tag] = name
+    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,6 +122,7 @@ class Folder:
     children: tuple[Folder, ...] = ()
     channel: str = ""  # a channel object: its methods are added here
     alarm: str = ""  # an alarm object: its state variables are added here
+    typedef: str = ""  # an object type of objecttypes.py ("ChannelType"); "": standard
 
     def walk(self) -> Iterable[Folder]:
         yield self
@@ -123,7 +151,7 @@ def kind_of(tag: Tag) -> Kind:
         return "state" if tag.name.endswith("." + STATE_SUFFIX) else "int"
     if dtype == "bool":
         return "bool"
-    return "str"
+    return "statename" if tag.name.endswith("." + STATE_NAME_SUFFIX) else "str"
 
 
 def channel_node(channel: str) -> str:
@@ -166,6 +194,13 @@ def plan(cfg: BenchConfig, tags: Iterable[Tag], alarms: Sequence[str] = ()) -> L
         used: set[str] = set()
         # The fixed vocabulary first, then the others by their suffix, shortest form that
         # is still unique in the channel (``chain.alarm`` → ``Alarm``, else ``ChainAlarm``).
+        machine = [
+            var(by_name[prefix + suffix], browse)
+            for suffix, browse in ((STATE_NAME_SUFFIX, "CurrentState"), (STATE_SUFFIX, "Number"))
+            if prefix + suffix in by_name
+        ]
+        mine = [t for t in mine if t.name not in placed]
+        used.add(STATE_MACHINE)
         for t in mine:
             suffix = t.name[len(prefix) :]
             if suffix in CHANNEL_NAMES:
@@ -191,7 +226,20 @@ def plan(cfg: BenchConfig, tags: Iterable[Tag], alarms: Sequence[str] = ()) -> L
                 c.description,
                 folder=False,
                 variables=tuple(var(t, names[t.name]) for t in mine),
+                children=(
+                    Folder(
+                        f"{channel_node(ch)}/{STATE_MACHINE}",
+                        STATE_MACHINE,
+                        "The test's state (ISA-88/PackML)",
+                        folder=False,
+                        variables=tuple(machine),
+                        typedef="ChannelStateMachineType",
+                    ),
+                )
+                if machine
+                else (),
                 channel=ch,
+                typedef="ChannelType",
             )
         )
 
@@ -202,21 +250,29 @@ def plan(cfg: BenchConfig, tags: Iterable[Tag], alarms: Sequence[str] = ()) -> L
             for k, v in DEVICE_NAMES.items()
             if f"{dev}.{k}" in by_name
         ]
-        points = [
-            var(by_name[m.name], m.name)
+        own = [
+            m.name
             for m in cfg.tags
             if m.device == dev and m.name in by_name and m.name not in placed
         ]
+        point_names = unique_names(own, {v.browse for v in health})
+        points = [var(by_name[n], point_names[n]) for n in own]
         device_folders.append(
-            Folder(device_node(dev), dev, folder=False, variables=tuple(health + points))
+            Folder(
+                device_node(dev),
+                dev,
+                folder=False,
+                variables=tuple(health + points),
+                typedef=device_type(cfg.devices[dev].driver),
+            )
         )
 
-    diagnostics = [
-        var(t, t.name)
-        for t in all_tags
-        if t.name not in placed and t.name.startswith(DIAGNOSTIC_PREFIXES)
-    ]
-    rest = [var(t, t.name) for t in all_tags if t.name not in placed]
+    diagnostic_names = unique_names(
+        t.name for t in all_tags if t.name not in placed and t.name.startswith(DIAGNOSTIC_PREFIXES)
+    )
+    diagnostics = [var(by_name[n], b) for n, b in diagnostic_names.items()]
+    rest_names = unique_names(t.name for t in all_tags if t.name not in placed)
+    rest = [var(by_name[n], b) for n, b in rest_names.items()]
     alarm_folders = [Folder(alarm_node(a), a, folder=False, alarm=a) for a in alarms]
     children = [
         Folder(
@@ -244,7 +300,12 @@ def plan(cfg: BenchConfig, tags: Iterable[Tag], alarms: Sequence[str] = ()) -> L
     if rest:
         children.append(Folder("/Bench/Tags", "Tags", "Other tags", variables=tuple(rest)))
     root = Folder(
-        "/Bench", "Bench", cfg.description or cfg.bench, folder=False, children=tuple(children)
+        "/Bench",
+        "Bench",
+        cfg.description or cfg.bench,
+        folder=False,
+        children=tuple(children),
+        typedef="BenchType",
     )
     variables = {v.tag: v for f in root.walk() for v in f.variables}
     return Layout(cfg.bench, root, tuple(channels), tuple(alarms), variables)
