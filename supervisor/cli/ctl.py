@@ -74,8 +74,10 @@ COMMANDS: Final[dict[str, str]] = {
     "ack": "AcknowledgeAlarms",
 }
 # What `status` and `watch` read of each channel (tag suffixes, layout.py::CHANNEL_NAMES).
+# The chain's state is read as its number (StateMachine/CurrentState/Number: CurrentState
+# holds its PackML name) and shown by the name the operator knows (``Running``).
 FIELDS: Final = (
-    "chain.state",
+    "chain.state_code",
     "mode",
     "chain.recipe",
     "chain.step_index",
@@ -507,8 +509,13 @@ class Bench:
         await self.client.get_node(ua.ObjectIds.Server_ServerStatus_State).read_value()
 
     async def channel_values(self, channel: str) -> dict[str, Any]:
-        values = await self.read([f"{channel}.{f}" for f in FIELDS])
-        return dict(zip(FIELDS, values, strict=True))
+        from supervisor.chains.states import OPCUA_CODE
+
+        values = dict(zip(FIELDS, await self.read([f"{channel}.{f}" for f in FIELDS]), strict=True))
+        names = {code: state.value for state, code in OPCUA_CODE.items()}
+        code = values["chain.state_code"]
+        values["chain.state"] = names.get(code, code) if code is not None else None
+        return values
 
     async def call(self, channel: str, method: str, *args: Any) -> tuple[bool, str, str]:
         """(accepted, the server's Result text, the status code's name)."""
@@ -687,7 +694,7 @@ async def _watch(bench: Bench, args: argparse.Namespace) -> int:
     nodes = [
         bench.client.get_node(bench.node(f"{ch}.{f}"))
         for ch in channels
-        for f in ("chain.state", "chain.step_index")
+        for f in ("chain.state_code", "chain.step_index")
     ]
     await sub.subscribe_data_change(nodes)
     printed = 0
