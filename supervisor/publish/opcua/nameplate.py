@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 from datetime import UTC, datetime
 from importlib import metadata
+from pathlib import Path
 from typing import Final
 
 from asyncua import Server, ua
@@ -71,7 +72,7 @@ def build_date() -> datetime:
     try:
         files = metadata.distribution(PRODUCT).files or []
         record = next((f for f in files if f.name == "METADATA"), None)
-        when = record.locate().stat().st_mtime if record is not None else 0.0
+        when = Path(record.locate()).stat().st_mtime if record is not None else 0.0
     except (metadata.PackageNotFoundError, OSError):
         when = 0.0
     return datetime.fromtimestamp(when, UTC)

@@ -243,7 +243,7 @@ def _methods(
 def _variable_type(kind: str) -> int:
     # A declaration's analog variable is a BaseAnalogType: an instance with a known range
     # is an AnalogItemType (its subtype), one without stays a BaseAnalogType (space.py).
-    return O.BaseAnalogType if kind == "analog" else O.BaseDataVariableType
+    return int(O.BaseAnalogType if kind == "analog" else O.BaseDataVariableType)
 
 
 def declared(typedef: str) -> frozenset[str]:
