@@ -419,7 +419,9 @@ class OpcUaServer:
         if self.history is None:
             return frozenset()
         names = (t.name for t in self.db if t.spec.history.enabled)
-        return frozenset(n for n in names if n in self.layout.variables)
+        variables = self.layout.variables
+        # A state machine's CurrentState (its PackML name) has its history in its Number.
+        return frozenset(n for n in names if n in variables and variables[n].kind != "statename")
 
     def _serve_history(self, server: Server, built: Built, query: HistoryQuery | None) -> None:
         """HistoryRead answered from the historian's file (history.py), not asyncua's own;
