@@ -509,13 +509,8 @@ class Bench:
         await self.client.get_node(ua.ObjectIds.Server_ServerStatus_State).read_value()
 
     async def channel_values(self, channel: str) -> dict[str, Any]:
-        from supervisor.chains.states import OPCUA_CODE
-
-        values = dict(zip(FIELDS, await self.read([f"{channel}.{f}" for f in FIELDS]), strict=True))
-        names = {code: state.value for state, code in OPCUA_CODE.items()}
-        code = values["chain.state_code"]
-        values["chain.state"] = names.get(code, code) if code is not None else None
-        return values
+        values = await self.read([f"{channel}.{f}" for f in FIELDS])
+        return dict(zip(FIELDS, values, strict=True))
 
     async def call(self, channel: str, method: str, *args: Any) -> tuple[bool, str, str]:
         """(accepted, the server's Result text, the status code's name)."""
@@ -576,6 +571,16 @@ def _text(value: Any) -> str:
     return "—" if value is None or value == "" else str(value)
 
 
+def chain_state(v: dict[str, Any]) -> Any:
+    """The chain's state by the name the operator knows (``Running``), from its OPC UA
+    number (``chain.state_code``); None when unknown."""
+    from supervisor.chains.states import OPCUA_CODE
+
+    code = v["chain.state_code"]
+    names = {number: state.value for state, number in OPCUA_CODE.items()}
+    return names.get(code, code) if code is not None else None
+
+
 def status_table(channels: Sequence[str], rows: Sequence[dict[str, Any]]) -> list[str]:
     """One line per channel: what the channel does (``charging 20.000 A, manual``:
     supervisor/channels/activity.py), its chain's state, recipe, step (number and id), V, I,
@@ -593,7 +598,7 @@ def status_table(channels: Sequence[str], rows: Sequence[dict[str, Any]]) -> lis
             (
                 ch,
                 activity_label(v["state"], v["current_cmd"], v["mode"]),
-                _text(v["chain.state"]),
+                _text(chain_state(v)),
                 _text(v["chain.recipe"]),
                 step,
                 _num(v["voltage"], ".3f"),
@@ -626,7 +631,7 @@ def watch_line(channel: str, v: dict[str, Any], wall: float) -> str:
         f"{channel} {'C' if amps >= 0 else 'D'}/{v['chain.cycle'] or 0:02d}/{step:02d}"
         f" mA={abs(amps) * 1000:3.0f} SET= {v['chain.step_time'] or 0:.0f}"
         f" TET= {v['chain.test_time'] or 0:.0f} V={_num(v['voltage'], '.3f')} mAh={mah}"
-        f" {_text(v['chain.state'])} {_text(v['chain.step'])}, {date}"
+        f" {_text(chain_state(v))} {_text(v['chain.step'])}, {date}"
     )
 
 
@@ -717,7 +722,7 @@ async def _watch(bench: Bench, args: argparse.Namespace) -> int:
                 next_all = loop.time() + args.every
             for ch in dict.fromkeys(due):
                 v = await bench.channel_values(ch)
-                key = (v["chain.state"], v["chain.step_index"])
+                key = (v["chain.state_code"], v["chain.step_index"])
                 if not periodic and last.get(ch) == key:
                     continue  # a notification with nothing new to show
                 last[ch] = key
