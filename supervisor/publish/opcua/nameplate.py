@@ -6,9 +6,9 @@ Identification as OPC 40001-1 (Machinery) asks it.
   (also the build number), the date its distribution was installed (the build a bench
   runs), not asyncua's ``FreeOpcUa Python Server 1.0pre``.
 - **ServerCapabilities**: the profile served, the locale, the shortest sampling interval
-  (the feed's: the server never samples faster), continuation points. The operation limits
-  are the service layer's (they are what it enforces); only the ones asyncua left null are
-  written here.
+  (the feed's: the server never samples faster), query and history continuation points.
+  The operation limits and MaxBrowseContinuationPoints are the service layer's (what it
+  enforces); only one still null is written here (0: no limit declared).
 - **ServerDiagnostics**: not collected (asyncua counts neither sessions nor rejected
   requests); ``EnabledFlag`` false, and the summary answers Bad_NotSupported rather than a
   Good null or made-up zeros. **Auditing**: false (no audit events are generated).
@@ -53,8 +53,6 @@ MACHINES: Final = 1001  # Machinery's Objects/Machines folder
 PROFILES: Final = ("http://opcfoundation.org/UA-Profile/Server/EmbeddedUA2017",)
 """The server profile whose facets the server offers (not a certification)."""
 LOCALES: Final = ("en",)
-MAX_BROWSE_CONTINUATION_POINTS: Final = 10
-"""Per session (Part 5 §6.3.2); the service layer pages references within it."""
 
 
 def software_version() -> str:
@@ -92,9 +90,7 @@ async def fill_server_object(
     ``history``: the bench records history (HistoryRead served); ``page``: the most values
     one HistoryRead answer holds."""
     version = software_version()
-    await server.set_build_info(
-        PRODUCT_URI, MANUFACTURER, PRODUCT, version, version, build_date()
-    )
+    await server.set_build_info(PRODUCT_URI, MANUFACTURER, PRODUCT, version, version, build_date())
     caps = {
         O.Server_ServerCapabilities_ServerProfileArray: ua.Variant(list(PROFILES), VT.String),
         O.Server_ServerCapabilities_LocaleIdArray: ua.Variant(list(LOCALES), VT.String),
@@ -106,7 +102,6 @@ async def fill_server_object(
     for nid, variant in caps.items():
         await _write(server, nid, variant)
     for nid, value in (
-        (O.Server_ServerCapabilities_MaxBrowseContinuationPoints, MAX_BROWSE_CONTINUATION_POINTS),
         (O.Server_ServerCapabilities_MaxQueryContinuationPoints, 0),  # no Query service
         # HistoryRead's continuation points are stateless (history.py): no limit (0).
         (O.Server_ServerCapabilities_MaxHistoryContinuationPoints, 0),
@@ -133,13 +128,17 @@ async def fill_server_object(
 
 
 async def _fill_null_limits(server: Server) -> None:
-    """An operation limit asyncua left null is 0 (Part 5: no limit declared) so that it
-    reads Good; the ones the service layer enforces are written there."""
+    """An operation limit or MaxBrowseContinuationPoints still null is 0 (Part 5: no limit
+    declared) so that it reads Good: the ones the service layer enforces are written there
+    (services.py), before this runs, and left alone."""
     limits = server.get_node(ua.NodeId(O.Server_ServerCapabilities_OperationLimits))
-    for child in await limits.get_children(refs=O.HasProperty):
-        dv = await child.read_data_value(raise_on_bad_status=False)
+    nodes = [c.nodeid for c in await limits.get_children(refs=O.HasProperty)]
+    points = ua.NodeId(O.Server_ServerCapabilities_MaxBrowseContinuationPoints)
+    for nid in (*nodes, points):
+        dv = await server.get_node(nid).read_data_value(raise_on_bad_status=False)
         if dv.Value is None or dv.Value.Value is None:
-            await _write(server, child.nodeid, ua.Variant(0, VT.UInt32))
+            vt = VT.UInt16 if nid == points else VT.UInt32
+            await _write(server, nid, ua.Variant(0, vt))
 
 
 HISTORY_FLAGS: Final = (
@@ -160,9 +159,7 @@ timestamps in history (the historian keeps source times only)."""
 
 
 async def _fill_history_capabilities(server: Server, history: bool, page: int) -> None:
-    node = server.get_node(
-        ua.NodeId(O.HistoryServerCapabilities)
-    )
+    node = server.get_node(ua.NodeId(O.HistoryServerCapabilities))
     wanted: dict[str, ua.Variant] = {
         "AccessHistoryDataCapability": ua.Variant(history, VT.Boolean),
         "AccessHistoryEventsCapability": ua.Variant(history, VT.Boolean),
