@@ -130,3 +130,25 @@ def test_identification_defaults_to_the_bench_s_name_and_namespace() -> None:
         2026,
         "S1",
     )
+
+
+def test_the_identification_is_read_from_the_i_o_map_and_checked(tmp_path: Path) -> None:
+    import yaml
+
+    from supervisor.core.errors import ConfigErrors
+    from supervisor.publish.opcua.settings import OpcUaSettings
+
+    data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
+    data["identification"] = {"manufacturer": "Lab", "serial_number": "S-1", "location": "B3"}
+    path = tmp_path / "bench.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    ident = OpcUaSettings.of(load_bench(path)).identification
+    assert (ident.manufacturer, ident.serial_number, ident.location) == ("Lab", "S-1", "B3")
+    assert OpcUaSettings.of(load_bench(ROOT / "io_maps" / "sim.yaml")).identification == (
+        Identification()
+    )
+    for bad in ({"year_of_construction": 1800}, {"serial": "S-1"}):
+        data["identification"] = bad
+        path.write_text(yaml.safe_dump(data), encoding="utf-8")
+        with pytest.raises(ConfigErrors, match="identification"):
+            load_bench(path)
