@@ -192,8 +192,7 @@ def plan(cfg: BenchConfig, tags: Iterable[Tag], alarms: Sequence[str] = ()) -> L
         mine = [t for t in all_tags if t.name.startswith(prefix)]
         names: dict[str, str] = {}
         used: set[str] = set()
-        # The fixed vocabulary first, then the others by their suffix, shortest form that
-        # is still unique in the channel (``chain.alarm`` → ``Alarm``, else ``ChainAlarm``).
+        # The test's state: one state machine (its name and its number), not two variables.
         machine = [
             var(by_name[prefix + suffix], browse)
             for suffix, browse in ((STATE_NAME_SUFFIX, "CurrentState"), (STATE_SUFFIX, "Number"))
@@ -201,6 +200,8 @@ def plan(cfg: BenchConfig, tags: Iterable[Tag], alarms: Sequence[str] = ()) -> L
         ]
         mine = [t for t in mine if t.name not in placed]
         used.add(STATE_MACHINE)
+        # The fixed vocabulary first, then the others by their suffix, shortest form that
+        # is still unique in the channel (``chain.alarm`` → ``Alarm``, else ``ChainAlarm``).
         for t in mine:
             suffix = t.name[len(prefix) :]
             if suffix in CHANNEL_NAMES:
