@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Final, Literal
 
 from supervisor.config.models import BenchConfig
@@ -34,6 +34,8 @@ from supervisor.tags import Access, Tag
 URN_PREFIX: Final = "urn:bench-supervisor:bench:"
 
 Kind = Literal["analog", "int", "bool", "str", "state", "statename"]
+"""``statename``: a channel's StateMachine/CurrentState (its state's PackML name, written
+from its number), nowhere else."""
 
 # A channel's tags by their suffix after ``<channel>.``: the names SCADA screens use.
 CHANNEL_NAMES: Final[dict[str, str]] = {
@@ -65,6 +67,11 @@ STATE_NAME_SUFFIX: Final = "chain.state"
 """The chain's state by its name: the channel's StateMachine/CurrentState (one variable for
 the test's state, shown by its PackML name, its number beside it)."""
 STATE_MACHINE: Final = "StateMachine"
+MACHINE_VARIABLES: Final[tuple[tuple[str, str, Kind], ...]] = (
+    (STATE_NAME_SUFFIX, "CurrentState", "statename"),
+    (STATE_SUFFIX, "Number", "state"),
+)
+"""A channel's StateMachine: (tag suffix, browse name, kind) of CurrentState and its Number."""
 
 DEVICE_NAMES: Final[dict[str, str]] = {"connected": "Connected", "comm_failures": "CommFailures"}
 DIAGNOSTIC_PREFIXES: Final = ("scan.", "opcua.", "retain.")
@@ -151,7 +158,7 @@ def kind_of(tag: Tag) -> Kind:
         return "state" if tag.name.endswith("." + STATE_SUFFIX) else "int"
     if dtype == "bool":
         return "bool"
-    return "statename" if tag.name.endswith("." + STATE_NAME_SUFFIX) else "str"
+    return "str"
 
 
 def channel_node(channel: str) -> str:
@@ -194,8 +201,8 @@ def plan(cfg: BenchConfig, tags: Iterable[Tag], alarms: Sequence[str] = ()) -> L
         used: set[str] = set()
         # The test's state: one state machine (its name and its number), not two variables.
         machine = [
-            var(by_name[prefix + suffix], browse)
-            for suffix, browse in ((STATE_NAME_SUFFIX, "CurrentState"), (STATE_SUFFIX, "Number"))
+            replace(var(by_name[prefix + suffix], browse), kind=kind)
+            for suffix, browse, kind in MACHINE_VARIABLES
             if prefix + suffix in by_name
         ]
         mine = [t for t in mine if t.name not in placed]
