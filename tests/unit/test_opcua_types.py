@@ -151,3 +151,22 @@ def test_the_identification_is_read_from_the_i_o_map_and_checked(tmp_path: Path)
         path.write_text(yaml.safe_dump(data), encoding="utf-8")
         with pytest.raises(ConfigErrors, match="identification"):
             load_bench(path)
+
+
+def test_a_channel_s_state_number_keeps_its_history_the_name_has_none(
+    bench: tuple[BenchConfig, Layout],
+) -> None:
+    from supervisor.publish.opcua.space import HISTORY, Built, _folder_items
+
+    _, layout = bench
+    ch = layout.channels[0]
+    number, name = f"{ch}.chain.state_code", f"{ch}.chain.state"
+    items = {
+        str(i.RequestedNewNodeId.Identifier): i
+        for i in _folder_items(layout.root, ua.NodeId(85), 1, Built(), 100.0, frozenset({number}))
+    }
+    kept = items[number].NodeAttributes
+    assert kept.Historizing and kept.AccessLevel & HISTORY
+    assert items[number].TypeDefinition == ua.NodeId(ua.ObjectIds.PropertyType)
+    assert items[name].TypeDefinition == ua.NodeId(ua.ObjectIds.FiniteStateVariableType)
+    assert not items[name].NodeAttributes.Historizing

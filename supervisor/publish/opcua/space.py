@@ -213,10 +213,16 @@ async def build_types(
 
 
 def _state_machine_items(
-    f: Folder, nid: ua.NodeId, idx: int, built: Built, sampling_ms: float
+    f: Folder,
+    nid: ua.NodeId,
+    idx: int,
+    built: Built,
+    sampling_ms: float,
+    historised: frozenset[str],
 ) -> Iterable[ua.AddNodesItem]:
     """A channel's StateMachine: CurrentState (the ``chain.state`` tag's NodeId, its value
-    the PackML name), its Number (the ``chain.state_code`` tag) and its Id."""
+    the PackML name), its Number (the ``chain.state_code`` tag: the state's history) and
+    its Id."""
     by_browse = {v.browse: v for v in f.variables}
     name, number = by_browse.get("CurrentState"), by_browse.get("Number")
     if name is None or number is None:
@@ -257,7 +263,9 @@ def _state_machine_items(
         ua.NodeId(O.UInt32),
         ua.Variant(2, VT.UInt32),
         number.description or "OPC UA StateEnumeration number (0 Stopped … 16 Unholding)",
+        READ | (HISTORY if number.tag in historised else 0),
         sampling_ms=sampling_ms,
+        historizing=number.tag in historised,
     )
 
 
@@ -378,7 +386,7 @@ def _folder_items(
         return tidx if browse in members else idx
 
     if f.typedef == "ChannelStateMachineType":
-        yield from _state_machine_items(f, nid, idx, built, sampling_ms)
+        yield from _state_machine_items(f, nid, idx, built, sampling_ms, historised)
         return
     if f.node == "/Bench":
         built.bench = nid
