@@ -318,9 +318,7 @@ def type_items(
 
     # The channel.
     channel = type_node("ChannelType", tidx)
-    items.append(
-        _object_type(channel, "ChannelType", tidx, O.BaseObjectType, "A test channel")
-    )
+    items.append(_object_type(channel, "ChannelType", tidx, O.BaseObjectType, "A test channel"))
     for name, kind in CHANNEL_MEMBERS.items():
         member(
             _member_variable(
