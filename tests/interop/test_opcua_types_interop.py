@@ -184,6 +184,17 @@ async def test_each_device_kind_has_its_type_a_subtype_of_device_type(
 async def test_alarm_objects_are_alarm_condition_instances(seen: dict[str, Any]) -> None:
     assert seen["alarms"], "the bench has alarms"
     assert set(seen["alarms"].values()) == {"ns=0;i=2915"}  # AlarmConditionType
+    # The condition's standard variables say its state: room.temp is above its H limit
+    # from the start (opcuarig's bench), nobody has acknowledged it.
+    room = {k: v["value"] for k, v in seen["conditions"]["room.temp.H"].items()}
+    assert (room["EnabledState"], room["EnabledState/Id"]) == ("Enabled", True)
+    assert (room["ActiveState"], room["ActiveState/Id"]) == ("Active", True)
+    assert (room["AckedState"], room["AckedState/Id"]) == ("Unacknowledged", False)
+    assert (room["Retain"], room["ConditionName"]) == (True, "room.temp.H")
+    assert room["ConditionClassName"] == "Process"
+    for condition in seen["conditions"].values():
+        statuses = {k: v["status"] for k, v in condition.items()}
+        assert set(statuses.values()) == {"Good"}, statuses
 
 
 # --- identification (OPC 40001-1) ------------------------------------------------------------

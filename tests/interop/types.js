@@ -198,9 +198,18 @@ async function main() {
   }
   out.diagnostics = (await children(id("/Bench/Diagnostics"))).map((c) => ({ name: c.name, nodeId: c.nodeId }));
   out.alarms = {};
+  out.conditions = {};
   for (const a of await children(id("/Bench/Alarms"))) {
     const t = await typeDefinition(a.nodeId);
     out.alarms[a.name] = t && t.nodeId;
+    // The condition's variables as a client reads them on the object (Part 9), each
+    // state's Id beside it.
+    const v = await values(a.nodeId);
+    for (const state of ["EnabledState", "ActiveState", "AckedState"]) {
+      const node = (await children(a.nodeId)).find((c) => c.name === state);
+      if (node) v[`${state}/Id`] = (await values(node.nodeId)).Id;
+    }
+    out.conditions[a.name] = v;
   }
   say("devices");
 

@@ -413,3 +413,74 @@ async def build_object_types(server: Server, tidx: int, device_types: Iterable[s
         ref.TargetNodeId = ua.NodeId(MANDATORY)
         refs.append(ref)
     await server.iserver.isession.add_references(refs)
+
+
+# --- alarm conditions (Part 9) --------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class ConditionMember:
+    """A standard child of an AlarmConditionType instance: its path under the condition
+    (``ActiveState/Id``), reference, type definition, DataType."""
+
+    path: str
+    ref: int
+    typedef: int
+    dtype: int
+
+    @property
+    def browse(self) -> str:
+        return self.path.rpartition("/")[2]
+
+
+CONDITION_MEMBERS: Final = tuple(
+    ConditionMember(path, ref, typedef, dtype)
+    for path, ref, typedef, dtype in (
+        ("EnabledState", O.HasComponent, O.TwoStateVariableType, O.LocalizedText),
+        ("EnabledState/Id", O.HasProperty, O.PropertyType, O.Boolean),
+        ("ActiveState", O.HasComponent, O.TwoStateVariableType, O.LocalizedText),
+        ("ActiveState/Id", O.HasProperty, O.PropertyType, O.Boolean),
+        ("AckedState", O.HasComponent, O.TwoStateVariableType, O.LocalizedText),
+        ("AckedState/Id", O.HasProperty, O.PropertyType, O.Boolean),
+        ("Retain", O.HasProperty, O.PropertyType, O.Boolean),
+        ("ConditionName", O.HasProperty, O.PropertyType, O.String),
+        ("ConditionClassId", O.HasProperty, O.PropertyType, O.NodeId),
+        ("ConditionClassName", O.HasProperty, O.PropertyType, O.LocalizedText),
+        ("ClientUserId", O.HasProperty, O.PropertyType, O.String),
+        ("BranchId", O.HasProperty, O.PropertyType, O.NodeId),
+        ("Quality", O.HasComponent, O.ConditionVariableType, O.StatusCode),
+        ("LastSeverity", O.HasComponent, O.ConditionVariableType, O.UInt16),
+        ("Comment", O.HasComponent, O.ConditionVariableType, O.LocalizedText),
+        ("SuppressedOrShelved", O.HasProperty, O.PropertyType, O.Boolean),
+        ("InputNode", O.HasProperty, O.PropertyType, O.NodeId),
+    )
+)
+"""The mandatory variables of ConditionType, AcknowledgeableConditionType and
+AlarmConditionType a client reads on the condition object (the event fields of
+BaseEventType are in its events, events.py; ShelvingState is built with the alarm)."""
+
+
+def condition_values(
+    active: bool, acked: bool, retained: bool, shelved: bool, name: str, severity: int, actor: str
+) -> dict[str, ua.Variant]:
+    """The values of ``CONDITION_MEMBERS`` for an alarm in this state, by path."""
+    LT = VT.LocalizedText
+    return {
+        "EnabledState": ua.Variant(ua.LocalizedText("Enabled"), LT),
+        "EnabledState/Id": ua.Variant(True, VT.Boolean),
+        "ActiveState": ua.Variant(ua.LocalizedText("Active" if active else "Inactive"), LT),
+        "ActiveState/Id": ua.Variant(active, VT.Boolean),
+        "AckedState": ua.Variant(
+            ua.LocalizedText("Acknowledged" if acked else "Unacknowledged"), LT
+        ),
+        "AckedState/Id": ua.Variant(acked, VT.Boolean),
+        "Retain": ua.Variant(retained, VT.Boolean),
+        "ConditionName": ua.Variant(name, VT.String),
+        "ConditionClassId": ua.Variant(ua.NodeId(O.ProcessConditionClassType), VT.NodeId),
+        "ConditionClassName": ua.Variant(ua.LocalizedText("Process"), LT),
+        "ClientUserId": ua.Variant(actor, VT.String),
+        "BranchId": ua.Variant(ua.NodeId(), VT.NodeId),
+        "Quality": ua.Variant(ua.StatusCode(ua.StatusCodes.Good), VT.StatusCode),
+        "LastSeverity": ua.Variant(max(1, min(1000, severity)), VT.UInt16),
+        "Comment": ua.Variant(ua.LocalizedText(""), LT),
+        "SuppressedOrShelved": ua.Variant(shelved, VT.Boolean),
+        "InputNode": ua.Variant(ua.NodeId(), VT.NodeId),
+    }

@@ -49,6 +49,7 @@ from supervisor.publish.opcua.feed import AlarmView, OpcUaFeed, Update
 from supervisor.publish.opcua.history import PAGE, HistoryService, HistorySpace
 from supervisor.publish.opcua.layout import Layout
 from supervisor.publish.opcua.nameplate import add_identification, fill_server_object
+from supervisor.publish.opcua.objecttypes import condition_values
 from supervisor.publish.opcua.ports import Answer, Operate, Request
 from supervisor.publish.opcua.security import (
     PasswordUsers,
@@ -535,6 +536,9 @@ class OpcUaServer:
             "Tripped": ua.Variant(a.tripped, VT.Boolean),
             "Shelved": ua.Variant(a.shelved, VT.Boolean),
         }
+        values |= condition_values(  # the condition's standard variables (Part 9)
+            a.active, a.acked, a.retained, a.shelved, a.id, a.severity, a.actor
+        )
         when = _utc(a.wall) if a.wall else datetime.now(UTC)
         for name, variant in values.items():
             nid = fields.get((a.id, name))

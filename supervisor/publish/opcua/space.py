@@ -32,10 +32,12 @@ from asyncua import Server, ua
 from supervisor.publish.opcua.layout import Folder, Layout, Variable
 from supervisor.publish.opcua.methods import BENCH_METHODS, METHODS, RESULT, Method, argument
 from supervisor.publish.opcua.objecttypes import (
+    CONDITION_MEMBERS,
     PACKML_STATES,
     TYPES_URI,
     StateMachineNodes,
     build_object_types,
+    condition_values,
     declared,
     state_node,
     type_node,
@@ -398,6 +400,23 @@ def _folder_items(
         sid = ua.NodeId(f"{f.node}/ShelvingState", idx)
         built.shelving[f.alarm] = sid
         yield _object(sid, ua.QualifiedName("ShelvingState", 0), nid, False, "Shelving")
+        # Part 9: what a client reads on a condition object, as its events say it.
+        initial = condition_values(False, True, False, False, f.alarm, 1, "")
+        for member in CONDITION_MEMBERS:
+            cid = ua.NodeId(f"{f.node}/{member.path}", idx)
+            above = member.path.rpartition("/")[0]  # a state's Id is its property
+            owner = ua.NodeId(f"{f.node}/{above}", idx) if above else nid
+            built.alarm_fields[(f.alarm, member.path)] = cid
+            yield _variable(
+                cid,
+                ua.QualifiedName(member.browse, 0),
+                owner,
+                member.ref,
+                member.typedef,
+                ua.NodeId(member.dtype),
+                initial[member.path],
+                member.path,
+            )
         for name, vt, description in ALARM_FIELDS:
             fid = ua.NodeId(f"{f.node}/{name}", idx)
             built.alarm_fields[(f.alarm, name)] = fid
