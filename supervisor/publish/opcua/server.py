@@ -46,9 +46,11 @@ from supervisor.publish.historian import HistoryQuery
 from supervisor.publish.opcua import methods
 from supervisor.publish.opcua.events import EventPublisher
 from supervisor.publish.opcua.feed import AlarmView, OpcUaFeed, Update
-from supervisor.publish.opcua.history import HistoryService, HistorySpace
+from supervisor.publish.opcua.history import PAGE, HistoryService, HistorySpace
 from supervisor.publish.opcua.layout import Layout
 from supervisor.publish.opcua.monitoring import serve_subscriptions
+from supervisor.publish.opcua.nameplate import add_identification, fill_server_object
+from supervisor.publish.opcua.objecttypes import condition_values
 from supervisor.publish.opcua.ports import Answer, Operate, Request
 from supervisor.publish.opcua.security import (
     PasswordUsers,
@@ -336,6 +338,7 @@ class OpcUaServer:
             server, idx, self.layout, s.sampling_interval_s or s.scan_period_s, self._historised()
         )
         self._built = built
+        await self._describe(server, built)
         self._serve_history(server, built, self.history)
         for nid, (channel, m) in built.methods.items():
             server.iserver.isession.add_method_callback(nid, self._method_handler(channel, m))
@@ -415,12 +418,19 @@ class OpcUaServer:
             self.feed.clients = len(getattr(bserver, "clients", ()))
             self._busy = False
 
+    async def _describe(self, server: Server, built: Built) -> None:
+        """The Server object filled and the bench's Identification (nameplate.py)."""
+        await fill_server_object(server, self.settings, history=self.history is not None, page=PAGE)
+        await add_identification(server, self.settings, built.bench, self.namespace)
+
     def _historised(self) -> frozenset[str]:
         """The tags the historian keeps (none without one): each tag's history settings."""
         if self.history is None:
             return frozenset()
         names = (t.name for t in self.db if t.spec.history.enabled)
-        return frozenset(n for n in names if n in self.layout.variables)
+        variables = self.layout.variables
+        # A state machine's CurrentState (its PackML name) has its history in its Number.
+        return frozenset(n for n in names if n in variables and variables[n].kind != "statename")
 
     def _serve_history(self, server: Server, built: Built, query: HistoryQuery | None) -> None:
         """HistoryRead answered from the historian's file (history.py), not asyncua's own;
@@ -469,8 +479,15 @@ class OpcUaServer:
                 # interpreter lock for milliseconds, against the scan (ADR 0021).
                 gate.wait()
             nid, kind = target
-            await aspace.write_attribute_value(nid, ua.AttributeIds.Value, self._value(u, kind))
+            if kind == "statename":
+                continue  # CurrentState: shown by its state's number (below)
+            dv = self._value(u, kind)
+            await aspace.write_attribute_value(nid, ua.AttributeIds.Value, dv)
             self.written += 1
+            machine = self._built.state_machines.get(nid) if kind == "state" else None
+            if machine is not None:  # the state's name and Id follow its number
+                for other, odv in machine.derived(dv):
+                    await aspace.write_attribute_value(other, ua.AttributeIds.Value, odv)
             if n % WRITE_CHUNK == 0:
                 await asyncio.sleep(0)  # let the publish task send notifications
         self._heard(updates)
@@ -535,6 +552,9 @@ class OpcUaServer:
             "Tripped": ua.Variant(a.tripped, VT.Boolean),
             "Shelved": ua.Variant(a.shelved, VT.Boolean),
         }
+        values |= condition_values(  # the condition's standard variables (Part 9)
+            a.active, a.acked, a.retained, a.shelved, a.id, a.severity, a.actor
+        )
         when = _utc(a.wall) if a.wall else datetime.now(UTC)
         for name, variant in values.items():
             nid = fields.get((a.id, name))
@@ -896,11 +916,13 @@ def _variant(value: object, kind: str) -> ua.Variant:
     if kind in ("int", "state"):
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise TypeError(value)
-        return ua.Variant(int(value), VT.Int32 if kind == "state" else VT.Int64)
+        return ua.Variant(int(value), VT.UInt32 if kind == "state" else VT.Int64)
     if kind == "bool":
         if not isinstance(value, bool):
             raise TypeError(value)
         return ua.Variant(value, VT.Boolean)
+    if kind == "statename":
+        return ua.Variant(ua.LocalizedText(str(value)), VT.LocalizedText)
     return ua.Variant(str(value), VT.String)
 
 
