@@ -319,7 +319,12 @@ async def identification(t: Target) -> str:
     missing = [k for k in ("Manufacturer", "SerialNumber", "SoftwareRevision") if not values.get(k)]
     if missing:
         raise Fail(f"Identification without {', '.join(missing)}")
-    return f"{values.get('Manufacturer')} / {values.get('SerialNumber')}"
+    return f"{_text(values.get('Manufacturer'))} / {_text(values.get('SerialNumber'))}"
+
+
+def _text(value: Any) -> str:
+    """A value as a person reads it (a LocalizedText's text)."""
+    return str(getattr(value, "Text", value))
 
 
 # --- methods and conditions (Parts 4, 9): with a user only ------------------------------------
