@@ -289,7 +289,7 @@ async def test_acknowledge_takes_only_the_eventid_of_the_unacknowledged_occurren
     assert acked["status"] == "Good"
     await rig.scans(1)
     assert estop_state(rig) == "active, acknowledged"
-    assert [(e.actor, e.accepted) for e in log[before:]] == [("opcua:alice", True)]
+    assert [(e.actor, e.accepted) for e in list(log)[before:]] == [("opcua:alice", True)]
 
     # Released and reset: back to normal, closed. A refresh does not replay it.
     sim.press_estop(False)

@@ -15,15 +15,26 @@ shelved), ConfirmedState (false while a trip waits for its reset), the shelving 
 machine stays in the alarm model (``supervisor.safety``), never in OPC UA (ADR 0015). asyncua
 keeps the last retained event of each condition, which is what ``ConditionRefresh``
 replays to a client that (re)connects.
+
+Each condition remembers the EventIds it sent (``Occurrences``): Acknowledge and Confirm
+name the event the operator saw, and only an event of the occurrence still waiting (sent
+since the condition was last acknowledged, or confirmed) may be acknowledged (confirmed)
+with it (Part 9 §5.7.3, issue 31 finding 3): an EventId this condition never sent (or
+sent so long ago it was forgotten) is Bad_EventIdUnknown; one of an occurrence already
+acknowledged Bad_ConditionBranchAlreadyAcked, even when a new occurrence now waits: the
+operator never saw that one.
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import time
 import uuid
+from collections import OrderedDict
+from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Any
+from typing import Any, Final, Literal
 
 from asyncua import Server, ua
 
@@ -37,6 +48,51 @@ SEVERITY_CHAIN = 100
 SEVERITY_COMMAND = 200
 SEVERITY_REFUSED = 400
 """Event severities (1..1000): steps are information, a refused command is worth a look."""
+REMEMBERED: Final = 1024
+"""EventIds kept per condition: an alarm list acknowledges what it shows, the last few."""
+
+Waiting = Literal["acked", "confirmed"]
+"""What an Acknowledge or a Confirm changes: AckedState, ConfirmedState."""
+ALREADY: Final = {
+    "acked": ua.StatusCodes.BadConditionBranchAlreadyAcked,
+    "confirmed": ua.StatusCodes.BadConditionBranchAlreadyConfirmed,
+}
+
+
+@dataclass
+class Occurrences:
+    """The EventIds one condition sent, and which of them name the occurrence that still
+    waits for an acknowledgement (a confirmation): those sent while AckedState
+    (ConfirmedState) was false and since it was last true. An occurrence ends, for
+    Acknowledge, with the first event that is acknowledged: its ``epoch`` moves on."""
+
+    sent: OrderedDict[bytes, tuple[int, int, bool, bool]] = dataclasses.field(
+        default_factory=OrderedDict
+    )
+    """EventId → (acked epoch, confirmed epoch, acked, confirmed) when it was sent."""
+    epoch: dict[str, int] = dataclasses.field(default_factory=lambda: {"acked": 0, "confirmed": 0})
+
+    def record(self, event_id: bytes, acked: bool, confirmed: bool) -> None:
+        if acked:
+            self.epoch["acked"] += 1
+        if confirmed:
+            self.epoch["confirmed"] += 1
+        self.sent[event_id] = (self.epoch["acked"], self.epoch["confirmed"], acked, confirmed)
+        while len(self.sent) > REMEMBERED:
+            self.sent.popitem(last=False)
+
+    def refusal(self, event_id: bytes, what: Waiting) -> tuple[int, str] | None:
+        """Why ``event_id`` does not name the occurrence waiting for ``what`` (None: it
+        does)."""
+        known = self.sent.get(event_id)
+        if known is None:
+            return ua.StatusCodes.BadEventIdUnknown, "this condition never sent that EventId"
+        acked_epoch, confirmed_epoch, acked, confirmed = known
+        epoch, done = (acked_epoch, acked) if what == "acked" else (confirmed_epoch, confirmed)
+        if done or epoch != self.epoch[what]:
+            word = "acknowledged" if what == "acked" else "confirmed"
+            return ALREADY[what], f"the occurrence of that EventId was {word} already"
+        return None
 
 
 def _utc(wall: float) -> datetime:
@@ -64,6 +120,17 @@ class EventPublisher:
         self.bench = bench
         self._templates: dict[str, Any] = {}
         self._server_node = ua.NodeId(ua.ObjectIds.Server)
+        self._occurrences: dict[ua.NodeId, Occurrences] = {}
+
+    def refusal(
+        self, condition: ua.NodeId, event_id: object, what: Waiting
+    ) -> tuple[int, str] | None:
+        """Why an Acknowledge (``acked``) or a Confirm (``confirmed``) of ``condition``
+        naming ``event_id`` is refused (None: ``event_id`` names its waiting occurrence)."""
+        occurrences = self._occurrences.get(condition)
+        if occurrences is None or not isinstance(event_id, bytes):
+            return ua.StatusCodes.BadEventIdUnknown, "this condition never sent that EventId"
+        return occurrences.refusal(event_id, what)
 
     async def init(self) -> None:
         """One event object per type, copied for each event (a generator's event object is
@@ -168,4 +235,7 @@ class EventPublisher:
         ):
             event.add_property(field, value, vt)
         _stamp(event, a.wall or time.time())
+        if condition is not None:
+            occurrences = self._occurrences.setdefault(condition, Occurrences())
+            occurrences.record(event.EventId.Value, a.acked, not a.tripped)
         await self._fire(event)

@@ -118,6 +118,16 @@ BENCH_METHODS: Final[tuple[Method, ...]] = (
 )
 """The methods of the Bench object (ADR 0015)."""
 
+EVENT_ID = Arg("EventId", "The EventId of the condition's event being answered", (VT.ByteString,))
+COMMENT = Arg("Comment", "A comment (may be null)", (VT.LocalizedText, VT.Null))
+ACKNOWLEDGE: Final = Method(
+    "Acknowledge", "acknowledge", "Part 9 AcknowledgeableConditionType", (EVENT_ID, COMMENT)
+)
+CONFIRM: Final = Method(
+    "Confirm", "reset", "Part 9 AcknowledgeableConditionType", (EVENT_ID, COMMENT)
+)
+"""Part 9's methods of a condition, declared so that ``check`` checks their arguments."""
+
 _TRUE: Final = ("true", "on", "yes", "1")
 _FALSE: Final = ("false", "off", "no", "0")
 
@@ -159,6 +169,19 @@ class Invalid:
 def _type_name(v: ua.Variant) -> str:
     t = v.VariantType.name if v.VariantType is not None else "Null"
     return f"{t} array" if v.is_array or isinstance(v.Value, list) else t
+
+
+def not_on(method: Method, called_on: ua.NodeId, owner: ua.NodeId) -> Invalid | None:
+    """Part 4 §5.11.2 (Call): a method is called on an object it is a component of (or of
+    whose type it is). A channel's method node is its own channel's: ch1's SetManualCurrent
+    called on ch2's object would command ch1 while naming ch2 (issue 31, finding 5), so it
+    is Bad_MethodInvalid and nothing is done."""
+    if called_on == owner:
+        return None
+    return Invalid(
+        S.BadMethodInvalid,
+        f"{method.name} is a method of {owner.to_string()}, not of {called_on.to_string()}",
+    )
 
 
 def check(method: Method, args: Sequence[ua.Variant]) -> Invalid | None:

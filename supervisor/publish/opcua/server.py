@@ -46,7 +46,7 @@ from supervisor.publish.historian import HistoryQuery
 from supervisor.publish.opcua import methods
 from supervisor.publish.opcua.events import EventPublisher
 from supervisor.publish.opcua.feed import AlarmView, OpcUaFeed, Update
-from supervisor.publish.opcua.history import HistoryService, HistorySpace
+from supervisor.publish.opcua.history import HistoryService, HistorySpace, list_aggregates
 from supervisor.publish.opcua.layout import Layout
 from supervisor.publish.opcua.ports import Answer, Operate, Request
 from supervisor.publish.opcua.security import (
@@ -328,7 +328,7 @@ class OpcUaServer:
             server, idx, self.layout, s.sampling_interval_s or s.scan_period_s, self._historised()
         )
         self._built = built
-        self._serve_history(server, built, self.history)
+        await self._serve_history(server, built, self.history)
         for nid, (channel, m) in built.methods.items():
             server.iserver.isession.add_method_callback(nid, self._method_handler(channel, m))
         server.link_method(
@@ -414,7 +414,9 @@ class OpcUaServer:
         names = (t.name for t in self.db if t.spec.history.enabled)
         return frozenset(n for n in names if n in self.layout.variables)
 
-    def _serve_history(self, server: Server, built: Built, query: HistoryQuery | None) -> None:
+    async def _serve_history(
+        self, server: Server, built: Built, query: HistoryQuery | None
+    ) -> None:
         """HistoryRead answered from the historian's file (history.py), not asyncua's own;
         without a historian every node answers Bad_HistoryOperationUnsupported."""
         historised = self._historised()
@@ -447,6 +449,8 @@ class OpcUaServer:
             conditions=dict(built.alarms),
         )
         server.iserver.history_manager = HistoryService(server.iserver, query, space, _variant)
+        if query is not None:  # the aggregates HistoryRead then serves, listed (finding 7)
+            await list_aggregates(server)
 
     async def _write(self, server: Server, updates: list[Update]) -> None:
         aspace = server.iserver.aspace
@@ -530,8 +534,14 @@ class OpcUaServer:
 
     # --- methods -------------------------------------------------------------------------
     def _method_handler(self, channel: str, method: methods.Method) -> Callable[..., Any]:
+        owner = self._built.channels.get(channel, self._built.bench)
+
         async def handler(parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
             actor = actor_of(current_user())
+            wrong = methods.not_on(method, parent, owner)
+            if wrong is not None:
+                log.warning("OPC UA call by %s refused: %s", actor, wrong.reason)
+                return _result(wrong.status, wrong.reason, len(args))
             if self._closing:
                 return _result(S.BadShutdown, "the supervisor is stopping", len(args))
             bad = methods.check(method, args)
@@ -589,9 +599,12 @@ class OpcUaServer:
         actor = actor_of(current_user())
         alarm = next((a for a, nid in self._built.alarms.items() if nid == parent), None)
         if alarm is None:
-            return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", len(args))
+            return _result(S.BadMethodInvalid, f"{parent.to_string()} is not an alarm", len(args))
         if self._closing:
             return _result(S.BadShutdown, "the supervisor is stopping", len(args))
+        refused = self._occurrence_refusal(alarm, methods.ACKNOWLEDGE, args, actor)
+        if refused is not None:
+            return refused
         answer = await self._ask(Request("alarm", alarm, "acknowledge", {}, actor))
         if answer.accepted:
             return _result(S.Good, answer.reason, len(args), out=False)
@@ -642,7 +655,7 @@ class OpcUaServer:
             actor = actor_of(current_user())
             alarm = self._alarm_of(parent)
             if alarm is None:
-                return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", n)
+                return _result(S.BadMethodInvalid, f"{parent.to_string()} is not an alarm", n)
             if self._closing:
                 return _result(S.BadShutdown, "the supervisor is stopping", n, out=False)
             if what == "one shot":
@@ -691,9 +704,12 @@ class OpcUaServer:
         actor = actor_of(current_user())
         alarm = self._alarm_of(parent)
         if alarm is None:
-            return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", n)
+            return _result(S.BadMethodInvalid, f"{parent.to_string()} is not an alarm", n)
         if self._closing:
             return _result(S.BadShutdown, "the supervisor is stopping", n, out=False)
+        refused = self._occurrence_refusal(alarm, methods.CONFIRM, args, actor)
+        if refused is not None:
+            return refused
         answer = await self._ask(Request("alarm", alarm, "reset", {}, actor))
         if answer.accepted:
             return _result(S.Good, answer.reason, n, out=False)
@@ -702,6 +718,23 @@ class OpcUaServer:
         else:
             status = refusal_status(answer.refusal)
         return _result(status, answer.reason, n)  # the reason as text, with the Bad code
+
+    def _occurrence_refusal(
+        self, alarm: str, method: methods.Method, args: Sequence[ua.Variant], actor: str
+    ) -> ua.CallMethodResult | None:
+        """Acknowledge and Confirm (EventId, Comment): the arguments' types, then whether the
+        EventId names the condition's occurrence that waits (events.py; issue 31, finding 3).
+        None: the call may go to the command path."""
+        bad = methods.check(method, args)
+        if bad is None:
+            assert self._events is not None
+            what = "acked" if method is methods.ACKNOWLEDGE else "confirmed"
+            found = self._events.refusal(self._built.alarms[alarm], args[0].Value, what)
+            if found is None:
+                return None
+            bad = methods.Invalid(found[0], f"{method.name} of alarm {alarm}: {found[1]}")
+        log.warning("OPC UA %s by %s refused: %s", method.name, actor, bad.reason)
+        return _result(bad.status, bad.reason, len(args), bad.arg_results, out=False)
 
     async def _ask(self, req: Request) -> Answer:
         try:
