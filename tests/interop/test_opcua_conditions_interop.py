@@ -328,3 +328,38 @@ async def test_acknowledge_takes_only_the_eventid_of_the_unacknowledged_occurren
     assert acked["status"] == "Good"
     sim.press_estop(False)
     await rig.scans(5)
+
+
+async def test_condition_refresh_never_replays_a_condition_the_alarm_model_closed(
+    rig: Rig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Even when the closing event never reached the server: the feed's bounded queue drops
+    what does not fit, and a closing event may still be on its way when a client that just
+    reset the alarm refreshes."""
+    sim = rig.bench.sim
+    assert sim is not None
+    sim.press_estop(False)
+    await rig.scans(5)
+    rig.bench.commands.execute(Command.channel("ch0", Verb.ACKNOWLEDGE, "test"))
+    sim.press_estop(True)
+    await rig.scans(5)
+    (seen,) = await client(rig, refresh())
+    assert [e["Retain"] for e in replayed(seen, "estop")] == [True]
+    feed = rig.server.feed
+    on_alarm = feed.on_alarm
+
+    def closing_events_lost(view: Any) -> None:
+        if view.id != "estop" or view.retained:
+            on_alarm(view)
+
+    monkeypatch.setattr(feed, "on_alarm", closing_events_lost)
+    sim.press_estop(False)
+    await rig.scans(5)
+    reset = rig.bench.commands.execute(Command.channel("ch0", Verb.ACKNOWLEDGE, "test"))
+    assert reset.accepted, reset.reason
+    await rig.scans(2)
+    assert estop_state(rig) == "normal"
+    (closed,) = await client(rig, refresh())
+    assert replayed(closed, "estop") == []
+    assert [e["Retain"] for e in closed["conditions"]] == [True] * len(closed["conditions"])
+    assert replayed(closed, "room.temp.H")

@@ -127,6 +127,14 @@ CONFIRM: Final = Method(
     "Confirm", "reset", "Part 9 AcknowledgeableConditionType", (EVENT_ID, COMMENT)
 )
 """Part 9's methods of a condition, declared so that ``check`` checks their arguments."""
+_IDS = (VT.UInt32, VT.Int32, VT.UInt16, VT.Int16, VT.UInt64, VT.Int64, VT.Byte, VT.SByte)
+SUBSCRIPTION = Arg("SubscriptionId", "The subscription to replay the conditions to", _IDS)
+ITEM = Arg("MonitoredItemId", "The monitored item to replay them to", _IDS)
+REFRESH: Final = Method("ConditionRefresh", "refresh", "Part 9 ConditionType", (SUBSCRIPTION,))
+REFRESH2: Final = Method(
+    "ConditionRefresh2", "refresh", "Part 9 ConditionType", (SUBSCRIPTION, ITEM)
+)
+"""ConditionType's refresh methods (an IntegerId is a UInt32; any integer is taken)."""
 
 _TRUE: Final = ("true", "on", "yes", "1")
 _FALSE: Final = ("false", "off", "no", "0")

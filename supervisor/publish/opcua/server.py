@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import dataclasses
 import gc
 import logging
 import threading
@@ -336,6 +337,8 @@ class OpcUaServer:
             self._acknowledge,
         )
         for method_ids, handler in (
+            ((O.ConditionType_ConditionRefresh,), self._condition_refresh(methods.REFRESH)),
+            ((O.ConditionType_ConditionRefresh2,), self._condition_refresh(methods.REFRESH2)),
             (SHELVE_IDS, self._shelving("shelve")),
             (ONE_SHOT_IDS, self._shelving("one shot")),
             (UNSHELVE_IDS, self._shelving("unshelve")),
@@ -718,6 +721,27 @@ class OpcUaServer:
         else:
             status = refusal_status(answer.refusal)
         return _result(status, answer.reason, n)  # the reason as text, with the Bad code
+
+    def _condition_refresh(self, method: methods.Method) -> Callable[..., Any]:
+        """ConditionRefresh(SubscriptionId), ConditionRefresh2(SubscriptionId,
+        MonitoredItemId): the alarm model's views now first (those the server has not sent:
+        a closing event lost or still on its way), then the retained conditions replayed
+        (events.py; issue 31, finding 8: never a closed one)."""
+
+        async def handler(parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
+            n = len(args)
+            bad = methods.check(method, args)
+            if bad is not None:
+                return _result(bad.status, bad.reason, n, bad.arg_results, out=False)
+            assert self._events is not None
+            views = await self._call_bench(lambda: list(self.alarms()))
+            for v in self._events.stale(views):
+                await self._alarm(dataclasses.replace(v, transition=v.transition or "current"))
+            ids = [int(a.Value) for a in args]
+            status = await self._events.refresh(ids[0], ids[1] if n > 1 else None)
+            return _result(status, "", n, out=False)
+
+        return handler
 
     def _occurrence_refusal(
         self, alarm: str, method: methods.Method, args: Sequence[ua.Variant], actor: str
