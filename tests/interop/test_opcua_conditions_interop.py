@@ -250,12 +250,22 @@ async def test_a_method_called_on_another_channels_object_is_bad_method_invalid(
 
 
 # --- findings 3 and 8: Acknowledge's EventId, ConditionRefresh of a closed condition -------
-async def test_acknowledge_takes_only_the_eventid_of_the_unacknowledged_occurrence(
-    rig: Rig,
-) -> None:
+async def estop_back_to_normal(rig: Rig) -> None:
+    """Released, acknowledged and reset: each test below starts from there (in any order)."""
     sim = rig.bench.sim
     assert sim is not None
-    log = rig.bench.commands.log
+    sim.press_estop(False)
+    await rig.scans(5)
+    rig.bench.commands.execute(Command.channel("ch0", Verb.ACKNOWLEDGE, "test"))
+    await rig.scans(2)
+    assert estop_state(rig) == "normal"
+
+
+async def estop_pressed(rig: Rig) -> dict[str, Any]:
+    """The e-stop pressed: its condition as a refresh shows it (active, unacknowledged)."""
+    await estop_back_to_normal(rig)
+    sim = rig.bench.sim
+    assert sim is not None
     sim.press_estop(True)
     await rig.scans(5)
     assert estop_state(rig) == "active, unacknowledged"
@@ -266,7 +276,14 @@ async def test_acknowledge_takes_only_the_eventid_of_the_unacknowledged_occurren
         True,
         False,
     )
+    return pressed
+
+
+async def test_acknowledge_refuses_an_eventid_never_sent_and_a_wrong_argument(rig: Rig) -> None:
+    pressed = await estop_pressed(rig)
+    (seen,) = await client(rig, refresh())
     (room,) = replayed(seen, "room.temp.H")
+    log = rig.bench.commands.log
     before = len(log)
     never, text, missing, other, wrong_object = await client(
         rig,
@@ -284,38 +301,28 @@ async def test_acknowledge_takes_only_the_eventid_of_the_unacknowledged_occurren
     assert len(log) == before  # none of them reached the bench
     await rig.scans(1)
     assert estop_state(rig) == "active, unacknowledged"
-
     (acked,) = await client(rig, ack(event_id(pressed["EventId"])))
     assert acked["status"] == "Good"
     await rig.scans(1)
     assert estop_state(rig) == "active, acknowledged"
     assert [(e.actor, e.accepted) for e in list(log)[before:]] == [("opcua:alice", True)]
 
-    # Released and reset: back to normal, closed. A refresh does not replay it.
-    sim.press_estop(False)
-    await rig.scans(5)
-    reset = rig.bench.commands.execute(Command.channel("ch0", Verb.ACKNOWLEDGE, "test"))
-    assert reset.accepted, reset.reason
-    await rig.scans(2)
-    assert estop_state(rig) == "normal"
-    (closed,) = await client(rig, refresh())
-    assert replayed(closed, "estop") == []
-    assert [e["Retain"] for e in closed["conditions"]] == [True] * len(closed["conditions"])
-    assert replayed(closed, "room.temp.H")  # still active: still replayed
 
-    # A new occurrence: the first one's EventId does not acknowledge it (the operator never
-    # saw it); its own does.
-    sim.press_estop(True)
-    await rig.scans(5)
-    assert estop_state(rig) == "active, unacknowledged"
-    (again,) = await client(rig, refresh())
-    (second,) = replayed(again, "estop")
-    assert second["EventId"] != pressed["EventId"]
+async def test_an_occurrence_acknowledged_before_does_not_acknowledge_a_new_one(
+    rig: Rig,
+) -> None:
+    """The operator saw the first press, not the second: its EventId answers the first."""
+    first = await estop_pressed(rig)
+    (acked,) = await client(rig, ack(event_id(first["EventId"])))
+    assert acked["status"] == "Good"
+    second = await estop_pressed(rig)
+    assert second["EventId"] != first["EventId"]
+    log = rig.bench.commands.log
     before = len(log)
     stale, stale_confirm, confirm_never = await client(
         rig,
-        ack(event_id(pressed["EventId"])),
-        ack(event_id(pressed["EventId"]), method=CONFIRM),
+        ack(event_id(first["EventId"])),
+        ack(event_id(first["EventId"]), method=CONFIRM),
         ack(event_id(NEVER_SENT), method=CONFIRM),
     )
     assert stale["status"] == "BadConditionBranchAlreadyAcked"
@@ -326,8 +333,15 @@ async def test_acknowledge_takes_only_the_eventid_of_the_unacknowledged_occurren
     assert estop_state(rig) == "active, unacknowledged"
     (acked,) = await client(rig, ack(event_id(second["EventId"])))
     assert acked["status"] == "Good"
-    sim.press_estop(False)
-    await rig.scans(5)
+
+
+async def test_condition_refresh_does_not_replay_a_condition_back_to_normal(rig: Rig) -> None:
+    await estop_pressed(rig)
+    await estop_back_to_normal(rig)
+    (closed,) = await client(rig, refresh())
+    assert replayed(closed, "estop") == []
+    assert [e["Retain"] for e in closed["conditions"]] == [True] * len(closed["conditions"])
+    assert replayed(closed, "room.temp.H")  # still active: still replayed
 
 
 async def test_condition_refresh_never_replays_a_condition_the_alarm_model_closed(
@@ -336,15 +350,7 @@ async def test_condition_refresh_never_replays_a_condition_the_alarm_model_close
     """Even when the closing event never reached the server: the feed's bounded queue drops
     what does not fit, and a closing event may still be on its way when a client that just
     reset the alarm refreshes."""
-    sim = rig.bench.sim
-    assert sim is not None
-    sim.press_estop(False)
-    await rig.scans(5)
-    rig.bench.commands.execute(Command.channel("ch0", Verb.ACKNOWLEDGE, "test"))
-    sim.press_estop(True)
-    await rig.scans(5)
-    (seen,) = await client(rig, refresh())
-    assert [e["Retain"] for e in replayed(seen, "estop")] == [True]
+    await estop_pressed(rig)
     feed = rig.server.feed
     on_alarm = feed.on_alarm
 
@@ -353,12 +359,7 @@ async def test_condition_refresh_never_replays_a_condition_the_alarm_model_close
             on_alarm(view)
 
     monkeypatch.setattr(feed, "on_alarm", closing_events_lost)
-    sim.press_estop(False)
-    await rig.scans(5)
-    reset = rig.bench.commands.execute(Command.channel("ch0", Verb.ACKNOWLEDGE, "test"))
-    assert reset.accepted, reset.reason
-    await rig.scans(2)
-    assert estop_state(rig) == "normal"
+    await estop_back_to_normal(rig)
     (closed,) = await client(rig, refresh())
     assert replayed(closed, "estop") == []
     assert [e["Retain"] for e in closed["conditions"]] == [True] * len(closed["conditions"])

@@ -175,10 +175,10 @@ class EventPublisher:
         subs = self.server.iserver.subscription_service
         sub = subs.subscriptions.get(subscription_id)
         if sub is None:
-            return ua.StatusCodes.BadSubscriptionIdInvalid
+            return int(ua.StatusCodes.BadSubscriptionIdInvalid)
         items = sub.monitored_item_srv
         if item is not None and item not in items._monitored_items:
-            return ua.StatusCodes.BadMonitoredItemIdInvalid
+            return int(ua.StatusCodes.BadMonitoredItemIdInvalid)
         # Start and End go to each of the subscription's event items (or the one named);
         # a condition's events to the items on its emitting node, as live ones do.
         every = [m for ms in items._monitored_events.values() for m in ms]
@@ -191,7 +191,7 @@ class EventPublisher:
                     if m in targets:
                         await items._trigger_event(event, m)
         await _mark(items, marks.get(ua.ObjectIds.RefreshEndEventType), targets)
-        return ua.StatusCodes.Good
+        return int(ua.StatusCodes.Good)
 
     def refusal(
         self, condition: ua.NodeId, event_id: object, what: Waiting

@@ -268,9 +268,9 @@ def aggregate_of(types: list[ua.NodeId], i: int) -> str | int:
     elif i < len(types):
         aggregate = types[i]
     else:
-        return S.BadAggregateListMismatch
+        return int(S.BadAggregateListMismatch)
     what = SERVED.get(aggregate.Identifier) if aggregate.NamespaceIndex == 0 else None
-    return S.BadAggregateNotSupported if what is None else what
+    return int(S.BadAggregateNotSupported) if what is None else what
 
 
 def bucket_value(b: Bucket | None, what: str, t: float) -> ua.DataValue:

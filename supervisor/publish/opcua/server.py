@@ -293,7 +293,7 @@ class OpcUaServer:
         # asyncua's server, but no password in clear and each request run as the session
         # whose token it carries (``sessions.py``).
         server = BenchServer(user_manager=PasswordUsers(self.users, s.anonymous, self.throttle))
-        # ConditionRefresh replays the retained alarm conditions (asyncua keeps them).
+        # asyncua's RefreshStart/RefreshEnd events (ConditionRefresh is ours: events.py).
         server.iserver.bind_condition_methods = True
         # Issue 27, finding 3: a flood of clients must not take the descriptors the devices
         # need. asyncua closes a connection beyond its cap at once, and one that has not
@@ -332,11 +332,8 @@ class OpcUaServer:
         await self._serve_history(server, built, self.history)
         for nid, (channel, m) in built.methods.items():
             server.iserver.isession.add_method_callback(nid, self._method_handler(channel, m))
-        server.link_method(
-            server.get_node(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
-            self._acknowledge,
-        )
         for method_ids, handler in (
+            ((O.AcknowledgeableConditionType_Acknowledge,), self._acknowledge),
             ((O.ConditionType_ConditionRefresh,), self._condition_refresh(methods.REFRESH)),
             ((O.ConditionType_ConditionRefresh2,), self._condition_refresh(methods.REFRESH2)),
             (SHELVE_IDS, self._shelving("shelve")),
@@ -752,8 +749,11 @@ class OpcUaServer:
         bad = methods.check(method, args)
         if bad is None:
             assert self._events is not None
-            what = "acked" if method is methods.ACKNOWLEDGE else "confirmed"
-            found = self._events.refusal(self._built.alarms[alarm], args[0].Value, what)
+            found = self._events.refusal(
+                self._built.alarms[alarm],
+                args[0].Value,
+                "acked" if method is methods.ACKNOWLEDGE else "confirmed",
+            )
             if found is None:
                 return None
             bad = methods.Invalid(found[0], f"{method.name} of alarm {alarm}: {found[1]}")
