@@ -127,6 +127,7 @@ def bucket(count: int, samples: int, quality: Quality) -> Bucket:
     [
         (None, 0, S.Good),  # Part 13: no value in the interval, a count of zero
         (bucket(3, 3, Quality.GOOD), 3, S.Good),
+        (bucket(2, 2, Quality.UNCERTAIN), 2, S.Uncertain),  # the worst quality's status
         (bucket(2, 3, Quality.BAD), 2, S.UncertainDataSubNormal),  # the BAD one not counted
         (bucket(0, 2, Quality.BAD), 0, S.UncertainDataSubNormal),
     ],

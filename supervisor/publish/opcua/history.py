@@ -17,13 +17,15 @@ server's loop must not wait.
   sample per time). ReturnBounds: the sample at or before StartTime first (the value at
   that time: the historian stores a value when it changes) and the one at or after EndTime
   last, Bad_BoundNotFound where the file holds none. Reversed ranges are not served.
-- ``ReadProcessedDetails``: Average, Minimum, Maximum per ProcessingInterval (Part 13; 0:
-  one interval over the whole range) from ``HistoryQuery.aggregate``: an interval without
-  values is Bad_NoData, one with some BAD samples Uncertain_DataSubNormal; other
-  aggregates Bad_AggregateNotSupported. Average is the mean of the stored samples (query.py
-  says why); TimeAverage is time-weighted, computed here from the raw samples (stepped: each
-  value holds until the next; a range of more than ``MAX_RAW_ROWS`` samples answers
-  Bad_AggregateInvalidInputs). At most ``MAX_BUCKETS`` intervals, no continuation.
+- ``ReadProcessedDetails``: Average, Minimum, Maximum, Count per ProcessingInterval (Part
+  13; 0: one interval over the whole range) from ``HistoryQuery.aggregate``: an interval
+  without values is Bad_NoData (Count: 0), one with some BAD samples
+  Uncertain_DataSubNormal; other aggregates Bad_AggregateNotSupported. The Server's two
+  AggregateFunctions folders list the aggregates served (``SERVED``, ``list_aggregates``).
+  Average is the mean of the stored samples (query.py says why); TimeAverage is
+  time-weighted, computed here from the raw samples (stepped: each value holds until the
+  next; a range of more than ``MAX_RAW_ROWS`` samples answers Bad_AggregateInvalidInputs).
+  At most ``MAX_BUCKETS`` intervals, no continuation.
 - ``ReadEventDetails`` on the Bench object (every event) or a channel (its own): the
   stored events, each with the type it has live (alarm transitions AlarmConditionType with
   ConditionName and ConditionId), the filter's select clauses answered by field (browse)
@@ -275,33 +277,28 @@ def aggregate_of(types: list[ua.NodeId], i: int) -> str | int:
 
 def bucket_value(b: Bucket | None, what: str, t: float) -> ua.DataValue:
     """One interval's value of ``what`` (a ``SERVED`` name but TimeAverage), at its start
-    time. Count (Part 13 §5.4.3.21: Int32, the values that are not BAD; zero for an
+    time. Count (Part 13 §5.4.3.21: Int32, the values that are not BAD; zero, Good, for an
     interval without any) is never Bad_NoData; the others are, for an interval without
-    values. Some BAD samples among the values: Uncertain_DataSubNormal."""
+    values. The status is the worst quality's, but some BAD samples among values are
+    Uncertain_DataSubNormal (they were left out)."""
     when = _utc(t)
     if what == "count":
-        count = 0 if b is None else b.count
-        status = S.Good if b is None or b.quality is not Quality.BAD else S.UncertainDataSubNormal
-        return ua.DataValue(
-            ua.Variant(count, VT.Int32),
-            StatusCode=ua.StatusCode(status),
-            SourceTimestamp=when,
-            ServerTimestamp=when,
-        )
-    value = None if b is None else getattr(b, what)
-    if b is None or value is None:
-        return ua.DataValue(
-            ua.Variant(None), StatusCode=ua.StatusCode(S.BadNoData), SourceTimestamp=when
-        )
-    if b.quality is Quality.BAD:
+        variant = ua.Variant(0 if b is None else b.count, VT.Int32)
+    else:
+        value: float | None = None if b is None else getattr(b, what)
+        if value is None:
+            return ua.DataValue(
+                ua.Variant(None), StatusCode=ua.StatusCode(S.BadNoData), SourceTimestamp=when
+            )
+        variant = ua.Variant(float(value), VT.Double)
+    if b is None:
+        status = S.Good  # (a count of zero)
+    elif b.quality is Quality.BAD:
         status = S.UncertainDataSubNormal  # values, and BAD samples among them
     else:
         status = quality_status(b.quality, Reason.NONE)
     return ua.DataValue(
-        ua.Variant(float(value), VT.Double),
-        StatusCode=ua.StatusCode(status),
-        SourceTimestamp=when,
-        ServerTimestamp=when,
+        variant, StatusCode=ua.StatusCode(status), SourceTimestamp=when, ServerTimestamp=when
     )
 
 

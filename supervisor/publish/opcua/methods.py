@@ -1,12 +1,15 @@
 """The methods of a channel object, their arguments, and how a call becomes a command.
 
-asyncua does not check a call's arguments against the method's declaration, so each call
-is checked here: the number of arguments (Bad_ArgumentsMissing / Bad_TooManyArguments) and
-each one's type (Bad_InvalidArgument, with Bad_TypeMismatch for that argument). A call
-that passes becomes a ``Request`` for the command path, which checks everything else
-(state, interlocks, role, values) and records it with its actor. Every method answers one
-output argument, ``Result``: the command path's reason, accepted or not — the only place
-an OPC UA client can read why a call was refused (a status code carries no text).
+asyncua finds a method by its NodeId alone and checks neither the object it is called on
+nor its arguments, so each call is checked here: the object (the method's own, else
+Bad_MethodInvalid: ``not_on``), the number of arguments (Bad_ArgumentsMissing /
+Bad_TooManyArguments) and each one's type (Bad_InvalidArgument, with Bad_TypeMismatch for
+that argument). A call that passes becomes a ``Request`` for the command path, which checks
+everything else (state, interlocks, role, values) and records it with its actor. Every
+method answers one output argument, ``Result``: the command path's reason, accepted or not
+— the only place an OPC UA client can read why a call was refused (a status code carries no
+text). Part 9's Acknowledge, Confirm and ConditionRefresh(2) are declared here too, for the
+same check.
 """
 
 from __future__ import annotations
