@@ -3,7 +3,8 @@ calls and history (issue 31, findings 3, 5, 7 and 8):
 
 - Acknowledge checks its EventId: one the condition never sent is Bad_EventIdUnknown, a
   String in its place Bad_InvalidArgument (Bad_TypeMismatch for that argument), none at all
-  Bad_ArgumentsMissing, and only the condition's unacknowledged occurrence is acknowledged:
+  Bad_ArgumentsMissing, called on another object Bad_MethodInvalid (on the condition type
+  itself Bad_NodeIdInvalid), and only the condition's unacknowledged occurrence is acknowledged:
   an EventId of an occurrence acknowledged before is Bad_ConditionBranchAlreadyAcked, even
   while a new occurrence waits. Confirm checks its EventId the same way. None of these
   refusals reaches the bench.
@@ -285,19 +286,21 @@ async def test_acknowledge_refuses_an_eventid_never_sent_and_a_wrong_argument(ri
     (room,) = replayed(seen, "room.temp.H")
     log = rig.bench.commands.log
     before = len(log)
-    never, text, missing, other, wrong_object = await client(
+    never, text, missing, other, wrong_object, the_type = await client(
         rig,
         ack(event_id(NEVER_SENT)),
         ack({"type": "String", "value": pressed["EventId"]}),
         ack(None),
         ack(event_id(room["EventId"])),  # another condition's occurrence
         ack(event_id(pressed["EventId"]), obj="s:/Bench/Channels/ch0"),
+        ack(event_id(pressed["EventId"]), obj="ns=0;i=2881"),  # AcknowledgeableConditionType
     )
     assert called(never) == ("BadEventIdUnknown", ["Good", "Good"])
     assert called(text) == ("BadInvalidArgument", ["BadTypeMismatch", "Good"])
     assert missing["status"] == "BadArgumentsMissing"
     assert called(other)[0] == "BadEventIdUnknown"
     assert wrong_object["status"] == "BadMethodInvalid"
+    assert the_type["status"] == "BadNodeIdInvalid"  # Part 9 §5.7.3
     assert len(log) == before  # none of them reached the bench
     await rig.scans(1)
     assert estop_state(rig) == "active, unacknowledged"

@@ -599,7 +599,7 @@ class OpcUaServer:
         actor = actor_of(current_user())
         alarm = next((a for a, nid in self._built.alarms.items() if nid == parent), None)
         if alarm is None:
-            return _result(S.BadMethodInvalid, f"{parent.to_string()} is not an alarm", len(args))
+            return _not_a_condition(parent, len(args))
         if self._closing:
             return _result(S.BadShutdown, "the supervisor is stopping", len(args))
         refused = self._occurrence_refusal(alarm, methods.ACKNOWLEDGE, args, actor)
@@ -655,7 +655,7 @@ class OpcUaServer:
             actor = actor_of(current_user())
             alarm = self._alarm_of(parent)
             if alarm is None:
-                return _result(S.BadMethodInvalid, f"{parent.to_string()} is not an alarm", n)
+                return _not_a_condition(parent, n)
             if self._closing:
                 return _result(S.BadShutdown, "the supervisor is stopping", n, out=False)
             if what == "one shot":
@@ -704,7 +704,7 @@ class OpcUaServer:
         actor = actor_of(current_user())
         alarm = self._alarm_of(parent)
         if alarm is None:
-            return _result(S.BadMethodInvalid, f"{parent.to_string()} is not an alarm", n)
+            return _not_a_condition(parent, n)
         if self._closing:
             return _result(S.BadShutdown, "the supervisor is stopping", n, out=False)
         refused = self._occurrence_refusal(alarm, methods.CONFIRM, args, actor)
@@ -954,6 +954,14 @@ def _result(
     ]
     res.OutputArguments = [ua.Variant(reason, VT.String)] if out else []
     return res
+
+
+def _not_a_condition(parent: ua.NodeId, n_args: int) -> ua.CallMethodResult:
+    """A condition's method called on an object that is no alarm's condition: Part 9 §5.7.3
+    asks Bad_NodeIdInvalid for the condition type itself (any standard node here), else
+    Bad_MethodInvalid (the method is not one of that object's)."""
+    status = S.BadNodeIdInvalid if parent.NamespaceIndex == 0 else S.BadMethodInvalid
+    return _result(status, f"{parent.to_string()} is not an alarm", n_args)
 
 
 class GatedLoop(HookedLoop):
