@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import dataclasses
 import gc
 import logging
 import threading
@@ -46,7 +47,7 @@ from supervisor.publish.historian import HistoryQuery
 from supervisor.publish.opcua import methods
 from supervisor.publish.opcua.events import EventPublisher
 from supervisor.publish.opcua.feed import AlarmView, OpcUaFeed, Update
-from supervisor.publish.opcua.history import PAGE, HistoryService, HistorySpace
+from supervisor.publish.opcua.history import PAGE, HistoryService, HistorySpace, list_aggregates
 from supervisor.publish.opcua.layout import Layout
 from supervisor.publish.opcua.monitoring import serve_subscriptions
 from supervisor.publish.opcua.nameplate import add_identification, fill_server_object
@@ -300,9 +301,9 @@ class OpcUaServer:
         # whose token it carries (``sessions.py``).
         server = BenchServer(user_manager=PasswordUsers(self.users, s.anonymous, self.throttle))
         # Deadbands and TimestampsToReturn on monitored items (monitoring.py), before
-        # ``init`` binds ConditionRefresh to the subscription service it finds.
+        # ``init`` binds the condition methods to the subscription service it finds.
         serve_subscriptions(server.iserver, self.fresh.stamp)
-        # ConditionRefresh replays the retained alarm conditions (asyncua keeps them).
+        # asyncua's RefreshStart/RefreshEnd events (ConditionRefresh is ours: events.py).
         server.iserver.bind_condition_methods = True
         # Issue 27, finding 3: a flood of clients must not take the descriptors the devices
         # need. asyncua closes a connection beyond its cap at once, and one that has not
@@ -339,14 +340,13 @@ class OpcUaServer:
         )
         self._built = built
         await self._describe(server, built)
-        self._serve_history(server, built, self.history)
+        await self._serve_history(server, built, self.history)
         for nid, (channel, m) in built.methods.items():
             server.iserver.isession.add_method_callback(nid, self._method_handler(channel, m))
-        server.link_method(
-            server.get_node(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
-            self._acknowledge,
-        )
         for method_ids, handler in (
+            ((O.AcknowledgeableConditionType_Acknowledge,), self._acknowledge),
+            ((O.ConditionType_ConditionRefresh,), self._condition_refresh(methods.REFRESH)),
+            ((O.ConditionType_ConditionRefresh2,), self._condition_refresh(methods.REFRESH2)),
             (SHELVE_IDS, self._shelving("shelve")),
             (ONE_SHOT_IDS, self._shelving("one shot")),
             (UNSHELVE_IDS, self._shelving("unshelve")),
@@ -432,7 +432,9 @@ class OpcUaServer:
         # A state machine's CurrentState (its PackML name) has its history in its Number.
         return frozenset(n for n in names if n in variables and variables[n].kind != "statename")
 
-    def _serve_history(self, server: Server, built: Built, query: HistoryQuery | None) -> None:
+    async def _serve_history(
+        self, server: Server, built: Built, query: HistoryQuery | None
+    ) -> None:
         """HistoryRead answered from the historian's file (history.py), not asyncua's own;
         without a historian every node answers Bad_HistoryOperationUnsupported."""
         historised = self._historised()
@@ -465,6 +467,8 @@ class OpcUaServer:
             conditions=dict(built.alarms),
         )
         server.iserver.history_manager = HistoryService(server.iserver, query, space, _variant)
+        if query is not None:  # the aggregates HistoryRead then serves, listed (finding 7)
+            await list_aggregates(server)
 
     async def _write(self, server: Server, updates: list[Update]) -> None:
         aspace = server.iserver.aspace
@@ -566,8 +570,14 @@ class OpcUaServer:
 
     # --- methods -------------------------------------------------------------------------
     def _method_handler(self, channel: str, method: methods.Method) -> Callable[..., Any]:
+        owner = self._built.channels.get(channel, self._built.bench)
+
         async def handler(parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
             actor = actor_of(current_user())
+            wrong = methods.not_on(method, parent, owner)
+            if wrong is not None:
+                log.warning("OPC UA call by %s refused: %s", actor, wrong.reason)
+                return _result(wrong.status, wrong.reason, len(args))
             if self._closing:
                 return _result(S.BadShutdown, "the supervisor is stopping", len(args))
             bad = methods.check(method, args)
@@ -625,9 +635,12 @@ class OpcUaServer:
         actor = actor_of(current_user())
         alarm = next((a for a, nid in self._built.alarms.items() if nid == parent), None)
         if alarm is None:
-            return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", len(args))
+            return _not_a_condition(parent, len(args))
         if self._closing:
             return _result(S.BadShutdown, "the supervisor is stopping", len(args))
+        refused = self._occurrence_refusal(alarm, methods.ACKNOWLEDGE, args, actor)
+        if refused is not None:
+            return refused
         answer = await self._ask(Request("alarm", alarm, "acknowledge", {}, actor))
         if answer.accepted:
             return _result(S.Good, answer.reason, len(args), out=False)
@@ -678,7 +691,7 @@ class OpcUaServer:
             actor = actor_of(current_user())
             alarm = self._alarm_of(parent)
             if alarm is None:
-                return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", n)
+                return _not_a_condition(parent, n)
             if self._closing:
                 return _result(S.BadShutdown, "the supervisor is stopping", n, out=False)
             if what == "one shot":
@@ -727,9 +740,12 @@ class OpcUaServer:
         actor = actor_of(current_user())
         alarm = self._alarm_of(parent)
         if alarm is None:
-            return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", n)
+            return _not_a_condition(parent, n)
         if self._closing:
             return _result(S.BadShutdown, "the supervisor is stopping", n, out=False)
+        refused = self._occurrence_refusal(alarm, methods.CONFIRM, args, actor)
+        if refused is not None:
+            return refused
         answer = await self._ask(Request("alarm", alarm, "reset", {}, actor))
         if answer.accepted:
             return _result(S.Good, answer.reason, n, out=False)
@@ -738,6 +754,47 @@ class OpcUaServer:
         else:
             status = refusal_status(answer.refusal)
         return _result(status, answer.reason, n)  # the reason as text, with the Bad code
+
+    def _condition_refresh(self, method: methods.Method) -> Callable[..., Any]:
+        """ConditionRefresh(SubscriptionId), ConditionRefresh2(SubscriptionId,
+        MonitoredItemId): the alarm model's views now first (those the server has not sent:
+        a closing event lost or still on its way), then the retained conditions replayed
+        (events.py; issue 31, finding 8: never a closed one)."""
+
+        async def handler(parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
+            n = len(args)
+            bad = methods.check(method, args)
+            if bad is not None:
+                return _result(bad.status, bad.reason, n, bad.arg_results, out=False)
+            assert self._events is not None
+            views = await self._call_bench(lambda: list(self.alarms()))
+            for v in self._events.stale(views):
+                await self._alarm(dataclasses.replace(v, transition=v.transition or "current"))
+            ids = [int(a.Value) for a in args]
+            status = await self._events.refresh(ids[0], ids[1] if n > 1 else None)
+            return _result(status, "", n, out=False)
+
+        return handler
+
+    def _occurrence_refusal(
+        self, alarm: str, method: methods.Method, args: Sequence[ua.Variant], actor: str
+    ) -> ua.CallMethodResult | None:
+        """Acknowledge and Confirm (EventId, Comment): the arguments' types, then whether the
+        EventId names the condition's occurrence that waits (events.py; issue 31, finding 3).
+        None: the call may go to the command path."""
+        bad = methods.check(method, args)
+        if bad is None:
+            assert self._events is not None
+            found = self._events.refusal(
+                self._built.alarms[alarm],
+                args[0].Value,
+                "acked" if method is methods.ACKNOWLEDGE else "confirmed",
+            )
+            if found is None:
+                return None
+            bad = methods.Invalid(found[0], f"{method.name} of alarm {alarm}: {found[1]}")
+        log.warning("OPC UA %s by %s refused: %s", method.name, actor, bad.reason)
+        return _result(bad.status, bad.reason, len(args), bad.arg_results, out=False)
 
     async def _ask(self, req: Request) -> Answer:
         try:
@@ -936,6 +993,14 @@ def _result(
     ]
     res.OutputArguments = [ua.Variant(reason, VT.String)] if out else []
     return res
+
+
+def _not_a_condition(parent: ua.NodeId, n_args: int) -> ua.CallMethodResult:
+    """A condition's method called on an object that is no alarm's condition: Part 9 §5.7.3
+    asks Bad_NodeIdInvalid for the condition type itself (any standard node here), else
+    Bad_MethodInvalid (the method is not one of that object's)."""
+    status = S.BadNodeIdInvalid if parent.NamespaceIndex == 0 else S.BadMethodInvalid
+    return _result(status, f"{parent.to_string()} is not an alarm", n_args)
 
 
 class GatedLoop(HookedLoop):
