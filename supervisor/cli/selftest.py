@@ -211,6 +211,7 @@ async def history_unknown(t: Target) -> str:
     params = ua.HistoryReadParameters()
     params.HistoryReadDetails = details
     params.TimestampsToReturn = ua.TimestampsToReturn.Both
+    params.ReleaseContinuationPoints = False  # asyncua's default is True: a release only
     item = ua.HistoryReadValueId()
     item.NodeId = ua.NodeId("no.such.tag.selftest", t.ns)
     params.NodesToRead = [item]
