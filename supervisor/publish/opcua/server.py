@@ -318,21 +318,7 @@ class OpcUaServer:
         server.allow_remote_admin(False)
         await server.set_application_uri(self.namespace)
         server.product_uri = "urn:bench-supervisor"
-        tokens: list[type] = [ua.UserNameIdentityToken]
-        if s.anonymous:
-            tokens.insert(0, ua.AnonymousIdentityToken)
-        server.set_identity_tokens(tokens)
-        server.set_security_policy(
-            [POLICIES[p] for p in s.security], permission_ruleset=SessionRules()
-        )
-        # The server's certificate even with only the None policy: a password is encrypted
-        # with it on every endpoint that does not encrypt the channel (issue 27).
-        pki = Pki(s.pki_dir)
-        await pki.ensure(self.namespace, s.bench)
-        await server.load_certificate(pki.cert)
-        await server.load_private_key(pki.key)
-        if any(p != "none" for p in s.security):
-            server.set_certificate_validator(TrustList(pki))
+        await self._secure(server)
         idx = await server.register_namespace(self.namespace)
         built = await build_space(
             server, idx, self.layout, s.sampling_interval_s or s.scan_period_s, self._historised()
@@ -340,20 +326,7 @@ class OpcUaServer:
         self._built = built
         await self._describe(server, built)
         self._serve_history(server, built, self.history)
-        for nid, (channel, m) in built.methods.items():
-            server.iserver.isession.add_method_callback(nid, self._method_handler(channel, m))
-        server.link_method(
-            server.get_node(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
-            self._acknowledge,
-        )
-        for method_ids, handler in (
-            (SHELVE_IDS, self._shelving("shelve")),
-            (ONE_SHOT_IDS, self._shelving("one shot")),
-            (UNSHELVE_IDS, self._shelving("unshelve")),
-            ((O.AcknowledgeableConditionType_Confirm,), self._confirm),
-        ):
-            for mid in method_ids:
-                server.link_method(server.get_node(ua.NodeId(mid)), handler)
+        self._link_methods(server, built)
         await self._method_references(server, built)
         server.iserver.attribute_service = GuardedWrites(server.iserver.aspace, self)
         events = EventPublisher(server, built, s.bench)
@@ -396,6 +369,44 @@ class OpcUaServer:
         finally:
             quiet.setLevel(level)
         return server
+
+    async def _secure(self, server: Server) -> None:
+        """Who may connect and how: the identity tokens, the security policies, and the
+        server's certificate (with a trust list when a policy signs or encrypts)."""
+        s = self.settings
+        tokens: list[type] = [ua.UserNameIdentityToken]
+        if s.anonymous:
+            tokens.insert(0, ua.AnonymousIdentityToken)
+        server.set_identity_tokens(tokens)
+        server.set_security_policy(
+            [POLICIES[p] for p in s.security], permission_ruleset=SessionRules()
+        )
+        # The server's certificate even with only the None policy: a password is encrypted
+        # with it on every endpoint that does not encrypt the channel (issue 27).
+        pki = Pki(s.pki_dir)
+        await pki.ensure(self.namespace, s.bench)
+        await server.load_certificate(pki.cert)
+        await server.load_private_key(pki.key)
+        if any(p != "none" for p in s.security):
+            server.set_certificate_validator(TrustList(pki))
+
+    def _link_methods(self, server: Server, built: Built) -> None:
+        """The handlers of the methods a client calls: the channels' and the bench's, and
+        the alarm conditions' (Acknowledge, Confirm, the shelving ones)."""
+        for nid, (channel, m) in built.methods.items():
+            server.iserver.isession.add_method_callback(nid, self._method_handler(channel, m))
+        server.link_method(
+            server.get_node(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
+            self._acknowledge,
+        )
+        for method_ids, handler in (
+            (SHELVE_IDS, self._shelving("shelve")),
+            (ONE_SHOT_IDS, self._shelving("one shot")),
+            (UNSHELVE_IDS, self._shelving("unshelve")),
+            ((O.AcknowledgeableConditionType_Confirm,), self._confirm),
+        ):
+            for mid in method_ids:
+                server.link_method(server.get_node(ua.NodeId(mid)), handler)
 
     # --- values --------------------------------------------------------------------------
     async def _pump(self) -> None:
