@@ -332,11 +332,36 @@ class OpcUaServer:
         events = EventPublisher(server, built, s.bench)
         await events.init()
         self._events = events
+        self._index_nodes(built)
         # First values: the whole tag database as it is, then changes as they come.
+        wake_up = self._wake_up()
+        first = await self._call_bench(lambda: self.feed.start(self.db, wake_up))
+        await self._write(server, first)
+        for a in await self._call_bench(lambda: list(self.alarms())):
+            await self._alarm(a)
+        # A port already taken is the caller's to report, in one line (asyncua would log
+        # its traceback first).
+        quiet = logging.getLogger("asyncua.server.server")
+        level = quiet.level
+        quiet.setLevel(logging.CRITICAL)
+        try:
+            await server.start()
+        finally:
+            quiet.setLevel(level)
+        return server
+
+    def _index_nodes(self, built: Built) -> None:
+        """Each tag's node by the tag's index (what the feed's updates carry), and each
+        node's tag."""
         index_of = {t.name: t.index for t in self.db}
         for name, (nid, kind) in built.tags.items():
             self._by_index[index_of[name]] = (nid, kind)
             self._by_node[nid] = name
+
+    def _wake_up(self) -> Callable[[], None]:
+        """How the feed wakes the pump when a scan has changes (called on the scan's
+        thread): at once on the server's own loop when it shares the scan's, else from the
+        other thread, once the scan is done when there is a scan gate."""
         loop = asyncio.get_running_loop()
         wake = self._wake
         assert wake is not None
@@ -355,20 +380,7 @@ class OpcUaServer:
             else:
                 signal()
 
-        first = await self._call_bench(lambda: self.feed.start(self.db, wake_up))
-        await self._write(server, first)
-        for a in await self._call_bench(lambda: list(self.alarms())):
-            await self._alarm(a)
-        # A port already taken is the caller's to report, in one line (asyncua would log
-        # its traceback first).
-        quiet = logging.getLogger("asyncua.server.server")
-        level = quiet.level
-        quiet.setLevel(logging.CRITICAL)
-        try:
-            await server.start()
-        finally:
-            quiet.setLevel(level)
-        return server
+        return wake_up
 
     async def _secure(self, server: Server) -> None:
         """Who may connect and how: the identity tokens, the security policies, and the
