@@ -21,7 +21,7 @@ import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Final, NoReturn
+from typing import TYPE_CHECKING, Any, Final, NoReturn
 
 from supervisor.bench import args as bench_args
 from supervisor.cli import ctl
@@ -718,6 +718,30 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
 
+def _add_opcua_parser(sub: Any) -> None:
+    """Register ``supervisor opcua`` (a bench's OPC UA users, and the selftest of a
+    server) on the main parser's subcommands."""
+    ou = sub.add_parser(
+        "opcua",
+        help="OPC UA: the users of a bench (add-user, remove-user, list-users); selftest URL"
+        " (what an integrator's client expects of a server)",
+    )
+    ou.add_argument("action", choices=["add-user", "remove-user", "list-users", "selftest"])
+    ou.add_argument(
+        "name",
+        nargs="?",
+        default="",
+        help="the user (add-user, remove-user); the server's URL (selftest)",
+    )
+    ou.add_argument("--user", default=None, help="selftest: log in as this user (methods)")
+    ou.add_argument("--role", choices=["viewer", "operator", "engineer"], default="viewer")
+    ou.add_argument("--io-map", default=str(DEFAULT_IO_MAP), help="the bench whose users")
+    ou.add_argument(
+        "--password-stdin", action="store_true", help="read the password from stdin (scripts)"
+    )
+    ou.set_defaults(func=cmd_opcua)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="supervisor", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -828,25 +852,7 @@ def build_parser() -> argparse.ArgumentParser:
     ca.add_argument("--board", type=int, default=0)
     ca.set_defaults(func=cmd_calibrate)
 
-    ou = sub.add_parser(
-        "opcua",
-        help="OPC UA: the users of a bench (add-user, remove-user, list-users); selftest URL"
-        " (what an integrator's client expects of a server)",
-    )
-    ou.add_argument("action", choices=["add-user", "remove-user", "list-users", "selftest"])
-    ou.add_argument(
-        "name",
-        nargs="?",
-        default="",
-        help="the user (add-user, remove-user); the server's URL (selftest)",
-    )
-    ou.add_argument("--user", default=None, help="selftest: log in as this user (methods)")
-    ou.add_argument("--role", choices=["viewer", "operator", "engineer"], default="viewer")
-    ou.add_argument("--io-map", default=str(DEFAULT_IO_MAP), help="the bench whose users")
-    ou.add_argument(
-        "--password-stdin", action="store_true", help="read the password from stdin (scripts)"
-    )
-    ou.set_defaults(func=cmd_opcua)
+    _add_opcua_parser(sub)
 
     rs = sub.add_parser("results", help="result folders: verify DIR (complete and unmodified)")
     rs.add_argument("action", choices=["verify"])

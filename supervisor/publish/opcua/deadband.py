@@ -93,14 +93,23 @@ def value_filter(
         return ValueFilter(trigger, amount)
     if amount > 100.0:
         return int(S.BadDeadbandFilterInvalid)  # Part 8 §6.2: 0.0 to 100.0 percent
-    if eu_range is None:
+    deadband = _percent_deadband(amount, eu_range)
+    if deadband is None:
         return int(S.BadMonitoredItemFilterUnsupported)
+    return ValueFilter(trigger, deadband)
+
+
+def _percent_deadband(percent: float, eu_range: tuple[float, float] | None) -> float | None:
+    """A PercentDeadband in the value's own units: ``percent`` of the EURange's span; None
+    when the item has no span to take a percent of (no EURange, or one of infinities)."""
+    if eu_range is None:
+        return None
     low, high = eu_range
     # 0 % is "every change" even over an unbounded range (0 × inf would be NaN).
-    deadband = 0.0 if amount == 0.0 else amount / 100.0 * (float(high) - float(low))
+    deadband = 0.0 if percent == 0.0 else percent / 100.0 * (float(high) - float(low))
     if deadband != deadband:
-        return int(S.BadMonitoredItemFilterUnsupported)  # an EURange of infinities has no span
-    return ValueFilter(trigger, deadband)
+        return None  # an EURange of infinities has no span
+    return deadband
 
 
 def reports(f: ValueFilter, last: ua.DataValue | None, sample: ua.DataValue) -> bool:

@@ -28,7 +28,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Final, Literal
 
-from supervisor.config.models import BenchConfig
+from supervisor.config.models import BenchConfig, ChannelConfig
 from supervisor.tags import Access, Tag
 
 URN_PREFIX: Final = "urn:bench-supervisor:bench:"
@@ -173,15 +173,18 @@ def device_node(device: str) -> str:
     return f"/Bench/Devices/{device}"
 
 
-def plan(cfg: BenchConfig, tags: Iterable[Tag], alarms: Sequence[str] = ()) -> Layout:
-    """Where each tag goes, under which browse name."""
-    all_tags = list(tags)
-    by_name = {t.name: t for t in all_tags}
-    placed: set[str] = set()
-    channels = [c.name for c in cfg.channels]
+class _Placement:
+    """The bench's tags, each placed once: the first folder to take a tag holds its variable,
+    the later ones see it ``placed`` (a device's health tag is not a point of it too)."""
 
-    def var(tag: Tag, browse: str) -> Variable:
-        placed.add(tag.name)
+    def __init__(self, tags: Iterable[Tag]) -> None:
+        self.tags = list(tags)
+        self.by_name = {t.name: t for t in self.tags}
+        self.placed: set[str] = set()
+
+    def variable(self, tag: Tag, browse: str) -> Variable:
+        """The tag's variable under ``browse``; the tag is placed."""
+        self.placed.add(tag.name)
         s = tag.spec
         return Variable(
             tag.name,
@@ -193,94 +196,110 @@ def plan(cfg: BenchConfig, tags: Iterable[Tag], alarms: Sequence[str] = ()) -> L
             s.access is not Access.READ_ONLY,
         )
 
-    channel_folders = []
-    for ch in channels:
-        prefix = ch + "."
-        mine = [t for t in all_tags if t.name.startswith(prefix)]
-        names: dict[str, str] = {}
-        used: set[str] = set()
-        # The test's state: one state machine (its name and its number), not two variables.
-        machine = [
-            replace(var(by_name[prefix + suffix], browse), kind=kind)
-            for suffix, browse, kind in MACHINE_VARIABLES
-            if prefix + suffix in by_name
-        ]
-        mine = [t for t in mine if t.name not in placed]
-        used.add(STATE_MACHINE)
-        # The fixed vocabulary first, then the others by their suffix, shortest form that
-        # is still unique in the channel (``chain.alarm`` → ``Alarm``, else ``ChainAlarm``).
-        for t in mine:
-            suffix = t.name[len(prefix) :]
-            if suffix in CHANNEL_NAMES:
-                names[t.name] = CHANNEL_NAMES[suffix]
-                used.add(CHANNEL_NAMES[suffix])
-        for t in mine:
-            if t.name in names:
-                continue
-            suffix = t.name[len(prefix) :]
-            short = camel(suffix.removeprefix("chain."))
-            name = short if short not in used else camel(suffix)
-            k = 2
-            while name in used:
-                name = f"{camel(suffix)}{k}"
-                k += 1
-            names[t.name] = name
-            used.add(name)
-        c = next(x for x in cfg.channels if x.name == ch)
-        channel_folders.append(
-            Folder(
-                channel_node(ch),
-                ch,
-                c.description,
-                folder=False,
-                variables=tuple(var(t, names[t.name]) for t in mine),
-                children=(
-                    Folder(
-                        f"{channel_node(ch)}/{STATE_MACHINE}",
-                        STATE_MACHINE,
-                        "The test's state (ISA-88/PackML)",
-                        folder=False,
-                        variables=tuple(machine),
-                        typedef="ChannelStateMachineType",
-                    ),
-                )
-                if machine
-                else (),
-                channel=ch,
-                typedef="ChannelType",
-            )
-        )
+    def unplaced(self) -> list[Tag]:
+        return [t for t in self.tags if t.name not in self.placed]
 
-    device_folders = []
-    for dev in cfg.devices:
-        health = [
-            var(by_name[f"{dev}.{k}"], v)
-            for k, v in DEVICE_NAMES.items()
-            if f"{dev}.{k}" in by_name
-        ]
-        own = [
-            m.name
-            for m in cfg.tags
-            if m.device == dev and m.name in by_name and m.name not in placed
-        ]
-        point_names = unique_names(own, {v.browse for v in health})
-        points = [var(by_name[n], point_names[n]) for n in own]
-        device_folders.append(
-            Folder(
-                device_node(dev),
-                dev,
-                folder=False,
-                variables=tuple(health + points),
-                typedef=device_type(cfg.devices[dev].driver),
-            )
-        )
 
-    diagnostic_names = unique_names(
-        t.name for t in all_tags if t.name not in placed and t.name.startswith(DIAGNOSTIC_PREFIXES)
+def _channel_names(prefix: str, tags: Sequence[Tag]) -> dict[str, str]:
+    """The browse names of a channel's tags (``prefix`` is ``<channel>.``): the fixed
+    vocabulary first, then the others by their suffix, shortest form that is still unique
+    in the channel (``chain.alarm`` → ``Alarm``, else ``ChainAlarm``)."""
+    names: dict[str, str] = {}
+    used: set[str] = {STATE_MACHINE}
+    for t in tags:
+        suffix = t.name[len(prefix) :]
+        if suffix in CHANNEL_NAMES:
+            names[t.name] = CHANNEL_NAMES[suffix]
+            used.add(CHANNEL_NAMES[suffix])
+    for t in tags:
+        if t.name in names:
+            continue
+        suffix = t.name[len(prefix) :]
+        short = camel(suffix.removeprefix("chain."))
+        name = short if short not in used else camel(suffix)
+        k = 2
+        while name in used:
+            name = f"{camel(suffix)}{k}"
+            k += 1
+        names[t.name] = name
+        used.add(name)
+    return names
+
+
+def _channel_folder(channel: ChannelConfig, placement: _Placement) -> Folder:
+    """A channel's object: its tags under friendly names and its StateMachine."""
+    ch = channel.name
+    prefix = ch + "."
+    mine = [t for t in placement.tags if t.name.startswith(prefix)]
+    by_name = placement.by_name
+    # The test's state: one state machine (its name and its number), not two variables.
+    machine = [
+        replace(placement.variable(by_name[prefix + suffix], browse), kind=kind)
+        for suffix, browse, kind in MACHINE_VARIABLES
+        if prefix + suffix in by_name
+    ]
+    mine = [t for t in mine if t.name not in placement.placed]
+    names = _channel_names(prefix, mine)
+    return Folder(
+        channel_node(ch),
+        ch,
+        channel.description,
+        folder=False,
+        variables=tuple(placement.variable(t, names[t.name]) for t in mine),
+        children=(
+            Folder(
+                f"{channel_node(ch)}/{STATE_MACHINE}",
+                STATE_MACHINE,
+                "The test's state (ISA-88/PackML)",
+                folder=False,
+                variables=tuple(machine),
+                typedef="ChannelStateMachineType",
+            ),
+        )
+        if machine
+        else (),
+        channel=ch,
+        typedef="ChannelType",
     )
-    diagnostics = [var(by_name[n], b) for n, b in diagnostic_names.items()]
-    rest_names = unique_names(t.name for t in all_tags if t.name not in placed)
-    rest = [var(by_name[n], b) for n, b in rest_names.items()]
+
+
+def _device_folder(cfg: BenchConfig, dev: str, placement: _Placement) -> Folder:
+    """A device's object: its health, then the tags the I/O map takes from its points."""
+    by_name = placement.by_name
+    health = [
+        placement.variable(by_name[f"{dev}.{k}"], v)
+        for k, v in DEVICE_NAMES.items()
+        if f"{dev}.{k}" in by_name
+    ]
+    own = [
+        m.name
+        for m in cfg.tags
+        if m.device == dev and m.name in by_name and m.name not in placement.placed
+    ]
+    point_names = unique_names(own, {v.browse for v in health})
+    points = [placement.variable(by_name[n], point_names[n]) for n in own]
+    return Folder(
+        device_node(dev),
+        dev,
+        folder=False,
+        variables=tuple(health + points),
+        typedef=device_type(cfg.devices[dev].driver),
+    )
+
+
+def plan(cfg: BenchConfig, tags: Iterable[Tag], alarms: Sequence[str] = ()) -> Layout:
+    """Where each tag goes, under which browse name."""
+    placement = _Placement(tags)
+    by_name = placement.by_name
+    channels = [c.name for c in cfg.channels]
+    channel_folders = [_channel_folder(c, placement) for c in cfg.channels]
+    device_folders = [_device_folder(cfg, dev, placement) for dev in cfg.devices]
+    diagnostic_names = unique_names(
+        t.name for t in placement.unplaced() if t.name.startswith(DIAGNOSTIC_PREFIXES)
+    )
+    diagnostics = [placement.variable(by_name[n], b) for n, b in diagnostic_names.items()]
+    rest_names = unique_names(t.name for t in placement.unplaced())
+    rest = [placement.variable(by_name[n], b) for n, b in rest_names.items()]
     alarm_folders = [Folder(alarm_node(a), a, folder=False, alarm=a) for a in alarms]
     children = [
         Folder(

@@ -310,28 +310,43 @@ async def add_identification(
             ident_type,
         ),
     ]
-    where = {"di": di, "machinery": machinery}
-    for ns, name, variant, dtype in identification_values(
-        settings.identification, settings.bench, namespace
-    ):
-        items.append(
-            _property(
-                ua.NodeId(f"{ident.Identifier}/{name}", bench.NamespaceIndex),
-                ua.QualifiedName(name, where[ns]),
-                ident,
-                variant,
-                dtype,
-            )
-        )
+    items += _identification_properties(
+        identification_values(settings.identification, settings.bench, namespace),
+        ident,
+        {"di": di, "machinery": machinery},
+    )
     results = await server.iserver.isession.add_nodes(items)
     bad = [r.StatusCode for r in results if not r.StatusCode.is_good()]
     if bad:
         raise RuntimeError(f"OPC UA identification: {len(bad)} nodes refused, first {bad[0]}")
+    await _organize(server, machines, bench)
+    return ident
+
+
+def _identification_properties(
+    values: list[tuple[str, str, ua.Variant, int]], ident: ua.NodeId, where: dict[str, int]
+) -> list[ua.AddNodesItem]:
+    """The Identification object's properties (``identification_values``), each browse name
+    in its companion namespace's index (``where``: "di", "machinery"), each NodeId under the
+    Identification's in the bench's namespace."""
+    return [
+        _property(
+            ua.NodeId(f"{ident.Identifier}/{name}", ident.NamespaceIndex),
+            ua.QualifiedName(name, where[ns]),
+            ident,
+            variant,
+            dtype,
+        )
+        for ns, name, variant, dtype in values
+    ]
+
+
+async def _organize(server: Server, folder: ua.NodeId, target: ua.NodeId) -> None:
+    """``folder`` Organizes the object ``target`` (Objects/Machines the Bench)."""
     ref = ua.AddReferencesItem()
     ref.IsForward = True
     ref.ReferenceTypeId = ua.NodeId(O.Organizes)
-    ref.SourceNodeId = machines
+    ref.SourceNodeId = folder
     ref.TargetNodeClass = ua.NodeClass.Object
-    ref.TargetNodeId = bench
+    ref.TargetNodeId = target
     await server.iserver.isession.add_references([ref])
-    return ident

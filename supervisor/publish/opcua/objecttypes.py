@@ -258,20 +258,43 @@ def declared(typedef: str) -> frozenset[str]:
     return frozenset()
 
 
+@dataclass
+class _Declaration:
+    """The types' nodes in the order AddNodes takes them (a parent before its children),
+    and the members among them that take the Mandatory modelling rule."""
+
+    items: list[ua.AddNodesItem] = field(default_factory=list)
+    members: list[ua.NodeId] = field(default_factory=list)
+
+    def add(self, it: ua.AddNodesItem) -> None:
+        self.items.append(it)
+
+    def member(self, it: ua.AddNodesItem) -> None:
+        self.items.append(it)
+        self.members.append(it.RequestedNewNodeId)
+
+    def methods(self, items: Iterable[ua.AddNodesItem]) -> None:
+        """A type's methods are members; their arguments are not (they are properties)."""
+        for it in items:
+            (self.member if it.NodeClass is ua.NodeClass.Method else self.add)(it)
+
+
 def type_items(
     tidx: int, device_types: Iterable[str]
 ) -> tuple[list[ua.AddNodesItem], list[ua.NodeId]]:
     """Every type's nodes, and the members that take the Mandatory modelling rule."""
-    items: list[ua.AddNodesItem] = []
-    members: list[ua.NodeId] = []
+    d = _Declaration()
+    fsm = _state_machine_type(d, tidx)
+    _channel_type(d, tidx, fsm)
+    _device_types(d, tidx, device_types)
+    _bench_type(d, tidx)
+    return d.items, d.members
 
-    def member(it: ua.AddNodesItem) -> None:
-        items.append(it)
-        members.append(it.RequestedNewNodeId)
 
-    # The state machine: FiniteStateMachineType with the PackML states.
+def _state_machine_type(d: _Declaration, tidx: int) -> ua.NodeId:
+    """The state machine: FiniteStateMachineType with the PackML states; its NodeId."""
     fsm = type_node("ChannelStateMachineType", tidx)
-    items.append(
+    d.add(
         _object_type(
             fsm,
             "ChannelStateMachineType",
@@ -281,7 +304,7 @@ def type_items(
         )
     )
     current = ua.NodeId("ChannelStateMachineType/CurrentState", tidx)
-    member(
+    d.member(
         _member_variable(
             current,
             ua.QualifiedName("CurrentState", 0),
@@ -291,7 +314,7 @@ def type_items(
         )
     )
     for prop, dtype in (("Id", O.NodeId), ("Number", O.UInt32)):
-        member(
+        d.member(
             _member_variable(
                 ua.NodeId(f"ChannelStateMachineType/CurrentState/{prop}", tidx),
                 ua.QualifiedName(prop, 0),
@@ -303,8 +326,8 @@ def type_items(
         )
     for code, name in enumerate(PACKML_STATES):
         sid = state_node(code, tidx)
-        items.append(_member_object(sid, ua.QualifiedName(name, tidx), fsm, O.StateType))
-        items.append(
+        d.add(_member_object(sid, ua.QualifiedName(name, tidx), fsm, O.StateType))
+        d.add(
             _member_variable(
                 ua.NodeId(f"ChannelStateMachineType/{name}/StateNumber", tidx),
                 ua.QualifiedName("StateNumber", 0),
@@ -315,12 +338,15 @@ def type_items(
                 ua.Variant(code, VT.UInt32),
             )
         )
+    return fsm
 
-    # The channel.
+
+def _channel_type(d: _Declaration, tidx: int, fsm: ua.NodeId) -> None:
+    """The channel: its variables, its StateMachine (of type ``fsm``), its methods."""
     channel = type_node("ChannelType", tidx)
-    items.append(_object_type(channel, "ChannelType", tidx, O.BaseObjectType, "A test channel"))
+    d.add(_object_type(channel, "ChannelType", tidx, O.BaseObjectType, "A test channel"))
     for name, kind in CHANNEL_MEMBERS.items():
-        member(
+        d.member(
             _member_variable(
                 ua.NodeId(f"ChannelType/{name}", tidx),
                 ua.QualifiedName(name, tidx),
@@ -329,7 +355,7 @@ def type_items(
                 DATA_TYPES[kind],
             )
         )
-    member(
+    d.member(
         _member_object(
             ua.NodeId(f"ChannelType/{STATE_MACHINE}", tidx),
             ua.QualifiedName(STATE_MACHINE, tidx),
@@ -337,16 +363,15 @@ def type_items(
             fsm,
         )
     )
-    for it in _methods(channel, "ChannelType", tidx, METHODS):
-        (member if it.NodeClass is ua.NodeClass.Method else items.append)(it)
+    d.methods(_methods(channel, "ChannelType", tidx, METHODS))
 
-    # Devices.
+
+def _device_types(d: _Declaration, tidx: int, device_types: Iterable[str]) -> None:
+    """Devices: BenchDeviceType with their health, and its subtype of each kind."""
     device = type_node("BenchDeviceType", tidx)
-    items.append(
-        _object_type(device, "BenchDeviceType", tidx, O.BaseObjectType, "A device: its health")
-    )
+    d.add(_object_type(device, "BenchDeviceType", tidx, O.BaseObjectType, "A device: its health"))
     for name, kind in DEVICE_MEMBERS.items():
-        member(
+        d.member(
             _member_variable(
                 ua.NodeId(f"BenchDeviceType/{name}", tidx),
                 ua.QualifiedName(name, tidx),
@@ -356,7 +381,7 @@ def type_items(
             )
         )
     for name in sorted(set(device_types)):
-        items.append(
+        d.add(
             _object_type(
                 type_node(name, tidx),
                 name,
@@ -366,11 +391,13 @@ def type_items(
             )
         )
 
-    # The bench.
+
+def _bench_type(d: _Declaration, tidx: int) -> None:
+    """The bench: its folders and its methods."""
     bench = type_node("BenchType", tidx)
-    items.append(_object_type(bench, "BenchType", tidx, O.BaseObjectType, "A test bench"))
+    d.add(_object_type(bench, "BenchType", tidx, O.BaseObjectType, "A test bench"))
     for name in BENCH_FOLDERS:
-        member(
+        d.member(
             _member_object(
                 ua.NodeId(f"BenchType/{name}", tidx),
                 ua.QualifiedName(name, tidx),
@@ -379,9 +406,7 @@ def type_items(
                 O.Organizes,
             )
         )
-    for it in _methods(bench, "BenchType", tidx, BENCH_METHODS):
-        (member if it.NodeClass is ua.NodeClass.Method else items.append)(it)
-    return items, members
+    d.methods(_methods(bench, "BenchType", tidx, BENCH_METHODS))
 
 
 async def build_object_types(server: Server, tidx: int, device_types: Iterable[str]) -> None:

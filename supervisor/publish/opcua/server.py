@@ -319,21 +319,7 @@ class OpcUaServer:
         server.allow_remote_admin(False)
         await server.set_application_uri(self.namespace)
         server.product_uri = "urn:bench-supervisor"
-        tokens: list[type] = [ua.UserNameIdentityToken]
-        if s.anonymous:
-            tokens.insert(0, ua.AnonymousIdentityToken)
-        server.set_identity_tokens(tokens)
-        server.set_security_policy(
-            [POLICIES[p] for p in s.security], permission_ruleset=SessionRules()
-        )
-        # The server's certificate even with only the None policy: a password is encrypted
-        # with it on every endpoint that does not encrypt the channel (issue 27).
-        pki = Pki(s.pki_dir)
-        await pki.ensure(self.namespace, s.bench)
-        await server.load_certificate(pki.cert)
-        await server.load_private_key(pki.key)
-        if any(p != "none" for p in s.security):
-            server.set_certificate_validator(TrustList(pki))
+        await self._secure(server)
         idx = await server.register_namespace(self.namespace)
         built = await build_space(
             server, idx, self.layout, s.sampling_interval_s or s.scan_period_s, self._historised()
@@ -341,29 +327,42 @@ class OpcUaServer:
         self._built = built
         await self._describe(server, built)
         await self._serve_history(server, built, self.history)
-        for nid, (channel, m) in built.methods.items():
-            server.iserver.isession.add_method_callback(nid, self._method_handler(channel, m))
-        for method_ids, handler in (
-            ((O.AcknowledgeableConditionType_Acknowledge,), self._acknowledge),
-            ((O.ConditionType_ConditionRefresh,), self._condition_refresh(methods.REFRESH)),
-            ((O.ConditionType_ConditionRefresh2,), self._condition_refresh(methods.REFRESH2)),
-            (SHELVE_IDS, self._shelving("shelve")),
-            (ONE_SHOT_IDS, self._shelving("one shot")),
-            (UNSHELVE_IDS, self._shelving("unshelve")),
-            ((O.AcknowledgeableConditionType_Confirm,), self._confirm),
-        ):
-            for mid in method_ids:
-                server.link_method(server.get_node(ua.NodeId(mid)), handler)
+        self._link_methods(server, built)
         await self._method_references(server, built)
         server.iserver.attribute_service = GuardedWrites(server.iserver.aspace, self)
         events = EventPublisher(server, built, s.bench)
         await events.init()
         self._events = events
+        self._index_nodes(built)
         # First values: the whole tag database as it is, then changes as they come.
+        wake_up = self._wake_up()
+        first = await self._call_bench(lambda: self.feed.start(self.db, wake_up))
+        await self._write(server, first)
+        for a in await self._call_bench(lambda: list(self.alarms())):
+            await self._alarm(a)
+        # A port already taken is the caller's to report, in one line (asyncua would log
+        # its traceback first).
+        quiet = logging.getLogger("asyncua.server.server")
+        level = quiet.level
+        quiet.setLevel(logging.CRITICAL)
+        try:
+            await server.start()
+        finally:
+            quiet.setLevel(level)
+        return server
+
+    def _index_nodes(self, built: Built) -> None:
+        """Each tag's node by the tag's index (what the feed's updates carry), and each
+        node's tag."""
         index_of = {t.name: t.index for t in self.db}
         for name, (nid, kind) in built.tags.items():
             self._by_index[index_of[name]] = (nid, kind)
             self._by_node[nid] = name
+
+    def _wake_up(self) -> Callable[[], None]:
+        """How the feed wakes the pump when a scan has changes (called on the scan's
+        thread): at once on the server's own loop when it shares the scan's, else from the
+        other thread, once the scan is done when there is a scan gate."""
         loop = asyncio.get_running_loop()
         wake = self._wake
         assert wake is not None
@@ -382,20 +381,44 @@ class OpcUaServer:
             else:
                 signal()
 
-        first = await self._call_bench(lambda: self.feed.start(self.db, wake_up))
-        await self._write(server, first)
-        for a in await self._call_bench(lambda: list(self.alarms())):
-            await self._alarm(a)
-        # A port already taken is the caller's to report, in one line (asyncua would log
-        # its traceback first).
-        quiet = logging.getLogger("asyncua.server.server")
-        level = quiet.level
-        quiet.setLevel(logging.CRITICAL)
-        try:
-            await server.start()
-        finally:
-            quiet.setLevel(level)
-        return server
+        return wake_up
+
+    async def _secure(self, server: Server) -> None:
+        """Who may connect and how: the identity tokens, the security policies, and the
+        server's certificate (with a trust list when a policy signs or encrypts)."""
+        s = self.settings
+        tokens: list[type] = [ua.UserNameIdentityToken]
+        if s.anonymous:
+            tokens.insert(0, ua.AnonymousIdentityToken)
+        server.set_identity_tokens(tokens)
+        server.set_security_policy(
+            [POLICIES[p] for p in s.security], permission_ruleset=SessionRules()
+        )
+        # The server's certificate even with only the None policy: a password is encrypted
+        # with it on every endpoint that does not encrypt the channel (issue 27).
+        pki = Pki(s.pki_dir)
+        await pki.ensure(self.namespace, s.bench)
+        await server.load_certificate(pki.cert)
+        await server.load_private_key(pki.key)
+        if any(p != "none" for p in s.security):
+            server.set_certificate_validator(TrustList(pki))
+
+    def _link_methods(self, server: Server, built: Built) -> None:
+        """The handlers of the methods a client calls: the channels' and the bench's, and
+        the alarm conditions' (Acknowledge, ConditionRefresh, Confirm, the shelving ones)."""
+        for nid, (channel, m) in built.methods.items():
+            server.iserver.isession.add_method_callback(nid, self._method_handler(channel, m))
+        for method_ids, handler in (
+            ((O.AcknowledgeableConditionType_Acknowledge,), self._acknowledge),
+            ((O.ConditionType_ConditionRefresh,), self._condition_refresh(methods.REFRESH)),
+            ((O.ConditionType_ConditionRefresh2,), self._condition_refresh(methods.REFRESH2)),
+            (SHELVE_IDS, self._shelving("shelve")),
+            (ONE_SHOT_IDS, self._shelving("one shot")),
+            (UNSHELVE_IDS, self._shelving("unshelve")),
+            ((O.AcknowledgeableConditionType_Confirm,), self._confirm),
+        ):
+            for mid in method_ids:
+                server.link_method(server.get_node(ua.NodeId(mid)), handler)
 
     # --- values --------------------------------------------------------------------------
     async def _pump(self) -> None:

@@ -23,7 +23,7 @@ number changes (``StateMachineNodes.derived``).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -271,6 +271,16 @@ def _state_machine_items(
     )
 
 
+def _data_type(kind: str) -> ua.NodeId:
+    """The DataType of a variable of a tag of this kind, analog aside (a state outside a
+    channel's state machine: its number, or its name)."""
+    if kind == "state":
+        return ua.NodeId(O.UInt32)
+    if kind == "statename":
+        return ua.NodeId(O.LocalizedText)
+    return DATA_TYPES[kind]
+
+
 def _tag_items(
     v: Variable,
     parent: ua.NodeId,
@@ -285,29 +295,14 @@ def _tag_items(
     access = READ | (WRITE if v.writable else 0) | (HISTORY if kept else 0)
     browse = ua.QualifiedName(v.browse, browse_ns or idx)
     built.tags[v.tag] = (nid, v.kind)
-    if v.kind not in ("analog", "state", "statename"):
+    if v.kind != "analog":
         yield _variable(
             nid,
             browse,
             parent,
             O.HasComponent,
             O.BaseDataVariableType,
-            DATA_TYPES[v.kind],
-            default_variant(v.kind),
-            v.description,
-            access,
-            sampling_ms=sampling_ms,
-            historizing=kept,
-        )
-        return
-    if v.kind != "analog":  # a state outside a channel's state machine: its number
-        yield _variable(
-            nid,
-            browse,
-            parent,
-            O.HasComponent,
-            O.BaseDataVariableType,
-            ua.NodeId(O.LocalizedText if v.kind == "statename" else O.UInt32),
+            _data_type(v.kind),
             default_variant(v.kind),
             v.description,
             access,
@@ -330,6 +325,12 @@ def _tag_items(
         sampling_ms=sampling_ms,
         historizing=kept,
     )
+    yield from _analog_properties(v, nid, idx)
+
+
+def _analog_properties(v: Variable, nid: ua.NodeId, idx: int) -> Iterable[ua.AddNodesItem]:
+    """An analog tag's EURange (when its range is known) and EngineeringUnits (when it has
+    a unit), properties of its variable ``nid``."""
     if v.range is not None:
         low, high = v.range
         yield _variable(
@@ -395,65 +396,78 @@ def _folder_items(
     if f.channel:
         built.channels[f.channel] = nid
     if f.alarm:
-        built.alarms[f.alarm] = nid
-        # Part 9: the shelving methods are called on the condition's ShelvingState object.
-        sid = ua.NodeId(f"{f.node}/ShelvingState", idx)
-        built.shelving[f.alarm] = sid
-        yield _object(sid, ua.QualifiedName("ShelvingState", 0), nid, False, "Shelving")
-        # Part 9: what a client reads on a condition object, as its events say it.
-        initial = condition_values(False, True, False, False, f.alarm, 1, "")
-        for member in CONDITION_MEMBERS:
-            cid = ua.NodeId(f"{f.node}/{member.path}", idx)
-            above = member.path.rpartition("/")[0]  # a state's Id is its property
-            owner = ua.NodeId(f"{f.node}/{above}", idx) if above else nid
-            built.alarm_fields[(f.alarm, member.path)] = cid
-            yield _variable(
-                cid,
-                ua.QualifiedName(member.browse, 0),
-                owner,
-                member.ref,
-                member.typedef,
-                ua.NodeId(member.dtype),
-                initial[member.path],
-                member.path,
-            )
-        for name, vt, description in ALARM_FIELDS:
-            fid = ua.NodeId(f"{f.node}/{name}", idx)
-            built.alarm_fields[(f.alarm, name)] = fid
-            yield _variable(
-                fid,
-                ua.QualifiedName(name, idx),
-                nid,
-                O.HasComponent,
-                O.BaseDataVariableType,
-                ua.NodeId(vt.value),
-                ua.Variant(ua.get_default_value(vt), vt),
-                description,
-            )
+        yield from _alarm_items(f, nid, idx, built)
     for v in f.variables:
         yield from _tag_items(v, nid, idx, built, sampling_ms, historised, ns_of(v.browse))
     for c in f.children:
         yield from _folder_items(c, nid, idx, built, sampling_ms, historised, ns_of(c.browse))
+    yield from _method_items(f, nid, idx, built, ns_of)
+
+
+def _alarm_items(f: Folder, nid: ua.NodeId, idx: int, built: Built) -> Iterable[ua.AddNodesItem]:
+    """An alarm's condition object ``nid``: its ShelvingState, the standard variables of a
+    condition (Part 9) and the bench's own fields (``ALARM_FIELDS``)."""
+    built.alarms[f.alarm] = nid
+    # Part 9: the shelving methods are called on the condition's ShelvingState object.
+    sid = ua.NodeId(f"{f.node}/ShelvingState", idx)
+    built.shelving[f.alarm] = sid
+    yield _object(sid, ua.QualifiedName("ShelvingState", 0), nid, False, "Shelving")
+    # Part 9: what a client reads on a condition object, as its events say it.
+    initial = condition_values(False, True, False, False, f.alarm, 1, "")
+    for member in CONDITION_MEMBERS:
+        cid = ua.NodeId(f"{f.node}/{member.path}", idx)
+        above = member.path.rpartition("/")[0]  # a state's Id is its property
+        owner = ua.NodeId(f"{f.node}/{above}", idx) if above else nid
+        built.alarm_fields[(f.alarm, member.path)] = cid
+        yield _variable(
+            cid,
+            ua.QualifiedName(member.browse, 0),
+            owner,
+            member.ref,
+            member.typedef,
+            ua.NodeId(member.dtype),
+            initial[member.path],
+            member.path,
+        )
+    for name, vt, description in ALARM_FIELDS:
+        fid = ua.NodeId(f"{f.node}/{name}", idx)
+        built.alarm_fields[(f.alarm, name)] = fid
+        yield _variable(
+            fid,
+            ua.QualifiedName(name, idx),
+            nid,
+            O.HasComponent,
+            O.BaseDataVariableType,
+            ua.NodeId(vt.value),
+            ua.Variant(ua.get_default_value(vt), vt),
+            description,
+        )
+
+
+def _method_items(
+    f: Folder, nid: ua.NodeId, idx: int, built: Built, ns_of: Callable[[str], int]
+) -> Iterable[ua.AddNodesItem]:
+    """A channel's or the Bench's methods with their arguments; ``ns_of``: a browse name's
+    namespace (the types namespace for a member the object's type declares)."""
     own = METHODS if f.channel else BENCH_METHODS if f.node == "/Bench" else ()
-    if own:
-        for m in own:
-            mid = ua.NodeId(f"{f.node}/{m.name}", idx)
-            built.methods[mid] = (f.channel, m)
-            yield _method(mid, ua.QualifiedName(m.name, ns_of(m.name)), nid, m.description)
-            for prop, args in (("InputArguments", m.args), ("OutputArguments", (RESULT,))):
-                if not args:
-                    continue
-                yield _variable(
-                    ua.NodeId(f"{f.node}/{m.name}/{prop}", idx),
-                    ua.QualifiedName(prop, 0),
-                    mid,
-                    O.HasProperty,
-                    O.PropertyType,
-                    ua.NodeId(O.Argument),
-                    ua.Variant([argument(a) for a in args], VT.ExtensionObject),
-                    prop,
-                    value_rank=ua.ValueRank.OneDimension,
-                )
+    for m in own:
+        mid = ua.NodeId(f"{f.node}/{m.name}", idx)
+        built.methods[mid] = (f.channel, m)
+        yield _method(mid, ua.QualifiedName(m.name, ns_of(m.name)), nid, m.description)
+        for prop, args in (("InputArguments", m.args), ("OutputArguments", (RESULT,))):
+            if not args:
+                continue
+            yield _variable(
+                ua.NodeId(f"{f.node}/{m.name}/{prop}", idx),
+                ua.QualifiedName(prop, 0),
+                mid,
+                O.HasProperty,
+                O.PropertyType,
+                ua.NodeId(O.Argument),
+                ua.Variant([argument(a) for a in args], VT.ExtensionObject),
+                prop,
+                value_rank=ua.ValueRank.OneDimension,
+            )
 
 
 async def build_space(
