@@ -642,11 +642,10 @@ async def _ack_alarm(bench: Bench, alarm: str) -> int:
     from asyncua import ua
 
     obj = bench.node(f"/Bench/Alarms/{alarm}")
-    try:  # the condition's last EventId, as Part 9 asks (the server keys on the condition)
-        event_id = await bench.client.get_node(obj).get_child("0:EventId")
-        event = await event_id.read_value()
-    except ua.UaError:
-        event = b""
+    # The EventId of the occurrence to acknowledge, as an alarm list has it: from the
+    # condition's last event, replayed by a ConditionRefresh (Part 9 §5.5.7); the server
+    # acknowledges only an occurrence it sent (issue 31, finding 3).
+    event = await _last_event_id(bench, alarm)
     req = ua.CallMethodRequest()
     req.ObjectId = obj
     req.MethodId = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
@@ -663,6 +662,46 @@ async def _ack_alarm(bench: Bench, alarm: str) -> int:
     (state,) = await bench.read([f"/Bench/Alarms/{alarm}/State"])
     _out(f"{alarm}: acknowledged ({_text(state)})")
     return EXIT_OK
+
+
+async def _last_event_id(bench: Bench, alarm: str) -> bytes:
+    """The EventId of the last event of ``alarm``'s condition (b"" when the server replays
+    none: not retained, so nothing to acknowledge)."""
+    import asyncio
+
+    from asyncua import ua
+
+    got: dict[str, bytes] = {}
+    done = asyncio.Event()
+
+    class Events:
+        def event_notification(self, event: Any) -> None:
+            fields = event.get_event_props_as_fields_dict()
+            kind = fields.get("EventType")
+            if kind is not None and kind.Value == ua.NodeId(ua.ObjectIds.RefreshEndEventType):
+                done.set()
+            name = fields.get("ConditionName")
+            if name is not None and name.Value == alarm:
+                got["id"] = fields["EventId"].Value
+
+    sub = await bench.client.create_subscription(100, Events())
+    try:
+        await sub.subscribe_events(
+            bench.client.nodes.server,
+            [ua.ObjectIds.AlarmConditionType, ua.ObjectIds.RefreshEndEventType],
+        )
+        req = ua.CallMethodRequest()
+        req.ObjectId = ua.NodeId(ua.ObjectIds.ConditionType)
+        req.MethodId = ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh)
+        req.InputArguments = [ua.Variant(sub.subscription_id, ua.VariantType.UInt32)]
+        (res,) = await bench.client.uaclient.call([req])
+        if res.StatusCode.is_good():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(done.wait(), CONNECT_TIMEOUT_S)
+    finally:
+        with contextlib.suppress(Exception):
+            await sub.delete()
+    return got.get("id", b"")
 
 
 async def _alarms(bench: Bench) -> int:

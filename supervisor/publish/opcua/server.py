@@ -804,7 +804,14 @@ class OpcUaServer:
     ) -> ua.CallMethodResult | None:
         """Acknowledge and Confirm (EventId, Comment): the arguments' types, then whether the
         EventId names the condition's occurrence that waits (events.py; issue 31, finding 3).
-        None: the call may go to the command path."""
+        None: the call may go to the command path. A session that may not acknowledge is
+        refused first, and learns nothing of the occurrences (the command path would refuse
+        it the same way)."""
+        access = self._access(current_user())
+        if access is not None and access < Access.OPERATOR:
+            reason = f"{method.name} of alarm {alarm}: {actor} may not ({access.name.lower()})"
+            log.warning("OPC UA %s refused: %s", method.name, reason)
+            return _result(S.BadUserAccessDenied, reason, len(args), out=False)
         bad = methods.check(method, args)
         if bad is None:
             assert self._events is not None
