@@ -19,6 +19,12 @@ issue 27, findings 5 and 6): a small, tested override of asyncua 2.1's ``Server`
   (Bad_TooManySessions: OPC UA allows several sessions per channel, asyncua does not
   implement it); a session never activated is closed and replaced, as a client retrying a
   refused login does.
+- **The None endpoint ignores the client's certificate** (Part 4 §5.7.2.2; issue 31,
+  finding 1): asyncua validates the CreateSession's certificate whatever the channel, and
+  node-opcua sends one by default. The processor tells the validator (``TrustList``) the
+  channel's mode; on None it accepts. A certificate refused on a signed channel is logged
+  once by the validator (WARNING, rate-limited): asyncua's own ERROR line per refusal is
+  not written (issue 31, finding 8).
 """
 
 from __future__ import annotations
@@ -28,12 +34,15 @@ import socket
 from typing import Any, Final
 
 from asyncua import Server, ua
+from asyncua.common.utils import ServiceError
 from asyncua.crypto import uacrypto
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from asyncua.server.binary_server_asyncio import BinaryServer, OPCUAProtocol
 from asyncua.server.internal_session import SessionState
 from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary
+
+from supervisor.publish.opcua.security import serving_on
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +70,21 @@ SESSIONLESS: Final = frozenset(
 """Requests served without a session: their AuthenticationToken is not checked (ActivateSession
 is checked when the connection has a session: else asyncua looks the session up by it, a
 client reconnecting on a new channel, Part 4 §6.7)."""
+CERTIFICATE_REFUSALS: Final = frozenset(
+    getattr(S, n)
+    for n in (
+        "BadCertificateUntrusted",
+        "BadCertificateInvalid",
+        "BadCertificateTimeInvalid",
+        "BadCertificateUriInvalid",
+        "BadCertificateUseNotAllowed",
+        "BadCertificateRevoked",
+        "BadCertificateIssuerRevoked",
+        "BadCertificateChainIncomplete",
+        "BadSecurityChecksFailed",
+    )
+)
+"""What the certificate validator refuses a CreateSession with (it logs why, once)."""
 
 
 def password_in_clear(token: object, channel_mode: ua.MessageSecurityMode) -> bool:
@@ -77,6 +101,7 @@ class SessionBoundProcessor(UaProcessor):  # type: ignore[misc]
     password before asyncua serves it."""
 
     async def _process_message(self, typeid: Any, requesthdr: Any, seqhdr: Any, body: Any) -> Any:
+        serving_on(self._connection.security_policy.Mode)
         session = self.session
         live = session is not None and session.state is not SessionState.Closed
         if typeid == CREATE_SESSION and live:
@@ -118,7 +143,20 @@ class SessionBoundProcessor(UaProcessor):  # type: ignore[misc]
                     " certificate as the endpoint's UserTokenPolicy asks (Basic256Sha256),"
                     " or use a SignAndEncrypt endpoint",
                 )
-        return await super()._process_message(typeid, requesthdr, seqhdr, body)
+        try:
+            return await super()._process_message(typeid, requesthdr, seqhdr, body)
+        except ServiceError as exc:
+            if typeid != CREATE_SESSION or exc.code not in CERTIFICATE_REFUSALS:
+                raise
+            # Logged by the validator, once per certificate and window: asyncua would add an
+            # ERROR line for every retry of the client.
+            self._fault(requesthdr, seqhdr, exc.code)
+            return True
+
+    def _fault(self, requesthdr: Any, seqhdr: Any, code: int) -> None:
+        response = ua.ServiceFault()
+        response.ResponseHeader.ServiceResult = ua.StatusCode(code)
+        self.send_response(requesthdr.RequestHandle, seqhdr, response)
 
     def _refuse(self, requesthdr: Any, seqhdr: Any, code: int, reason: str) -> bool:
         """Answer a ServiceFault with ``code`` and ``reason`` (in the response header's
