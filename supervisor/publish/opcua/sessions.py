@@ -25,12 +25,16 @@ issue 27, findings 5 and 6): a small, tested override of asyncua 2.1's ``Server`
   channel's mode; on None it accepts. A certificate refused on a signed channel is logged
   once by the validator (WARNING, rate-limited): asyncua's own ERROR line per refusal is
   not written (issue 31, finding 8).
+- **Operation limits, Browse and BrowseNext** (issue 31, finding 4; ``services.py``): a
+  request past its advertised limit is refused (Bad_TooManyOperations); Browse and
+  BrowseNext are served by ``services.py`` in slices, with continuation points.
 """
 
 from __future__ import annotations
 
 import logging
 import socket
+import time
 from typing import Any, Final
 
 from asyncua import Server, ua
@@ -42,6 +46,7 @@ from asyncua.server.internal_session import SessionState
 from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary
 
+from supervisor.publish.opcua import services
 from supervisor.publish.opcua.security import serving_on
 
 log = logging.getLogger(__name__)
@@ -97,8 +102,14 @@ def password_in_clear(token: object, channel_mode: ua.MessageSecurityMode) -> bo
 
 
 class SessionBoundProcessor(UaProcessor):  # type: ignore[misc]
-    """asyncua's per-connection processor, checking a request's session and a login's
-    password before asyncua serves it."""
+    """asyncua's per-connection processor, checking a request's session, a login's password
+    and a request's number of operations before asyncua serves it; Browse and BrowseNext
+    served by ``services.py``."""
+
+    def __init__(self, *args: Any, browser: services.Browser, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        self.browser = browser
+        self.points = services.ContinuationPoints()
 
     async def _process_message(self, typeid: Any, requesthdr: Any, seqhdr: Any, body: Any) -> Any:
         serving_on(self._connection.security_policy.Mode)
@@ -143,6 +154,12 @@ class SessionBoundProcessor(UaProcessor):  # type: ignore[misc]
                     " certificate as the endpoint's UserTokenPolicy asks (Basic256Sha256),"
                     " or use a SignAndEncrypt endpoint",
                 )
+        if live and typeid not in SESSIONLESS and session.is_activated():
+            reason = services.too_many(typeid, body)
+            if reason is not None:
+                return self._refuse(requesthdr, seqhdr, S.BadTooManyOperations, reason)
+            if typeid in (services.BROWSE, services.BROWSE_NEXT):
+                return await self._browse(typeid, requesthdr, seqhdr, body)
         try:
             return await super()._process_message(typeid, requesthdr, seqhdr, body)
         except ServiceError as exc:
@@ -152,6 +169,25 @@ class SessionBoundProcessor(UaProcessor):  # type: ignore[misc]
             # ERROR line for every retry of the client.
             self._fault(requesthdr, seqhdr, exc.code)
             return True
+
+    async def _browse(self, typeid: Any, requesthdr: Any, seqhdr: Any, body: Any) -> bool:
+        """Browse or BrowseNext, served in slices (``services.py``) with asyncua's checks of
+        a request: the session's permission (BrowseNext as a Browse) and its activity."""
+        session = self.session
+        rules = self._connection.security_policy.permissions
+        if rules is not None and not rules.check_validity(session.user, services.BROWSE, body):
+            raise ua.uaerrors.BadUserAccessDenied
+        self.session_last_activity = time.monotonic()
+        session.touch()
+        serve = services.browse if typeid == services.BROWSE else services.browse_next
+        answer = await serve(self.browser, self.points.of(session), body, requesthdr)
+        if self._transport.is_closing():
+            return False  # the client left while it was browsed
+        data = self._connection.message_to_binary(
+            answer, message_type=ua.MessageType.SecureMessage, request_id=seqhdr.RequestId
+        )
+        self._transport.write(data)
+        return True
 
     def _fault(self, requesthdr: Any, seqhdr: Any, code: int) -> None:
         response = ua.ServiceFault()
@@ -180,14 +216,25 @@ class SessionBoundProtocol(OPCUAProtocol):  # type: ignore[misc]
 
     processor: UaProcessor | None
 
+    def __init__(self, *args: Any, browser: services.Browser, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        self.browser = browser
+
     def connection_made(self, transport: Any) -> None:
         super().connection_made(transport)
         if self.processor is not None:  # None: refused at asyncua's max_connections
-            self.processor = SessionBoundProcessor(self.iserver, self.transport, self.limits)
+            self.processor = SessionBoundProcessor(
+                self.iserver, self.transport, self.limits, browser=self.browser
+            )
             self.processor.set_policies(self.policies)
 
 
 class SessionBoundBinaryServer(BinaryServer):  # type: ignore[misc]
+    def __init__(self, *args: Any, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        # One for the server: a reference type's subtypes are computed once for all clients.
+        self.browser = services.Browser(self.iserver.aspace)
+
     def _make_protocol(self) -> OPCUAProtocol:
         return SessionBoundProtocol(
             iserver=self.iserver,
@@ -195,6 +242,7 @@ class SessionBoundBinaryServer(BinaryServer):  # type: ignore[misc]
             clients=self.clients,
             closing_tasks=self.closing_tasks,
             limits=self.limits,
+            browser=self.browser,
         )
 
 
