@@ -149,7 +149,14 @@ async def test_a_client_browsing_ten_thousand_nodes_stalls_neither_subscriptions
         stats = rig.bench.engine.stats
         overruns = stats.overruns
         browsing = await start(
-            rig, tmp_path, "browse-load", nodes=10_000, seconds=SECONDS + 4, minBrowses=3
+            rig,
+            tmp_path,
+            "browse-load",
+            nodes=10_000,
+            minRefs=10,
+            maxRefs=40,
+            seconds=SECONDS + 4,
+            minBrowses=2,
         )
         assert browsing.stderr is not None
         said = await asyncio.wait_for(browsing.stderr.readline(), 120)
@@ -158,12 +165,12 @@ async def test_a_client_browsing_ten_thousand_nodes_stalls_neither_subscriptions
         load = await outcome(browsing)
         overruns = stats.overruns - overruns
     browses = load["browses"]
-    assert isinstance(browses, list) and len(browses) >= 3, load
-    assert all(b["results"] == 10_000 and b["refs"] > 10_000 for b in browses)
+    assert isinstance(browses, list) and len(browses) >= 2, load
+    assert all(b["results"] == 10_000 and b["refs"] >= 100_000 for b in browses)
     print(
         f"\nlongest gap {watched['longestGapMs']} ms (interval {watched['revisedIntervalMs']} ms),"
         f" {watched['notifications']} notifications in {watched['watchedMs']} ms; browses of"
-        f" 10,000 of the {load['distinctNodes']} nodes ({browses[0]['refs']} references):"
+        f" 10,000 of {load['distinctNodes']} nodes ({browses[0]['refs']} references):"
         f" {[b['ms'] for b in browses]} ms; a fresh client connected in"
         f" {watched['freshConnectMs']} ms; scan overruns {overruns}"
     )
