@@ -43,7 +43,7 @@ from supervisor.core.loops import HookedLoop
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
 from supervisor.publish.historian import HistoryQuery
-from supervisor.publish.opcua import methods, services
+from supervisor.publish.opcua import methods
 from supervisor.publish.opcua.events import EventPublisher
 from supervisor.publish.opcua.feed import AlarmView, OpcUaFeed, Update
 from supervisor.publish.opcua.history import HistoryService, HistorySpace
@@ -303,7 +303,6 @@ class OpcUaServer:
         # The standard address space from the machine's shared shelf: its nodes are read
         # when first asked for instead of all kept in memory (ADR 0020; None: in memory).
         await server.init(shelf_file=await ensure_shelf())
-        await services.advertise(server)  # the operation limits enforced (issue 31)
         server.set_endpoint(self.endpoint)
         server.set_server_name(f"bench-supervisor {s.bench}")
         server.allow_remote_admin(False)

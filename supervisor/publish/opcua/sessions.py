@@ -275,6 +275,12 @@ class BenchServer(Server):  # type: ignore[misc]
             tokens.append(t)
         endpoint.UserIdentityTokens = tokens
 
+    async def init(self, shelf_file: Any = None) -> None:
+        """asyncua's ``Server.init``, then the operation limits this server enforces written
+        under ServerCapabilities (asyncua writes 10,000 for each and enforces none)."""
+        await super().init(shelf_file)
+        await services.advertise(self)
+
     async def start(self) -> None:
         """asyncua's ``Server.start`` with ``SessionBoundBinaryServer`` (asyncua names its
         binary server class in this method)."""
