@@ -141,6 +141,7 @@ async def test_operation_limits_are_enforced_and_browse_next_pages_the_reference
     assert seen["stale"] == "BadContinuationPointInvalid"
 
 
+@pytest.mark.quiet  # it times a subscription and counts the scan's overruns: run alone
 @pytest.mark.timeout(400)
 async def test_a_client_browsing_ten_thousand_nodes_stalls_neither_subscriptions_nor_scan(
     tmp_path: Path,
