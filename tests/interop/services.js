@@ -22,6 +22,7 @@ const {
   SecurityPolicy,
   AttributeIds,
   BrowseDirection,
+  DataType,
   TimestampsToReturn,
   UserTokenType,
 } = require("node-opcua-client");
@@ -132,6 +133,18 @@ async function limits() {
     out.browsePast = `served ${rs.length}`;
   } catch (err) {
     out.browsePast = status(err);
+  }
+  const maxWrite = out.limits.MaxNodesPerWrite;
+  try {
+    const writes = Array.from({ length: maxWrite + 1 }, () => ({
+      nodeId: id("ch0.manual_current"),
+      attributeId: AttributeIds.Value,
+      value: { value: { dataType: DataType.Double, value: 0.0 } },
+    }));
+    const rs = await session.write(writes);
+    out.writePast = `served ${rs.length}`;
+  } catch (err) {
+    out.writePast = status(err);
   }
   const maxCall = out.limits.MaxNodesPerMethodCall;
   try {

@@ -5,7 +5,8 @@
   certificate nobody trusted gets a session there, and is still refused on SignAndEncrypt;
 - a refused certificate is one WARNING line naming the client and the reason, however often
   the client retries, and no traceback;
-- the advertised OperationLimits are enforced (Bad_TooManyOperations one past them), a
+- the advertised OperationLimits are enforced (Bad_TooManyOperations one past them: Read,
+  Browse, Write, Call), a
   Browse honours requestedMaxReferencesPerNode with continuation points, and BrowseNext
   returns the rest (the same references as one plain browse) and releases them;
 - a client browsing 10,000 nodes in a loop does not stall another client's 100 ms
@@ -132,6 +133,7 @@ async def test_operation_limits_are_enforced_and_browse_next_pages_the_reference
     assert seen["readAt"] == {"count": limits["MaxNodesPerRead"], "first": "BadNodeIdUnknown"}
     assert seen["browsePast"] == "BadTooManyOperations"
     assert seen["callPast"] == "BadTooManyOperations"
+    assert seen["writePast"] == "BadTooManyOperations"
     whole = seen["whole"]
     assert isinstance(whole, list) and len(whole) > 3
     assert seen["first"] == {"status": "Good", "count": 1, "more": True}
