@@ -1,5 +1,5 @@
-"""Operation limits, browse paging and fair serving (docs/adr/0014-opcua-server.md, "Services";
-issue 31, finding 4).
+"""Operation limits, browse paging and fair serving (issue 31, finding 4;
+docs/adr/0014-opcua-server.md, "Issue 31: sessions, security and fair serving").
 
 asyncua advertises 10,000 under Server/ServerCapabilities/OperationLimits and enforces none
 of it, ignores a Browse's ``RequestedMaxReferencesPerNode``, has no BrowseNext, and serves a
