@@ -55,7 +55,10 @@ def build_opcua(
     settings = settings or OpcUaSettings.of(bench.cfg)
     users = UserStore(settings.users_file)
     throttle = login_throttle(bench)  # declares its alarm: before the layout is planned
-    feed = OpcUaFeed(bench.db)  # declares opcua.*: before the layout is planned
+    # Declares opcua.*: before the layout is planned. It reads the scan's copy of its
+    # changes that the historian and InfluxDB read (from now: it starts with every tag).
+    changes = bench.changes.reader() if bench.changes is not None else None
+    feed = OpcUaFeed(bench.db, changes)
     bench.engine.publishers.append(feed)
     alarms = bench.alarms
     layout = plan(bench.cfg, bench.db, [a.id for a in alarms] if alarms is not None else [])

@@ -480,8 +480,9 @@ async def _run_load(engine: ScanEngine, seconds: float) -> float:
 
 
 class _Timed:
-    """The historian as a publisher, timed: its whole ``on_scan`` and the ``ChangeFeed``
-    part of it; and the deepest its queue went."""
+    """The historian as a publisher, timed: its whole ``on_scan`` and the copy of the
+    changes in it (``ChangeSnapshots``; the filter runs on the writer's thread); and the
+    deepest its queue went."""
 
     name = "historian"
 
@@ -493,21 +494,21 @@ class _Timed:
 
     def on_scan(self, db: TagDB, t: float) -> None:
         h = self.historian
-        feed = h.feed
-        take = feed.take
+        source = h.source
+        batches = source.batches
         t0 = time.perf_counter()
 
         def timed() -> Any:
             t1 = time.perf_counter()
-            out = take()
+            out = batches()
             self.take_s.append(time.perf_counter() - t1)
             return out
 
-        feed.take = timed
+        source.batches = timed
         try:
             h.on_scan(db, t)
         finally:
-            del feed.take
+            del source.batches
         self.on_scan_s.append(time.perf_counter() - t0)
         self.deepest_rows = max(self.deepest_rows, h.writer.queued_rows)
 
@@ -554,7 +555,7 @@ async def historian_benchmark(n_tags: int, period_s: float, seconds: float) -> i
         )
         _say(
             f"  of which historian.on_scan p50 {_ms(p(timed.on_scan_s, 50))}"
-            f"  p99 {_ms(p(timed.on_scan_s, 99))}; ChangeFeed.take p50"
+            f"  p99 {_ms(p(timed.on_scan_s, 99))}; the changes' copy p50"
             f" {_ms(p(timed.take_s, 50))}  p99 {_ms(p(timed.take_s, 99))}"
         )
         offered = w.rows_written + w.rows_dropped

@@ -74,8 +74,10 @@ COMMANDS: Final[dict[str, str]] = {
     "ack": "AcknowledgeAlarms",
 }
 # What `status` and `watch` read of each channel (tag suffixes, layout.py::CHANNEL_NAMES).
+# The chain's state is read as its number (StateMachine/CurrentState/Number: CurrentState
+# holds its PackML name) and shown by the name the operator knows (``Running``).
 FIELDS: Final = (
-    "chain.state",
+    "chain.state_code",
     "mode",
     "chain.recipe",
     "chain.step_index",
@@ -569,6 +571,16 @@ def _text(value: Any) -> str:
     return "—" if value is None or value == "" else str(value)
 
 
+def chain_state(v: dict[str, Any]) -> Any:
+    """The chain's state by the name the operator knows (``Running``), from its OPC UA
+    number (``chain.state_code``); None when unknown."""
+    from supervisor.chains.states import OPCUA_CODE
+
+    code = v["chain.state_code"]
+    names = {number: state.value for state, number in OPCUA_CODE.items()}
+    return names.get(code, code) if code is not None else None
+
+
 def status_table(channels: Sequence[str], rows: Sequence[dict[str, Any]]) -> list[str]:
     """One line per channel: what the channel does (``charging 20.000 A, manual``:
     supervisor/channels/activity.py), its chain's state, recipe, step (number and id), V, I,
@@ -586,7 +598,7 @@ def status_table(channels: Sequence[str], rows: Sequence[dict[str, Any]]) -> lis
             (
                 ch,
                 activity_label(v["state"], v["current_cmd"], v["mode"]),
-                _text(v["chain.state"]),
+                _text(chain_state(v)),
                 _text(v["chain.recipe"]),
                 step,
                 _num(v["voltage"], ".3f"),
@@ -619,7 +631,7 @@ def watch_line(channel: str, v: dict[str, Any], wall: float) -> str:
         f"{channel} {'C' if amps >= 0 else 'D'}/{v['chain.cycle'] or 0:02d}/{step:02d}"
         f" mA={abs(amps) * 1000:3.0f} SET= {v['chain.step_time'] or 0:.0f}"
         f" TET= {v['chain.test_time'] or 0:.0f} V={_num(v['voltage'], '.3f')} mAh={mah}"
-        f" {_text(v['chain.state'])} {_text(v['chain.step'])}, {date}"
+        f" {_text(chain_state(v))} {_text(v['chain.step'])}, {date}"
     )
 
 
@@ -687,7 +699,7 @@ async def _watch(bench: Bench, args: argparse.Namespace) -> int:
     nodes = [
         bench.client.get_node(bench.node(f"{ch}.{f}"))
         for ch in channels
-        for f in ("chain.state", "chain.step_index")
+        for f in ("chain.state_code", "chain.step_index")
     ]
     await sub.subscribe_data_change(nodes)
     printed = 0
@@ -710,7 +722,7 @@ async def _watch(bench: Bench, args: argparse.Namespace) -> int:
                 next_all = loop.time() + args.every
             for ch in dict.fromkeys(due):
                 v = await bench.channel_values(ch)
-                key = (v["chain.state"], v["chain.step_index"])
+                key = (v["chain.state_code"], v["chain.step_index"])
                 if not periodic and last.get(ch) == key:
                     continue  # a notification with nothing new to show
                 last[ch] = key

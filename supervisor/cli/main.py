@@ -21,7 +21,7 @@ import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Final, NoReturn
+from typing import TYPE_CHECKING, Any, Final, NoReturn
 
 from supervisor.bench import args as bench_args
 from supervisor.cli import ctl
@@ -642,6 +642,8 @@ def cmd_opcua(args: argparse.Namespace) -> int:
     from supervisor.devices.registry import load_bench
     from supervisor.publish.opcua import OpcUaSettings, add_user, remove_user
 
+    if args.action == "selftest":
+        return _opcua_selftest(args)
     if not Path(args.io_map).exists():
         _err(f"{args.io_map}: no such I/O map (give a path, e.g. io_maps/sim.yaml)")
         return EXIT_USAGE
@@ -673,11 +675,71 @@ def cmd_opcua(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _opcua_selftest(args: argparse.Namespace) -> int:
+    """``supervisor opcua selftest URL``: PASS/FAIL/SKIP per check; 1 when one failed."""
+    import asyncio
+
+    from supervisor.cli.selftest import selftest
+
+    if not args.name.startswith("opc.tcp://"):
+        _err(
+            "supervisor opcua selftest: give the server's URL (opc.tcp://HOST:PORT),"
+            f" not {args.name!r}"
+        )
+        return EXIT_USAGE
+    password = None
+    if args.user:
+        if args.password_stdin:
+            password = sys.stdin.readline().rstrip("\r\n")
+        else:
+            import getpass
+
+            password = getpass.getpass(f"password for {args.user}: ")
+    try:
+        outcomes = asyncio.run(selftest(args.name, args.user, password))
+    except (OSError, TimeoutError) as exc:
+        _err(f"cannot reach {args.name}: {exc or type(exc).__name__}")
+        return EXIT_USAGE
+    except Exception as exc:  # asyncua's refusals (login, endpoint): one line, no traceback
+        _err(f"{args.name}: {type(exc).__name__}: {exc}")
+        return EXIT_USAGE
+    for outcome in outcomes:
+        _out(outcome.line())
+    failed = sum(o.verdict == "FAIL" for o in outcomes)
+    passed = sum(o.verdict == "PASS" for o in outcomes)
+    _out(f"{passed} passed, {failed} failed, {len(outcomes) - passed - failed} skipped")
+    return 1 if failed else EXIT_OK
+
+
 class _Parser(argparse.ArgumentParser):
     """A usage error is one line (the option, what was received, where to read more), exit 2."""
 
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
+def _add_opcua_parser(sub: Any) -> None:
+    """Register ``supervisor opcua`` (a bench's OPC UA users, and the selftest of a
+    server) on the main parser's subcommands."""
+    ou = sub.add_parser(
+        "opcua",
+        help="OPC UA: the users of a bench (add-user, remove-user, list-users); selftest URL"
+        " (what an integrator's client expects of a server)",
+    )
+    ou.add_argument("action", choices=["add-user", "remove-user", "list-users", "selftest"])
+    ou.add_argument(
+        "name",
+        nargs="?",
+        default="",
+        help="the user (add-user, remove-user); the server's URL (selftest)",
+    )
+    ou.add_argument("--user", default=None, help="selftest: log in as this user (methods)")
+    ou.add_argument("--role", choices=["viewer", "operator", "engineer"], default="viewer")
+    ou.add_argument("--io-map", default=str(DEFAULT_IO_MAP), help="the bench whose users")
+    ou.add_argument(
+        "--password-stdin", action="store_true", help="read the password from stdin (scripts)"
+    )
+    ou.set_defaults(func=cmd_opcua)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -790,15 +852,7 @@ def build_parser() -> argparse.ArgumentParser:
     ca.add_argument("--board", type=int, default=0)
     ca.set_defaults(func=cmd_calibrate)
 
-    ou = sub.add_parser("opcua", help="OPC UA users of a bench: add-user, remove-user, list-users")
-    ou.add_argument("action", choices=["add-user", "remove-user", "list-users"])
-    ou.add_argument("name", nargs="?", default="", help="the user (add-user, remove-user)")
-    ou.add_argument("--role", choices=["viewer", "operator", "engineer"], default="viewer")
-    ou.add_argument("--io-map", default=str(DEFAULT_IO_MAP), help="the bench whose users")
-    ou.add_argument(
-        "--password-stdin", action="store_true", help="read the password from stdin (scripts)"
-    )
-    ou.set_defaults(func=cmd_opcua)
+    _add_opcua_parser(sub)
 
     rs = sub.add_parser("results", help="result folders: verify DIR (complete and unmodified)")
     rs.add_argument("action", choices=["verify"])

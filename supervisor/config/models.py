@@ -226,6 +226,31 @@ OpcUaSecurity = Literal["none", "sign", "sign_and_encrypt"]
 """An endpoint's message security: none, or Basic256Sha256 with Sign / SignAndEncrypt."""
 
 
+class IdentificationConfig(Strict):
+    """Who made the bench and where it stands: what OPC UA clients read as the bench's
+    Identification (OPC 40001-1 Machinery, MachineIdentificationType). Every key is
+    optional; the software's own name and version are never configured here."""
+
+    manufacturer: str = Field(
+        "", max_length=200, description="Who built the bench (Machinery's Manufacturer)."
+    )
+    manufacturer_uri: str = Field("", max_length=200, description="The manufacturer's URI.")
+    model: str = Field("", max_length=200, description="The bench's model or product name.")
+    serial_number: str = Field(
+        "", max_length=100, description="The bench's serial number (default: its name)."
+    )
+    product_instance_uri: str = Field(
+        "",
+        max_length=300,
+        description="A URI unique to this bench (default: urn:bench-supervisor:bench:<bench>).",
+    )
+    asset_id: str = Field("", max_length=100, description="The lab's inventory number.")
+    location: str = Field("", max_length=200, description="Where the bench stands.")
+    year_of_construction: int | None = Field(
+        None, ge=1900, le=9999, description="The year the bench was built."
+    )
+
+
 class OpcUaConfig(Strict):
     """The OPC UA server (``opc.tcp://<host>:<port>/supervisor``, docs/adr/0014-opcua-server.md):
     the bench's tags, channel methods, events and alarms for SCADA and OPC UA clients."""
@@ -967,6 +992,7 @@ class BenchConfig(Strict):
     scan: ScanConfig = ScanConfig()
     hmi: HmiConfig = HmiConfig()
     opcua: OpcUaConfig = OpcUaConfig()
+    identification: IdentificationConfig = IdentificationConfig()
     recipes: RecipeFoldersConfig = RecipeFoldersConfig()
     state_dir: str = Field("var", description="Where retained state and results go.")
     retain: RetainConfig = RetainConfig()

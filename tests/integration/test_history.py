@@ -21,7 +21,7 @@ import sys
 import time
 import urllib.error
 import urllib.request
-from collections.abc import AsyncIterator, Callable, Sequence
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -38,7 +38,7 @@ from supervisor.core.clock import VirtualClock
 from supervisor.devices.registry import load_bench
 from supervisor.hmi import HttpApi
 from supervisor.hmi.history_api import DEFAULT_BUCKETS
-from supervisor.publish.changes import Sample
+from supervisor.publish.changes import ChangeBatch, Sample
 from supervisor.publish.historian import CORRUPT_ALARM, HistoryQuery
 from supervisor.publish.historian.store import problem_of
 from supervisor.safety.alarms import AlarmState
@@ -288,18 +288,20 @@ async def test_a_clean_stop_loses_nothing_and_a_restart_keeps_the_history(
     tmp_path: Path,
 ) -> None:
     # Commits far apart: what the stop writes is everything since the start.
-    handed: dict[tuple[str, float], Any] = {}  # every sample handed to the writer
+    handed: dict[tuple[str, float], Any] = {}  # every sample the writer's filter kept
 
     def spy(bench: Bench) -> None:
         assert bench.historian is not None
-        put = bench.historian.writer.put_samples
+        changes = bench.historian.writer._filter
+        apply = changes.apply
 
-        def record(samples: Sequence[Sample], now_wall: float) -> int:
+        def record(batch: ChangeBatch) -> list[Sample]:
+            samples = apply(batch)
             for s in samples:
                 handed[(s.name, s.wall)] = s.value  # a later one at the same instant wins
-            return put(samples, now_wall)
+            return samples
 
-        bench.historian.writer.put_samples = record  # type: ignore[method-assign]
+        changes.apply = record  # type: ignore[method-assign]
 
     bench = await recording_bench(tmp_path, spy, commit_interval_s=10.0)
     assert bench.historian is not None

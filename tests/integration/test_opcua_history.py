@@ -156,7 +156,7 @@ async def test_other_aggregates_are_not_supported(rig: Rig) -> None:
     start, end, _ = stored(rig)
     async with rig.client("bob") as c:
         nid = ua.NodeId(TAG, await rig.ns(c))
-        res = await processed(c, nid, start, end, 1.0, ua.ObjectIds.AggregateFunction_Count)
+        res = await processed(c, nid, start, end, 1.0, ua.ObjectIds.AggregateFunction_Interpolative)
     assert res.StatusCode.value == S.BadAggregateNotSupported
 
 

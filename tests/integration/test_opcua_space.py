@@ -1,6 +1,7 @@
-"""The bench's address space as an OPC UA client sees it over loopback: the tree, NodeIds
-equal to tag names, analog tags with their units and range, quality as status codes,
-timestamps, the PackML state, and subscriptions that follow the scan.
+"""The bench's address space as an OPC UA client sees it over loopback: the tree (PascalCase
+browse names), NodeIds equal to tag names, analog tags with their units and range, quality
+as status codes, timestamps, the PackML state machine, and subscriptions that follow the
+scan.
 
 One server for the module (it takes seconds to start); the tests only read, or put back
 what they change.
@@ -8,7 +9,6 @@ what they change.
 
 from __future__ import annotations
 
-import sys
 from collections.abc import AsyncIterator
 from datetime import UTC, datetime
 
@@ -41,13 +41,14 @@ async def test_the_tree_mirrors_the_bench_channels_devices_alarms_diagnostics(ri
         assert "Bench" in objects
         assert await names(bench) == [
             "Channels", "Devices", "Alarms", "Diagnostics", "ForceTag", "UnforceTag",
+            "Identification",
         ]  # fmt: skip
         channels = c.get_node(ua.NodeId("/Bench/Channels", ns))
         assert await names(channels) == ["ch0", "ch1", "ch2", "ch3"]
         ch0 = await names(c.get_node(ua.NodeId("/Bench/Channels/ch0", ns)))
         for friendly in (
-            "Voltage", "Current", "Temperature", "Charge", "Energy", "State", "Mode",
-            "Recipe", "Step", "StepName", "StepTime", "Cycle", "Progress", "ETA",
+            "Voltage", "Current", "Temperature", "Charge", "Energy", "StateMachine", "Mode",
+            "Recipe", "Step", "StepName", "StepTime", "Cycle", "Progress", "ETA", "DriveState",
         ):  # fmt: skip
             assert friendly in ch0, friendly
         for method in (
@@ -60,13 +61,13 @@ async def test_the_tree_mirrors_the_bench_channels_devices_alarms_diagnostics(ri
         assert sorted(await names(devices)) == ["adam", "chadeche"]
         adam = await names(c.get_node(ua.NodeId("/Bench/Devices/adam", ns)))
         assert adam[:2] == ["Connected", "CommFailures"]
-        assert {"estop.ok", "room.temp", "pack.voltage"} <= set(adam)  # its raw points
+        assert {"EstopOk", "RoomTemp", "PackVoltage"} <= set(adam)  # its raw points
         alarms = await names(c.get_node(ua.NodeId("/Bench/Alarms", ns)))
         assert set(alarms) == {a.id for a in rig.bench.alarms or []}
         diagnostics = await names(c.get_node(ua.NodeId("/Bench/Diagnostics", ns)))
-        for tag in ("scan.duration_s", "scan.jitter_s", "scan.overruns", "opcua.dropped"):
-            assert tag in diagnostics
-        assert {"opcua.queue_depth", "opcua.clients"} <= set(diagnostics)
+        for name in ("ScanDurationS", "ScanJitterS", "ScanOverruns", "OpcuaDropped"):
+            assert name in diagnostics
+        assert {"OpcuaQueueDepth", "OpcuaClients"} <= set(diagnostics)
 
 
 async def test_a_node_id_is_the_tag_name_and_reads_the_tag_value(rig: Rig) -> None:
@@ -108,11 +109,13 @@ async def test_an_analog_tag_is_an_analog_item_with_its_unit_and_range(rig: Rig)
             assert (
                 await (await node.get_child("0:EngineeringUnits")).read_value()
             ).UnitId == unit_id
-        # A tag without a declared range: EURange is mandatory, so every finite Double.
-        power = await (
-            await c.get_node(ua.NodeId("ch0.power", ns)).get_child("0:EURange")
-        ).read_value()
-        assert (power.Low, power.High) == (-sys.float_info.max, sys.float_info.max)
+        # A tag without a configured range is a BaseAnalogType with its unit and no EURange
+        # (issue 31, finding 9: not every finite Double).
+        power = c.get_node(ua.NodeId("ch0.power", ns))
+        assert await power.read_type_definition() == ua.NodeId(ua.ObjectIds.BaseAnalogType)
+        assert [(await n.read_browse_name()).Name for n in await power.get_properties()] == [
+            "EngineeringUnits"
+        ]
         # Booleans, integers and texts are plain variables of their own type.
         for tag, dtype in (("ch0.enable", ua.ObjectIds.Boolean), ("scan.count", ua.ObjectIds.Int64),
                            ("ch0.mode", ua.ObjectIds.String)):  # fmt: skip
@@ -131,25 +134,23 @@ async def test_operator_tags_are_writable_others_read_only(rig: Rig) -> None:
         assert writable not in voltage
 
 
-async def test_the_channel_state_is_the_packml_state_enumeration(rig: Rig) -> None:
+async def test_the_channel_state_is_a_packml_style_state_machine(rig: Rig) -> None:
     async with rig.client() as c:
         ns = await rig.ns(c)
-        state = c.get_node(ua.NodeId("ch0.chain.state_code", ns))
-        assert (await state.read_browse_name()).Name == "State"
-        assert await state.read_value() == 2  # Idle in OPC UA's StateEnumeration numbering
-        enum = c.get_node(await state.read_data_type())
-        assert (await enum.read_browse_name()).Name == "PackMLStateEnumeration"
-        strings = await (await enum.get_child("0:EnumStrings")).read_value()
-        assert [s.Text for s in strings][:5] == [
-            "Stopped",
-            "Resetting",
-            "Idle",
-            "Starting",
-            "Execute",
-        ]
-        assert [s.Text for s in strings][14:] == ["Holding", "Held", "Unholding"]
-        definition = await enum.read_data_type_definition()
-        assert {f.Name: f.Value for f in definition.Fields}["Held"] == 15
+        machine = c.get_node(ua.NodeId("/Bench/Channels/ch0/StateMachine", ns))
+        current = await machine.get_child("0:CurrentState")
+        assert current.nodeid == ua.NodeId("ch0.chain.state", ns)  # NodeIds stay tag names
+        assert (await current.read_value()).Text == "Idle"
+        number = await current.get_child("0:Number")
+        assert number.nodeid == ua.NodeId("ch0.chain.state_code", ns)
+        assert await number.read_value() == 2  # Idle in OPC UA's StateEnumeration numbering
+        state = c.get_node(await (await current.get_child("0:Id")).read_value())
+        assert (await state.read_browse_name()).Name == "Idle"
+        number_of = await (await state.get_child("0:StateNumber")).read_value()
+        assert number_of == 2
+        fsm = c.get_node(await machine.read_type_definition())
+        states = [(await n.read_browse_name()).Name for n in await fsm.get_children()]
+        assert {"Stopped", "Idle", "Execute", "Held", "Unholding"} <= set(states)
 
 
 async def test_timestamps_are_the_sample_time_and_the_scan_time(rig: Rig) -> None:
@@ -166,11 +167,17 @@ async def test_timestamps_are_the_sample_time_and_the_scan_time(rig: Rig) -> Non
                 changed_at = (tag.source_t, tag.server_t)
         async with rig.client() as c:
             ns = await rig.ns(c)
-            dv = await c.get_node(ua.NodeId("ch1.voltage", ns)).read_data_value()
+            params = ua.ReadParameters()  # asyncua's read_data_value asks for Source only
+            voltage = ua.ReadValueId(ua.NodeId("ch1.voltage", ns), ua.AttributeIds.Value)
+            params.NodesToRead = [voltage]
+            params.TimestampsToReturn = ua.TimestampsToReturn.Both
+            (dv,) = await c.uaclient.read(params)
         assert dv.Value.Value == tag.value
-        source_t, server_t = changed_at
+        source_t, _ = changed_at
         assert dv.SourceTimestamp == datetime.fromtimestamp(clock.to_wall(source_t), UTC)
-        assert dv.ServerTimestamp == datetime.fromtimestamp(clock.to_wall(server_t), UTC)
+        # Part 4 §7.11: when the server last knew it current, the scan's last hand-over.
+        heard_t = max(t.server_t for t in db)
+        assert dv.ServerTimestamp == datetime.fromtimestamp(clock.to_wall(heard_t), UTC)
     finally:
         db.write("ch1.enable", False)
         db.write("ch1.manual_current", 0.0)

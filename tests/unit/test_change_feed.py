@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from supervisor.core.clock import VirtualClock
 from supervisor.core.quality import Quality, Reason
-from supervisor.publish.changes import ChangeFeed, Sample
+from supervisor.publish.changes import ChangeBatch, ChangeFeed, ChangeFilter, Sample
 from supervisor.tags import TagDB, TagSpec
 from supervisor.tags.spec import HistorySettings
 
@@ -77,28 +77,28 @@ def test_text_tags_and_disabled_history() -> None:
     assert [(s.name, s.value) for s in feed.take()] == [("ch0.state", "running")]
 
 
-class PlainFeed(ChangeFeed):
-    """The feed's rule applied one change at a time (``_keep`` for every tag): what the
-    inlined path of ``take`` must give."""
+class PlainFilter(ChangeFilter):
+    """The rule applied one change at a time (``_keep`` for every tag): what the inlined
+    path of ``ChangeFilter.apply`` must give."""
 
-    def take(self) -> list[Sample]:
-        changed = self.db.changed_since(self._version)
+    def apply(self, batch: ChangeBatch) -> list[Sample]:
+        if batch.first:
+            self._last.clear()
+            self._pending.clear()
         out: list[Sample] = []
-        self._wall_offset = self.clock.to_wall(0.0)
         if self._pending:
-            now = self.clock.now()
-            for index, tag in list(self._pending.items()):
-                if now - self._last[index][2] >= tag.spec.history.min_interval_s:
+            in_batch = {c[0].index for c in batch.changes}
+            for index, change in list(self._pending.items()):
+                if batch.now - self._last[index][2] >= change[0].spec.history.min_interval_s:
                     del self._pending[index]
-                    if tag.version <= self._version:
-                        sample = self._keep(tag, now)
+                    if index not in in_batch:
+                        sample = self._keep(change, batch.wall_offset, batch.now)
                         if sample is not None:
                             out.append(sample)
-        for tag in changed:
-            sample = self._keep(tag)
+        for change in batch.changes:
+            sample = self._keep(change, batch.wall_offset)
             if sample is not None:
                 out.append(sample)
-        self._version = self.db.version
         return out
 
 
@@ -124,7 +124,8 @@ def test_the_feed_stores_what_its_rule_applied_to_each_change_stores(
     for k, history in enumerate(HISTORIES):
         db.add(TagSpec(f"t{k}", unit="V", history=history))
     db.add(TagSpec("state", dtype="str", initial=""))
-    fast, plain = ChangeFeed(db, clock), PlainFeed(db, clock)
+    fast, plain = ChangeFeed(db, clock), ChangeFeed(db, clock)
+    plain._filter = PlainFilter()
     for changes in plan:
         clock.advance(0.01)
         db.set_scan_time(clock.now())

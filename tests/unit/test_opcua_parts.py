@@ -114,13 +114,17 @@ def test_the_layout_names_channel_tags_for_people_and_keeps_node_ids_as_tag_name
     layout = plan(bench.cfg, bench.db, [a.id for a in bench.alarms or []])
     v = layout.variables
     assert (v["ch0.voltage"].browse, v["ch0.voltage"].kind) == ("Voltage", "analog")
-    assert (v["ch0.chain.state_code"].browse, v["ch0.chain.state_code"].kind) == ("State", "state")
+    # The test's state: the channel's StateMachine/CurrentState and its Number.
+    assert (v["ch0.chain.state_code"].browse, v["ch0.chain.state_code"].kind) == ("Number", "state")
+    assert (v["ch0.chain.state"].browse, v["ch0.chain.state"].kind) == ("CurrentState", "statename")
+    assert v["ch0.state"].browse == "DriveState"
     assert v["ch0.chain.eta_s"].browse == "ETA"
     assert v["ch0.chain.alarm"].browse == "Alarm"
     assert v["ch0.limit.charge_a"].browse == "LimitChargeA"
     assert v["ch0.mode"].writable and not v["ch0.voltage"].writable
     assert v["adam.connected"].browse == "Connected"
-    assert v["room.temp"].browse == "room.temp"
+    assert v["room.temp"].browse == "RoomTemp"
+    assert v["scan.period_s"].browse == "ScanPeriodS"
     assert set(v) == set(bench.db.names()), "every tag has a node"
     nodes = [f.node for f in layout.root.walk()]
     assert len(nodes) == len(set(nodes)) and all(n.startswith("/") for n in nodes)

@@ -1,8 +1,10 @@
 """The historian as the scan sees it: a publisher and an event sink that only queue.
 
-Each scan ``on_scan`` takes the tag changes worth storing (``ChangeFeed``: each tag's
-deadband and minimum interval, quality changes always) and hands them to the writer
-thread's queue; ``on_event`` does the same for the bench's events. Neither touches the
+Each scan ``on_scan`` copies the tag changes (``ChangeSnapshots``, or its reader of the
+copy it shares with the InfluxDB writer) and hands them to the writer thread's queue,
+where they are filtered into the samples worth storing (``ChangeFilter``: each tag's
+deadband and minimum interval, quality changes always) off the scan (issue 30);
+``on_event`` does the same for the bench's events. Neither touches the
 disk. At the end of the scan it refreshes the ``historian.*`` diagnostic tags and tells the
 owner's alarm hook what an operator must know: a file set aside, writes failing, samples
 dropped. The alarm model lives in another layer (``supervisor.safety``); the composition
@@ -20,7 +22,7 @@ from typing import Final
 from supervisor.config.models import HistorianConfig
 from supervisor.core.clock import Clock
 from supervisor.core.records import BenchEvent
-from supervisor.publish.changes import ChangeFeed, ChangeReader, Changes
+from supervisor.publish.changes import ChangeReader, ChangeSnapshots, ChangeSource
 from supervisor.publish.historian.query import HistoryQuery
 from supervisor.publish.historian.store import TagInfo
 from supervisor.publish.historian.writer import (
@@ -46,6 +48,9 @@ ALARMS: Final = (CORRUPT_ALARM, WRITE_ALARM, OVERFLOW_ALARM, CRASH_ALARM)
 AlarmHook = Callable[[str, bool, str], None]
 """``hook(alarm_id, active, message)``: the owner raises or clears that alarm."""
 
+STATUS_PERIOD_S: Final = 0.1
+"""On a real clock the ``historian.*`` tags and alarms are brought up to date at most this
+often (the scan's clock), as InfluxDB's are."""
 RESYNC_FRACTION: Final = 0.5
 """After an overflow, every tag's value is sent again once the queue is below this
 fraction of its bound (a constant tag would otherwise show its last stored value across
@@ -101,8 +106,9 @@ class Historian:
         self.path = Path(path)
         self.settings = settings or WriterSettings()
         self._alarm = alarm
-        # Its own feed, or its reader of the one it shares with the InfluxDB writer.
-        self.feed: Changes = changes if changes is not None else ChangeFeed(db, clock)
+        # Its own copies of the changes, or its reader of those it shares with the InfluxDB
+        # writer.
+        self.source: ChangeSource = changes if changes is not None else ChangeSnapshots(db, clock)
         self.writer = HistoryWriter(
             self.path,
             self.settings,
@@ -130,6 +136,7 @@ class Historian:
         self._dropped_seen = 0
         self._events_dropped_seen = 0
         self._resync = False
+        self._status_t = float("-inf")  # the scan time the diagnostics were last set
         self.opened: OpenReport | None = None
 
     def _describe(self, name: str) -> TagInfo:
@@ -180,7 +187,11 @@ class Historian:
     def on_scan(self, db: TagDB, t: float) -> None:
         """Queue this scan's changes; refresh the diagnostics; raise or clear alarms."""
         self._take()
-        self._report()
+        if self.clock.virtual or t - self._status_t > STATUS_PERIOD_S - 1e-9 or t < self._status_t:
+            # Every STATUS_PERIOD_S on a real clock, not 100 times a second (thirteen
+            # updates a scan, issue 30); every scan on a virtual one (dry runs, tests).
+            self._status_t = t
+            self._report()
 
     def on_event(self, event: BenchEvent) -> None:
         self.writer.put_event(event)
@@ -188,15 +199,15 @@ class Historian:
     def _take(self) -> None:
         writer = self.writer
         if self._resync and writer.queued_rows <= RESYNC_FRACTION * self.settings.queue_max_rows:
-            # Room again after an overflow: a fresh feed sends every tag's current value
-            # once (its first take() is every tag), which closes the gap in each trend.
+            # Room again after an overflow: fresh copies send every tag's current value
+            # once (their first batch is every tag, and starts the writer's filter
+            # afresh), which closes the gap in each trend.
             self._resync = False
-            if isinstance(self.feed, ChangeReader):
-                self.feed.close()  # a shared feed's batches must not wait for this reader
-            self.feed = ChangeFeed(self.db, self.clock)
+            if isinstance(self.source, ChangeReader):
+                self.source.close()  # a shared copy must not wait for this reader
+            self.source = ChangeSnapshots(self.db, self.clock)
             log.warning("history %s: queue has room again; every tag's value sent", self.path)
-        samples = self.feed.take()
-        if writer.put_samples(samples, self.clock.wall()):
+        if writer.put_batches(self.source.batches(), self.clock.wall()):
             self._resync = True
 
     def _report(self) -> None:

@@ -1,6 +1,7 @@
 """The historian's one writer thread: a bounded queue in, one transaction per interval out.
 
-The scan hands over each scan's samples (``put_samples``) and the bench's events
+The scan hands over each scan's copied changes (``put_batches``, filtered into samples on
+the writer's thread) or samples (``put_samples``) and the bench's events
 (``put_event``): a lock, a length check and an append, never the disk. One thread owns
 the file: every ``commit_interval_s`` it writes everything queued in one transaction
 (SQLite's cost is per transaction, not per row: thousands of rows cost one journal sync),
@@ -48,7 +49,7 @@ from supervisor.core.encoding import storable, storable_text
 from supervisor.core.gate import ScanGate
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent, storable_event
-from supervisor.publish.changes import Sample
+from supervisor.publish.changes import ChangeBatch, ChangeFilter, Sample
 from supervisor.publish.historian.store import (
     CORRUPT_ERRORS,
     SetAside,
@@ -119,7 +120,9 @@ class HistoryWriter:
         self._wall = wall
         self._connect_hook = connect_hook
         self._cond = threading.Condition()
-        self._samples: deque[Sequence[Sample]] = deque()
+        # Each scan's copied changes (filtered on this thread), or samples put as they are.
+        self._samples: deque[Sequence[Sample] | ChangeBatch] = deque()
+        self._filter = ChangeFilter()
         self._events: deque[BenchEvent] = deque()
         self._seq = 0  # puts accepted so far
         self._done_seq = 0  # puts written (or given up at stop)
@@ -207,6 +210,40 @@ class HistoryWriter:
         return self._thread is not None
 
     # --- the scan's side --------------------------------------------------------------
+    def put_batches(self, batches: Sequence[ChangeBatch], now_wall: float) -> int:
+        """Queue the scan's copied changes (``publish/changes.py``), filtered into samples
+        on this writer's thread; returns how many changes had to be dropped (0 unless the
+        queue is full). The queue counts a change as a row until it is filtered (at most
+        one sample each). Never blocks."""
+        n = 0
+        for b in batches:
+            n += len(b.changes)
+        with self._cond:
+            self._now_wall = now_wall
+            if not n and not self._filter.holding:
+                return 0  # nothing to store, nothing held back to release
+            room = self.settings.queue_max_rows - self.queued_rows
+            dropped = 0
+            if room < n:
+                dropped = n - max(room, 0)
+                self.rows_dropped += dropped
+                if room <= 0:
+                    return dropped
+                kept: list[ChangeBatch] = []
+                for b in batches:  # the oldest changes first, as they came
+                    if room <= 0:
+                        break
+                    if len(b.changes) > room:
+                        b = b._replace(changes=b.changes[:room])
+                    kept.append(b)
+                    room -= len(b.changes)
+                batches = kept
+                n -= dropped
+            self._samples.extend(batches)
+            self.queued_rows += n
+            self._seq += 1
+            return dropped
+
     def put_samples(self, samples: Sequence[Sample], now_wall: float) -> int:
         """Queue one scan's samples (the caller must not change the sequence afterwards);
         returns how many had to be dropped (0 unless the queue is full). Never blocks."""
@@ -331,7 +368,7 @@ class HistoryWriter:
                     stopping = self._stopping
                     take = has and (urgent or now >= next_commit)
                     if take:
-                        samples, self._samples = self._samples, deque()
+                        taken, self._samples = self._samples, deque()
                         events, self._events = self._events, deque()
                         upto = self._seq
                     start_retention = (
@@ -344,12 +381,7 @@ class HistoryWriter:
                         known = self._now_wall
                         retention_wall = known if known is not None else self._wall()
                 if take:
-                    if self.gate is not None:
-                        self.gate.wait()  # the batch's rows are made while no scan runs
-                    n_rows = sum(len(b) for b in samples)
-                    self._in_flight = (n_rows, len(events), upto)
-                    ok = self._write_batch(samples, events, upto)
-                    self._in_flight = None
+                    ok, samples = self._write_queued(taken, events, upto)
                     if ok:
                         next_commit = time.monotonic() + settings.commit_interval_s
                     else:
@@ -382,6 +414,50 @@ class HistoryWriter:
                 with contextlib.suppress(sqlite3.Error):
                     self._conn.close()
                 self._conn = None
+
+    def _write_queued(
+        self, taken: deque[Sequence[Sample] | ChangeBatch], events: deque[BenchEvent], upto: int
+    ) -> tuple[bool, deque[Sequence[Sample]]]:
+        """Filter what was taken from the queue and write it: (written, the samples)."""
+        if self.gate is not None:
+            self.gate.wait()  # the batch's rows are made while no scan runs
+        self._in_flight = (_rows_of(taken), len(events), upto)
+        samples = self._filtered(taken)
+        self._in_flight = (sum(len(b) for b in samples), len(events), upto)
+        if not samples and not events:
+            self._nothing_to_write(upto)
+            ok = True
+        else:
+            ok = self._write_batch(samples, events, upto)
+        self._in_flight = None
+        return ok, samples
+
+    def _filtered(self, items: deque[Sequence[Sample] | ChangeBatch]) -> deque[Sequence[Sample]]:
+        """The queued batches of changes as samples (``ChangeFilter``, this thread's alone),
+        a scan's batch at a time with the scan's turn in between; what the filter does not
+        keep leaves the queue's count. Samples put back after a failed write stay as they
+        are (filtered once)."""
+        out: deque[Sequence[Sample]] = deque()
+        unkept = 0
+        for item in items:
+            if type(item) is ChangeBatch:
+                self._give_way()
+                samples = self._filter.apply(item)
+                unkept += len(item.changes) - len(samples)
+                if samples:
+                    out.append(samples)
+            elif item:
+                out.append(item)  # type: ignore[arg-type]
+        if unkept:
+            with self._cond:
+                self.queued_rows -= unkept
+        return out
+
+    def _nothing_to_write(self, upto: int) -> None:
+        """Every change of the batch was filtered out: the puts so far are done."""
+        with self._cond:
+            self._done_seq = max(self._done_seq, upto)
+            self._cond.notify_all()
 
     def _retention_wanted(self) -> bool:
         if self._force_retention:
@@ -721,3 +797,8 @@ def oldest_wall(conn: sqlite3.Connection) -> float | None:
     ev = conn.execute("SELECT min(wall) FROM events").fetchone()
     found = [v for v in (row[0] if row else None, ev[0] if ev else None) if v is not None]
     return float(min(found)) if found else None
+
+
+def _rows_of(items: deque[Sequence[Sample] | ChangeBatch]) -> int:
+    """The rows queued items count for: a change each until filtered, then a sample each."""
+    return sum(len(b.changes) if type(b) is ChangeBatch else len(b) for b in items)

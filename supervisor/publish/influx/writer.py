@@ -27,6 +27,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from operator import attrgetter
 from pathlib import Path
 
 from supervisor.core.clock import Clock
@@ -35,7 +36,14 @@ from supervisor.core.gate import ScanGate
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
 from supervisor.core.threads import run_restarting
-from supervisor.publish.changes import ChangeFeed, ChangeReader, Changes, Sample
+from supervisor.publish.changes import (
+    ChangeBatch,
+    ChangeFilter,
+    ChangeReader,
+    ChangeSnapshots,
+    ChangeSource,
+    Sample,
+)
 from supervisor.publish.influx.client import CONFIGURATION, TRANSIENT, WriteClient
 from supervisor.publish.influx.forward import Forwarder, ForwarderStatus
 from supervisor.publish.influx.lineproto import EVENT, LineEncoder
@@ -393,6 +401,9 @@ class SpoolWriter:
                 self._cond.wait(left)
 
 
+_version = attrgetter("version")
+
+
 def _status_tags() -> list[TagSpec]:
     return [
         TagSpec("influx.spool_depth", "int", description="Points waiting in the spool"),
@@ -439,8 +450,10 @@ class InfluxWriter:
         self.db = db
         self.clock = clock
         self.alarm = alarm
-        # Its own feed, or its reader of the one it shares with the historian.
-        self.feed: Changes = changes if changes is not None else ChangeFeed(db, clock)
+        # Its own copies of the changes, or its reader of those it shares with the
+        # historian; filtered on the spool writer's thread (its alone), off the scan.
+        self.source: ChangeSource = changes if changes is not None else ChangeSnapshots(db, clock)
+        self._filter = ChangeFilter()
         self.encoder = LineEncoder(bench, channels, dtype_of=self._dtype_of)
         self.spool = Spool(settings.spool_path, settings.spool_max_bytes)
         self.client = client or WriteClient(
@@ -465,6 +478,17 @@ class InfluxWriter:
         for spec in _status_tags():
             tag = self._tags[spec.name] = db.get(spec.name) or db.add(spec)
             db.update(tag, initial[spec.dtype])  # never None, before the first scan too
+        self._watch_tests(db, channels)
+        self._alarms: dict[str, tuple[bool, str]] = {}
+        self._alarms_active: tuple[bool, ...] = (False,) * 5  # as the last scan saw them
+        self._status_t = float("-inf")  # the scan time the status tags were last set
+        self._spool_problem = ""
+        self._started = False
+        self._floor_t = clock.now()
+        self._floor_wall = clock.to_wall(self._floor_t)
+
+    def _watch_tests(self, db: TagDB, channels: Sequence[str]) -> None:
+        """Each channel's (test id, recipe, cell id) tags: the tags of its points."""
         self._tests = {
             ch: (
                 db.get(f"{ch}.chain.test_id"),
@@ -476,13 +500,10 @@ class InfluxWriter:
         # Each channel's (test id, recipe) as its points were last tagged: a change starts
         # new series, which get every field of the channel once (``_new_test_samples``).
         self._tagged: dict[str, tuple[str, ...]] = self._current_tests()
-        self._alarms: dict[str, tuple[bool, str]] = {}
-        self._alarms_active: tuple[bool, ...] = (False,) * 5  # as the last scan saw them
-        self._status_t = float("-inf")  # the scan time the status tags were last set
-        self._spool_problem = ""
-        self._started = False
-        self._floor_t = clock.now()
-        self._floor_wall = clock.to_wall(self._floor_t)
+        # Those tags' versions, summed: the scan rebuilds the tests only when one changed
+        # (their text 16 times a scan was a tenth of this publisher's time, issue 30).
+        self._test_tags = [tag for tags in self._tests.values() for tag in tags if tag is not None]
+        self._tests_version = self._test_tags_version()
 
     def _dtype_of(self, name: str) -> str | None:
         tag = self.db.get(name)
@@ -533,7 +554,38 @@ class InfluxWriter:
     # --- the scan's side --------------------------------------------------------------
     def on_scan(self, db: TagDB, t: float) -> None:
         """At scan end: this scan's changes to the queue; the status tags and alarms."""
-        samples = self.feed.take()
+        batches = self.source.batches()
+        tests = self._tagged
+        version = self._test_tags_version()
+        fields: list[Sample] = []
+        if version != self._tests_version:
+            self._tests_version = version
+            tests = self._current_tests()
+            if tests != self._tagged:
+                fields = self._new_test_samples(db, tests, t)
+                self._tagged = tests
+        points = len(fields)
+        for b in batches:
+            points += len(b.changes)
+        if points or self._filter.holding:
+            # Filtered and encoded on the spool writer's thread, in the order queued.
+            self.writer.put_deferred(max(points, 1), lambda: self._encode(batches, fields, tests))
+        if self.clock.virtual or t - self._status_t > STATUS_PERIOD_S - 1e-9 or t < self._status_t:
+            # Diagnostics (spool depth, drain rate, failures): every STATUS_PERIOD_S on a
+            # real clock, not 100 times a second (two locks, two status objects and ten
+            # updates a scan); every scan on a virtual one (dry runs, tests).
+            self._status_t = t
+            self._publish_status(db)
+
+    def _encode(
+        self, batches: list[ChangeBatch], fields: list[Sample], tests: dict[str, tuple[str, ...]]
+    ) -> dict[str, list[str]]:
+        """A scan's batches as line protocol (the spool writer's thread): the changes worth
+        storing, then the fields of a new test that did not change in that scan."""
+        apply = self._filter.apply
+        samples: list[Sample] = []
+        for b in batches:
+            samples += apply(b)
         floor = self._floor_t
         if any(x.t < floor for x in samples):
             # Set before this writer existed, at time 0 of the clock (on a real clock the
@@ -543,19 +595,13 @@ class InfluxWriter:
                 x if x.t >= floor else Sample(x.name, x.value, x.quality, floor, self._floor_wall)
                 for x in samples
             ]
-        tests = self._current_tests()
-        if tests != self._tagged:
-            samples = samples + self._new_test_samples(db, tests, samples, t)
-            self._tagged = tests
-        if samples:
-            encode = self.encoder.encode
-            self.writer.put_deferred(len(samples), lambda: encode(samples, tests))
-        if self.clock.virtual or t - self._status_t > STATUS_PERIOD_S - 1e-9 or t < self._status_t:
-            # Diagnostics (spool depth, drain rate, failures): every STATUS_PERIOD_S on a
-            # real clock, not 100 times a second (two locks, two status objects and ten
-            # updates a scan); every scan on a virtual one (dry runs, tests).
-            self._status_t = t
-            self._publish_status(db)
+        if fields:
+            present = {s.name for s in samples}
+            samples += [f for f in fields if f.name not in present]
+        return self.encoder.encode(samples, tests)
+
+    def _test_tags_version(self) -> int:
+        return sum(map(_version, self._test_tags))
 
     def _current_tests(self) -> dict[str, tuple[str, ...]]:
         """Per channel (test id, recipe, cell id): the tags of its points."""
@@ -565,23 +611,21 @@ class InfluxWriter:
         }
 
     def _new_test_samples(
-        self, db: TagDB, tests: dict[str, tuple[str, ...]], samples: list[Sample], t: float
+        self, db: TagDB, tests: dict[str, tuple[str, ...]], t: float
     ) -> list[Sample]:
         """Every current field of each channel whose test id or recipe changed, at this
         scan's time: the change feed only carries what changed, so a test's series would
         lack the fields that kept their value (a test starting at the cycle number the last
         one ended at has no ``chain_cycle`` point, and the dashboards' per-cycle panels
-        find no cycle). A field that changed this scan is already in ``samples``; a BAD or
-        unset (None) value writes no field, as everywhere."""
+        find no cycle). A field whose change this scan is stored goes as that change
+        (``_encode``); a BAD or unset (None) value writes no field, as everywhere."""
         changed = [ch for ch, test in tests.items() if self._tagged.get(ch) != test]
         prefixes = tuple(f"{ch}." for ch in changed)
-        present = {s.name for s in samples}
         wall = self.clock.to_wall(t)
         return [
             Sample(tag.name, tag.value, tag.quality, t, wall)
             for tag in db
             if tag.name.startswith(prefixes)
-            and tag.name not in present
             and tag.spec.history.enabled
             and tag.quality is not Quality.BAD
             and tag.value is not None

@@ -54,11 +54,13 @@ PR_SET_PDEATHSIG: Final = 1
 
 class MirrorFeed(OpcUaFeed):
     """The server's feed in its own process: filled from the pipe instead of by a scan.
-    Its queues, conflation and drop counting are the in-process feed's."""
+    Its events queue is the in-process feed's; its updates arrive made (``wire.py``) and
+    are conflated the same way: one per tag, a replaced one counted as dropped."""
 
     def __init__(self, db: TagDB, first: list[Update]) -> None:
         super().__init__(db)
         self._first = first
+        self._pending: dict[int, Update] = {}
 
     def start(self, db: TagDB, wake: Callable[[], None]) -> list[Update]:
         self.wake = wake
@@ -78,6 +80,16 @@ class MirrorFeed(OpcUaFeed):
         for ev in events:
             self._events.append(ev)  # type: ignore[arg-type]  # BenchEvent | AlarmView
         wake()
+
+    def take(self) -> list[Update]:
+        with self._lock:
+            out = list(self._pending.values())
+            self._pending = {}
+        return out
+
+    def empty(self) -> bool:
+        with self._lock:
+            return not self._pending and not self._events
 
 
 class SharedThrottle(LoginThrottle):

@@ -1,10 +1,11 @@
 """What the scan hands the OPC UA server: changed tags, events and alarm transitions.
 
-The scan never waits on OPC UA (docs/design.md "One scan"): ``on_scan`` copies the tags that
-changed since the last scan (``TagDB.changed_since``, O(changes)) into a pending map under
-a lock held for microseconds, wakes the server and returns. The map holds at most one
-update per tag: a tag that changes again before the server wrote it replaces its pending
-update, and the replaced one counts as dropped (``opcua.dropped``). So the queue is bounded
+The scan never waits on OPC UA (docs/design.md "One scan"): ``on_scan`` keeps the scan's
+copy of its changes (``publish/changes.py``, made once a scan for every publisher), hands
+what it kept over under a lock held for microseconds, wakes the server and returns; the
+server's side makes them into updates (``take``), one per tag at its latest value: a tag
+that changes again before the server wrote it replaces its pending update, and the
+replaced one counts as dropped (``opcua.dropped``). So the queue is bounded
 by the number of tags whatever happens to the server, and the latest value always gets
 through — a client never ends on a value older than the tag's. Events are not conflated:
 they wait in a bounded queue (``EVENT_QUEUE``), and one that does not fit is dropped and
@@ -35,6 +36,7 @@ from supervisor.core.driver import Value
 from supervisor.core.encoding import storable, storable_text
 from supervisor.core.quality import Quality, Reason
 from supervisor.core.records import BenchEvent, storable_event
+from supervisor.publish.changes import ChangeBatch, ChangeSnapshots, ChangeSource, RawChange
 from supervisor.tags import Tag, TagDB, TagSpec
 
 SAMPLING_TOLERANCE: Final = 0.1
@@ -90,11 +92,17 @@ class OpcUaFeed:
 
     name = "opcua"
 
-    def __init__(self, db: TagDB) -> None:
+    def __init__(self, db: TagDB, changes: ChangeSource | None = None) -> None:
         self._lock = threading.Lock()
-        self._pending: dict[int, Update] = {}
+        # The scan's copies of its changes: a reader of those the bench shares between its
+        # publishers, or copies of its own (from now: the server starts with every tag).
+        self._source: ChangeSource = (
+            changes if changes is not None else ChangeSnapshots(db, None, since=db.version)
+        )
+        self._held: list[ChangeBatch] = []  # since the last hand-over (the scan's side)
+        self._handovers: list[list[ChangeBatch]] = []  # not taken by the server yet
+        self._queued = 0  # changes in the hand-overs
         self._events: deque[BenchEvent | AlarmView] = deque()
-        self._version = db.version
         self._started = False
         self.dropped = 0
         self.clients = 0  # set by the server (an int: read atomically by the scan)
@@ -113,6 +121,18 @@ class OpcUaFeed:
 
     # --- the scan side (never blocks) ---------------------------------------------------
     def on_scan(self, db: TagDB, t: float) -> None:
+        # The scan's copy of its changes, made once for every publisher that reads it (the
+        # historian's and InfluxDB's, ``publish/changes.py``): kept by reference here, made
+        # into updates by the server's side. The scan copies no tag for OPC UA (issue 30:
+        # a hand-over of every tag changed in the interval was the scan's longest publisher
+        # call, a tenth of a millisecond in the load case).
+        batches = self._source.batches()
+        if self.wake is None:
+            return  # not serving yet: the server reads every tag when it starts
+        held = self._held
+        for b in batches:
+            if b.changes:
+                held.append(b)
         interval = self.sampling_interval_s
         if interval > 0.0:
             # On a grid of the interval from the first hand-over. A scan starts at its
@@ -124,26 +144,24 @@ class OpcUaFeed:
                 self._t0 = t
             k = int((t - self._t0) / interval + SAMPLING_TOLERANCE)
             if k <= self._k:
-                return  # sampled at the server's interval: the changes wait in the tag database
+                return  # sampled at the server's interval: the changes wait here
             self._k = k
         with self._lock:
-            depth, dropped = len(self._pending) + len(self._events), self.dropped
+            depth, dropped = self._queued + len(self._events), self.dropped
         db.update(self._dropped_tag, dropped)
         db.update(self._depth_tag, depth)
         db.update(self._clients_tag, self.clients)
         db.update(self._restarts_tag, self.restarts)
         wake = self.wake
-        changed = db.changed_since(self._version)
-        self._version = db.version
-        if wake is None or not changed:
-            return  # not serving yet: the server reads every tag when it starts
-        updates = [_copy(tag) for tag in changed]
+        if wake is None or not held:
+            return
+        n = 0
+        for b in held:
+            n += len(b.changes)
+        self._held = []
         with self._lock:
-            pending = self._pending
-            for u in updates:
-                if u.tag_index in pending:
-                    self.dropped += 1
-                pending[u.tag_index] = u
+            self._handovers.append(held)
+            self._queued += n
         wake()
 
     def on_event(self, event: BenchEvent) -> None:
@@ -180,32 +198,57 @@ class OpcUaFeed:
     def start(self, db: TagDB, wake: Callable[[], None]) -> list[Update]:
         """Every tag as it is now (the server's first values); from now on changes are
         queued. Called on the bench's loop (or thread), between two scans."""
-        self._version = db.version
+        self._source.batches()  # changes before now are in the first values
+        self._held = []
         self.wake = wake
         return [_copy(t) for t in db]
 
     def stop(self) -> None:
         self.wake = None
+        self._held = []
         with self._lock:
-            self._pending.clear()
+            self._handovers.clear()
+            self._queued = 0
             self._events.clear()
 
     def take(self) -> list[Update]:
-        """The pending updates, oldest first; the map starts empty again."""
+        """The pending updates, oldest first, one per tag at its latest value; a tag
+        handed over again before the server took it counts as dropped once."""
         with self._lock:
-            out = list(self._pending.values())
-            self._pending = {}
-        return out
+            handovers, self._handovers = self._handovers, []
+            self._queued = 0
+        latest: dict[int, RawChange] = {}
+        dropped = 0
+        for batches in handovers:
+            mine: dict[int, RawChange] = {}
+            for b in batches:
+                for change in b.changes:
+                    mine[change[0].index] = change
+            if latest:
+                dropped += sum(1 for index in mine if index in latest)
+            latest.update(mine)
+        if dropped:
+            with self._lock:
+                self.dropped += dropped
+        return [_update(c) for c in latest.values()]
 
     def empty(self) -> bool:
         with self._lock:
-            return not self._pending and not self._events
+            return not self._handovers and not self._events
 
     def take_events(self) -> list[BenchEvent | AlarmView]:
         with self._lock:
             out = list(self._events)
             self._events.clear()
         return out
+
+
+def _update(change: RawChange) -> Update:
+    tag, value, quality, reason, source_t, server_t = change
+    # A text value UTF-8 cannot encode is served escaped (``core/encoding.py``).
+    return _new_update(
+        Update, (tag.index, tag.spec.name, storable(value), quality, reason, source_t, server_t)
+    )
 
 
 def _copy(tag: Tag) -> Update:

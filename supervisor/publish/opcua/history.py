@@ -17,21 +17,24 @@ server's loop must not wait.
   sample per time). ReturnBounds: the sample at or before StartTime first (the value at
   that time: the historian stores a value when it changes) and the one at or after EndTime
   last, Bad_BoundNotFound where the file holds none. Reversed ranges are not served.
-- ``ReadProcessedDetails``: Average, Minimum, Maximum per ProcessingInterval (Part 13; 0:
-  one interval over the whole range) from ``HistoryQuery.aggregate``: an interval without
-  values is Bad_NoData, one with some BAD samples Uncertain_DataSubNormal; other
-  aggregates Bad_AggregateNotSupported. Average is the mean of the stored samples (query.py
-  says why); TimeAverage is time-weighted, computed here from the raw samples (stepped: each
-  value holds until the next; a range of more than ``MAX_RAW_ROWS`` samples answers
-  Bad_AggregateInvalidInputs). At most ``MAX_BUCKETS`` intervals, no continuation.
+- ``ReadProcessedDetails``: Average, Minimum, Maximum, Count per ProcessingInterval (Part
+  13; 0: one interval over the whole range) from ``HistoryQuery.aggregate``: an interval
+  without values is Bad_NoData (Count: 0), one with some BAD samples
+  Uncertain_DataSubNormal; other aggregates Bad_AggregateNotSupported. The Server's two
+  AggregateFunctions folders list the aggregates served (``SERVED``, ``list_aggregates``).
+  Average is the mean of the stored samples (query.py says why); TimeAverage is
+  time-weighted, computed here from the raw samples (stepped: each value holds until the
+  next; a range of more than ``MAX_RAW_ROWS`` samples answers Bad_AggregateInvalidInputs).
+  At most ``MAX_BUCKETS`` intervals, no continuation.
 - ``ReadEventDetails`` on the Bench object (every event) or a channel (its own): the
   stored events, each with the type it has live (alarm transitions AlarmConditionType with
   ConditionName and ConditionId), the filter's select clauses answered by field (browse)
   path; a where clause of event types (``EventType InList``, ``OfType``) is applied, any
   other is not. At most ``NumValuesPerNode`` (0: ``PAGE``), no continuation.
 
-A node that is not a historised tag answers Bad_HistoryOperationUnsupported; a historised
-tag not yet written to the file, Good_NoData.
+A node that is not a historised tag answers Bad_HistoryOperationUnsupported, a node the
+address space does not hold Bad_NodeIdUnknown; a historised tag not yet written to the
+file, Good_NoData.
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ from supervisor.publish.historian import (
     MAX_BUCKETS,
     MAX_RAW_ROWS,
     BadRange,
+    Bucket,
     HistoryQuery,
     StoredEvent,
     StoredSample,
@@ -71,15 +75,18 @@ O = ua.ObjectIds  # noqa: E741 - asyncua's own abbreviation
 PAGE: Final = 10_000
 """Values or events per answer at most (asyncua's own default response size)."""
 
-AGGREGATES: Final[Mapping[int, str]] = {
+SERVED: Final[Mapping[int, str]] = {
     O.AggregateFunction_Average: "mean",
     O.AggregateFunction_Minimum: "min",
     O.AggregateFunction_Maximum: "max",
+    O.AggregateFunction_Count: "count",
+    O.AggregateFunction_TimeAverage: "time average",
 }
-"""The aggregates the historian computes, by their standard NodeId (Part 13)."""
-TIME_AVERAGE: Final = O.AggregateFunction_TimeAverage
-"""Computed here from the raw samples (stepped: the historian stores a value when it moves
-past its deadband, so each value holds until the next sample)."""
+"""The aggregates served, by their standard NodeId (Part 13): the historian computes the
+first four per interval (``HistoryQuery.aggregate``, the field of its ``Bucket`` named
+here); TimeAverage is computed here from the raw samples (stepped: the historian stores a
+value when it moves past its deadband, so each value holds until the next sample). The
+Server's AggregateFunctions folders list exactly these (``list_aggregates``)."""
 
 NO_END: Final = sys.float_info.max
 """An unspecified end time: every sample from the start on."""
@@ -222,6 +229,79 @@ def _result(status: int, data: Any = None, cont: bytes | None = None) -> ua.Hist
     return res
 
 
+AGGREGATE_FOLDERS: Final = (
+    O.Server_ServerCapabilities_AggregateFunctions,
+    O.HistoryServerCapabilities_AggregateFunctions,
+)
+"""Where a client looks for the aggregates a server computes (Part 5 ServerCapabilities,
+Part 11 HistoryServerCapabilities): empty in asyncua's standard address space."""
+
+
+async def list_aggregates(server: Any) -> None:
+    """List the standard AggregateFunction objects served (``SERVED``) in both
+    AggregateFunctions folders of the Server object (issue 31, finding 7), with HasComponent
+    as Part 13 §4.2.2.1 relates them."""
+    refs = []
+    for folder in AGGREGATE_FOLDERS:
+        for aggregate in SERVED:
+            ref = ua.AddReferencesItem()
+            ref.IsForward = True
+            ref.ReferenceTypeId = ua.NodeId(O.HasComponent)
+            ref.SourceNodeId = ua.NodeId(folder)
+            ref.TargetNodeClass = ua.NodeClass.Object
+            ref.TargetNodeId = ua.NodeId(aggregate)
+            refs.append(ref)
+    results = await server.iserver.isession.add_references(refs)
+    for ref, status in zip(refs, results, strict=True):
+        if not status.is_good():
+            log.warning(
+                "OPC UA: aggregate %s not listed in %s: %s",
+                ref.TargetNodeId.to_string(),
+                ref.SourceNodeId.to_string(),
+                status,
+            )
+
+
+def aggregate_of(types: list[ua.NodeId], i: int) -> str | int:
+    """The aggregate asked for the ``i``-th node (one for all, or one per node): its name
+    in ``SERVED``, or the status code refusing it."""
+    if len(types) == 1:
+        aggregate = types[0]
+    elif i < len(types):
+        aggregate = types[i]
+    else:
+        return int(S.BadAggregateListMismatch)
+    what = SERVED.get(aggregate.Identifier) if aggregate.NamespaceIndex == 0 else None
+    return int(S.BadAggregateNotSupported) if what is None else what
+
+
+def bucket_value(b: Bucket | None, what: str, t: float) -> ua.DataValue:
+    """One interval's value of ``what`` (a ``SERVED`` name but TimeAverage), at its start
+    time. Count (Part 13 §5.4.3.21: Int32, the values that are not BAD; zero, Good, for an
+    interval without any) is never Bad_NoData; the others are, for an interval without
+    values. The status is the worst quality's, but some BAD samples among values are
+    Uncertain_DataSubNormal (they were left out)."""
+    when = _utc(t)
+    if what == "count":
+        variant = ua.Variant(0 if b is None else b.count, VT.Int32)
+    else:
+        value: float | None = None if b is None else getattr(b, what)
+        if value is None:
+            return ua.DataValue(
+                ua.Variant(None), StatusCode=ua.StatusCode(S.BadNoData), SourceTimestamp=when
+            )
+        variant = ua.Variant(float(value), VT.Double)
+    if b is None:
+        status = S.Good  # (a count of zero)
+    elif b.quality is Quality.BAD:
+        status = S.UncertainDataSubNormal  # values, and BAD samples among them
+    else:
+        status = quality_status(b.quality, Reason.NONE)
+    return ua.DataValue(
+        variant, StatusCode=ua.StatusCode(status), SourceTimestamp=when, ServerTimestamp=when
+    )
+
+
 class HistoryService(HistoryManager):  # type: ignore[misc]
     """The server's history manager: HistoryRead answered by the historian's query."""
 
@@ -232,6 +312,10 @@ class HistoryService(HistoryManager):  # type: ignore[misc]
         self.query = query
         self.space = space
         self.variant = variant
+
+    def known(self, nid: ua.NodeId) -> bool:
+        """The address space holds ``nid`` (a shelf-backed space looks it up in its file)."""
+        return nid in self.space.tags or nid in self.iserver.aspace
 
     async def read_history(self, params: ua.HistoryReadParameters) -> list[ua.HistoryReadResult]:
         details = params.HistoryReadDetails
@@ -249,6 +333,10 @@ class HistoryService(HistoryManager):  # type: ignore[misc]
     ) -> ua.HistoryReadResult:
         if release:
             return _result(S.Good)  # stateless continuation points: nothing to release
+        if not self.known(rv.NodeId):
+            # Part 11 §6.4 / Part 4 §7.34: a node the server does not have is not a node
+            # without history (issue 31, finding 8).
+            return _result(S.BadNodeIdUnknown)
         if self.query is None:
             return _result(S.BadHistoryOperationUnsupported)  # the bench records no history
         if isinstance(details, ua.ReadEventDetails):
@@ -364,19 +452,9 @@ class HistoryService(HistoryManager):  # type: ignore[misc]
     async def _processed(
         self, d: ua.ReadProcessedDetails, i: int, tag: str, kind: str
     ) -> ua.HistoryReadResult:
-        types = list(d.AggregateType)
-        if len(types) == 1:
-            aggregate = types[0]
-        elif i < len(types):
-            aggregate = types[i]
-        else:
-            return _result(S.BadAggregateListMismatch)
-        standard = aggregate.NamespaceIndex == 0
-        what = AGGREGATES.get(aggregate.Identifier) if standard else None
-        if standard and aggregate.Identifier == TIME_AVERAGE:
-            what = "time average"
-        if what is None:
-            return _result(S.BadAggregateNotSupported)
+        what = aggregate_of(list(d.AggregateType), i)
+        if isinstance(what, int):
+            return _result(what)
         start, end = _seconds(d.StartTime), _seconds(d.EndTime)
         if start is None or end is None or start > end:
             return _result(S.BadInvalidTimestampArgument)
@@ -387,6 +465,8 @@ class HistoryService(HistoryManager):  # type: ignore[misc]
         assert query is not None  # (checked by _one)
         if what == "time average":
             return await self._time_average(tag, kind, start, end, interval_s)
+        if kind == "str" and what != "count":
+            return _result(S.BadAggregateInvalidInputs)
         try:
             agg = await asyncio.to_thread(query.aggregate, tag, start, end, interval_s)
         except UnknownTag:
@@ -394,38 +474,12 @@ class HistoryService(HistoryManager):  # type: ignore[misc]
         except BadRange as exc:
             log.warning("OPC UA HistoryRead (processed) of %s refused: %s", tag, exc)
             return _result(S.BadHistoryOperationInvalid)
-        if kind == "str":
-            return _result(S.BadAggregateInvalidInputs)
         by_t = {round((b.t - start) / interval_s): b for b in agg.buckets}
         n = min(MAX_BUCKETS, max(1, math.ceil((end - start) / interval_s)))
-        values = []
-        for k in range(n):
-            t = start + k * interval_s
-            b = by_t.get(k)
-            value = None if b is None else getattr(b, what)
-            if b is None or value is None:
-                values.append(
-                    ua.DataValue(
-                        ua.Variant(None),
-                        StatusCode=ua.StatusCode(S.BadNoData),
-                        SourceTimestamp=_utc(t),
-                    )
-                )
-                continue
-            if b.quality is Quality.BAD:
-                status = S.UncertainDataSubNormal  # values, and BAD samples among them
-            else:
-                status = quality_status(b.quality, Reason.NONE)
-            values.append(
-                ua.DataValue(
-                    ua.Variant(float(value), VT.Double),
-                    StatusCode=ua.StatusCode(status),
-                    SourceTimestamp=_utc(t),
-                    ServerTimestamp=_utc(t),
-                )
-            )
         data = ua.HistoryData()
-        data.DataValues = values
+        data.DataValues = [
+            bucket_value(by_t.get(k), what, start + k * interval_s) for k in range(n)
+        ]
         return _result(S.Good, data)
 
     async def _time_average(

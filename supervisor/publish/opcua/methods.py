@@ -1,12 +1,15 @@
 """The methods of a channel object, their arguments, and how a call becomes a command.
 
-asyncua does not check a call's arguments against the method's declaration, so each call
-is checked here: the number of arguments (Bad_ArgumentsMissing / Bad_TooManyArguments) and
-each one's type (Bad_InvalidArgument, with Bad_TypeMismatch for that argument). A call
-that passes becomes a ``Request`` for the command path, which checks everything else
-(state, interlocks, role, values) and records it with its actor. Every method answers one
-output argument, ``Result``: the command path's reason, accepted or not — the only place
-an OPC UA client can read why a call was refused (a status code carries no text).
+asyncua finds a method by its NodeId alone and checks neither the object it is called on
+nor its arguments, so each call is checked here: the object (the method's own, else
+Bad_MethodInvalid: ``not_on``), the number of arguments (Bad_ArgumentsMissing /
+Bad_TooManyArguments) and each one's type (Bad_InvalidArgument, with Bad_TypeMismatch for
+that argument). A call that passes becomes a ``Request`` for the command path, which checks
+everything else (state, interlocks, role, values) and records it with its actor. Every
+method answers one output argument, ``Result``: the command path's reason, accepted or not
+— the only place an OPC UA client can read why a call was refused (a status code carries no
+text). Part 9's Acknowledge, Confirm and ConditionRefresh(2) are declared here too, for the
+same check.
 """
 
 from __future__ import annotations
@@ -118,6 +121,24 @@ BENCH_METHODS: Final[tuple[Method, ...]] = (
 )
 """The methods of the Bench object (ADR 0015)."""
 
+EVENT_ID = Arg("EventId", "The EventId of the condition's event being answered", (VT.ByteString,))
+COMMENT = Arg("Comment", "A comment (may be null)", (VT.LocalizedText, VT.Null))
+ACKNOWLEDGE: Final = Method(
+    "Acknowledge", "acknowledge", "Part 9 AcknowledgeableConditionType", (EVENT_ID, COMMENT)
+)
+CONFIRM: Final = Method(
+    "Confirm", "reset", "Part 9 AcknowledgeableConditionType", (EVENT_ID, COMMENT)
+)
+"""Part 9's methods of a condition, declared so that ``check`` checks their arguments."""
+_IDS = (VT.UInt32, VT.Int32, VT.UInt16, VT.Int16, VT.UInt64, VT.Int64, VT.Byte, VT.SByte)
+SUBSCRIPTION = Arg("SubscriptionId", "The subscription to replay the conditions to", _IDS)
+ITEM = Arg("MonitoredItemId", "The monitored item to replay them to", _IDS)
+REFRESH: Final = Method("ConditionRefresh", "refresh", "Part 9 ConditionType", (SUBSCRIPTION,))
+REFRESH2: Final = Method(
+    "ConditionRefresh2", "refresh", "Part 9 ConditionType", (SUBSCRIPTION, ITEM)
+)
+"""ConditionType's refresh methods (an IntegerId is a UInt32; any integer is taken)."""
+
 _TRUE: Final = ("true", "on", "yes", "1")
 _FALSE: Final = ("false", "off", "no", "0")
 
@@ -159,6 +180,19 @@ class Invalid:
 def _type_name(v: ua.Variant) -> str:
     t = v.VariantType.name if v.VariantType is not None else "Null"
     return f"{t} array" if v.is_array or isinstance(v.Value, list) else t
+
+
+def not_on(method: Method, called_on: ua.NodeId, owner: ua.NodeId) -> Invalid | None:
+    """Part 4 §5.11.2 (Call): a method is called on an object it is a component of (or of
+    whose type it is). A channel's method node is its own channel's: ch1's SetManualCurrent
+    called on ch2's object would command ch1 while naming ch2 (issue 31, finding 5), so it
+    is Bad_MethodInvalid and nothing is done."""
+    if called_on == owner:
+        return None
+    return Invalid(
+        S.BadMethodInvalid,
+        f"{method.name} is a method of {owner.to_string()}, not of {called_on.to_string()}",
+    )
 
 
 def check(method: Method, args: Sequence[ua.Variant]) -> Invalid | None:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import dataclasses
 import gc
 import logging
 import threading
@@ -46,8 +47,11 @@ from supervisor.publish.historian import HistoryQuery
 from supervisor.publish.opcua import methods
 from supervisor.publish.opcua.events import EventPublisher
 from supervisor.publish.opcua.feed import AlarmView, OpcUaFeed, Update
-from supervisor.publish.opcua.history import HistoryService, HistorySpace
+from supervisor.publish.opcua.history import PAGE, HistoryService, HistorySpace, list_aggregates
 from supervisor.publish.opcua.layout import Layout
+from supervisor.publish.opcua.monitoring import serve_subscriptions
+from supervisor.publish.opcua.nameplate import add_identification, fill_server_object
+from supervisor.publish.opcua.objecttypes import condition_values
 from supervisor.publish.opcua.ports import Answer, Operate, Request
 from supervisor.publish.opcua.security import (
     PasswordUsers,
@@ -62,6 +66,8 @@ from supervisor.publish.opcua.settings import OpcUaSettings
 from supervisor.publish.opcua.shelf import ensure_shelf
 from supervisor.publish.opcua.space import Built, build_space
 from supervisor.publish.opcua.statuses import NO_VALUE, quality_status, refusal_status
+from supervisor.publish.opcua.timestamps import Freshness
+from supervisor.publish.opcua.timestamps import read as read_timestamps
 from supervisor.tags import Access, TagDB
 
 log = logging.getLogger(__name__)
@@ -130,6 +136,8 @@ class OpcUaServer:
         self._events: EventPublisher | None = None
         self._by_index: dict[int, tuple[ua.NodeId, str]] = {}
         self._by_node: dict[ua.NodeId, str] = {}
+        self.fresh = Freshness(self._by_node)
+        """A tag's ServerTimestamp: when the scan last handed over (timestamps.py)."""
         self._bench_loop: asyncio.AbstractEventLoop | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake: asyncio.Event | None = None
@@ -292,7 +300,10 @@ class OpcUaServer:
         # asyncua's server, but no password in clear and each request run as the session
         # whose token it carries (``sessions.py``).
         server = BenchServer(user_manager=PasswordUsers(self.users, s.anonymous, self.throttle))
-        # ConditionRefresh replays the retained alarm conditions (asyncua keeps them).
+        # Deadbands and TimestampsToReturn on monitored items (monitoring.py), before
+        # ``init`` binds the condition methods to the subscription service it finds.
+        serve_subscriptions(server.iserver, self.fresh.stamp)
+        # asyncua's RefreshStart/RefreshEnd events (ConditionRefresh is ours: events.py).
         server.iserver.bind_condition_methods = True
         # Issue 27, finding 3: a flood of clients must not take the descriptors the devices
         # need. asyncua closes a connection beyond its cap at once, and one that has not
@@ -308,51 +319,50 @@ class OpcUaServer:
         server.allow_remote_admin(False)
         await server.set_application_uri(self.namespace)
         server.product_uri = "urn:bench-supervisor"
-        tokens: list[type] = [ua.UserNameIdentityToken]
-        if s.anonymous:
-            tokens.insert(0, ua.AnonymousIdentityToken)
-        server.set_identity_tokens(tokens)
-        server.set_security_policy(
-            [POLICIES[p] for p in s.security], permission_ruleset=SessionRules()
-        )
-        # The server's certificate even with only the None policy: a password is encrypted
-        # with it on every endpoint that does not encrypt the channel (issue 27).
-        pki = Pki(s.pki_dir)
-        await pki.ensure(self.namespace, s.bench)
-        await server.load_certificate(pki.cert)
-        await server.load_private_key(pki.key)
-        if any(p != "none" for p in s.security):
-            server.set_certificate_validator(TrustList(pki))
+        await self._secure(server)
         idx = await server.register_namespace(self.namespace)
         built = await build_space(
             server, idx, self.layout, s.sampling_interval_s or s.scan_period_s, self._historised()
         )
         self._built = built
-        self._serve_history(server, built, self.history)
-        for nid, (channel, m) in built.methods.items():
-            server.iserver.isession.add_method_callback(nid, self._method_handler(channel, m))
-        server.link_method(
-            server.get_node(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
-            self._acknowledge,
-        )
-        for method_ids, handler in (
-            (SHELVE_IDS, self._shelving("shelve")),
-            (ONE_SHOT_IDS, self._shelving("one shot")),
-            (UNSHELVE_IDS, self._shelving("unshelve")),
-            ((O.AcknowledgeableConditionType_Confirm,), self._confirm),
-        ):
-            for mid in method_ids:
-                server.link_method(server.get_node(ua.NodeId(mid)), handler)
+        await self._describe(server, built)
+        await self._serve_history(server, built, self.history)
+        self._link_methods(server, built)
         await self._method_references(server, built)
         server.iserver.attribute_service = GuardedWrites(server.iserver.aspace, self)
         events = EventPublisher(server, built, s.bench)
         await events.init()
         self._events = events
+        self._index_nodes(built)
         # First values: the whole tag database as it is, then changes as they come.
+        wake_up = self._wake_up()
+        first = await self._call_bench(lambda: self.feed.start(self.db, wake_up))
+        await self._write(server, first)
+        for a in await self._call_bench(lambda: list(self.alarms())):
+            await self._alarm(a)
+        # A port already taken is the caller's to report, in one line (asyncua would log
+        # its traceback first).
+        quiet = logging.getLogger("asyncua.server.server")
+        level = quiet.level
+        quiet.setLevel(logging.CRITICAL)
+        try:
+            await server.start()
+        finally:
+            quiet.setLevel(level)
+        return server
+
+    def _index_nodes(self, built: Built) -> None:
+        """Each tag's node by the tag's index (what the feed's updates carry), and each
+        node's tag."""
         index_of = {t.name: t.index for t in self.db}
         for name, (nid, kind) in built.tags.items():
             self._by_index[index_of[name]] = (nid, kind)
             self._by_node[nid] = name
+
+    def _wake_up(self) -> Callable[[], None]:
+        """How the feed wakes the pump when a scan has changes (called on the scan's
+        thread): at once on the server's own loop when it shares the scan's, else from the
+        other thread, once the scan is done when there is a scan gate."""
         loop = asyncio.get_running_loop()
         wake = self._wake
         assert wake is not None
@@ -371,20 +381,44 @@ class OpcUaServer:
             else:
                 signal()
 
-        first = await self._call_bench(lambda: self.feed.start(self.db, wake_up))
-        await self._write(server, first)
-        for a in await self._call_bench(lambda: list(self.alarms())):
-            await self._alarm(a)
-        # A port already taken is the caller's to report, in one line (asyncua would log
-        # its traceback first).
-        quiet = logging.getLogger("asyncua.server.server")
-        level = quiet.level
-        quiet.setLevel(logging.CRITICAL)
-        try:
-            await server.start()
-        finally:
-            quiet.setLevel(level)
-        return server
+        return wake_up
+
+    async def _secure(self, server: Server) -> None:
+        """Who may connect and how: the identity tokens, the security policies, and the
+        server's certificate (with a trust list when a policy signs or encrypts)."""
+        s = self.settings
+        tokens: list[type] = [ua.UserNameIdentityToken]
+        if s.anonymous:
+            tokens.insert(0, ua.AnonymousIdentityToken)
+        server.set_identity_tokens(tokens)
+        server.set_security_policy(
+            [POLICIES[p] for p in s.security], permission_ruleset=SessionRules()
+        )
+        # The server's certificate even with only the None policy: a password is encrypted
+        # with it on every endpoint that does not encrypt the channel (issue 27).
+        pki = Pki(s.pki_dir)
+        await pki.ensure(self.namespace, s.bench)
+        await server.load_certificate(pki.cert)
+        await server.load_private_key(pki.key)
+        if any(p != "none" for p in s.security):
+            server.set_certificate_validator(TrustList(pki))
+
+    def _link_methods(self, server: Server, built: Built) -> None:
+        """The handlers of the methods a client calls: the channels' and the bench's, and
+        the alarm conditions' (Acknowledge, ConditionRefresh, Confirm, the shelving ones)."""
+        for nid, (channel, m) in built.methods.items():
+            server.iserver.isession.add_method_callback(nid, self._method_handler(channel, m))
+        for method_ids, handler in (
+            ((O.AcknowledgeableConditionType_Acknowledge,), self._acknowledge),
+            ((O.ConditionType_ConditionRefresh,), self._condition_refresh(methods.REFRESH)),
+            ((O.ConditionType_ConditionRefresh2,), self._condition_refresh(methods.REFRESH2)),
+            (SHELVE_IDS, self._shelving("shelve")),
+            (ONE_SHOT_IDS, self._shelving("one shot")),
+            (UNSHELVE_IDS, self._shelving("unshelve")),
+            ((O.AcknowledgeableConditionType_Confirm,), self._confirm),
+        ):
+            for mid in method_ids:
+                server.link_method(server.get_node(ua.NodeId(mid)), handler)
 
     # --- values --------------------------------------------------------------------------
     async def _pump(self) -> None:
@@ -407,14 +441,23 @@ class OpcUaServer:
             self.feed.clients = len(getattr(bserver, "clients", ()))
             self._busy = False
 
+    async def _describe(self, server: Server, built: Built) -> None:
+        """The Server object filled and the bench's Identification (nameplate.py)."""
+        await fill_server_object(server, self.settings, history=self.history is not None, page=PAGE)
+        await add_identification(server, self.settings, built.bench, self.namespace)
+
     def _historised(self) -> frozenset[str]:
         """The tags the historian keeps (none without one): each tag's history settings."""
         if self.history is None:
             return frozenset()
         names = (t.name for t in self.db if t.spec.history.enabled)
-        return frozenset(n for n in names if n in self.layout.variables)
+        variables = self.layout.variables
+        # A state machine's CurrentState (its PackML name) has its history in its Number.
+        return frozenset(n for n in names if n in variables and variables[n].kind != "statename")
 
-    def _serve_history(self, server: Server, built: Built, query: HistoryQuery | None) -> None:
+    async def _serve_history(
+        self, server: Server, built: Built, query: HistoryQuery | None
+    ) -> None:
         """HistoryRead answered from the historian's file (history.py), not asyncua's own;
         without a historian every node answers Bad_HistoryOperationUnsupported."""
         historised = self._historised()
@@ -447,6 +490,8 @@ class OpcUaServer:
             conditions=dict(built.alarms),
         )
         server.iserver.history_manager = HistoryService(server.iserver, query, space, _variant)
+        if query is not None:  # the aggregates HistoryRead then serves, listed (finding 7)
+            await list_aggregates(server)
 
     async def _write(self, server: Server, updates: list[Update]) -> None:
         aspace = server.iserver.aspace
@@ -461,10 +506,25 @@ class OpcUaServer:
                 # interpreter lock for milliseconds, against the scan (ADR 0021).
                 gate.wait()
             nid, kind = target
-            await aspace.write_attribute_value(nid, ua.AttributeIds.Value, self._value(u, kind))
+            if kind == "statename":
+                continue  # CurrentState: shown by its state's number (below)
+            dv = self._value(u, kind)
+            await aspace.write_attribute_value(nid, ua.AttributeIds.Value, dv)
             self.written += 1
+            machine = self._built.state_machines.get(nid) if kind == "state" else None
+            if machine is not None:  # the state's name and Id follow its number
+                for other, odv in machine.derived(dv):
+                    await aspace.write_attribute_value(other, ua.AttributeIds.Value, odv)
             if n % WRITE_CHUNK == 0:
                 await asyncio.sleep(0)  # let the publish task send notifications
+        self._heard(updates)
+
+    def _heard(self, updates: list[Update]) -> None:
+        """The scan's changes are in: every tag is known current as of the latest of them
+        (a hand-over carries the scan's counters, which change every scan)."""
+        latest = max((u.server_t for u in updates), default=0.0)
+        if latest > 0.0 or (updates and self.clock.virtual):
+            self.fresh.heard(_utc(self.clock.to_wall(latest)))
 
     def _value(self, u: Update, kind: str) -> ua.DataValue:
         clock = self.clock
@@ -519,6 +579,9 @@ class OpcUaServer:
             "Tripped": ua.Variant(a.tripped, VT.Boolean),
             "Shelved": ua.Variant(a.shelved, VT.Boolean),
         }
+        values |= condition_values(  # the condition's standard variables (Part 9)
+            a.active, a.acked, a.retained, a.shelved, a.id, a.severity, a.actor
+        )
         when = _utc(a.wall) if a.wall else datetime.now(UTC)
         for name, variant in values.items():
             nid = fields.get((a.id, name))
@@ -530,8 +593,14 @@ class OpcUaServer:
 
     # --- methods -------------------------------------------------------------------------
     def _method_handler(self, channel: str, method: methods.Method) -> Callable[..., Any]:
+        owner = self._built.channels.get(channel, self._built.bench)
+
         async def handler(parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
             actor = actor_of(current_user())
+            wrong = methods.not_on(method, parent, owner)
+            if wrong is not None:
+                log.warning("OPC UA call by %s refused: %s", actor, wrong.reason)
+                return _result(wrong.status, wrong.reason, len(args))
             if self._closing:
                 return _result(S.BadShutdown, "the supervisor is stopping", len(args))
             bad = methods.check(method, args)
@@ -589,9 +658,12 @@ class OpcUaServer:
         actor = actor_of(current_user())
         alarm = next((a for a, nid in self._built.alarms.items() if nid == parent), None)
         if alarm is None:
-            return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", len(args))
+            return _not_a_condition(parent, len(args))
         if self._closing:
             return _result(S.BadShutdown, "the supervisor is stopping", len(args))
+        refused = self._occurrence_refusal(alarm, methods.ACKNOWLEDGE, args, actor)
+        if refused is not None:
+            return refused
         answer = await self._ask(Request("alarm", alarm, "acknowledge", {}, actor))
         if answer.accepted:
             return _result(S.Good, answer.reason, len(args), out=False)
@@ -642,7 +714,7 @@ class OpcUaServer:
             actor = actor_of(current_user())
             alarm = self._alarm_of(parent)
             if alarm is None:
-                return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", n)
+                return _not_a_condition(parent, n)
             if self._closing:
                 return _result(S.BadShutdown, "the supervisor is stopping", n, out=False)
             if what == "one shot":
@@ -691,9 +763,12 @@ class OpcUaServer:
         actor = actor_of(current_user())
         alarm = self._alarm_of(parent)
         if alarm is None:
-            return _result(S.BadNodeIdUnknown, f"{parent.to_string()} is not an alarm", n)
+            return _not_a_condition(parent, n)
         if self._closing:
             return _result(S.BadShutdown, "the supervisor is stopping", n, out=False)
+        refused = self._occurrence_refusal(alarm, methods.CONFIRM, args, actor)
+        if refused is not None:
+            return refused
         answer = await self._ask(Request("alarm", alarm, "reset", {}, actor))
         if answer.accepted:
             return _result(S.Good, answer.reason, n, out=False)
@@ -702,6 +777,47 @@ class OpcUaServer:
         else:
             status = refusal_status(answer.refusal)
         return _result(status, answer.reason, n)  # the reason as text, with the Bad code
+
+    def _condition_refresh(self, method: methods.Method) -> Callable[..., Any]:
+        """ConditionRefresh(SubscriptionId), ConditionRefresh2(SubscriptionId,
+        MonitoredItemId): the alarm model's views now first (those the server has not sent:
+        a closing event lost or still on its way), then the retained conditions replayed
+        (events.py; issue 31, finding 8: never a closed one)."""
+
+        async def handler(parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
+            n = len(args)
+            bad = methods.check(method, args)
+            if bad is not None:
+                return _result(bad.status, bad.reason, n, bad.arg_results, out=False)
+            assert self._events is not None
+            views = await self._call_bench(lambda: list(self.alarms()))
+            for v in self._events.stale(views):
+                await self._alarm(dataclasses.replace(v, transition=v.transition or "current"))
+            ids = [int(a.Value) for a in args]
+            status = await self._events.refresh(ids[0], ids[1] if n > 1 else None)
+            return _result(status, "", n, out=False)
+
+        return handler
+
+    def _occurrence_refusal(
+        self, alarm: str, method: methods.Method, args: Sequence[ua.Variant], actor: str
+    ) -> ua.CallMethodResult | None:
+        """Acknowledge and Confirm (EventId, Comment): the arguments' types, then whether the
+        EventId names the condition's occurrence that waits (events.py; issue 31, finding 3).
+        None: the call may go to the command path."""
+        bad = methods.check(method, args)
+        if bad is None:
+            assert self._events is not None
+            found = self._events.refusal(
+                self._built.alarms[alarm],
+                args[0].Value,
+                "acked" if method is methods.ACKNOWLEDGE else "confirmed",
+            )
+            if found is None:
+                return None
+            bad = methods.Invalid(found[0], f"{method.name} of alarm {alarm}: {found[1]}")
+        log.warning("OPC UA %s by %s refused: %s", method.name, actor, bad.reason)
+        return _result(bad.status, bad.reason, len(args), bad.arg_results, out=False)
 
     async def _ask(self, req: Request) -> Answer:
         try:
@@ -833,7 +949,8 @@ class GuardedWrites(AttributeService):  # type: ignore[misc]
                 executable = self.owner.user_executable(rv.NodeId, user)
                 if executable is not None:
                     results[i] = ua.DataValue(ua.Variant(executable, VT.Boolean))
-        return results
+        # The timestamps asked for, a tag's ServerTimestamp when it was last known current.
+        return read_timestamps(params, results, self.owner.fresh)
 
     async def write(self, params: ua.WriteParameters, user: UaUser = _ADMIN) -> list[ua.StatusCode]:
         if user.role is UserRole.Admin:
@@ -879,11 +996,13 @@ def _variant(value: object, kind: str) -> ua.Variant:
     if kind in ("int", "state"):
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise TypeError(value)
-        return ua.Variant(int(value), VT.Int32 if kind == "state" else VT.Int64)
+        return ua.Variant(int(value), VT.UInt32 if kind == "state" else VT.Int64)
     if kind == "bool":
         if not isinstance(value, bool):
             raise TypeError(value)
         return ua.Variant(value, VT.Boolean)
+    if kind == "statename":
+        return ua.Variant(ua.LocalizedText(str(value)), VT.LocalizedText)
     return ua.Variant(str(value), VT.String)
 
 
@@ -897,6 +1016,14 @@ def _result(
     ]
     res.OutputArguments = [ua.Variant(reason, VT.String)] if out else []
     return res
+
+
+def _not_a_condition(parent: ua.NodeId, n_args: int) -> ua.CallMethodResult:
+    """A condition's method called on an object that is no alarm's condition: Part 9 §5.7.3
+    asks Bad_NodeIdInvalid for the condition type itself (any standard node here), else
+    Bad_MethodInvalid (the method is not one of that object's)."""
+    status = S.BadNodeIdInvalid if parent.NamespaceIndex == 0 else S.BadMethodInvalid
+    return _result(status, f"{parent.to_string()} is not an alarm", n_args)
 
 
 class GatedLoop(HookedLoop):

@@ -11,10 +11,25 @@ from typing import TYPE_CHECKING, Final
 if TYPE_CHECKING:
     from supervisor.config.models import BenchConfig
 
-__all__ = ["MIN_SAMPLING_S", "PATH", "OpcUaSettings", "sampling_interval_s"]
+__all__ = ["MIN_SAMPLING_S", "PATH", "Identification", "OpcUaSettings", "sampling_interval_s"]
 
 PATH: Final = "supervisor"
 """The endpoint's path: ``opc.tcp://<host>:<port>/supervisor``."""
+
+
+@dataclass(frozen=True, slots=True)
+class Identification:
+    """The bench's identification (the I/O map's ``identification:``, OPC 40001-1): what a
+    client reads under Bench/Identification. Empty: not configured."""
+
+    manufacturer: str = ""
+    manufacturer_uri: str = ""
+    model: str = ""
+    serial_number: str = ""
+    product_instance_uri: str = ""
+    asset_id: str = ""
+    location: str = ""
+    year_of_construction: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -36,6 +51,8 @@ class OpcUaSettings:
     """Open connections at most (``opcua.max_connections``): one more is closed at once."""
     activation_timeout_s: float = 10.0
     """A connection without an activated session this long is closed."""
+    identification: Identification = Identification()
+    """The bench's identification (serial number and product URI defaulted at build)."""
 
     @classmethod
     def of(cls, cfg: BenchConfig) -> OpcUaSettings:
@@ -54,6 +71,7 @@ class OpcUaSettings:
             sampling_interval_s=sampling_interval_s(cfg.scan.period_s, o.sampling_interval_s),
             max_connections=o.max_connections,
             activation_timeout_s=o.activation_timeout_s,
+            identification=Identification(**cfg.identification.model_dump()),
         )
 
     @property
