@@ -47,7 +47,10 @@ async def running(tmp_path: Path, request: pytest.FixtureRequest) -> AsyncIterat
 
 async def run_client(rig: Rig, secure: bool, tmp: Path) -> dict[str, object]:
     cert_der, key = await client_certificate(tmp, "node")
-    trust(rig, cert_der)
+    if secure:
+        # On None the certificate is ignored (Part 4 §5.7.2.2): the None case runs with a
+        # certificate nobody trusted, as node-opcua's default client comes (issue 31).
+        trust(rig, cert_der)
     cert_pem = tmp / "node-cert.pem"
     cert_pem.write_bytes(
         x509.load_der_x509_certificate(cert_der.read_bytes()).public_bytes(Encoding.PEM)

@@ -14,7 +14,9 @@
   application URI, as OPC UA requires), Basic256Sha256 Sign and SignAndEncrypt endpoints,
   and a trust list: a client certificate is accepted only when it (or its issuer) is in
   ``<pki>/trusted``; a refused one is saved in ``<pki>/rejected`` so an administrator can
-  trust it by moving the file (read again at the next connection, no restart).
+  trust it by moving the file (read again at the next connection, no restart). On a None
+  channel the client's certificate is ignored (Part 4 §5.7.2.2: nothing is signed with it),
+  trusted or not. A refusal is one WARNING line per certificate and window, not one per retry.
 """
 
 from __future__ import annotations
@@ -24,6 +26,9 @@ import hashlib
 import logging
 import socket
 import sys
+import time
+from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final, Protocol
@@ -68,6 +73,18 @@ _current: contextvars.ContextVar[UaUser | None] = contextvars.ContextVar(
 def current_user() -> UaUser | None:
     """The user of the request being served (set by ``SessionRules``)."""
     return _current.get()
+
+
+_channel_mode: contextvars.ContextVar[ua.MessageSecurityMode] = contextvars.ContextVar(
+    "opcua_channel_mode", default=ua.MessageSecurityMode.Invalid
+)
+
+
+def serving_on(mode: ua.MessageSecurityMode) -> None:
+    """Say on which kind of secure channel the request being served came (set by the
+    connection's processor, ``sessions.py``, before asyncua serves it: the certificate
+    validator asyncua calls is not told)."""
+    _channel_mode.set(mode)
 
 
 def actor_of(user: UaUser | None) -> str:
@@ -245,13 +262,47 @@ VALIDATION: Final = (
 )
 
 
+REFUSAL_LOG_WINDOW_S: Final = 60.0
+"""A refused certificate is logged once per window: a client retrying every second (node-opcua
+does by default) would otherwise write a line per retry."""
+REFUSAL_LOG_KEYS: Final = 256
+"""Certificates remembered at most (a flood of new certificates cannot grow memory)."""
+
+
+class RefusalLog:
+    """One WARNING line per refused certificate (its thumbprint) and window; the next line
+    after a window says how many refusals it did not write (``core/logrepeat.py``'s way)."""
+
+    def __init__(
+        self, now: Callable[[], float] = time.monotonic, window_s: float = REFUSAL_LOG_WINDOW_S
+    ) -> None:
+        self.now = now
+        self.window_s = window_s
+        self._seen: OrderedDict[str, tuple[float, int]] = OrderedDict()
+
+    def should_log(self, thumbprint: str) -> int | None:
+        """None: not to be logged (counted); else log it, saying how many were not."""
+        now = self.now()
+        seen = self._seen.get(thumbprint)
+        if seen is not None and now - seen[0] < self.window_s:
+            self._seen[thumbprint] = (seen[0], seen[1] + 1)
+            return None
+        self._seen[thumbprint] = (now, 0)
+        self._seen.move_to_end(thumbprint)
+        if len(self._seen) > REFUSAL_LOG_KEYS:
+            self._seen.popitem(last=False)
+        return 0 if seen is None else seen[1]
+
+
 class TrustList:
     """The certificate validator: the client certificate must be valid now, name the
     client's application URI, allow client use, and be in ``trusted/`` (or be signed by a
-    certificate there). Without it asyncua accepts any client certificate."""
+    certificate there). Without it asyncua accepts any client certificate. On a None
+    channel it accepts any: there the certificate is ignored (Part 4 §5.7.2.2)."""
 
-    def __init__(self, pki: Pki) -> None:
+    def __init__(self, pki: Pki, refusals: RefusalLog | None = None) -> None:
         self.pki = pki
+        self.refusals = refusals or RefusalLog()
         self._stamp: tuple[tuple[str, int], ...] | None = None
         self._validator: CertificateValidator | None = None
 
@@ -263,6 +314,11 @@ class TrustList:
         return tuple((f.name, f.stat().st_mtime_ns) for f in files if f.is_file())
 
     async def __call__(self, cert: x509.Certificate, app: ua.ApplicationDescription) -> None:
+        if _channel_mode.get() == ua.MessageSecurityMode.None_:
+            # asyncua validates the CreateSession's certificate whatever the channel; with
+            # SecurityPolicy None a client (node-opcua by default) still sends one, and
+            # nothing is signed or encrypted with it: an untrusted one must not refuse it.
+            return
         stamp = self._listing()
         if stamp != self._stamp:
             self._validator = None
@@ -277,18 +333,28 @@ class TrustList:
             await self._validator(cert, app)
         except ServiceError as exc:
             der = cert.public_bytes(Encoding.DER)
-            name = f"{hashlib.sha1(der).hexdigest()}.der"
+            thumbprint = hashlib.sha1(der).hexdigest()
+            name = f"{thumbprint}.der"
+            kept = ""
             try:
                 self.pki.rejected.mkdir(parents=True, exist_ok=True)
                 (self.pki.rejected / name).write_bytes(der)
-            except OSError:
-                log.exception("could not keep the rejected certificate")
-            log.warning(
-                "OPC UA client %s (%s) refused: %s; to trust it, move %s into %s",
-                app.ApplicationUri,
-                app.ApplicationName.Text if app.ApplicationName else "",
-                ua.StatusCode(exc.code).name,
-                self.pki.rejected / name,
-                self.pki.trusted,
-            )
+            except OSError as err:
+                kept = f" (not kept: {err})"
+            repeats = self.refusals.should_log(thumbprint)
+            if repeats is not None:
+                log.warning(
+                    "OPC UA client %s (%s) refused: certificate %s, %s; to trust it, move"
+                    " %s into %s%s%s",
+                    app.ApplicationUri,
+                    app.ApplicationName.Text if app.ApplicationName else "",
+                    thumbprint,
+                    ua.StatusCode(exc.code).name,
+                    self.pki.rejected / name,
+                    self.pki.trusted,
+                    kept,
+                    f" [{repeats} more refusals of it in the last {self.refusals.window_s:g} s]"
+                    if repeats
+                    else "",
+                )
             raise

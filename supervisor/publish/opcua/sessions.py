@@ -19,21 +19,35 @@ issue 27, findings 5 and 6): a small, tested override of asyncua 2.1's ``Server`
   (Bad_TooManySessions: OPC UA allows several sessions per channel, asyncua does not
   implement it); a session never activated is closed and replaced, as a client retrying a
   refused login does.
+- **The None endpoint ignores the client's certificate** (Part 4 §5.7.2.2; issue 31,
+  finding 1): asyncua validates the CreateSession's certificate whatever the channel, and
+  node-opcua sends one by default. The processor tells the validator (``TrustList``) the
+  channel's mode; on None it accepts. A certificate refused on a signed channel is logged
+  once by the validator (WARNING, rate-limited): asyncua's own ERROR line per refusal is
+  not written (issue 31, finding 8).
+- **Operation limits, Browse and BrowseNext** (issue 31, finding 4; ``services.py``): a
+  request past its advertised limit is refused (Bad_TooManyOperations); Browse and
+  BrowseNext are served by ``services.py`` in slices, with continuation points.
 """
 
 from __future__ import annotations
 
 import logging
 import socket
+import time
 from typing import Any, Final
 
 from asyncua import Server, ua
+from asyncua.common.utils import ServiceError
 from asyncua.crypto import uacrypto
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from asyncua.server.binary_server_asyncio import BinaryServer, OPCUAProtocol
 from asyncua.server.internal_session import SessionState
 from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary
+
+from supervisor.publish.opcua import services
+from supervisor.publish.opcua.security import serving_on
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +75,21 @@ SESSIONLESS: Final = frozenset(
 """Requests served without a session: their AuthenticationToken is not checked (ActivateSession
 is checked when the connection has a session: else asyncua looks the session up by it, a
 client reconnecting on a new channel, Part 4 §6.7)."""
+CERTIFICATE_REFUSALS: Final = frozenset(
+    getattr(S, n)
+    for n in (
+        "BadCertificateUntrusted",
+        "BadCertificateInvalid",
+        "BadCertificateTimeInvalid",
+        "BadCertificateUriInvalid",
+        "BadCertificateUseNotAllowed",
+        "BadCertificateRevoked",
+        "BadCertificateIssuerRevoked",
+        "BadCertificateChainIncomplete",
+        "BadSecurityChecksFailed",
+    )
+)
+"""What the certificate validator refuses a CreateSession with (it logs why, once)."""
 
 
 def password_in_clear(token: object, channel_mode: ua.MessageSecurityMode) -> bool:
@@ -73,10 +102,17 @@ def password_in_clear(token: object, channel_mode: ua.MessageSecurityMode) -> bo
 
 
 class SessionBoundProcessor(UaProcessor):  # type: ignore[misc]
-    """asyncua's per-connection processor, checking a request's session and a login's
-    password before asyncua serves it."""
+    """asyncua's per-connection processor, checking a request's session, a login's password
+    and a request's number of operations before asyncua serves it; Browse and BrowseNext
+    served by ``services.py``."""
+
+    def __init__(self, *args: Any, browser: services.Browser, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        self.browser = browser
+        self.points = services.ContinuationPoints()
 
     async def _process_message(self, typeid: Any, requesthdr: Any, seqhdr: Any, body: Any) -> Any:
+        serving_on(self._connection.security_policy.Mode)
         session = self.session
         live = session is not None and session.state is not SessionState.Closed
         if typeid == CREATE_SESSION and live:
@@ -118,7 +154,45 @@ class SessionBoundProcessor(UaProcessor):  # type: ignore[misc]
                     " certificate as the endpoint's UserTokenPolicy asks (Basic256Sha256),"
                     " or use a SignAndEncrypt endpoint",
                 )
-        return await super()._process_message(typeid, requesthdr, seqhdr, body)
+        if live and typeid not in SESSIONLESS and session.is_activated():
+            reason = services.too_many(typeid, body)
+            if reason is not None:
+                return self._refuse(requesthdr, seqhdr, S.BadTooManyOperations, reason)
+            if typeid in (services.BROWSE, services.BROWSE_NEXT):
+                return await self._browse(typeid, requesthdr, seqhdr, body)
+        try:
+            return await super()._process_message(typeid, requesthdr, seqhdr, body)
+        except ServiceError as exc:
+            if typeid != CREATE_SESSION or exc.code not in CERTIFICATE_REFUSALS:
+                raise
+            # Logged by the validator, once per certificate and window: asyncua would add an
+            # ERROR line for every retry of the client.
+            self._fault(requesthdr, seqhdr, exc.code)
+            return True
+
+    async def _browse(self, typeid: Any, requesthdr: Any, seqhdr: Any, body: Any) -> bool:
+        """Browse or BrowseNext, served in slices (``services.py``) with asyncua's checks of
+        a request: the session's permission (BrowseNext as a Browse) and its activity."""
+        session = self.session
+        rules = self._connection.security_policy.permissions
+        if rules is not None and not rules.check_validity(session.user, services.BROWSE, body):
+            raise ua.uaerrors.BadUserAccessDenied
+        self.session_last_activity = time.monotonic()
+        session.touch()
+        serve = services.browse if typeid == services.BROWSE else services.browse_next
+        answer = await serve(self.browser, self.points.of(session), body, requesthdr)
+        if self._transport.is_closing():
+            return False  # the client left while it was browsed
+        data = self._connection.message_to_binary(
+            answer, message_type=ua.MessageType.SecureMessage, request_id=seqhdr.RequestId
+        )
+        self._transport.write(data)
+        return True
+
+    def _fault(self, requesthdr: Any, seqhdr: Any, code: int) -> None:
+        response = ua.ServiceFault()
+        response.ResponseHeader.ServiceResult = ua.StatusCode(code)
+        self.send_response(requesthdr.RequestHandle, seqhdr, response)
 
     def _refuse(self, requesthdr: Any, seqhdr: Any, code: int, reason: str) -> bool:
         """Answer a ServiceFault with ``code`` and ``reason`` (in the response header's
@@ -142,14 +216,25 @@ class SessionBoundProtocol(OPCUAProtocol):  # type: ignore[misc]
 
     processor: UaProcessor | None
 
+    def __init__(self, *args: Any, browser: services.Browser, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        self.browser = browser
+
     def connection_made(self, transport: Any) -> None:
         super().connection_made(transport)
         if self.processor is not None:  # None: refused at asyncua's max_connections
-            self.processor = SessionBoundProcessor(self.iserver, self.transport, self.limits)
+            self.processor = SessionBoundProcessor(
+                self.iserver, self.transport, self.limits, browser=self.browser
+            )
             self.processor.set_policies(self.policies)
 
 
 class SessionBoundBinaryServer(BinaryServer):  # type: ignore[misc]
+    def __init__(self, *args: Any, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        # One for the server: a reference type's subtypes are computed once for all clients.
+        self.browser = services.Browser(self.iserver.aspace)
+
     def _make_protocol(self) -> OPCUAProtocol:
         return SessionBoundProtocol(
             iserver=self.iserver,
@@ -157,6 +242,7 @@ class SessionBoundBinaryServer(BinaryServer):  # type: ignore[misc]
             clients=self.clients,
             closing_tasks=self.closing_tasks,
             limits=self.limits,
+            browser=self.browser,
         )
 
 
@@ -188,6 +274,12 @@ class BenchServer(Server):  # type: ignore[misc]
                 t.SecurityPolicyUri = SecurityPolicyBasic256Sha256.URI
             tokens.append(t)
         endpoint.UserIdentityTokens = tokens
+
+    async def init(self, shelf_file: Any = None) -> None:
+        """asyncua's ``Server.init``, then the operation limits this server enforces written
+        under ServerCapabilities (asyncua writes 10,000 for each and enforces none)."""
+        await super().init(shelf_file)
+        await services.advertise(self)
 
     async def start(self) -> None:
         """asyncua's ``Server.start`` with ``SessionBoundBinaryServer`` (asyncua names its
