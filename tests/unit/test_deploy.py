@@ -371,7 +371,16 @@ def test_systemd_analyze_verify_accepts_the_unit(tmp_path: Path) -> None:
 
 
 # --- the compose set-up's I/O map -----------------------------------------------------
-DEPLOY_KEYS = ("bench", "description", "hmi", "opcua", "state_dir", "recipes", "influxdb")
+DEPLOY_KEYS = (
+    "bench",
+    "description",
+    "hmi",
+    "opcua",
+    "identification",
+    "state_dir",
+    "recipes",
+    "influxdb",
+)
 
 
 def test_the_compose_io_map_is_the_simulated_bench_with_the_deployment_keys() -> None:
