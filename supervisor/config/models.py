@@ -251,6 +251,59 @@ class IdentificationConfig(Strict):
     )
 
 
+class ModbusServerConfig(Strict):
+    """The tag database as a Modbus TCP server (issue 36; docs/integrator.md "Modbus TCP"):
+    panel HMIs and SCADA that speak only Modbus. Off unless the I/O map has this section;
+    the least one writes is ``modbus_server: {port: N}``."""
+
+    port: int = Field(ge=1, le=65535, description="TCP port (502 is Modbus's own).")
+    host: str = Field("127.0.0.1", description="Address the Modbus server listens on.")
+    unit_id: int = Field(
+        1, ge=0, le=255, description="The unit id it answers (0 and 255 are also answered)."
+    )
+    word_order: Literal["big", "little"] = Field(
+        "big",
+        description="A 32-bit float's two registers: big = the high word first, little = the"
+        " low word first (bytes within a register are always big-endian).",
+    )
+    writes: bool = Field(
+        False,
+        description="Clients may write setpoints, commands and coils (through the command"
+        " path, checked like any command); off: every write answers exception 01.",
+    )
+    writers: list[str] = Field(
+        default_factory=list,
+        description="The client addresses that may write (Modbus has no authentication);"
+        " a write from any other answers exception 04 and is recorded as refused.",
+    )
+    max_clients: int = Field(
+        8, ge=1, le=256, description="Open Modbus connections at most; one more is closed."
+    )
+    addresses: dict[str, int] = Field(
+        default_factory=dict,
+        description="An explicit register (or bit) address for a tag, 0-based: overrides"
+        " the generated map (`supervisor modbus map IOMAP`).",
+    )
+
+    @field_validator("writers")
+    @classmethod
+    def _ip_addresses(cls, v: list[str]) -> list[str]:
+        for w in v:
+            try:
+                ipaddress.ip_address(w)
+            except ValueError:
+                raise ValueError(f"writer {w!r} is not an IP address") from None
+        return v
+
+    @field_validator("addresses")
+    @classmethod
+    def _in_range(cls, v: dict[str, int]) -> dict[str, int]:
+        for tag, address in v.items():
+            if not 0 <= address <= 65535:
+                raise ValueError(f"{tag}: address {address} is beyond 0..65535")
+        return v
+
+
 class OpcUaConfig(Strict):
     """The OPC UA server (``opc.tcp://<host>:<port>/supervisor``, docs/adr/0014-opcua-server.md):
     the bench's tags, channel methods, events and alarms for SCADA and OPC UA clients."""
@@ -993,6 +1046,9 @@ class BenchConfig(Strict):
     hmi: HmiConfig = HmiConfig()
     opcua: OpcUaConfig = OpcUaConfig()
     identification: IdentificationConfig = IdentificationConfig()
+    modbus_server: ModbusServerConfig | None = Field(
+        None, description="A Modbus TCP server for panel HMIs and SCADA (off when absent)."
+    )
     recipes: RecipeFoldersConfig = RecipeFoldersConfig()
     state_dir: str = Field("var", description="Where retained state and results go.")
     retain: RetainConfig = RetainConfig()

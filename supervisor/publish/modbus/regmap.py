@@ -1,0 +1,86 @@
+"""The Modbus register map: which tag is at which address, in which table and encoding.
+
+A contract with the panels and SCADA configured from it: an address, once given, never
+moves (a tag added to the I/O map or a field added to the product goes after the others,
+never between them), and an explicit ``address`` in the I/O map overrides. The map is
+documented by ``supervisor modbus map IOMAP`` (CSV: address, function, type, tag, unit,
+scale, access), which panel-HMI software imports.
+
+Addresses are the PDU's, 0-based (a panel's "40001" is holding register 0).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Literal
+
+__all__ = ["Kind", "Point", "RegisterMap", "Table", "WordOrder"]
+
+WordOrder = Literal["big", "little"]
+"""A 32-bit float's two registers: ``big``, the high word first (Modbus's own byte order
+within a word is always big-endian); ``little``, the low word first."""
+
+
+class Table(StrEnum):
+    """The four Modbus data tables (and the function codes that read and write them)."""
+
+    COIL = "coil"  # FC 01 read, 05/15 write: booleans a client may write
+    DISCRETE_INPUT = "discrete_input"  # FC 02: booleans a client reads
+    HOLDING_REGISTER = "holding_register"  # FC 03 read, 06/16 write: setpoints, commands
+    INPUT_REGISTER = "input_register"  # FC 04: measurements, states, status
+
+
+class Kind(StrEnum):
+    """How a point's value is encoded."""
+
+    FLOAT32 = "float32"  # IEEE 754 in two registers, in the map's word order
+    INT16 = "int16"  # a number × scale, rounded, two's complement
+    UINT16 = "uint16"  # a number × scale, rounded
+    BOOL = "bool"  # a coil or a discrete input
+    CODE = "code"  # a text (a state's name) as its index in ``Point.codes``
+    STATUS = "status"  # a channel's (or the bench's) status bits (``STATUS_BITS``)
+    HEARTBEAT = "heartbeat"  # a counter that moves every scan (the supervisor alive)
+    REFUSAL = "refusal"  # the reason code of the last refused write (``REFUSALS``)
+
+
+STATUS_BITS: tuple[str, ...] = (
+    "bad",  # bit 0: an input of the channel reads BAD (its registers hold the last value)
+    "uncertain",  # bit 1: an input of the channel reads UNCERTAIN
+    "tripped",  # bit 2: a safety trip is latched
+    "unacked",  # bit 3: an alarm waits for its acknowledge
+    "alive",  # bit 4: the supervisor scans (cleared when the scan stalls)
+)
+"""The status register's bits, bit 0 first: Modbus has no quality, so each channel (and the
+bench) says it here; a read of a BAD value answers the last value and sets bit 0."""
+
+
+@dataclass(frozen=True, slots=True)
+class Point:
+    """One tag (or one status, heartbeat or refusal register) at one address."""
+
+    table: Table
+    address: int  # 0-based PDU address
+    kind: Kind
+    tag: str  # the tag's name ("" for STATUS, HEARTBEAT and REFUSAL)
+    channel: str = ""  # the channel it belongs to ("" for the bench)
+    unit: str = ""
+    scale: float = 1.0  # INT16/UINT16: raw = round(value × scale)
+    writable: bool = False  # a write goes through the command path (``server``)
+    codes: tuple[str, ...] = ()  # CODE: the text of each code (code = index)
+
+    @property
+    def words(self) -> int:
+        """Registers (or bits) it takes."""
+        return 2 if self.kind is Kind.FLOAT32 else 1
+
+
+@dataclass(frozen=True)
+class RegisterMap:
+    points: tuple[Point, ...]
+    word_order: WordOrder = "big"
+    unit_id: int = 1
+
+    def in_table(self, table: Table) -> Iterator[Point]:
+        return (p for p in self.points if p.table is table)
