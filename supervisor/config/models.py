@@ -252,7 +252,7 @@ class IdentificationConfig(Strict):
 
 
 class ModbusServerConfig(Strict):
-    """The tag database as a Modbus TCP server (issue 36; docs/integrator.md "Modbus TCP"):
+    """The tag database as a Modbus TCP server (issue 36; its map: `supervisor modbus map`):
     panel HMIs and SCADA that speak only Modbus. Off unless the I/O map has this section;
     the least one writes is ``modbus_server: {port: N}``."""
 
