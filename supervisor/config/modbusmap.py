@@ -282,7 +282,7 @@ def explicit_problems(cfg: BenchConfig) -> list[tuple[tuple[str | int, ...], str
             problems.append(
                 (
                     at,
-                    f"{tag!r} is not a tag the Modbus map places (a channel's or device's field,"
+                    f"modbus_server.addresses: {tag!r} is not a tag the Modbus map places (a channel's or device's field,"
                     " a scan figure, or a number or boolean of tags:; `supervisor modbus map`)",
                     True,
                 )
@@ -305,12 +305,12 @@ def explicit_problems(cfg: BenchConfig) -> list[tuple[tuple[str | int, ...], str
         clash = next((o for o in moved if _overlap(o, mine)), None)
         if clash is not None:
             problems.append(
-                (at, f"{tag}: {_words(mine)} overlaps {clash.tag!r}'s explicit address", False)
+                (at, f"{tag} at {_words(mine)} overlaps the explicit address of {clash.tag!r}", False)
             )
             continue
         clash = next((o for o in fixed if _overlap(o, mine)), None)
         if clash is not None:
-            problems.append((at, f"{tag}: {_words(mine)} overlaps {_name(clash)}", False))
+            problems.append((at, f"{tag} at {_words(mine)} overlaps {_name(clash)}", False))
             continue
         moved.append(mine)
     return problems
@@ -330,6 +330,6 @@ def _words(s: Slot) -> str:
 def _name(s: Slot) -> str:
     """How a message names a generated slot."""
     if s.tag:
-        return f"the generated place of {s.tag!r} ({s.table.replace('_', ' ')} {s.address})"
+        return f"the generated place of {s.tag!r} ({_words(s)})"
     owner = f"channel {s.channel}" if s.channel else "the bench"
-    return f"the {s.kind} register of {owner} ({s.table.replace('_', ' ')} {s.address})"
+    return f"the {s.kind} register of {owner} ({_words(s)})"
