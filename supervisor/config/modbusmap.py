@@ -282,8 +282,9 @@ def explicit_problems(cfg: BenchConfig) -> list[tuple[tuple[str | int, ...], str
             problems.append(
                 (
                     at,
-                    f"modbus_server.addresses: {tag!r} is not a tag the Modbus map places (a channel's or device's field,"
-                    " a scan figure, or a number or boolean of tags:; `supervisor modbus map`)",
+                    f"modbus_server.addresses: {tag!r} is not a tag the Modbus map places"
+                    " (a channel's or device's field, a scan figure, or a number or boolean"
+                    " of tags:; `supervisor modbus map`)",
                     True,
                 )
             )
@@ -305,7 +306,11 @@ def explicit_problems(cfg: BenchConfig) -> list[tuple[tuple[str | int, ...], str
         clash = next((o for o in moved if _overlap(o, mine)), None)
         if clash is not None:
             problems.append(
-                (at, f"{tag} at {_words(mine)} overlaps the explicit address of {clash.tag!r}", False)
+                (
+                    at,
+                    f"{tag} at {_words(mine)} overlaps the explicit address of {clash.tag!r}",
+                    False,
+                )
             )
             continue
         clash = next((o for o in fixed if _overlap(o, mine)), None)
