@@ -4,6 +4,8 @@ to one tag move no other point — and every shipped I/O map plans without overl
 
 from __future__ import annotations
 
+import csv
+import io
 from pathlib import Path
 from typing import Any
 
@@ -15,9 +17,11 @@ from hypothesis import strategies as st
 from supervisor.app.bench import build_bench
 from supervisor.app.tagset import declared_tags
 from supervisor.chains.states import OPCUA_CODE
+from supervisor.cli.main import main
 from supervisor.config import modbusmap
 from supervisor.core.clock import VirtualClock
 from supervisor.devices.registry import bench_from_data
+from supervisor.publish.modbus.mapcsv import COLUMNS
 from supervisor.publish.modbus.regmap import CHAIN_STATES, Kind, Point, RegisterMap, Table, plan
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -210,3 +214,57 @@ def test_explicit_addresses_the_check_accepts_never_overlap(explicit: dict[str, 
             taken.add((s.table, a))
         assert s.end <= modbusmap.MAX_ADDRESS
         assert s.kind != modbusmap.FLOAT32 or s.address % 2 == 0
+
+
+# --- the CSV: what a panel's tool imports ------------------------------------------------
+def csv_rows(capsys: pytest.CaptureFixture[str], *argv: str) -> list[dict[str, str]]:
+    assert main(["modbus", "map", *argv]) == 0
+    return list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+
+
+def test_the_csv_has_a_row_per_point_with_the_columns_a_panel_imports(
+    capsys: pytest.CaptureFixture[str], sim_map: RegisterMap
+) -> None:
+    rows = csv_rows(capsys, str(ROOT / "io_maps" / "sim.yaml"))
+    assert list(rows[0]) == list(COLUMNS)
+    assert len(rows) == len(sim_map.points)
+    by_name = {r["tag"]: r for r in rows}
+    assert by_name["ch0.voltage"] == {
+        "address": "104",
+        "reference": "300105",
+        "function": "04",
+        "type": "float32",
+        "word_order": "big",
+        "tag": "ch0.voltage",
+        "unit": "V",
+        "scale": "1",
+        "access": "r",
+        "codes": "",
+    }
+    assert (by_name["ch0.manual_current"]["function"], by_name["ch0.manual_current"]["access"]) == (
+        "03 06 16",
+        "rw",
+    )
+    assert by_name["ch0.enable"]["reference"] == "000101"
+    assert by_name["ch0.mode"]["codes"] == "0=manual; 1=auto"
+    assert by_name["ch0.status"]["codes"].startswith("bit0=bad; bit1=uncertain")
+    assert (by_name["bench.heartbeat"]["address"], by_name["bench.heartbeat"]["type"]) == (
+        "1",
+        "heartbeat",
+    )
+
+
+def test_the_csv_of_a_bench_whose_devices_are_not_here_is_printed_all_the_same(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """chadeche-rpi.yaml names an SPI bus this machine has not: nothing is opened."""
+    rows = csv_rows(capsys, str(ROOT / "io_maps" / "chadeche-rpi.yaml"))
+    assert {r["tag"] for r in rows} >= {"ch0.voltage", "ch0.status", "bench.heartbeat"}
+
+
+def test_the_csv_of_a_refused_io_map_is_not_printed(capsys: pytest.CaptureFixture[str]) -> None:
+    bad = ROOT / "tests" / "data" / "bad_io_maps" / "modbus_addresses_overlap.yaml"
+    assert main(["modbus", "map", str(bad)]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert f"{bad}:13:22: ch0.chain.cycle at input register 40001 overlaps" in err
