@@ -55,7 +55,8 @@ def cmd_modbus_map(args: argparse.Namespace) -> int:
             f"{args.io_map}: note: no modbus_server: section, the server is off; the map it"
             " would serve:\n"
         )
-    text = map_csv(plan(cfg, declared_tags(cfg)))
+    writes = cfg.modbus_server is None or cfg.modbus_server.writes
+    text = map_csv(plan(cfg, declared_tags(cfg)), writes)
     if args.output is None:
         sys.stdout.write(text)
         sys.stdout.flush()

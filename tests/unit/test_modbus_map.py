@@ -241,9 +241,10 @@ def test_the_csv_has_a_row_per_point_with_the_columns_a_panel_imports(
         "access": "r",
         "codes": "",
     }
+    # sim.yaml's server takes no writes: its setpoints read "r", at the same addresses.
     assert (by_name["ch0.manual_current"]["function"], by_name["ch0.manual_current"]["access"]) == (
-        "03 06 16",
-        "rw",
+        "03",
+        "r",
     )
     assert by_name["ch0.enable"]["reference"] == "000101"
     assert by_name["ch0.mode"]["codes"] == "0=manual; 1=auto"
@@ -252,6 +253,23 @@ def test_the_csv_has_a_row_per_point_with_the_columns_a_panel_imports(
         "1",
         "heartbeat",
     )
+
+
+def test_with_writes_on_the_setpoints_commands_and_coils_read_rw(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    data = sim_data()
+    data["modbus_server"].update(writes=True, writers=["127.0.0.1"])
+    path = tmp_path / "bench.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    rows = {r["tag"]: r for r in csv_rows(capsys, str(path))}
+    assert {n for n, r in rows.items() if r["access"] == "rw"} == {
+        f"ch{k}.{f}"
+        for k in range(5)
+        for f in ("manual_current", "command", "mode", "enable", "ack")
+    }
+    assert rows["ch0.manual_current"]["function"] == "03 06 16"
+    assert rows["ch0.enable"]["function"] == "01 05 15"
 
 
 def test_the_csv_of_a_bench_whose_devices_are_not_here_is_printed_all_the_same(

@@ -8,8 +8,9 @@ One row per point, sorted by table then address::
 ``address`` is the PDU's, 0-based; ``reference`` the 6-digit form panels show (coil
 000001, discrete input 100001, input register 300001, holding register 400001, each + the
 address); ``function`` the codes that read (and write) it; ``type`` the point's kind;
-``word_order`` a float's (big: high word first); ``access`` r or rw; ``codes`` a code's
-table (``0=off; 1=idle …``) or a status register's bits (``bit0=bad …``). A status,
+``word_order`` a float's (big: high word first); ``access`` r or rw (rw only while
+``modbus_server.writes`` is on); ``codes`` a code's table (``0=off; 1=idle …``) or a
+status register's bits (``bit0=bad …``). A status,
 heartbeat or refusal register has a name of its own in ``tag`` (``ch0.status``,
 ``bench.heartbeat``: names no tag can have).
 """
@@ -78,9 +79,10 @@ def _codes(p: Point) -> str:
     return "; ".join(f"{n}={c or '(none)'}" for n, c in enumerate(p.codes) if c or n == 0)
 
 
-def _row(p: Point, word_order: str) -> list[str]:
+def _row(p: Point, word_order: str, writes: bool) -> list[str]:
     numeric = p.kind in (Kind.FLOAT32, Kind.INT16, Kind.UINT16)
-    function = READ_FC[p.table] + (f" {WRITE_FC[p.table]}" if p.writable else "")
+    writable = p.writable and writes
+    function = READ_FC[p.table] + (f" {WRITE_FC[p.table]}" if writable else "")
     return [
         str(p.address),
         _reference(p),
@@ -90,17 +92,19 @@ def _row(p: Point, word_order: str) -> list[str]:
         point_name(p),
         p.unit,
         f"{p.scale:g}" if numeric else "",
-        "rw" if p.writable else "r",
+        "rw" if writable else "r",
         _codes(p),
     ]
 
 
-def map_csv(m: RegisterMap) -> str:
-    """The map as CSV text (a header row, then one row per point)."""
+def map_csv(m: RegisterMap, writes: bool = True) -> str:
+    """The map as CSV text (a header row, then one row per point). ``writes``: the server
+    takes writes (``modbus_server.writes``); off, every point reads ``r`` (a write would
+    answer an exception), though the addresses stay the same."""
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
     w.writerow(COLUMNS)
     for table in TABLE_ORDER:
         for p in sorted(m.in_table(table), key=lambda p: p.address):
-            w.writerow(_row(p, m.word_order))
+            w.writerow(_row(p, m.word_order, writes))
     return out.getvalue()
