@@ -42,6 +42,7 @@ __all__ = [
     "IO_MAP_BASE",
     "MAX_ADDRESS",
     "Slot",
+    "blocks",
     "explicit_problems",
     "layout",
 ]
@@ -176,8 +177,8 @@ def _aligned(address: int, kind: str) -> int:
     return address + (address & 1) if kind == FLOAT32 else address
 
 
-def _blocks(
-    fields: dict[str, tuple[Field, ...]], base: int, prefix: str = "", channel: str = ""
+def blocks(
+    fields: dict[str, tuple[Field, ...]], base: int = 0, prefix: str = "", channel: str = ""
 ) -> Iterator[Slot]:
     """A block's slots in every table from its field lists (a float on the next even
     address)."""
@@ -211,11 +212,11 @@ def io_map_kind(cfg: BenchConfig, index: int) -> tuple[str, str] | None:
 def generated(cfg: BenchConfig) -> list[Slot]:
     """Every generated slot, before explicit addresses move any (a channel or device past
     the areas' capacity is left out: ``explicit_problems`` refuses that map)."""
-    out = list(_blocks(BENCH_FIELDS, 0))
+    out = list(blocks(BENCH_FIELDS, 0))
     for k, ch in enumerate(cfg.channels[:MAX_CHANNELS]):
-        out += _blocks(CHANNEL_FIELDS, CHANNEL_BASE + CHANNEL_BLOCK * k, ch.name + ".", ch.name)
+        out += blocks(CHANNEL_FIELDS, CHANNEL_BASE + CHANNEL_BLOCK * k, ch.name + ".", ch.name)
     for d, dev in enumerate(list(cfg.devices)[:MAX_DEVICES]):
-        out += _blocks(DEVICE_FIELDS, DEVICE_BASE + DEVICE_BLOCK * d, dev + ".")
+        out += blocks(DEVICE_FIELDS, DEVICE_BASE + DEVICE_BLOCK * d, dev + ".")
     at = dict.fromkeys(TABLES, IO_MAP_BASE)
     for i, t in enumerate(cfg.tags):
         placed = io_map_kind(cfg, i)

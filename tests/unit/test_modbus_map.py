@@ -286,3 +286,40 @@ def test_the_csv_of_a_refused_io_map_is_not_printed(capsys: pytest.CaptureFixtur
     out, err = capsys.readouterr()
     assert out == ""
     assert f"{bad}:13:22: ch0.chain.cycle at input register 40001 overlaps" in err
+
+
+ADR = ROOT / "docs" / "adr" / "0031-modbus-register-map.md"
+SHORT = {"IR": "input_register", "HR": "holding_register", "coil": "coil", "DI": "discrete_input"}
+
+
+def test_the_adr_lists_every_blocks_fields_at_their_offsets() -> None:
+    """A newcomer predicts an address from ADR 0031's tables: they are the code's."""
+    text = ADR.read_text(encoding="utf-8")
+    for title, fields in (
+        ("The bench block", modbusmap.BENCH_FIELDS),
+        ("A channel's block", modbusmap.CHANNEL_FIELDS),
+        ("A device's block", modbusmap.DEVICE_FIELDS),
+    ):
+        table_text = text.split(f"**{title}", 1)[1].split("\n\n", 2)[1]
+        rows = [
+            [c.strip().strip("`") for c in line.strip("|").split("|")]
+            for line in table_text.splitlines()[2:]
+        ]
+        documented = [
+            (SHORT[t], int(o), f if not f.startswith("(") else "", k) for t, o, f, k in rows
+        ]
+        assert documented == [
+            (s.table, s.address, s.tag, s.kind) for s in modbusmap.blocks(fields)
+        ], title
+
+
+def test_the_integrators_excerpt_is_what_the_command_prints(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    guide = (ROOT / "docs" / "integrator.md").read_text(encoding="utf-8")
+    excerpt = guide.split("## Modbus TCP", 1)[1].split("```csv\n", 1)[1].split("```", 1)[0]
+    assert main(["modbus", "map", str(ROOT / "io_maps" / "sim.yaml")]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    lines = excerpt.splitlines()
+    assert lines[0] == printed[0]
+    assert [line for line in lines if line not in printed] == []
