@@ -26,7 +26,7 @@ layer sits below the publishers; a test holds the two spellings equal).
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Final
 
 from supervisor.config.models import BenchConfig
@@ -161,6 +161,7 @@ class Slot:
     kind: str
     tag: str  # "" for STATUS, HEARTBEAT, REFUSAL
     channel: str = ""  # the channel whose block holds it ("" elsewhere)
+    scale: float = 1.0  # a float as INT16 (``modbus_server.scale``): raw = round(value × scale)
 
     @property
     def words(self) -> int:
@@ -209,9 +210,10 @@ def io_map_kind(cfg: BenchConfig, index: int) -> tuple[str, str] | None:
     return None
 
 
-def generated(cfg: BenchConfig) -> list[Slot]:
+def generated(cfg: BenchConfig, *, scaled: bool = True) -> list[Slot]:
     """Every generated slot, before explicit addresses move any (a channel or device past
-    the areas' capacity is left out: ``explicit_problems`` refuses that map)."""
+    the areas' capacity is left out: ``explicit_problems`` refuses that map); ``scaled``:
+    with ``modbus_server.scale`` applied."""
     out = list(blocks(BENCH_FIELDS, 0))
     for k, ch in enumerate(cfg.channels[:MAX_CHANNELS]):
         out += blocks(CHANNEL_FIELDS, CHANNEL_BASE + CHANNEL_BLOCK * k, ch.name + ".", ch.name)
@@ -226,7 +228,13 @@ def generated(cfg: BenchConfig) -> list[Slot]:
         address = _aligned(at[table], kind)
         out.append(Slot(table, address, kind, t.name))
         at[table] = address + (2 if kind == FLOAT32 else 1)
-    return out
+    # A float scaled to 16 bits keeps the first register of its place (the second stays
+    # empty): choosing the encoding moves nothing.
+    scales = cfg.modbus_server.scale if cfg.modbus_server is not None and scaled else {}
+    return [
+        replace(s, kind=INT16, scale=scales[s.tag]) if s.tag in scales and s.kind == FLOAT32 else s
+        for s in out
+    ]
 
 
 def _explicit(cfg: BenchConfig) -> dict[str, int]:
@@ -240,7 +248,7 @@ def layout(cfg: BenchConfig) -> list[Slot]:
     out: list[Slot] = []
     for s in generated(cfg):
         if s.tag in explicit:
-            out.append(Slot(s.table, explicit[s.tag], s.kind, s.tag, s.channel))
+            out.append(replace(s, address=explicit[s.tag]))
         else:
             out.append(s)
     return sorted(out, key=lambda s: (TABLES.index(s.table), s.address))
@@ -290,7 +298,7 @@ def explicit_problems(cfg: BenchConfig) -> list[tuple[tuple[str | int, ...], str
                 )
             )
             continue
-        mine = Slot(s.table, address, s.kind, tag, s.channel)
+        mine = replace(s, address=address)
         if mine.end > MAX_ADDRESS:
             problems.append((at, f"{tag}: a float at {address} ends beyond 65535", False))
             continue
@@ -319,6 +327,17 @@ def explicit_problems(cfg: BenchConfig) -> list[tuple[tuple[str | int, ...], str
             problems.append((at, f"{tag} at {_words(mine)} overlaps {_name(clash)}", False))
             continue
         moved.append(mine)
+    floats = {s.tag for s in generated(cfg, scaled=False) if s.kind == FLOAT32}
+    for tag in cfg.modbus_server.scale:
+        if tag not in floats:
+            problems.append(
+                (
+                    ("modbus_server", "scale", tag),
+                    f"modbus_server.scale: {tag!r} is not a float the Modbus map places"
+                    " (only a float is scaled to a 16-bit integer)",
+                    True,
+                )
+            )
     return problems
 
 

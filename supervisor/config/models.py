@@ -294,6 +294,11 @@ class ModbusServerConfig(Strict):
         description="An explicit register (or bit) address for a tag, 0-based: overrides"
         " the generated map (`supervisor modbus map IOMAP`).",
     )
+    scale: dict[str, Annotated[float, Field(gt=0, allow_inf_nan=False)]] = Field(
+        default_factory=dict,
+        description="A float tag as a scaled 16-bit integer instead (INT16, raw ="
+        " round(value × scale), e.g. 1000 for millivolts), in the first register of its place.",
+    )
 
 
 class OpcUaConfig(Strict):

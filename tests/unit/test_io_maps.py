@@ -100,6 +100,7 @@ CASES = [
     ("modbus_float_on_an_odd_address.yaml", 12, 18, "a float at the odd address 40001"),
     ("modbus_writer_not_an_ip.yaml", 12, 24, "writers[1]: writer 'panel-1' is not an IP address"),
     ("modbus_address_of_a_text.yaml", 12, 5, "'ch0.chain.recipe' is not a tag the Modbus map"),
+    ("modbus_scale_of_a_code.yaml", 13, 5, "'ch0.mode' is not a float the Modbus map places"),
 ]
 
 

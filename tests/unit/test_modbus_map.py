@@ -166,6 +166,22 @@ def test_an_explicit_address_moves_its_tag_and_no_other(sim_map: RegisterMap) ->
     assert rest == [p for p in sim_map.points if p.tag not in ("ch0.voltage", "estop.ok")]
 
 
+def test_a_float_scaled_to_16_bits_keeps_its_place_and_moves_nothing(
+    sim_map: RegisterMap,
+) -> None:
+    data = sim_data()
+    data["modbus_server"]["scale"] = {"ch0.voltage": 1000, "pack.current": 10}
+    data["modbus_server"]["addresses"] = {"pack.current": 40001}  # 16 bits: odd is fine
+    after = planned(data)
+    tags = by_tag(after)
+    assert tags["ch0.voltage"] == Point(
+        Table.INPUT_REGISTER, 104, Kind.INT16, "ch0.voltage", "ch0", "V", 1000.0
+    )
+    assert (tags["pack.current"].address, tags["pack.current"].kind) == (40001, Kind.INT16)
+    same = [p for p in after.points if p.tag not in ("ch0.voltage", "pack.current")]
+    assert same == [p for p in sim_map.points if p.tag not in ("ch0.voltage", "pack.current")]
+
+
 def test_word_order_and_unit_id_come_from_the_io_map() -> None:
     data = sim_data()
     data["modbus_server"].update(word_order="little", unit_id=7)
