@@ -339,3 +339,23 @@ def test_the_integrators_excerpt_is_what_the_command_prints(
     lines = excerpt.splitlines()
     assert lines[0] == printed[0]
     assert [line for line in lines if line not in printed] == []
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.integers(0, len(SIM_CFG.tags) - 1), min_size=1, max_size=40))
+def test_any_list_of_io_map_tags_lays_out_without_overlap_and_one_more_moves_none(
+    picks: list[int],
+) -> None:
+    """Random I/O maps (the simulated bench's points in any order, repeated under new
+    names): no two slots overlap, floats are even, and the map of all but the last tag is
+    the map of all with the last one taken out."""
+    tags = [SIM_CFG.tags[i].model_copy(update={"name": f"t{n}.x"}) for n, i in enumerate(picks)]
+    full = modbusmap.layout(SIM_CFG.model_copy(update={"tags": tags}))
+    fewer = modbusmap.layout(SIM_CFG.model_copy(update={"tags": tags[:-1]}))
+    assert [s for s in full if s.tag != tags[-1].name] == fewer
+    taken: set[tuple[str, int]] = set()
+    for s in full:
+        for a in range(s.address, s.end + 1):
+            assert (s.table, a) not in taken
+            taken.add((s.table, a))
+        assert s.kind != modbusmap.FLOAT32 or s.address % 2 == 0
