@@ -102,7 +102,7 @@ CHANNEL_FIELDS: Final[dict[str, tuple[Field, ...]]] = {
     IR: (
         ("", STATUS),
         ("state", CODE),  # the power stage: off, idle, charging, discharging, faulted
-        ("chain.state_code", CODE),  # the test's state, its OPC UA (PackML) number
+        ("chain.state", CODE),  # the test's state by its OPC UA (PackML) number
         ("chain.step_index", UINT16),
         ("voltage", FLOAT32),
         ("current", FLOAT32),

@@ -103,7 +103,7 @@ def test_state_names_are_codes_with_their_table(sim_map: RegisterMap) -> None:
     tags = by_tag(sim_map)
     assert tags["ch0.mode"].codes == ("manual", "auto")
     assert tags["ch0.state"].codes[:3] == ("off", "idle", "charging")
-    assert {tags["ch0.chain.state_code"].codes[n]: n for n in OPCUA_CODE.values()} == {
+    assert {tags["ch0.chain.state"].codes[n]: n for n in OPCUA_CODE.values()} == {
         s.value: n for s, n in OPCUA_CODE.items()
     }
 
