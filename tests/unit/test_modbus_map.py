@@ -359,3 +359,14 @@ def test_any_list_of_io_map_tags_lays_out_without_overlap_and_one_more_moves_non
             assert (s.table, a) not in taken
             taken.add((s.table, a))
         assert s.kind != modbusmap.FLOAT32 or s.address % 2 == 0
+
+
+def test_a_bench_of_more_channels_than_the_map_holds_is_refused() -> None:
+    """Channel k's block is at 100 + 100·k: the 100th would be where the devices' are."""
+    ch = SIM_CFG.channels[0]
+    many = [ch.model_copy(update={"name": f"c{k}"}) for k in range(modbusmap.MAX_CHANNELS + 1)]
+    problems = modbusmap.explicit_problems(SIM_CFG.model_copy(update={"channels": many}))
+    assert problems == [
+        (("modbus_server",), "the Modbus map holds 99 channels at most, not 100", True)
+    ]
+    assert modbusmap.explicit_problems(SIM_CFG.model_copy(update={"channels": many[:-1]})) == []
