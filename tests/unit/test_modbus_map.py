@@ -370,3 +370,19 @@ def test_a_bench_of_more_channels_than_the_map_holds_is_refused() -> None:
         (("modbus_server",), "the Modbus map holds 99 channels at most, not 100", True)
     ]
     assert modbusmap.explicit_problems(SIM_CFG.model_copy(update={"channels": many[:-1]})) == []
+
+
+def test_check_warns_of_a_modbus_server_off_loopback(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """Modbus has no login: off loopback, check says so (a warning, exit 0)."""
+    data = sim_data()
+    data["modbus_server"].update(host="0.0.0.0", writes=True, writers=["192.0.2.7"])
+    path = tmp_path / "bench.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    assert main(["check", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert f"{path}: warning: modbus_server: host '0.0.0.0' is not loopback" in err
+    assert "writers' IP addresses alone" in err
+    assert main(["check", str(ROOT / "io_maps" / "sim.yaml")]) == 0
+    assert "modbus_server" not in capsys.readouterr().err
