@@ -10,6 +10,7 @@ import hashlib
 from pathlib import Path
 
 from supervisor.config.limits import MAX_IO_MAP_TAGS, TooLarge
+from supervisor.config.modbusmap import explicit_problems
 from supervisor.config.models import (
     BenchConfig,
     ChannelConfig,
@@ -134,6 +135,7 @@ def check_bench(cfg: BenchConfig, pos: Positions, file: str) -> list[ConfigError
     checker.safety()
     checker.simulation()
     checker.wiring()
+    checker.modbus_server()
     return sorted(checker.errors, key=lambda e: (e.line or 0, e.col or 0))
 
 
@@ -360,6 +362,11 @@ class _Checker:
         return info is not None and _is_relay(info)
 
     # --- the bench's safety: e-stop, interlocks, heartbeat -------------------------------
+    # --- modbus_server: explicit addresses that fit (config/modbusmap.py) ---------------
+    def modbus_server(self) -> None:
+        for where, msg, at_key in explicit_problems(self.cfg):
+            self.err(where, msg, at_key=at_key)
+
     def safety(self) -> None:
         s = self.cfg.safety
         if s.estop is not None:

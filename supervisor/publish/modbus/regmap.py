@@ -14,9 +14,13 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Literal
+from typing import Final, Literal
 
-__all__ = ["REFUSALS", "STATUS_BITS", "Kind", "Point", "RegisterMap", "Table", "WordOrder"]
+from supervisor.config import modbusmap
+from supervisor.config.models import BenchConfig
+from supervisor.tags import Access, TagDB
+
+__all__ = ["REFUSALS", "STATUS_BITS", "Kind", "Point", "RegisterMap", "Table", "WordOrder", "plan"]
 
 WordOrder = Literal["big", "little"]
 """A 32-bit float's two registers: ``big``, the high word first (Modbus's own byte order
@@ -99,3 +103,85 @@ class RegisterMap:
 
     def in_table(self, table: Table) -> Iterator[Point]:
         return (p for p in self.points if p.table is table)
+
+
+DRIVE_STATES: Final = ("off", "idle", "charging", "discharging", "faulted")
+"""A channel's ``state`` (its power stage, ``channels/channel.py``) by code."""
+FAULT_ACTIONS: Final = ("", "hold", "abort")
+"""A channel's ``fault_action`` by code ("" while no fault)."""
+CHAIN_STATES: Final = (
+    "Stopped",
+    "",
+    "Idle",
+    "",
+    "Running",
+    "",
+    "Complete",
+    "Aborting",
+    "Aborted",
+    "Stopping",
+    "",
+    "",
+    "",
+    "",
+    "Holding",
+    "Held",
+    "Resuming",
+)
+"""A channel's ``chain.state_code``: the test's state by its OPC UA (PackML) number, the
+same as ``chains/states.py::OPCUA_CODE`` (a test holds them equal; "" is no state)."""
+FIXED_CODES: Final[dict[str, tuple[str, ...]]] = {
+    "state": DRIVE_STATES,
+    "fault_action": FAULT_ACTIONS,
+    "chain.state_code": CHAIN_STATES,
+}
+"""Code tables by a channel field's suffix (the others: the tag's ``choices``)."""
+
+
+def plan(cfg: BenchConfig, db: TagDB) -> RegisterMap:
+    """The bench's register map (ADR 0031): the layout of ``config/modbusmap.py`` (a pure
+    function of the I/O map: stable addresses), each point described by its tag in ``db``
+    (unit, code table, whether a client may write it). A slot whose tag ``db`` does not
+    have (a channel without an output switch has no ``output_cmd``) stays empty: nothing
+    else moves. Raises ``ValueError`` when two points overlap (``supervisor check`` refuses
+    such a map first)."""
+    server = cfg.modbus_server
+    points: list[Point] = []
+    for s in modbusmap.layout(cfg):
+        kind = Kind(s.kind)
+        table = Table(s.table)
+        if not s.tag:
+            points.append(Point(table, s.address, kind, "", s.channel))
+            continue
+        tag = db.get(s.tag)
+        if tag is None:
+            continue
+        spec = tag.spec
+        codes: tuple[str, ...] = ()
+        if kind is Kind.CODE:
+            suffix = s.tag[len(s.channel) + 1 :] if s.channel else s.tag
+            codes = FIXED_CODES.get(suffix) or tuple(spec.choices or ())
+        writable = (
+            table in (Table.COIL, Table.HOLDING_REGISTER) and spec.access is not Access.READ_ONLY
+        )
+        points.append(
+            Point(table, s.address, kind, s.tag, s.channel, spec.unit, 1.0, writable, codes)
+        )
+    _refuse_overlaps(points)
+    return RegisterMap(
+        tuple(points),
+        server.word_order if server is not None else "big",
+        server.unit_id if server is not None else 1,
+    )
+
+
+def _refuse_overlaps(points: list[Point]) -> None:
+    taken: dict[tuple[Table, int], Point] = {}
+    for p in points:
+        for a in range(p.address, p.address + p.words):
+            other = taken.setdefault((p.table, a), p)
+            if other is not p:
+                raise ValueError(
+                    f"Modbus map: {p.tag or p.kind.value} and {other.tag or other.kind.value}"
+                    f" overlap at {p.table.value} {a}"
+                )
