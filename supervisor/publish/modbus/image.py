@@ -48,6 +48,9 @@ def encode(point: Point, value: Value | None, word_order: str) -> tuple[int, ...
     if kind is Kind.BOOL:
         return (1 if value else 0,)
     if kind is Kind.CODE:
+        if isinstance(value, int) and not isinstance(value, bool):
+            # A tag that holds its code already (``chain.state_code``: the PackML number).
+            return (value,) if 0 <= value < len(point.codes) else (NOT_A_CODE,)
         text = str(value)
         try:
             return (point.codes.index(text),)

@@ -306,7 +306,8 @@ class ModbusServer:
 
     @property
     def endpoint(self) -> str:
-        return f"modbus://{self.host}:{self.bound_port or self.port}"
+        """``host:port`` (a panel's Modbus TCP settings)."""
+        return f"{self.host}:{self.bound_port or self.port}"
 
     # --- the bench's side ------------------------------------------------------------------
     async def start(self) -> None:
