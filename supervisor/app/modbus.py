@@ -69,9 +69,7 @@ def build_modbus(bench: Bench) -> ModbusServer | None:
     operate = command_path_of(bench)
 
     async def write(tag: str, value: Value, actor: str) -> WriteAnswer:
-        answer = await operate(
-            Request("bench", "", "write", {"tag": tag, "value": value}, actor)
-        )
+        answer = await operate(Request("bench", "", "write", {"tag": tag, "value": value}, actor))
         return WriteAnswer(answer.accepted, answer.reason, answer.refusal)
 
     server = ModbusServer(
