@@ -97,6 +97,7 @@ def bench_map(workdir: Path, **hmi: Any) -> Path:
     for src in [*(ROOT / "recipes").glob("*.yaml"), SHORT_RECIPE]:
         shutil.copy(src, recipes / src.name)
     data["opcua"] = {"enabled": False}
+    data.pop("modbus_server", None)
     data["recipes"] = {"folders": [str(recipes)]}
     data["state_dir"] = str(workdir / "state")
     path = workdir / "sim.yaml"
