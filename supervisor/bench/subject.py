@@ -40,8 +40,9 @@ def free_port() -> int:
 
 def prepare(io_map: Path, root: Path, influx_url: str | None = None) -> tuple[Path, int, int]:
     """Write a copy of ``io_map`` in ``root``: every listening port free (HTTP, OPC UA, Modbus
-    TCP, the simulated devices), its state in ``root/state``, InfluxDB at ``influx_url`` (the section
-    dropped when None). Returns the copy, its HTTP port and its OPC UA port (0: off)."""
+    TCP, the simulated devices), its state in ``root/state``, InfluxDB at ``influx_url``
+    (the section dropped when None). Returns the copy, its HTTP port and its OPC UA port
+    (0: off)."""
     data: dict[str, Any] = yaml.safe_load(io_map.read_text(encoding="utf-8"))
     data["state_dir"] = str(root / "state")
     http_port = free_port()
