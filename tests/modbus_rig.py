@@ -112,3 +112,35 @@ def float_of(words: list[int], word_order: str = "big") -> float:
 def words_of(x: float, word_order: str = "big") -> list[int]:
     hi, lo = struct.unpack(">HH", struct.pack(">f", x))
     return [hi, lo] if word_order == "big" else [lo, hi]
+
+
+def poll(
+    host: str, port: int, ranges: list[tuple[int, int]], seconds: float, period_s: float
+) -> dict[str, object]:
+    """Read every (address, count) of ``ranges`` (input registers) each ``period_s`` for
+    ``seconds``: a SCADA poller, bounded in count and time. Returns what it did."""
+    import time
+
+    polls, registers, errors = 0, 0, []
+    with RawClient(host, port) as c:
+        end = time.monotonic() + seconds
+        next_t = time.monotonic()
+        while time.monotonic() < end:
+            for address, count in ranges:
+                try:
+                    registers += len(c.read_registers(address, count))
+                except ModbusException as exc:
+                    errors.append(str(exc))
+            polls += 1
+            next_t += period_s
+            time.sleep(max(0.0, next_t - time.monotonic()))
+    return {"polls": polls, "registers": registers, "errors": errors[:10]}
+
+
+if __name__ == "__main__":  # the poller in a process of its own (tests/integration)
+    import json
+    import sys
+
+    host, port, seconds, period, spec = sys.argv[1:6]
+    wanted = [tuple(int(x) for x in r.split(":")) for r in spec.split(",")]
+    print(json.dumps(poll(host, int(port), wanted, float(seconds), float(period))), flush=True)  # type: ignore[arg-type]
