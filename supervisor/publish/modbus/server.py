@@ -31,6 +31,7 @@ import logging
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Final
@@ -126,7 +127,10 @@ class ModbusFeed:
         self._source: ChangeSource = (
             changes if changes is not None else ChangeSnapshots(db, None, since=db.version)
         )
-        self._held: list[ChangeBatch] = []  # list.append and a swap: atomic under the GIL
+        # Appended by the scan, popped by the server's thread: a deque's two ends are
+        # thread-safe without a lock (a list swapped by the server could lose a batch the
+        # scan appended to the old list after the swap).
+        self._held: deque[ChangeBatch] = deque()
         self.serving = False
         self.scans = 0
         """Scans since the start (an int, read by the server: the HEARTBEAT)."""
@@ -143,9 +147,11 @@ class ModbusFeed:
 
     # --- the server's side ---------------------------------------------------------------
     def take(self) -> list[ChangeBatch]:
-        """The batches since the last take, oldest first (a swap: never blocks the scan)."""
-        held, self._held = self._held, []
-        return held
+        """The batches since the last take, oldest first (never blocks the scan)."""
+        held, out = self._held, []
+        while held:
+            out.append(held.popleft())
+        return out
 
 
 class _Context(ModbusServerContext):
@@ -320,7 +326,7 @@ class ModbusServer:
         ready: concurrent.futures.Future[None] = concurrent.futures.Future()
         self._done = concurrent.futures.Future()
         self._thread = threading.Thread(
-            target=self._thread_main, args=(ready,), name="modbus-server", daemon=True
+            target=self._thread_main, args=(ready,), name=THREAD_NAME, daemon=True
         )
         self._thread.start()
         try:
@@ -494,12 +500,26 @@ async def _probe(host: str, port: int) -> None:
     await probe.wait_closed()
 
 
+THREAD_NAME: Final = "modbus-server"
+
+
+class _ServerThreadOnly(logging.Filter):
+    """Drops what pymodbus logs on the server's thread: it logs a refused request (an
+    unknown unit, a frame it cannot decode) at WARNING or ERROR, a datastore failure with
+    its stack in the message. The server's own log says what matters (a refused write, a
+    closed client, a bug of its own once); pymodbus's client elsewhere is not silenced."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.threadName != THREAD_NAME
+
+
+_FILTER = _ServerThreadOnly()
+
+
 def _quiet_pymodbus() -> None:
-    """pymodbus logs each refused request (an unknown unit, a malformed frame) at ERROR with
-    its stack; the server's own log says what matters (a refused write, a closed client)."""
-    pm = logging.getLogger("pymodbus")
-    if pm.level == logging.NOTSET:
-        pm.setLevel(logging.CRITICAL)
+    pm = logging.getLogger("pymodbus.logging")  # pymodbus's one logger (``pymodbus.logging.Log``)
+    if _FILTER not in pm.filters:
+        pm.addFilter(_FILTER)
 
 
 class _GatedLoop(HookedLoop):
