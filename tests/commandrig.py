@@ -54,7 +54,7 @@ def chadeche_map(tmp: Path) -> str:
     data.pop("simulation", None)
     data.pop("safety", None)  # the seed-002 e-stop and its tags are not in this bench
     data.pop("opcua", None)  # `supervisor run` on it must not take 4840
-    data.pop("modbus_server", None)  # nor 1502
+    data.pop("modbus_server", None)  # nor Modbus (1502 may be taken)
     data["state_dir"] = str(tmp / "state")
     data["recipes"] = {"folders": [str(tmp)]}
     path = tmp / "chadeche.yaml"

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, NoReturn
 
 from supervisor.bench import args as bench_args
-from supervisor.cli import ctl
+from supervisor.cli import ctl, modbus
 from supervisor.config.limits import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core.encoding import StorableFormatter
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
@@ -865,6 +865,7 @@ def build_parser() -> argparse.ArgumentParser:
     rs.set_defaults(func=cmd_results)
 
     ctl.add_parser(sub)
+    modbus.add_parser(sub)
 
     bench_args.add_parser(sub).set_defaults(func=cmd_bench)
     return p

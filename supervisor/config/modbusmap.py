@@ -26,7 +26,7 @@ layer sits below the publishers; a test holds the two spellings equal).
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Final
 
 from supervisor.config.models import BenchConfig
@@ -42,6 +42,7 @@ __all__ = [
     "IO_MAP_BASE",
     "MAX_ADDRESS",
     "Slot",
+    "blocks",
     "explicit_problems",
     "layout",
 ]
@@ -160,6 +161,7 @@ class Slot:
     kind: str
     tag: str  # "" for STATUS, HEARTBEAT, REFUSAL
     channel: str = ""  # the channel whose block holds it ("" elsewhere)
+    scale: float = 1.0  # a float as INT16 (``modbus_server.scale``): raw = round(value × scale)
 
     @property
     def words(self) -> int:
@@ -176,8 +178,8 @@ def _aligned(address: int, kind: str) -> int:
     return address + (address & 1) if kind == FLOAT32 else address
 
 
-def _blocks(
-    fields: dict[str, tuple[Field, ...]], base: int, prefix: str = "", channel: str = ""
+def blocks(
+    fields: dict[str, tuple[Field, ...]], base: int = 0, prefix: str = "", channel: str = ""
 ) -> Iterator[Slot]:
     """A block's slots in every table from its field lists (a float on the next even
     address)."""
@@ -208,14 +210,15 @@ def io_map_kind(cfg: BenchConfig, index: int) -> tuple[str, str] | None:
     return None
 
 
-def generated(cfg: BenchConfig) -> list[Slot]:
+def generated(cfg: BenchConfig, *, scaled: bool = True) -> list[Slot]:
     """Every generated slot, before explicit addresses move any (a channel or device past
-    the areas' capacity is left out: ``explicit_problems`` refuses that map)."""
-    out = list(_blocks(BENCH_FIELDS, 0))
+    the areas' capacity is left out: ``explicit_problems`` refuses that map); ``scaled``:
+    with ``modbus_server.scale`` applied."""
+    out = list(blocks(BENCH_FIELDS, 0))
     for k, ch in enumerate(cfg.channels[:MAX_CHANNELS]):
-        out += _blocks(CHANNEL_FIELDS, CHANNEL_BASE + CHANNEL_BLOCK * k, ch.name + ".", ch.name)
+        out += blocks(CHANNEL_FIELDS, CHANNEL_BASE + CHANNEL_BLOCK * k, ch.name + ".", ch.name)
     for d, dev in enumerate(list(cfg.devices)[:MAX_DEVICES]):
-        out += _blocks(DEVICE_FIELDS, DEVICE_BASE + DEVICE_BLOCK * d, dev + ".")
+        out += blocks(DEVICE_FIELDS, DEVICE_BASE + DEVICE_BLOCK * d, dev + ".")
     at = dict.fromkeys(TABLES, IO_MAP_BASE)
     for i, t in enumerate(cfg.tags):
         placed = io_map_kind(cfg, i)
@@ -225,7 +228,13 @@ def generated(cfg: BenchConfig) -> list[Slot]:
         address = _aligned(at[table], kind)
         out.append(Slot(table, address, kind, t.name))
         at[table] = address + (2 if kind == FLOAT32 else 1)
-    return out
+    # A float scaled to 16 bits keeps the first register of its place (the second stays
+    # empty): choosing the encoding moves nothing.
+    scales = cfg.modbus_server.scale if cfg.modbus_server is not None and scaled else {}
+    return [
+        replace(s, kind=INT16, scale=scales[s.tag]) if s.tag in scales and s.kind == FLOAT32 else s
+        for s in out
+    ]
 
 
 def _explicit(cfg: BenchConfig) -> dict[str, int]:
@@ -239,7 +248,7 @@ def layout(cfg: BenchConfig) -> list[Slot]:
     out: list[Slot] = []
     for s in generated(cfg):
         if s.tag in explicit:
-            out.append(Slot(s.table, explicit[s.tag], s.kind, s.tag, s.channel))
+            out.append(replace(s, address=explicit[s.tag]))
         else:
             out.append(s)
     return sorted(out, key=lambda s: (TABLES.index(s.table), s.address))
@@ -282,13 +291,14 @@ def explicit_problems(cfg: BenchConfig) -> list[tuple[tuple[str | int, ...], str
             problems.append(
                 (
                     at,
-                    f"{tag!r} is not a tag the Modbus map places (a channel's or device's field,"
-                    " a scan figure, or a number or boolean of tags:; `supervisor modbus map`)",
+                    f"modbus_server.addresses: {tag!r} is not a tag the Modbus map places"
+                    " (a channel's or device's field, a scan figure, or a number or boolean"
+                    " of tags:; `supervisor modbus map`)",
                     True,
                 )
             )
             continue
-        mine = Slot(s.table, address, s.kind, tag, s.channel)
+        mine = replace(s, address=address)
         if mine.end > MAX_ADDRESS:
             problems.append((at, f"{tag}: a float at {address} ends beyond 65535", False))
             continue
@@ -305,14 +315,29 @@ def explicit_problems(cfg: BenchConfig) -> list[tuple[tuple[str | int, ...], str
         clash = next((o for o in moved if _overlap(o, mine)), None)
         if clash is not None:
             problems.append(
-                (at, f"{tag}: {_words(mine)} overlaps {clash.tag!r}'s explicit address", False)
+                (
+                    at,
+                    f"{tag} at {_words(mine)} overlaps the explicit address of {clash.tag!r}",
+                    False,
+                )
             )
             continue
         clash = next((o for o in fixed if _overlap(o, mine)), None)
         if clash is not None:
-            problems.append((at, f"{tag}: {_words(mine)} overlaps {_name(clash)}", False))
+            problems.append((at, f"{tag} at {_words(mine)} overlaps {_name(clash)}", False))
             continue
         moved.append(mine)
+    floats = {s.tag for s in generated(cfg, scaled=False) if s.kind == FLOAT32}
+    for tag in cfg.modbus_server.scale:
+        if tag not in floats:
+            problems.append(
+                (
+                    ("modbus_server", "scale", tag),
+                    f"modbus_server.scale: {tag!r} is not a float the Modbus map places"
+                    " (only a float is scaled to a 16-bit integer)",
+                    True,
+                )
+            )
     return problems
 
 
@@ -330,6 +355,6 @@ def _words(s: Slot) -> str:
 def _name(s: Slot) -> str:
     """How a message names a generated slot."""
     if s.tag:
-        return f"the generated place of {s.tag!r} ({s.table.replace('_', ' ')} {s.address})"
+        return f"the generated place of {s.tag!r} ({_words(s)})"
     owner = f"channel {s.channel}" if s.channel else "the bench"
-    return f"the {s.kind} register of {owner} ({s.table.replace('_', ' ')} {s.address})"
+    return f"the {s.kind} register of {owner} ({_words(s)})"

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Annotated, Any, ClassVar, Final, Literal, Union
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     BeforeValidator,
     ConfigDict,
@@ -251,6 +252,15 @@ class IdentificationConfig(Strict):
     )
 
 
+def _ip_address(v: str) -> str:
+    """A Modbus writer: an IP address (each refused at its own place in the list)."""
+    try:
+        ipaddress.ip_address(v)
+    except ValueError:
+        raise ValueError(f"writer {v!r} is not an IP address") from None
+    return v
+
+
 class ModbusServerConfig(Strict):
     """The tag database as a Modbus TCP server (issue 36; docs/integrator.md "Modbus TCP"):
     panel HMIs and SCADA that speak only Modbus. Off unless the I/O map has this section;
@@ -271,7 +281,7 @@ class ModbusServerConfig(Strict):
         description="Clients may write setpoints, commands and coils (through the command"
         " path, checked like any command); off: every write answers exception 01.",
     )
-    writers: list[str] = Field(
+    writers: list[Annotated[str, AfterValidator(_ip_address)]] = Field(
         default_factory=list,
         description="The client addresses that may write (Modbus has no authentication);"
         " a write from any other answers exception 04 and is recorded as refused.",
@@ -279,29 +289,16 @@ class ModbusServerConfig(Strict):
     max_clients: int = Field(
         8, ge=1, le=256, description="Open Modbus connections at most; one more is closed."
     )
-    addresses: dict[str, int] = Field(
+    addresses: dict[str, Annotated[int, Field(ge=0, le=65535)]] = Field(
         default_factory=dict,
         description="An explicit register (or bit) address for a tag, 0-based: overrides"
         " the generated map (`supervisor modbus map IOMAP`).",
     )
-
-    @field_validator("writers")
-    @classmethod
-    def _ip_addresses(cls, v: list[str]) -> list[str]:
-        for w in v:
-            try:
-                ipaddress.ip_address(w)
-            except ValueError:
-                raise ValueError(f"writer {w!r} is not an IP address") from None
-        return v
-
-    @field_validator("addresses")
-    @classmethod
-    def _in_range(cls, v: dict[str, int]) -> dict[str, int]:
-        for tag, address in v.items():
-            if not 0 <= address <= 65535:
-                raise ValueError(f"{tag}: address {address} is beyond 0..65535")
-        return v
+    scale: dict[str, Annotated[float, Field(gt=0, allow_inf_nan=False)]] = Field(
+        default_factory=dict,
+        description="A float tag as a scaled 16-bit integer instead (INT16, raw ="
+        " round(value × scale), e.g. 1000 for millivolts), in the first register of its place.",
+    )
 
 
 class OpcUaConfig(Strict):

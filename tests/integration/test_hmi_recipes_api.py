@@ -338,6 +338,7 @@ def sim_map(tmp_path: Path) -> Path:
         data["devices"][name]["port"] = free_tcp_port()
     data["hmi"]["port"] = 0
     data.pop("opcua", None)
+    data.pop("modbus_server", None)  # nor Modbus (1502 may be taken)
     data["state_dir"] = str(tmp_path / "state")
     path = tmp_path / "sim.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")

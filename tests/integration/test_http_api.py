@@ -400,6 +400,7 @@ def seed002_in_process(tmp: Path) -> Path:
     data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
     data["hmi"]["login"] = False
     data.pop("opcua", None)
+    data.pop("modbus_server", None)  # nor Modbus (1502 may be taken)
     data["state_dir"] = str(tmp / "state")
     path = tmp / "sim.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")

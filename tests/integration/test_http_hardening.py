@@ -122,6 +122,7 @@ def seed002_map(tmp: Path, name: str) -> Path:
     for device in ("adam", "ea", "bms"):
         data["devices"][device]["port"] = free_tcp_port()
     data.pop("opcua", None)
+    data.pop("modbus_server", None)  # nor Modbus (1502 may be taken)
     assert "control_port" not in (data.get("simulation") or {})
     path = tmp / f"{name}.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")

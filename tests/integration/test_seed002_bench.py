@@ -44,7 +44,7 @@ def seed002_map(tmp_path: Path) -> Path:
         data["devices"][name]["port"] = free_tcp_port()
     data["hmi"]["port"] = 0
     data.pop("opcua", None)  # not part of this test (and 4840 may be taken)
-    data.pop("modbus_server", None)  # likewise (and 1502)
+    data.pop("modbus_server", None)  # nor Modbus (1502 may be taken)
     path = tmp_path / "seed002.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     return path

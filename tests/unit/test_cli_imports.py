@@ -70,6 +70,7 @@ COMMANDS = {
         "io_maps/load16.yaml: OK",
     ),
     "help": (["--help"], "usage: supervisor"),
+    "modbus map": (["modbus", "map", "io_maps/sim.yaml"], "104,300105,04,float32,big,ch0.voltage"),
     "check's help": (["check", "--help"], "usage: supervisor check"),
     "dry-run": (
         ["dry-run", "recipes/nimh-ds2710.yaml", "--max-hours", "0.1"],

@@ -81,6 +81,26 @@ CASES = [
     ("boolean_as_capacity.yaml", 10, 18, "capacity_ah: Input should be a valid number"),
     ("boolean_in_a_pair.yaml", 11, 50, "voltage_v[0]: Input should be a valid number"),
     ("infinite_number.yaml", 10, 18, "capacity_ah: Input should be a finite number"),
+    # The Modbus register map (issue 36, ADR 0031): explicit addresses that fit.
+    (
+        "modbus_addresses_overlap.yaml",
+        13,
+        22,
+        "ch0.chain.cycle at input register 40001 overlaps the explicit address of 'ch0.voltage'",
+    ),
+    (
+        "modbus_address_on_a_generated_one.yaml",
+        12,
+        22,
+        "ch0.temperature at input registers 104-105 overlaps the generated place of"
+        " 'ch0.voltage' (input registers 104-105)",
+    ),
+    ("modbus_address_beyond_65535.yaml", 12, 16, "less than or equal to 65535 (received 65536)"),
+    ("modbus_float_ends_beyond_65535.yaml", 12, 18, "ch0.voltage: a float at 65535 ends beyond"),
+    ("modbus_float_on_an_odd_address.yaml", 12, 18, "a float at the odd address 40001"),
+    ("modbus_writer_not_an_ip.yaml", 12, 24, "writers[1]: writer 'panel-1' is not an IP address"),
+    ("modbus_address_of_a_text.yaml", 12, 5, "'ch0.chain.recipe' is not a tag the Modbus map"),
+    ("modbus_scale_of_a_code.yaml", 13, 5, "'ch0.mode' is not a float the Modbus map places"),
 ]
 
 

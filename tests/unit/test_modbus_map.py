@@ -4,6 +4,8 @@ to one tag move no other point — and every shipped I/O map plans without overl
 
 from __future__ import annotations
 
+import csv
+import io
 from pathlib import Path
 from typing import Any
 
@@ -15,9 +17,11 @@ from hypothesis import strategies as st
 from supervisor.app.bench import build_bench
 from supervisor.app.tagset import declared_tags
 from supervisor.chains.states import OPCUA_CODE
+from supervisor.cli.main import main
 from supervisor.config import modbusmap
 from supervisor.core.clock import VirtualClock
 from supervisor.devices.registry import bench_from_data
+from supervisor.publish.modbus.mapcsv import COLUMNS
 from supervisor.publish.modbus.regmap import CHAIN_STATES, Kind, Point, RegisterMap, Table, plan
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -162,6 +166,22 @@ def test_an_explicit_address_moves_its_tag_and_no_other(sim_map: RegisterMap) ->
     assert rest == [p for p in sim_map.points if p.tag not in ("ch0.voltage", "estop.ok")]
 
 
+def test_a_float_scaled_to_16_bits_keeps_its_place_and_moves_nothing(
+    sim_map: RegisterMap,
+) -> None:
+    data = sim_data()
+    data["modbus_server"]["scale"] = {"ch0.voltage": 1000, "pack.current": 10}
+    data["modbus_server"]["addresses"] = {"pack.current": 40001}  # 16 bits: odd is fine
+    after = planned(data)
+    tags = by_tag(after)
+    assert tags["ch0.voltage"] == Point(
+        Table.INPUT_REGISTER, 104, Kind.INT16, "ch0.voltage", "ch0", "V", 1000.0
+    )
+    assert (tags["pack.current"].address, tags["pack.current"].kind) == (40001, Kind.INT16)
+    same = [p for p in after.points if p.tag not in ("ch0.voltage", "pack.current")]
+    assert same == [p for p in sim_map.points if p.tag not in ("ch0.voltage", "pack.current")]
+
+
 def test_word_order_and_unit_id_come_from_the_io_map() -> None:
     data = sim_data()
     data["modbus_server"].update(word_order="little", unit_id=7)
@@ -209,4 +229,133 @@ def test_explicit_addresses_the_check_accepts_never_overlap(explicit: dict[str, 
             assert (s.table, a) not in taken
             taken.add((s.table, a))
         assert s.end <= modbusmap.MAX_ADDRESS
+        assert s.kind != modbusmap.FLOAT32 or s.address % 2 == 0
+
+
+# --- the CSV: what a panel's tool imports ------------------------------------------------
+def csv_rows(capsys: pytest.CaptureFixture[str], *argv: str) -> list[dict[str, str]]:
+    assert main(["modbus", "map", *argv]) == 0
+    return list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+
+
+def test_the_csv_has_a_row_per_point_with_the_columns_a_panel_imports(
+    capsys: pytest.CaptureFixture[str], sim_map: RegisterMap
+) -> None:
+    rows = csv_rows(capsys, str(ROOT / "io_maps" / "sim.yaml"))
+    assert list(rows[0]) == list(COLUMNS)
+    assert len(rows) == len(sim_map.points)
+    by_name = {r["tag"]: r for r in rows}
+    assert by_name["ch0.voltage"] == {
+        "address": "104",
+        "reference": "300105",
+        "function": "04",
+        "type": "float32",
+        "word_order": "big",
+        "tag": "ch0.voltage",
+        "unit": "V",
+        "scale": "1",
+        "access": "r",
+        "codes": "",
+    }
+    # sim.yaml's server takes no writes: its setpoints read "r", at the same addresses.
+    assert (by_name["ch0.manual_current"]["function"], by_name["ch0.manual_current"]["access"]) == (
+        "03",
+        "r",
+    )
+    assert by_name["ch0.enable"]["reference"] == "000101"
+    assert by_name["ch0.mode"]["codes"] == "0=manual; 1=auto"
+    assert by_name["ch0.status"]["codes"].startswith("bit0=bad; bit1=uncertain")
+    assert (by_name["bench.heartbeat"]["address"], by_name["bench.heartbeat"]["type"]) == (
+        "1",
+        "heartbeat",
+    )
+
+
+def test_with_writes_on_the_setpoints_commands_and_coils_read_rw(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    data = sim_data()
+    data["modbus_server"].update(writes=True, writers=["127.0.0.1"])
+    path = tmp_path / "bench.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    rows = {r["tag"]: r for r in csv_rows(capsys, str(path))}
+    assert {n for n, r in rows.items() if r["access"] == "rw"} == {
+        f"ch{k}.{f}"
+        for k in range(5)
+        for f in ("manual_current", "command", "mode", "enable", "ack")
+    }
+    assert rows["ch0.manual_current"]["function"] == "03 06 16"
+    assert rows["ch0.enable"]["function"] == "01 05 15"
+
+
+def test_the_csv_of_a_bench_whose_devices_are_not_here_is_printed_all_the_same(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """chadeche-rpi.yaml names an SPI bus this machine has not: nothing is opened."""
+    rows = csv_rows(capsys, str(ROOT / "io_maps" / "chadeche-rpi.yaml"))
+    assert {r["tag"] for r in rows} >= {"ch0.voltage", "ch0.status", "bench.heartbeat"}
+
+
+def test_the_csv_of_a_refused_io_map_is_not_printed(capsys: pytest.CaptureFixture[str]) -> None:
+    bad = ROOT / "tests" / "data" / "bad_io_maps" / "modbus_addresses_overlap.yaml"
+    assert main(["modbus", "map", str(bad)]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert f"{bad}:13:22: ch0.chain.cycle at input register 40001 overlaps" in err
+
+
+ADR = ROOT / "docs" / "adr" / "0031-modbus-register-map.md"
+SHORT = {"IR": "input_register", "HR": "holding_register", "coil": "coil", "DI": "discrete_input"}
+
+
+def test_the_adr_lists_every_blocks_fields_at_their_offsets() -> None:
+    """A newcomer predicts an address from ADR 0031's tables: they are the code's."""
+    text = ADR.read_text(encoding="utf-8")
+    for title, fields in (
+        ("The bench block", modbusmap.BENCH_FIELDS),
+        ("A channel's block", modbusmap.CHANNEL_FIELDS),
+        ("A device's block", modbusmap.DEVICE_FIELDS),
+    ):
+        table_text = text.split(f"**{title}", 1)[1].split("\n\n", 2)[1]
+        rows = [
+            [c.strip().strip("`") for c in line.strip("|").split("|")]
+            for line in table_text.splitlines()[2:]
+        ]
+        documented = [
+            (SHORT[t], int(o), f if not f.startswith("(") else "", k) for t, o, f, k in rows
+        ]
+        assert documented == [
+            (s.table, s.address, s.tag, s.kind) for s in modbusmap.blocks(fields)
+        ], title
+
+
+def test_the_integrators_excerpt_is_what_the_command_prints(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    guide = (ROOT / "docs" / "integrator.md").read_text(encoding="utf-8")
+    excerpt = guide.split("## Modbus TCP", 1)[1].split("```csv\n", 1)[1].split("```", 1)[0]
+    assert main(["modbus", "map", str(ROOT / "io_maps" / "sim.yaml")]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    lines = excerpt.splitlines()
+    assert lines[0] == printed[0]
+    assert [line for line in lines if line not in printed] == []
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.integers(0, len(SIM_CFG.tags) - 1), min_size=1, max_size=40))
+def test_any_list_of_io_map_tags_lays_out_without_overlap_and_one_more_moves_none(
+    picks: list[int],
+) -> None:
+    """Random I/O maps (the simulated bench's points in any order, repeated under new
+    names): no two slots overlap, floats are even, and the map of all but the last tag is
+    the map of all with the last one taken out."""
+    tags = [SIM_CFG.tags[i].model_copy(update={"name": f"t{n}.x"}) for n, i in enumerate(picks)]
+    full = modbusmap.layout(SIM_CFG.model_copy(update={"tags": tags}))
+    fewer = modbusmap.layout(SIM_CFG.model_copy(update={"tags": tags[:-1]}))
+    assert [s for s in full if s.tag != tags[-1].name] == fewer
+    taken: set[tuple[str, int]] = set()
+    for s in full:
+        for a in range(s.address, s.end + 1):
+            assert (s.table, a) not in taken
+            taken.add((s.table, a))
         assert s.kind != modbusmap.FLOAT32 or s.address % 2 == 0

@@ -165,7 +165,7 @@ def plan(cfg: BenchConfig, db: TagDB) -> RegisterMap:
             table in (Table.COIL, Table.HOLDING_REGISTER) and spec.access is not Access.READ_ONLY
         )
         points.append(
-            Point(table, s.address, kind, s.tag, s.channel, spec.unit, 1.0, writable, codes)
+            Point(table, s.address, kind, s.tag, s.channel, spec.unit, s.scale, writable, codes)
         )
     _refuse_overlaps(points)
     return RegisterMap(
