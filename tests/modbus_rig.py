@@ -27,11 +27,13 @@ class RawClient:
     host: str
     port: int
     unit: int = 1
+    source: str | None = None  # the client's own address (another loopback one: 127.0.0.2)
     sock: socket.socket = field(init=False)
     _tid: int = 0
 
     def __post_init__(self) -> None:
-        self.sock = socket.create_connection((self.host, self.port), TIMEOUT_S)
+        source = None if self.source is None else (self.source, 0)
+        self.sock = socket.create_connection((self.host, self.port), TIMEOUT_S, source)
         self.sock.settimeout(TIMEOUT_S)
 
     def close(self) -> None:

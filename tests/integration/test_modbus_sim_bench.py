@@ -11,6 +11,7 @@ waits only, never a timing assertion.
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import math
 import struct
@@ -25,6 +26,7 @@ from modbus_rig import ModbusException, RawClient, float_of, words_of
 
 from supervisor.app.service import Supervisor, serve
 from supervisor.bench.subject import prepare
+from supervisor.cli.main import _banner
 from supervisor.devices.registry import load_bench
 from supervisor.publish.modbus.image import BIT
 from supervisor.publish.modbus.regmap import REFUSALS, Kind, Point, Table
@@ -76,15 +78,7 @@ def status_point(sup: Supervisor, channel: str) -> Point:
 
 def client(sup: Supervisor, source: str = WRITER) -> RawClient:
     assert sup.modbus is not None
-    c = RawClient(sup.modbus.host, sup.modbus.bound_port)
-    if source != WRITER:  # reconnect from the other loopback address
-        c.close()
-        import socket
-
-        c.sock = socket.create_connection(
-            (sup.modbus.host, sup.modbus.bound_port), 5.0, source_address=(source, 0)
-        )
-    return c
+    return RawClient(sup.modbus.host, sup.modbus.bound_port, source=source)
 
 
 def lsb32(x: float) -> float:
@@ -213,3 +207,16 @@ async def test_writes_off_answer_01_and_an_address_of_no_point_02(tmp_path: Path
             with pytest.raises(ModbusException) as e:  # holding register 104: nobody's either
                 await asyncio.to_thread(c.write_register, 104, 1)
             assert e.value.code == 2
+
+
+async def test_the_run_banner_says_where_modbus_listens(
+    sup: Supervisor, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _banner(argparse.Namespace(io_map="sim.yaml"), sup.bench.cfg, sup)
+    out = capsys.readouterr().out
+    assert sup.modbus is not None
+    line = (
+        f"Modbus TCP server listening on 127.0.0.1:{sup.modbus.bound_port}"
+        f" (unit 1, writes from {WRITER})"
+    )
+    assert line in out.splitlines()
