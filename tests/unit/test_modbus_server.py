@@ -28,7 +28,7 @@ from supervisor.publish.modbus.server import (
     refusal_code,
 )
 from supervisor.tags import Access, TagDB, TagSpec
-from supervisor.testing import free_tcp_port
+from supervisor.testing import free_tcp_port, wait_until
 
 IR, HR, CO, DI = (
     Table.INPUT_REGISTER,
@@ -330,8 +330,9 @@ async def test_one_client_beyond_max_clients_is_closed() -> None:
         finally:
             a.close()
             b.close()
-        with rig.client() as again:  # a place freed is a place again
-            await asyncio.sleep(0.2)
+        # A place freed is a place again, once the server has seen the two leave.
+        await wait_until(lambda s=rig.server: s.clients == 0, "the two clients gone")
+        with rig.client() as again:
             assert len(await call(again.read_registers, 0, 2)) == 2
 
 

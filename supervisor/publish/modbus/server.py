@@ -309,6 +309,13 @@ class ModbusServer:
         self._last_scans = -1
         self._last_scan_t = 0.0
         self.bound_port = 0
+        self._tcp: _TcpServer | None = None
+
+    @property
+    def clients(self) -> int:
+        """Connections open now (diagnostics; read from any thread)."""
+        tcp = self._tcp
+        return 0 if tcp is None else len(tcp.active_connections)
 
     @property
     def endpoint(self) -> str:
@@ -392,6 +399,7 @@ class ModbusServer:
         _quiet_pymodbus()
         server = _TcpServer(_Context(self), address=(self.host, self.port))
         server.max_clients = self.max_clients
+        self._tcp = server
         # pymodbus's listen() logs and answers False for a taken port: bind ourselves first
         # so the bench hears the OSError (as from the HTTP API and OPC UA).
         await _probe(self.host, self.port)
@@ -407,6 +415,7 @@ class ModbusServer:
             drain.cancel()
             await asyncio.gather(drain, return_exceptions=True)
             await server.shutdown()  # type: ignore[no-untyped-call]
+            self._tcp = None
             self._loop = None
             log.info("Modbus TCP server stopped")
 
