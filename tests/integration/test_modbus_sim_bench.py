@@ -136,6 +136,8 @@ async def test_the_status_bits_change_on_an_e_stop(sup: Supervisor) -> None:
             lambda: read(c, bench_status) & BIT["tripped"] == 0, "no trip before", WAIT_S
         )
         assert read(c, bench_status) & BIT["alive"]
+        # Every input GOOD (a channel's thermocouple that is not fitted is no fault).
+        assert read(c, ch0_status) & (BIT["bad"] | BIT["uncertain"] | BIT["tripped"]) == 0
         heartbeat = point_heartbeat(sup)
         first = c.read_registers(heartbeat.address, 1)[0]
         await wait_until(

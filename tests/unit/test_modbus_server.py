@@ -185,6 +185,14 @@ async def test_a_bad_value_keeps_its_last_registers_and_sets_the_status_bit(rig:
     assert bench & BIT["bad"]  # the bench's status says some input reads BAD
 
 
+async def test_a_sensor_not_fitted_reads_bad_without_setting_the_bit(rig: Rig) -> None:
+    rig.db.update(rig.db["ch0.temperature"], None, Quality.BAD, Reason.NOT_FITTED)
+    rig.scan()
+    with rig.client() as c:
+        status = (await call(c.read_registers, 6, 1))[0]
+    assert not status & BIT["bad"]  # no thermocouple on this channel: not a fault
+
+
 async def test_an_uncertain_input_sets_its_bit_and_its_value(rig: Rig) -> None:
     rig.db.update(rig.db["ch0.current"], 0.75, Quality.UNCERTAIN, Reason.STALE)
     rig.scan()

@@ -19,7 +19,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 from supervisor.core.driver import Value
-from supervisor.core.quality import Quality
+from supervisor.core.quality import Quality, Reason
 from supervisor.publish.changes import ChangeBatch
 from supervisor.publish.modbus.regmap import STATUS_BITS, Kind, Point, RegisterMap, Table
 
@@ -32,6 +32,7 @@ NOT_A_CODE = 0xFFFF
 
 _BAD = Quality.BAD
 _UNCERTAIN = Quality.UNCERTAIN
+_NOT_FITTED = Reason.NOT_FITTED
 BIT = {name: 1 << i for i, name in enumerate(STATUS_BITS)}
 
 
@@ -146,25 +147,25 @@ class RegisterImage:
         """The changes of ``batches``, oldest first, into the registers."""
         by_tag, order = self._by_tag, self.word_order
         for b in batches:
-            for tag, value, quality, _, _, _ in b.changes:
+            for tag, value, quality, reason, _, _ in b.changes:
                 name = tag.spec.name
                 points = by_tag.get(name)
                 if points is None:
                     continue
-                self._quality(name, quality)
+                self._quality(name, quality, reason)
                 if quality is _BAD:
                     continue  # the last value stays, its channel's bit 0 says so
                 for p in points:
                     self.put(p, encode(p, value, order))
 
-    def load(self, values: Mapping[str, tuple[Value | None, Quality]]) -> None:
-        """Every tag's value and quality at once (the server's start)."""
+    def load(self, values: Mapping[str, tuple[Value | None, Quality, Reason]]) -> None:
+        """Every tag's value, quality and reason at once (the server's start)."""
         order = self.word_order
         for name, points in self._by_tag.items():
             if name not in values:
                 continue
-            value, quality = values[name]
-            self._quality(name, quality)
+            value, quality, reason = values[name]
+            self._quality(name, quality, reason)
             if quality is not _BAD:
                 for p in points:
                     self.put(p, encode(p, value, order))
@@ -176,7 +177,7 @@ class RegisterImage:
         for i, w in enumerate(words):
             values[p.address + i] = w
 
-    def _quality(self, name: str, quality: Quality) -> None:
+    def _quality(self, name: str, quality: Quality, reason: Reason) -> None:
         channel = self._inputs.get(name)
         if channel is None:
             return
@@ -185,7 +186,10 @@ class RegisterImage:
         bad.discard(name)
         uncertain.discard(name)
         if quality is _BAD:
-            bad.add(name)
+            # A sensor this bench does not have (a channel without a thermocouple) is no
+            # fault: it would hold the bit for good and hide every real BAD input.
+            if reason is not _NOT_FITTED:
+                bad.add(name)
         elif quality is _UNCERTAIN:
             uncertain.add(name)
 

@@ -328,7 +328,7 @@ class ModbusServer:
         self._bench_loop = asyncio.get_running_loop()
         # Every tag as it is now, read between two scans; from now on the scan's batches.
         self.feed.take()
-        self.image.load({t.spec.name: (t.value, t.quality) for t in self.db})
+        self.image.load({t.spec.name: (t.value, t.quality, t.reason) for t in self.db})
         self.feed.serving = True
         ready: concurrent.futures.Future[None] = concurrent.futures.Future()
         self._done = concurrent.futures.Future()
