@@ -67,7 +67,7 @@ REFUSALS: tuple[str, ...] = (
     "bad argument",  # 3: a value the tag does not take (a code not in its table, NaN)
     "out of range",  # 4: beyond the channel's hard limits
     "not found",  # 5: no such tag or channel on the command path
-    "failed",  # 6: the command path failed or did not answer in time
+    "failed",  # 6: the command path failed (a refusal of any kind not named here)
     "closing",  # 7: the bench is going to its safe state (stopping)
     "timeout",  # 8: the bench's loop did not answer in time
 )

@@ -516,7 +516,7 @@ class _ServerThreadOnly(logging.Filter):
     """Drops what pymodbus logs on the server's thread: it logs a refused request (an
     unknown unit, a frame it cannot decode) at WARNING or ERROR, a datastore failure with
     its stack in the message. The server's own log says what matters (a refused write, a
-    closed client, a bug of its own once); pymodbus's client elsewhere is not silenced."""
+    closed client, a bug of its own); pymodbus's client elsewhere is not silenced."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         return record.threadName != THREAD_NAME
