@@ -183,6 +183,16 @@ async def test_a_manual_setpoint_from_a_writer_is_accepted_and_from_another_refu
             await asyncio.to_thread(other.write_registers, setpoint.address, words_of(0.5, order))
         assert e.value.code == 4
         assert other.read_registers(refusal.address, 1) == [REFUSALS.index("forbidden")]
+    # A chain command by its code, refused by the state table (no recipe loaded): 04, and
+    # the refusal register holds the kind the command path recorded.
+    command = point(sup, "ch0.command")
+    with client(sup) as c:
+        with pytest.raises(ModbusException) as e:
+            await asyncio.to_thread(c.write_register, command.address, command.codes.index("start"))
+        assert e.value.code == 4
+        last = [e for e in log if e.actor == f"modbus:{WRITER}"][-1]
+        assert not last.accepted and last.command == "start"
+        assert c.read_registers(refusal.address, 1) == [REFUSALS.index(last.kind.value)]
     refused = [e for e in log if e.actor == f"modbus:{OTHER}"]
     assert len(refused) == 1 and not refused[0].accepted
     assert "not a Modbus writer" in refused[0].reason

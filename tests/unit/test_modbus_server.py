@@ -213,6 +213,17 @@ async def test_the_heartbeat_moves_every_scan_and_alive_is_set(rig: Rig) -> None
     assert status & BIT["alive"]
 
 
+async def test_alive_clears_when_the_scan_stops_moving(rig: Rig) -> None:
+    # No real time waited: the window the scan count must have moved in is made 0 (every
+    # scan is then too old), then wide again.
+    with rig.client() as c:
+        rig.server.alive_window_s = 0.0
+        assert not (await call(c.read_registers, 6, 1))[0] & BIT["alive"]
+        rig.server.alive_window_s = 3600.0
+        rig.scan()
+        assert (await call(c.read_registers, 6, 1))[0] & BIT["alive"]
+
+
 async def test_trips_and_unacknowledged_alarms_set_their_bits(rig: Rig) -> None:
     with rig.client() as c:
         rig.server.on_alarms({"": BIT["tripped"] | BIT["unacked"]})
