@@ -262,9 +262,17 @@ async def test_a_count_beyond_the_function_limit_answers_03(rig: Rig) -> None:
 
 async def test_a_function_it_does_not_serve_answers_01(rig: Rig) -> None:
     with rig.client() as c:
-        with pytest.raises(ModbusException) as e:
-            await call(c.request, 0x41, b"\x00\x00")
-        assert e.value.code == 1
+        for function, data in (
+            (0x41, b"\x00\x00"),  # nobody's
+            (0x08, b"\x00\x04\x00\x00"),  # diagnostics: force listen only mode
+            (0x11, b""),  # report server id
+            (0x2B, b"\x0e\x01\x00"),  # read device identification
+            (0x16, b"\x00\x64\xff\xff\x00\x00"),  # mask write register
+        ):
+            with pytest.raises(ModbusException) as e:
+                await call(c.request, function, data)
+            assert e.value.code == 1, hex(function)
+        assert len(await call(c.read_registers, 0, 2)) == 2  # still serving
 
 
 async def test_writes_off_answer_01() -> None:

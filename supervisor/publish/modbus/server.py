@@ -264,8 +264,22 @@ def _frames_well_formed(data: bytes) -> bool:
     return True
 
 
+SERVED_FUNCTIONS: Final = frozenset({1, 2, 3, 4, 5, 6, 15, 16, 23})
+"""The four tables' functions. pymodbus also decodes the serial line's diagnostics (08, 11,
+12, 17) and device identification (43), and would answer them from state of its own (a
+"listen only" flag, counters, an empty identity): any function not here answers 01."""
+
+
 class _TcpServer(ModbusTcpServer):
     max_clients = 8
+
+    def __init__(self, context: ModbusServerContext, *, address: tuple[str, int]) -> None:
+        super().__init__(context, address=address)
+        # An instance's own table: the class's is shared with every pymodbus decoder in
+        # the process (the ADAM's simulator among them).
+        self.decoder.pdu_table = {
+            fc: pdus for fc, pdus in self.decoder.pdu_table.items() if fc in SERVED_FUNCTIONS
+        }
 
     def callback_new_connection(self) -> _Handler:
         return _Handler(self, self.trace_packet, self.trace_pdu, self.trace_connect)  # type: ignore[no-untyped-call]
