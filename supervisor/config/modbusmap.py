@@ -102,7 +102,7 @@ CHANNEL_FIELDS: Final[dict[str, tuple[Field, ...]]] = {
     IR: (
         ("", STATUS),
         ("state", CODE),  # the power stage: off, idle, charging, discharging, faulted
-        ("chain.state_code", CODE),  # the test's state, its OPC UA (PackML) number
+        ("chain.state", CODE),  # the test's state by its OPC UA (PackML) number
         ("chain.step_index", UINT16),
         ("voltage", FLOAT32),
         ("current", FLOAT32),
@@ -282,51 +282,13 @@ def explicit_problems(cfg: BenchConfig) -> list[tuple[tuple[str | int, ...], str
     explicit = _explicit(cfg)
     slots = generated(cfg)
     by_tag = {s.tag: s for s in slots if s.tag}
-    fixed = [s for s in slots if s.tag not in explicit]
-    moved: list[Slot] = []
+    # Who takes each (table, address): the generated slots that stay, then each explicit
+    # one accepted (an index: a map may have thousands of both).
+    taken = {w: (s, False) for s in slots if s.tag not in explicit for w in _places(s)}
     for tag, address in explicit.items():
-        at = ("modbus_server", "addresses", tag)
-        s = by_tag.get(tag)
-        if s is None:
-            problems.append(
-                (
-                    at,
-                    f"modbus_server.addresses: {tag!r} is not a tag the Modbus map places"
-                    " (a channel's or device's field, a scan figure, or a number or boolean"
-                    " of tags:; `supervisor modbus map`)",
-                    True,
-                )
-            )
-            continue
-        mine = replace(s, address=address)
-        if mine.end > MAX_ADDRESS:
-            problems.append((at, f"{tag}: a float at {address} ends beyond 65535", False))
-            continue
-        if s.kind == FLOAT32 and address % 2:
-            problems.append(
-                (
-                    at,
-                    f"{tag}: a float at the odd address {address}; floats take an even address"
-                    " (panels that read 32-bit values as register pairs need it)",
-                    False,
-                )
-            )
-            continue
-        clash = next((o for o in moved if _overlap(o, mine)), None)
-        if clash is not None:
-            problems.append(
-                (
-                    at,
-                    f"{tag} at {_words(mine)} overlaps the explicit address of {clash.tag!r}",
-                    False,
-                )
-            )
-            continue
-        clash = next((o for o in fixed if _overlap(o, mine)), None)
-        if clash is not None:
-            problems.append((at, f"{tag} at {_words(mine)} overlaps {_name(clash)}", False))
-            continue
-        moved.append(mine)
+        problem = _explicit_problem(by_tag.get(tag), tag, address, taken)
+        if problem is not None:
+            problems.append((("modbus_server", "addresses", tag), *problem))
     floats = {s.tag for s in generated(cfg, scaled=False) if s.kind == FLOAT32}
     for tag in cfg.modbus_server.scale:
         if tag not in floats:
@@ -341,8 +303,38 @@ def explicit_problems(cfg: BenchConfig) -> list[tuple[tuple[str | int, ...], str
     return problems
 
 
-def _overlap(a: Slot, b: Slot) -> bool:
-    return a.table == b.table and a.address <= b.end and b.address <= a.end
+def _places(s: Slot) -> list[tuple[str, int]]:
+    return [(s.table, a) for a in range(s.address, s.end + 1)]
+
+
+def _explicit_problem(
+    s: Slot | None, tag: str, address: int, taken: dict[tuple[str, int], tuple[Slot, bool]]
+) -> tuple[str, bool] | None:
+    """Why ``tag`` may not be at ``address`` (message, at the key), or None: then it takes
+    its place in ``taken``."""
+    if s is None:
+        return (
+            f"modbus_server.addresses: {tag!r} is not a tag the Modbus map places (a"
+            " channel's or device's field, a scan figure, or a number or boolean of tags:;"
+            " `supervisor modbus map`)",
+            True,
+        )
+    mine = replace(s, address=address)
+    if mine.end > MAX_ADDRESS:
+        return f"{tag}: a float at {address} ends beyond 65535", False
+    if s.kind == FLOAT32 and address % 2:
+        return (
+            f"{tag}: a float at the odd address {address}; floats take an even address"
+            " (panels that read 32-bit values as register pairs need it)",
+            False,
+        )
+    clash = next((taken[w] for w in _places(mine) if w in taken), None)
+    if clash is not None:
+        other, moved = clash
+        what = f"the explicit address of {other.tag!r}" if moved else _name(other)
+        return f"{tag} at {_words(mine)} overlaps {what}", False
+    taken.update(dict.fromkeys(_places(mine), (mine, True)))
+    return None
 
 
 def _words(s: Slot) -> str:

@@ -103,7 +103,7 @@ def test_state_names_are_codes_with_their_table(sim_map: RegisterMap) -> None:
     tags = by_tag(sim_map)
     assert tags["ch0.mode"].codes == ("manual", "auto")
     assert tags["ch0.state"].codes[:3] == ("off", "idle", "charging")
-    assert {tags["ch0.chain.state_code"].codes[n]: n for n in OPCUA_CODE.values()} == {
+    assert {tags["ch0.chain.state"].codes[n]: n for n in OPCUA_CODE.values()} == {
         s.value: n for s, n in OPCUA_CODE.items()
     }
 
@@ -359,3 +359,30 @@ def test_any_list_of_io_map_tags_lays_out_without_overlap_and_one_more_moves_non
             assert (s.table, a) not in taken
             taken.add((s.table, a))
         assert s.kind != modbusmap.FLOAT32 or s.address % 2 == 0
+
+
+def test_a_bench_of_more_channels_than_the_map_holds_is_refused() -> None:
+    """Channel k's block is at 100 + 100·k: the 100th would be where the devices' are."""
+    ch = SIM_CFG.channels[0]
+    many = [ch.model_copy(update={"name": f"c{k}"}) for k in range(modbusmap.MAX_CHANNELS + 1)]
+    problems = modbusmap.explicit_problems(SIM_CFG.model_copy(update={"channels": many}))
+    assert problems == [
+        (("modbus_server",), "the Modbus map holds 99 channels at most, not 100", True)
+    ]
+    assert modbusmap.explicit_problems(SIM_CFG.model_copy(update={"channels": many[:-1]})) == []
+
+
+def test_check_warns_of_a_modbus_server_off_loopback(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """Modbus has no login: off loopback, check says so (a warning, exit 0)."""
+    data = sim_data()
+    data["modbus_server"].update(host="0.0.0.0", writes=True, writers=["192.0.2.7"])
+    path = tmp_path / "bench.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    assert main(["check", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert f"{path}: warning: modbus_server: host '0.0.0.0' is not loopback" in err
+    assert "writers' IP addresses alone" in err
+    assert main(["check", str(ROOT / "io_maps" / "sim.yaml")]) == 0
+    assert "modbus_server" not in capsys.readouterr().err

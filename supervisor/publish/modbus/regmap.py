@@ -128,12 +128,13 @@ CHAIN_STATES: Final = (
     "Held",
     "Resuming",
 )
-"""A channel's ``chain.state_code``: the test's state by its OPC UA (PackML) number, the
-same as ``chains/states.py::OPCUA_CODE`` (a test holds them equal; "" is no state)."""
+"""A channel's ``chain.state`` (a text) by its OPC UA (PackML) number, the number
+``chain.state_code`` holds: ``chains/states.py::OPCUA_CODE`` written again (the publishers
+may not import the chains; a test holds them equal; "" is no state)."""
 FIXED_CODES: Final[dict[str, tuple[str, ...]]] = {
     "state": DRIVE_STATES,
     "fault_action": FAULT_ACTIONS,
-    "chain.state_code": CHAIN_STATES,
+    "chain.state": CHAIN_STATES,
 }
 """Code tables by a channel field's suffix (the others: the tag's ``choices``)."""
 
