@@ -12,12 +12,20 @@ import logging
 import struct
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import pytest
+import yaml
+from commandrig import chadeche_map
 from modbus_rig import ModbusException, RawClient, float_of, words_of
 
+from supervisor.app import Bench, build_bench
+from supervisor.app.modbus import build_modbus
+from supervisor.commands import Command
+from supervisor.core.clock import VirtualClock
 from supervisor.core.driver import Value
 from supervisor.core.quality import Quality, Reason
+from supervisor.devices.registry import load_bench
 from supervisor.publish.modbus.image import BIT, RegisterImage, decode, encode
 from supervisor.publish.modbus.regmap import REFUSALS, Kind, Point, RegisterMap, Table
 from supervisor.publish.modbus.server import (
@@ -80,7 +88,7 @@ def a_db() -> TagDB:
 
 
 @dataclass
-class Path:
+class PathStub:
     """The command path as the server sees it: records each write, refuses what it is told."""
 
     db: TagDB
@@ -100,7 +108,7 @@ class Rig:
     server: ModbusServer
     feed: ModbusFeed
     db: TagDB
-    path: Path
+    path: PathStub
 
     def client(self, unit: int = 1) -> RawClient:
         return RawClient(self.server.host, self.server.port, unit)
@@ -114,7 +122,7 @@ async def serving(
 ) -> AsyncIterator[Rig]:
     db = a_db()
     feed = ModbusFeed(db)
-    path = Path(db)
+    path = PathStub(db)
     server = ModbusServer(
         a_map(word_order),
         db,
@@ -429,3 +437,41 @@ def test_the_image_serves_only_what_the_map_holds() -> None:
     assert not image.served(IR, 0, 11)
     assert image.points_in(HR, 0, 2) is not None
     assert image.points_in(HR, 1, 1) is None
+
+
+# --- the wiring (app/modbus.py) -----------------------------------------------------------
+def chadeche_bench(tmp: Path, modbus: dict[str, object] | None) -> Bench:
+    path = Path(chadeche_map(tmp))
+    data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    if modbus is not None:
+        data["modbus_server"] = modbus
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    return build_bench(load_bench(path), VirtualClock())
+
+
+def test_no_modbus_server_section_builds_no_server(tmp_path: Path) -> None:
+    bench = chadeche_bench(tmp_path, None)
+    publishers = list(bench.engine.publishers)
+    assert build_modbus(bench) is None
+    assert bench.engine.publishers == publishers  # nothing added to the scan
+
+
+def test_the_server_is_a_publisher_of_the_bench_and_writers_are_its_role_hook(
+    tmp_path: Path,
+) -> None:
+    bench = chadeche_bench(
+        tmp_path, {"port": free_tcp_port(), "writes": True, "writers": ["127.0.0.5"]}
+    )
+    server = build_modbus(bench)
+    assert server is not None and server.writes
+    assert server.feed in bench.engine.publishers
+    assert any(p.tag == "ch0.voltage" for p in server.regmap.points)
+    roles = bench.commands.roles
+    mine = Command.write("ch0.manual_current", 0.1, "modbus:127.0.0.5")
+    theirs = Command.write("ch0.manual_current", 0.1, "modbus:127.0.0.6")
+    assert roles.refuses(mine) == ""
+    assert "not a Modbus writer" in roles.refuses(theirs)
+    assert roles.refuses(Command.write("ch0.manual_current", 0.1, "operator")) == ""
+    refused = bench.commands.execute(theirs)
+    assert not refused.accepted and refused.kind.value == "forbidden"
+    assert bench.commands.log[-1].actor == "modbus:127.0.0.6"  # recorded with its actor
