@@ -39,6 +39,7 @@ from supervisor.hmi.screens import Screens
 from supervisor.hmi.tests_api import TestsConfig
 
 if TYPE_CHECKING:
+    from supervisor.publish.modbus.server import ModbusServer
     from supervisor.publish.opcua import OpcUaProcess, OpcUaServer
 
 log = logging.getLogger(__name__)
@@ -71,6 +72,8 @@ class Supervisor:
     unconfirmed: dict[str, str] | None = None
     """After ``run``: the devices that could not confirm their safe state, each with why."""
     _starter: asyncio.Task[None] | None = field(default=None, repr=False)
+    modbus: ModbusServer | None = None
+    """When the I/O map has a ``modbus_server:`` section (app/modbus.py, ADR 0032)."""
 
     async def load(
         self, channel: str, recipe: str, parameters: dict[str, str] | None = None
@@ -84,18 +87,22 @@ class Supervisor:
         return await self.bench.commands.execute_async(dataclasses.replace(load, local=True))
 
     async def start(self) -> None:
-        """Listen (HTTP API, OPC UA) and start the bench's simulators and writers. An
-        ``OSError`` (a port taken) stops what had started before it is raised."""
-        opcua, api, bench = self.opcua, self.api, self.bench
+        """Listen (HTTP API, OPC UA, Modbus TCP) and start the bench's simulators and writers.
+        An ``OSError`` (a port taken) stops what had started before it is raised."""
+        opcua, modbus, api, bench = self.opcua, self.modbus, self.api, self.bench
         try:
             await api.start()
             if self.recipes.checks is not None:
                 self.recipes.checks.warm()
             if opcua is not None:
                 await opcua.start()
+            if modbus is not None:
+                await modbus.start()
             await bench.start()
         except OSError:
             await bench.shutdown()
+            if modbus is not None:
+                await modbus.stop()
             if opcua is not None:
                 await opcua.stop()
             await api.stop()
@@ -131,9 +138,13 @@ class Supervisor:
             self._starter = None
         if opcua is not None:
             opcua.closing()  # no command while the outputs go safe; clients see them go
+        if self.modbus is not None:
+            self.modbus.closing()
         unconfirmed = await bench.shutdown()
         if opcua is not None:
             await opcua.stop()
+        if self.modbus is not None:
+            await self.modbus.stop()
         await self.api.stop()
         if bench.sim is not None:
             bench.sim.release()  # the process ends
@@ -228,7 +239,12 @@ def _serve_bench(
         # neither the interpreter lock nor turns of its loop (ADR 0029). A virtual clock's
         # bench has no real time to protect, and its tests step the server with the scan.
         opcua = build_opcua(bench, process=not bench.clock.virtual)  # ConfigError: users file
-    return Supervisor(bench, api, screens, opcua, recipes, restored)
+    modbus = None
+    if cfg.modbus_server is not None:
+        from supervisor.app.modbus import build_modbus
+
+        modbus = build_modbus(bench)
+    return Supervisor(bench, api, screens, opcua, recipes, restored, modbus=modbus)
 
 
 def _recipes_config(cfg: BenchConfig, bench: Bench) -> RecipesConfig:

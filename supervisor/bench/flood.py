@@ -75,6 +75,8 @@ def flood_map(
     data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
     data["hmi"].update({"port": 0, "login": True, **(hmi or {})})
     data["opcua"]["port"] = free_port()
+    if "modbus_server" in data:
+        data["modbus_server"]["port"] = free_port()
     for name in ("adam", "ea", "bms"):
         data["devices"][name]["port"] = free_port()
     data["state_dir"] = str(folder / "state")

@@ -192,6 +192,7 @@ def kill_restart_map(workdir: Path, io_map: str = "io_maps/sim.yaml") -> Path:
     data["hmi"]["port"] = 0
     data["hmi"]["login"] = False  # its HTTP client does not log in (loopback)
     data.pop("opcua", None)  # not what this measures (and 4840 may be taken)
+    data.pop("modbus_server", None)  # likewise (and 1502)
     data["state_dir"] = str(workdir / "var")
     data["recipes"] = {"folders": [str(workdir)]}  # where its recipe is written
     path = workdir / "seed002.yaml"

@@ -258,6 +258,7 @@ def virtual_trace(
         data["state_dir"] = str(root / "state")
         if isinstance(data.get("opcua"), dict):
             data["opcua"]["enabled"] = False  # a server thread of its own: not on this clock
+        data.pop("modbus_server", None)  # likewise
         data.pop("influxdb", None)
         copy = root / io_map.name
         copy.write_text(yaml.safe_dump(data, allow_unicode=True, sort_keys=False), "utf-8")

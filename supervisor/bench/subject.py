@@ -39,9 +39,10 @@ def free_port() -> int:
 
 
 def prepare(io_map: Path, root: Path, influx_url: str | None = None) -> tuple[Path, int, int]:
-    """Write a copy of ``io_map`` in ``root``: every listening port free (HTTP, OPC UA, the
-    simulated devices), its state in ``root/state``, InfluxDB at ``influx_url`` (the section
-    dropped when None). Returns the copy, its HTTP port and its OPC UA port (0: off)."""
+    """Write a copy of ``io_map`` in ``root``: every listening port free (HTTP, OPC UA, Modbus
+    TCP, the simulated devices), its state in ``root/state``, InfluxDB at ``influx_url``
+    (the section dropped when None). Returns the copy, its HTTP port and its OPC UA port
+    (0: off)."""
     data: dict[str, Any] = yaml.safe_load(io_map.read_text(encoding="utf-8"))
     data["state_dir"] = str(root / "state")
     http_port = free_port()
@@ -52,6 +53,9 @@ def prepare(io_map: Path, root: Path, influx_url: str | None = None) -> tuple[Pa
         opcua_port = free_port()
         data["opcua"]["port"] = opcua_port
         data["opcua"]["host"] = "127.0.0.1"
+    if isinstance(data.get("modbus_server"), dict):
+        data["modbus_server"]["port"] = free_port()
+        data["modbus_server"]["host"] = "127.0.0.1"
     for dev in (data.get("devices") or {}).values():
         if "port" in dev:
             dev["port"] = free_port()

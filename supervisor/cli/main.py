@@ -206,6 +206,11 @@ def _banner(args: argparse.Namespace, cfg: BenchConfig, sup: Supervisor) -> None
         _out(f"no users yet: supervisor opcua add-user NAME --role operator --io-map {args.io_map}")
     if opcua is not None:
         _out(f"OPC UA server listening on {opcua.endpoint} (namespace {opcua.namespace})")
+    if sup.modbus is not None and cfg.modbus_server is not None:
+        ms = cfg.modbus_server
+        writers = ", ".join(ms.writers) or "no address"
+        writes = f"writes from {writers}" if ms.writes else "read only"
+        _out(f"Modbus TCP server listening on {sup.modbus.endpoint} (unit {ms.unit_id}, {writes})")
     if bench.sim is not None and bench.sim.served:
         for line in bench.sim.addresses():
             _out(f"simulated {line}")

@@ -20,7 +20,7 @@ from supervisor.config import modbusmap
 from supervisor.config.models import BenchConfig
 from supervisor.tags import Access, TagDB
 
-__all__ = ["Kind", "Point", "RegisterMap", "Table", "WordOrder", "plan"]
+__all__ = ["REFUSALS", "STATUS_BITS", "Kind", "Point", "RegisterMap", "Table", "WordOrder", "plan"]
 
 WordOrder = Literal["big", "little"]
 """A 32-bit float's two registers: ``big``, the high word first (Modbus's own byte order
@@ -58,6 +58,21 @@ STATUS_BITS: tuple[str, ...] = (
 )
 """The status register's bits, bit 0 first: Modbus has no quality, so each channel (and the
 bench) says it here; a read of a BAD value answers the last value and sets bit 0."""
+
+
+REFUSALS: tuple[str, ...] = (
+    "",  # 0: no write refused since the start
+    "forbidden",  # 1: not a writer (modbus_server.writers), or the tag is read-only
+    "refused",  # 2: not in this state, Auto/Manual, or an interlock (a trip, an alarm)
+    "bad argument",  # 3: a value the tag does not take (a code not in its table, NaN)
+    "out of range",  # 4: beyond the channel's hard limits
+    "not found",  # 5: no such tag or channel on the command path
+    "failed",  # 6: the command path failed (a refusal of any kind not named here)
+    "closing",  # 7: the bench is going to its safe state (stopping)
+    "timeout",  # 8: the bench's loop did not answer in time
+)
+"""The REFUSAL register's reason codes (code = index): the last write the command path
+refused, as the command path's refusal kinds name them (docs/adr/0032-modbus-server.md)."""
 
 
 @dataclass(frozen=True, slots=True)
