@@ -723,6 +723,14 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
 
+def _add_results_parser(sub: Any) -> None:
+    """Register ``supervisor results verify DIR…``."""
+    rs = sub.add_parser("results", help="result folders: verify DIR (complete and unmodified)")
+    rs.add_argument("action", choices=["verify"])
+    rs.add_argument("folders", nargs="+", metavar="DIR", help="a test's result folder")
+    rs.set_defaults(func=cmd_results)
+
+
 def _add_opcua_parser(sub: Any) -> None:
     """Register ``supervisor opcua`` (a bench's OPC UA users, and the selftest of a
     server) on the main parser's subcommands."""
@@ -859,11 +867,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     _add_opcua_parser(sub)
 
-    rs = sub.add_parser("results", help="result folders: verify DIR (complete and unmodified)")
-    rs.add_argument("action", choices=["verify"])
-    rs.add_argument("folders", nargs="+", metavar="DIR", help="a test's result folder")
-    rs.set_defaults(func=cmd_results)
-
+    _add_results_parser(sub)
     ctl.add_parser(sub)
     modbus.add_parser(sub)
 

@@ -38,14 +38,14 @@ def exposure_warnings(cfg: BenchConfig) -> list[str]:
         )
     m = cfg.modbus_server
     if m is not None and not is_loopback(m.host):
-        what = "Modbus has neither login nor encryption: anyone on the network reads the bench"
+        risk = "Modbus has neither login nor encryption: anyone on the network reads the bench"
         if m.writes:
-            what += (
+            risk += (
                 "; writes are taken from the writers' IP addresses alone, which another host"
                 " can take"
             )
         out.append(
-            f"modbus_server: host {m.host!r} is not loopback: {what}; keep it on a network you"
+            f"modbus_server: host {m.host!r} is not loopback: {risk}; keep it on a network you"
             " trust or set modbus_server.host: 127.0.0.1"
         )
     return out

@@ -151,8 +151,7 @@ def test_supervisor_run_serves_the_api_charges_on_request_and_exits_0_on_sigterm
     data["hmi"]["login"] = False  # its HTTP clients do not log in
     for dev in ("adam", "ea", "bms"):
         data["devices"][dev]["port"] = free_tcp_port()
-    data["opcua"]["port"] = free_tcp_port()
-    data["modbus_server"]["port"] = free_tcp_port()
+    data["opcua"]["port"], data["modbus_server"]["port"] = free_tcp_port(), free_tcp_port()
     # The folders the HTTP loads below come from (it runs in tmp_path: recipes/ is not there).
     data["recipes"] = {"folders": [str(ROOT / "recipes"), str(ROOT / "tests/data/bad_recipes")]}
     io_map = tmp_path / "sim.yaml"
