@@ -60,7 +60,9 @@ async def served(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[tupl
 
 def _selftest(url: str, cwd: Path, *args: str, stdin: str | None = None) -> tuple[int, list[str]]:
     done = supervisor("opcua", "selftest", url, *args, cwd=cwd, stdin=stdin)
-    assert "Traceback" not in done.stderr, done.stderr
+    # One line a check on stdout; nothing else (asyncua's own log of the faults the checks
+    # provoke on purpose is not the integrator's to read).
+    assert done.stderr == "", done.stderr
     return done.returncode, done.stdout.splitlines()
 
 
