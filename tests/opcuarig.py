@@ -274,3 +274,35 @@ class Collector:
 async def eventually(cond: Callable[[], bool], what: str) -> None:
     await wait_until(cond, what)
     await asyncio.sleep(0)
+
+
+# --- node-opcua, the independent client of the interoperability tests -------------------
+INTEROP = Path(__file__).resolve().parent / "interop"
+
+
+def node() -> str:
+    """The ``node`` that runs tests/interop's scripts (with node-opcua-client installed)."""
+    import shutil
+
+    import pytest
+
+    found = shutil.which("node")
+    if found is None or not (INTEROP / "node_modules" / "node-opcua-client").is_dir():
+        pytest.fail(
+            "no node-opcua-client: run the tests with `make test` (it runs `make node_modules`,"
+            " an npm install into tests/interop/node_modules)",
+            pytrace=False,
+        )
+    return found
+
+
+def pem_of(cert_der: Path, pem: Path) -> Path:
+    """A client certificate (DER, as ``client_certificate`` makes it) as PEM, which
+    node-opcua reads."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives.serialization import Encoding
+
+    pem.write_bytes(
+        x509.load_der_x509_certificate(cert_der.read_bytes()).public_bytes(Encoding.PEM)
+    )
+    return pem

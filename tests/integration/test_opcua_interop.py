@@ -11,30 +11,16 @@ from __future__ import annotations
 
 import asyncio
 import json
-import shutil
 from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
 from commandrig import DISCHARGE, recipe
-from cryptography import x509
-from cryptography.hazmat.primitives.serialization import Encoding
-from opcuarig import CLIENT_URI, PASSWORDS, Rig, client_certificate, opcua_rig, trust
+from opcuarig import CLIENT_URI, PASSWORDS, Rig, client_certificate, node, opcua_rig, pem_of, trust
 
 pytestmark = pytest.mark.integration
 INTEROP = Path(__file__).resolve().parents[1] / "interop"
 SCRIPT = INTEROP / "interop.js"
-
-
-def node() -> str:
-    found = shutil.which("node")
-    if found is None or not (INTEROP / "node_modules" / "node-opcua-client").is_dir():
-        pytest.fail(
-            "no node-opcua-client: run the tests with `make test` (it runs `make node_modules`,"
-            " an npm install into tests/interop/node_modules)",
-            pytrace=False,
-        )
-    return found
 
 
 @pytest.fixture(params=[False, True], ids=["thread", "process"])
@@ -51,10 +37,7 @@ async def run_client(rig: Rig, secure: bool, tmp: Path) -> dict[str, object]:
         # On None the certificate is ignored (Part 4 §5.7.2.2): the None case runs with a
         # certificate nobody trusted, as node-opcua's default client comes (issue 31).
         trust(rig, cert_der)
-    cert_pem = tmp / "node-cert.pem"
-    cert_pem.write_bytes(
-        x509.load_der_x509_certificate(cert_der.read_bytes()).public_bytes(Encoding.PEM)
-    )
+    cert_pem = pem_of(cert_der, tmp / "node-cert.pem")
     cfg = {
         "endpoint": rig.server.endpoint,
         "namespace": rig.server.namespace,

@@ -15,16 +15,13 @@ from __future__ import annotations
 
 import asyncio
 import json
-import shutil
 from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
 import pytest_asyncio
 from commandrig import DISCHARGE, recipe
-from cryptography import x509
-from cryptography.hazmat.primitives.serialization import Encoding
-from opcuarig import CLIENT_URI, PASSWORDS, Rig, client_certificate, opcua_rig, trust
+from opcuarig import CLIENT_URI, PASSWORDS, Rig, client_certificate, node, opcua_rig, pem_of, trust
 
 from supervisor.commands import Command, Verb
 from supervisor.publish.historian import StoredSample
@@ -37,17 +34,6 @@ NOT_KEPT = "room.temp"
 # OPC UA DateTime has 100 ns ticks, asyncua's datetime 1 µs: a source time read back by
 # another client is the stored one to within a microsecond (and a float's rounding).
 TIME_TOLERANCE_S = 2e-6
-
-
-def node() -> str:
-    found = shutil.which("node")
-    if found is None or not (INTEROP / "node_modules" / "node-opcua-client").is_dir():
-        pytest.fail(
-            "no node-opcua-client: run the tests with `make test` (it runs `make node_modules`,"
-            " an npm install into tests/interop/node_modules)",
-            pytrace=False,
-        )
-    return found
 
 
 @pytest_asyncio.fixture(loop_scope="module", scope="module")
@@ -75,10 +61,7 @@ async def read_history(rig: Rig, tmp: Path, secure: bool) -> dict[str, object]:
     samples = stored(rig)
     cert_der, key = await client_certificate(tmp, "node")
     trust(rig, cert_der)
-    cert_pem = tmp / "node-cert.pem"
-    cert_pem.write_bytes(
-        x509.load_der_x509_certificate(cert_der.read_bytes()).public_bytes(Encoding.PEM)
-    )
+    cert_pem = pem_of(cert_der, tmp / "node-cert.pem")
     cfg = {
         "endpoint": rig.server.endpoint,
         "namespace": rig.server.namespace,

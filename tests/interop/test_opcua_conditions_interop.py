@@ -27,7 +27,6 @@ from __future__ import annotations
 import asyncio
 import json
 import os
-import shutil
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -35,9 +34,7 @@ from typing import Any
 import pytest
 import pytest_asyncio
 from commandrig import DISCHARGE, recipe
-from cryptography import x509
-from cryptography.hazmat.primitives.serialization import Encoding
-from opcuarig import CLIENT_URI, PASSWORDS, Rig, client_certificate, opcua_rig, trust
+from opcuarig import CLIENT_URI, PASSWORDS, Rig, client_certificate, node, opcua_rig, pem_of, trust
 
 from supervisor.commands import Command, Verb
 
@@ -61,17 +58,6 @@ HISTORY_AGGREGATES = "ns=0;i=11201"  # Server/HistoryServerCapabilities/Aggregat
 NEVER_SENT = "00" * 16
 
 
-def node() -> str:
-    found = shutil.which("node")
-    if found is None or not (INTEROP / "node_modules" / "node-opcua-client").is_dir():
-        pytest.fail(
-            "no node-opcua-client: run the tests with `make test` (it runs `make node_modules`,"
-            " an npm install into tests/interop/node_modules)",
-            pytrace=False,
-        )
-    return found
-
-
 @pytest_asyncio.fixture(loop_scope="module", scope="module")
 async def rig(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[Rig]:
     tmp = tmp_path_factory.mktemp("interop-conditions")
@@ -93,10 +79,7 @@ async def client(rig: Rig, *actions: dict[str, Any], user: str = "alice") -> lis
     cert_der, key = await client_certificate(tmp, "node")
     # Trusted: the None endpoint's handling of a client certificate is finding 1's.
     trust(rig, cert_der)
-    cert_pem = tmp / "node-cert.pem"
-    cert_pem.write_bytes(
-        x509.load_der_x509_certificate(cert_der.read_bytes()).public_bytes(Encoding.PEM)
-    )
+    cert_pem = pem_of(cert_der, tmp / "node-cert.pem")
     cfg = {
         "endpoint": rig.server.endpoint,
         "namespace": rig.server.namespace,

@@ -22,14 +22,11 @@ import asyncio
 import hashlib
 import json
 import logging
-import shutil
 from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
-from cryptography import x509
-from cryptography.hazmat.primitives.serialization import Encoding
-from opcuarig import CLIENT_URI, Rig, client_certificate, opcua_rig, trust
+from opcuarig import CLIENT_URI, Rig, client_certificate, node, opcua_rig, pem_of, trust
 
 pytestmark = pytest.mark.integration
 INTEROP = Path(__file__).resolve().parent
@@ -46,17 +43,6 @@ MAX_CONNECT_MS = 5000
 """How long the subscription is watched while the other client browses."""
 
 
-def node() -> str:
-    found = shutil.which("node")
-    if found is None or not (INTEROP / "node_modules" / "node-opcua-client").is_dir():
-        pytest.fail(
-            "no node-opcua-client: run the tests with `make test` (it runs `make node_modules`,"
-            " an npm install into tests/interop/node_modules)",
-            pytrace=False,
-        )
-    return found
-
-
 @pytest.fixture
 async def rig(tmp_path: Path) -> AsyncIterator[Rig]:
     async with opcua_rig(tmp_path) as r:
@@ -66,10 +52,7 @@ async def rig(tmp_path: Path) -> AsyncIterator[Rig]:
 async def start(rig: Rig, tmp: Path, check: str, **extra: object) -> asyncio.subprocess.Process:
     """services.js's ``check`` against ``rig`` with a client certificate nobody trusted."""
     cert_der, key = await client_certificate(tmp, "node")
-    cert_pem = tmp / "node-cert.pem"
-    cert_pem.write_bytes(
-        x509.load_der_x509_certificate(cert_der.read_bytes()).public_bytes(Encoding.PEM)
-    )
+    cert_pem = pem_of(cert_der, tmp / "node-cert.pem")
     cfg = {
         "check": check,
         "endpoint": rig.server.endpoint,

@@ -23,7 +23,6 @@ import json
 import logging
 import math
 import random
-import shutil
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,9 +30,7 @@ from typing import Any
 
 import pytest
 import pytest_asyncio
-from cryptography import x509
-from cryptography.hazmat.primitives.serialization import Encoding
-from opcuarig import CLIENT_URI, PASSWORDS, Rig, client_certificate, opcua_rig, trust
+from opcuarig import CLIENT_URI, PASSWORDS, Rig, client_certificate, node, opcua_rig, pem_of, trust
 
 from supervisor.app import Bench
 from supervisor.core.quality import Quality
@@ -66,17 +63,6 @@ ITEMS: list[dict[str, Any]] = [
 ]
 LAST = {"ramp_abs": -0.35, "ramp_pct": -0.35, "noise_abs": 1.95, "noise_pct": 1.95}
 LAST |= {"count_abs": 200, "count_source": 200, "count_neither": 200}
-
-
-def node() -> str:
-    found = shutil.which("node")
-    if found is None or not (INTEROP / "node_modules" / "node-opcua-client").is_dir():
-        pytest.fail(
-            "no node-opcua-client: run the tests with `make test` (it runs `make node_modules`,"
-            " an npm install into tests/interop/node_modules)",
-            pytrace=False,
-        )
-    return found
 
 
 def part4(samples: list[float], deadband: float) -> list[float]:
@@ -169,10 +155,7 @@ async def seen(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[Seen]:
 async def drive(rig: Rig, tmp: Path) -> Seen:
     cert_der, key = await client_certificate(tmp, "node")
     trust(rig, cert_der)  # finding 1 (the None endpoint and certificates) is not this file's
-    cert_pem = tmp / "node-cert.pem"
-    cert_pem.write_bytes(
-        x509.load_der_x509_certificate(cert_der.read_bytes()).public_bytes(Encoding.PEM)
-    )
+    cert_pem = pem_of(cert_der, tmp / "node-cert.pem")
     cfg = {
         "endpoint": rig.server.endpoint,
         "namespace": rig.server.namespace,

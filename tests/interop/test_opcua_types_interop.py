@@ -15,16 +15,13 @@ import asyncio
 import dataclasses
 import json
 import re
-import shutil
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 import pytest_asyncio
-from cryptography import x509
-from cryptography.hazmat.primitives.serialization import Encoding
-from opcuarig import CLIENT_URI, PASSWORDS, Rig, client_certificate, opcua_rig, trust
+from opcuarig import CLIENT_URI, PASSWORDS, Rig, client_certificate, node, opcua_rig, pem_of, trust
 
 from supervisor.publish.opcua.settings import Identification, OpcUaSettings
 
@@ -45,17 +42,6 @@ IDENTIFICATION = Identification(
 ANALOG = ("ch0.manual_current", "ch2.manual_current", "ch0.voltage", "ch0.current", "ch0.power")
 
 
-def node() -> str:
-    found = shutil.which("node")
-    if found is None or not (INTEROP / "node_modules" / "node-opcua-client").is_dir():
-        pytest.fail(
-            "no node-opcua-client: run the tests with `make test` (it runs `make node_modules`,"
-            " an npm install into tests/interop/node_modules)",
-            pytrace=False,
-        )
-    return found
-
-
 def identified(s: OpcUaSettings) -> OpcUaSettings:
     return dataclasses.replace(s, identification=IDENTIFICATION)
 
@@ -72,10 +58,7 @@ async def seen(rig: Rig, tmp_path_factory: pytest.TempPathFactory) -> dict[str, 
     tmp = tmp_path_factory.mktemp("node-types")
     cert_der, key = await client_certificate(tmp, "node")
     trust(rig, cert_der)
-    cert_pem = tmp / "node-cert.pem"
-    cert_pem.write_bytes(
-        x509.load_der_x509_certificate(cert_der.read_bytes()).public_bytes(Encoding.PEM)
-    )
+    cert_pem = pem_of(cert_der, tmp / "node-cert.pem")
     cfg = {
         "endpoint": rig.server.endpoint,
         "namespace": rig.server.namespace,
