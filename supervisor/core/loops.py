@@ -11,12 +11,19 @@ once after the selector's wait, before them.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import contextvars
+import logging
 import selectors
+import threading
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["HookedLoop"]
+from supervisor.core.gate import ScanGate
+
+log = logging.getLogger(__name__)
+
+__all__ = ["GatedLoop", "HookedLoop", "await_thread_end"]
 
 
 class HookedLoop(asyncio.SelectorEventLoop):
@@ -64,3 +71,42 @@ class _HookedSelector(selectors.DefaultSelector):
         ready: list[tuple[selectors.SelectorKey, int]] = super().select(timeout)
         self._loop.before()  # before the I/O callbacks of this turn
         return ready
+
+
+class GatedLoop(HookedLoop):
+    """A server thread's event loop (OPC UA on a thread, Modbus TCP): after each wait for
+    I/O and before every callback it waits while a scan runs (``core/gate.py``), so the
+    server's work runs between scans. One turn of the loop runs every callback that is
+    ready then (a dozen of 0.5–2 ms each with 10 subscribed OPC UA clients): waiting only
+    after the ``select``, a scan that began during the first met the others taking the
+    interpreter lock from it (issue 13)."""
+
+    def __init__(self, gate: ScanGate) -> None:
+        super().__init__()
+        self._gate = gate
+
+    def before(self) -> None:
+        gate = self._gate
+        if not gate.is_open:
+            gate.wait()
+
+
+async def await_thread_end(
+    done: concurrent.futures.Future[None] | None,
+    thread: threading.Thread | None,
+    timeout_s: float,
+    what: str,
+) -> None:
+    """Wait (from the bench's loop) for a server thread's ``done`` and join the thread;
+    a server that does not end in ``timeout_s``, or ends with an error, is logged, never
+    raised: the bench's stop goes on."""
+    if done is None:
+        return
+    try:
+        await asyncio.wait_for(asyncio.shield(asyncio.wrap_future(done)), timeout_s)
+    except TimeoutError:
+        log.error("%s did not stop within %g s", what, timeout_s)
+    except Exception:
+        log.exception("%s ended with an error", what)
+    if thread is not None:
+        await asyncio.to_thread(thread.join, timeout_s)

@@ -14,9 +14,9 @@ import pytest
 
 from supervisor.core.clock import RealClock
 from supervisor.core.gate import ScanGate
+from supervisor.core.loops import GatedLoop
 from supervisor.publish.influx.spool import Spool
 from supervisor.publish.influx.writer import SpoolWriter
-from supervisor.publish.opcua.server import GatedLoop
 from supervisor.publish.results import SummaryWriter
 from supervisor.publish.retain import RetainStore
 from supervisor.publish.rows import RowWriter

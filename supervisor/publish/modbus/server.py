@@ -46,7 +46,7 @@ from pymodbus.transaction import TransactionManager
 
 from supervisor.core.driver import Value
 from supervisor.core.gate import ScanGate
-from supervisor.core.loops import HookedLoop
+from supervisor.core.loops import GatedLoop, await_thread_end
 from supervisor.publish.changes import ChangeBatch, ChangeSnapshots, ChangeSource
 from supervisor.publish.modbus.image import Decoded, RegisterImage, decode, encode
 from supervisor.publish.modbus.regmap import REFUSALS, Point, RegisterMap, Table
@@ -377,24 +377,14 @@ class ModbusServer:
         self.feed.take()
 
     async def _wait_done(self) -> None:
-        done = self._done
-        if done is None:
-            return
-        try:
-            await asyncio.wait_for(asyncio.shield(asyncio.wrap_future(done)), STOP_TIMEOUT_S)
-        except TimeoutError:
-            log.error("Modbus server did not stop within %g s", STOP_TIMEOUT_S)
-        except Exception:
-            log.exception("Modbus server ended with an error")
-        if self._thread is not None:
-            await asyncio.to_thread(self._thread.join, STOP_TIMEOUT_S)
-            self._thread = None
+        await await_thread_end(self._done, self._thread, STOP_TIMEOUT_S, "Modbus server")
+        self._thread = None
         self._done = None
 
     # --- the server's thread ----------------------------------------------------------------
     def _thread_main(self, ready: concurrent.futures.Future[None]) -> None:
         gate = self.gate
-        factory = None if gate is None else (lambda: _GatedLoop(gate))
+        factory = None if gate is None else (lambda: GatedLoop(gate))
         try:
             with asyncio.Runner(loop_factory=factory) as runner:
                 runner.run(self._main(ready))
@@ -543,17 +533,3 @@ def _quiet_pymodbus() -> None:
     pm = logging.getLogger("pymodbus.logging")  # pymodbus's one logger (``pymodbus.logging.Log``)
     if _FILTER not in pm.filters:
         pm.addFilter(_FILTER)
-
-
-class _GatedLoop(HookedLoop):
-    """The server's event loop: before each callback and after each wait for I/O it waits
-    while a scan runs (``core/gate.py``), so its requests are served between scans."""
-
-    def __init__(self, gate: ScanGate) -> None:
-        super().__init__()
-        self._gate = gate
-
-    def before(self) -> None:
-        gate = self._gate
-        if not gate.is_open:
-            gate.wait()

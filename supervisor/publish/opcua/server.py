@@ -40,7 +40,7 @@ from supervisor.config.users import ROLE_ACCESS, UserStore
 from supervisor.core.clock import Clock
 from supervisor.core.gate import ScanGate
 from supervisor.core.logins import LoginThrottle
-from supervisor.core.loops import HookedLoop
+from supervisor.core.loops import GatedLoop, await_thread_end
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
 from supervisor.publish.historian import HistoryQuery
@@ -195,18 +195,8 @@ class OpcUaServer:
         await self._wait_done()
 
     async def _wait_done(self) -> None:
-        done = self._done
-        if done is None:
-            return
-        try:
-            await asyncio.wait_for(asyncio.shield(asyncio.wrap_future(done)), STOP_TIMEOUT_S)
-        except TimeoutError:
-            log.error("OPC UA server did not stop within %g s", STOP_TIMEOUT_S)
-        except Exception:
-            log.exception("OPC UA server ended with an error")
-        if self._thread is not None:
-            await asyncio.to_thread(self._thread.join, STOP_TIMEOUT_S)
-            self._thread = None
+        await await_thread_end(self._done, self._thread, STOP_TIMEOUT_S, "OPC UA server")
+        self._thread = None
         self._task = None
 
     async def _call_bench(self, fn: Callable[[], T]) -> T:
@@ -1031,22 +1021,3 @@ def _not_a_condition(parent: ua.NodeId, n_args: int) -> ua.CallMethodResult:
     Bad_MethodInvalid (the method is not one of that object's)."""
     status = S.BadNodeIdInvalid if parent.NamespaceIndex == 0 else S.BadMethodInvalid
     return _result(status, f"{parent.to_string()} is not an alarm", n_args)
-
-
-class GatedLoop(HookedLoop):
-    """The OPC UA thread's event loop: after each wait for I/O and before every callback
-    it waits while a scan runs (``core/gate.py``), so the server's work (sampled values
-    into the address space, notifications to the clients' subscriptions) runs between
-    scans. One turn of the loop runs every callback that is ready then (a dozen of
-    0.5–2 ms each with 10 subscribed clients): waiting only after the ``select``, a scan
-    that began during the first met the others taking the interpreter lock from it
-    (issue 13)."""
-
-    def __init__(self, gate: ScanGate) -> None:
-        super().__init__()
-        self._gate = gate
-
-    def before(self) -> None:
-        gate = self._gate
-        if not gate.is_open:
-            gate.wait()
