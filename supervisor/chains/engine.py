@@ -477,13 +477,11 @@ class ChainRunner:
             self._alarm(why)
             self._set_state(State.HOLDING, why)
             return False
-        # The interlock's text, stamped when it holds the same (``db.update`` would leave
-        # the tag so).
+        # The interlock's text: an update only when it would change the tag (an unchanged
+        # one is left as it is, ADR 0037; no call most scans).
         text = "" if step.interlock is None else rules.interlock(step, values)
         tag = self._interlock_tag
-        if text == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-            self.db.stamp(tag)
-        else:
+        if text != tag.value or tag.quality is not _GOOD or tag.reason is not _NONE:
             self.db.update(tag, text)
         if self._pending_advance:
             self._pending_advance = False
@@ -683,6 +681,29 @@ class ChainRunner:
             cv = self._behaviours[index].cv_target_v
         self.port.request(amps, cv, running)
 
+    _held_writes: tuple[CompiledStep | None, int, tuple[tuple[Tag, Value | None], ...]] = (
+        None,
+        0,
+        (),
+    )
+    """The steady scan's writes that ``step`` and its cycle fix: (step, cycle, pairs)."""
+
+    def _step_writes(
+        self, step: CompiledStep, cycle: int
+    ) -> tuple[CompiledStep, int, tuple[tuple[Tag, Value | None], ...]]:
+        """The pairs of ``_steady_outputs`` that ``step`` and ``cycle`` fix, in its order:
+        active, the CV target, the step, its number, the cycle (no tuples made a scan)."""
+        port = self.port
+        t_step, t_index, t_cycle = self._publish_tags[:3]
+        pairs: tuple[tuple[Tag, Value | None], ...] = (
+            (port.auto_active, True),
+            (port.auto_voltage, self._behaviours[step.index].cv_target_v),
+            (t_step, step.id),
+            (t_index, step.index + 1),
+            (t_cycle, cycle),
+        )
+        return step, cycle, pairs
+
     def _steady_outputs(
         self, now: float, r: RunState, program: Program, step: CompiledStep
     ) -> None:
@@ -702,17 +723,16 @@ class ChainRunner:
         # alarm latched: active) and what ``_publish`` of a running step writes: the step,
         # its number and the cycle (the same but after an event, which leaves the steady
         # way), the clocks, the progress, the test's charge.
-        t_step, t_index, t_cycle, t_step_time, t_test_time = self._publish_tags
+        clocks = self._publish_tags  # step time and test time: its last two
         elapsed_s = now - r.t_test0
+        held = self._held_writes  # the pairs a step and its cycle fix, made once for them
+        if held[0] is not step or held[1] != r.cycle:
+            held = self._held_writes = self._step_writes(step, r.cycle)
         writes: list[tuple[Tag, Value | None]] = [
             (port.auto_current, amps),
-            (port.auto_active, True),
-            (port.auto_voltage, behaviour.cv_target_v),
-            (t_step, step.id),
-            (t_index, index + 1),
-            (t_cycle, r.cycle),
-            (t_step_time, now - r.t_step0),
-            (t_test_time, elapsed_s),
+            *held[2],
+            (clocks[3], now - r.t_step0),
+            (clocks[4], elapsed_s),
         ]
         # ``self.progress.shown`` of an active test, inline (the same expressions, with
         # ``min(1.0, x)`` and ``max(0.0, x)`` as conditional ones: the same answers, NaN

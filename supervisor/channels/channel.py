@@ -342,12 +342,20 @@ class Channel:
             dq_ah = i_prev * dt / 3600.0
             # The side counters only grow: charged what went in, discharged what came out.
             side_ah = self.charged_ah if dq_ah >= 0 else self.discharged_ah
-            moves = [(self.charge_ah, dq_ah), (side_ah, abs(dq_ah))]
-            if p_prev is not None:
+            # Each: update(tag, tag.as_float() + delta); one literal (no list grown).
+            if p_prev is None:
+                self.db.add_many(((self.charge_ah, dq_ah), (side_ah, abs(dq_ah))))
+            else:
                 de_wh = p_prev * dt / 3600.0
                 side_wh = self.charged_wh if de_wh >= 0 else self.discharged_wh
-                moves += [(self.energy_wh, de_wh), (side_wh, abs(de_wh))]
-            self.db.add_many(moves)  # each: update(tag, tag.as_float() + delta)
+                self.db.add_many(
+                    (
+                        (self.charge_ah, dq_ah),
+                        (side_ah, abs(dq_ah)),
+                        (self.energy_wh, de_wh),
+                        (side_wh, abs(de_wh)),
+                    )
+                )
         current = self.current
         self._prev_i = current.number if current.quality is _GOOD else None
 

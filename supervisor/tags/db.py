@@ -91,7 +91,24 @@ def _number(value: Value | None) -> float:
     return 0.0
 
 
+def _as_float_value(
+    value: Value, quality: Quality, reason: Reason
+) -> tuple[float | None, Quality, Reason]:
+    """What a float tag stores of a value that is not a float: the float it converts to
+    (BAD, out of range, when not finite), or None, BAD, a configuration error."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        # A driver or logic handing over the wrong type is a fault, not a crash.
+        return None, Quality.BAD, Reason.CONFIG_ERROR
+    if number - number != 0.0:
+        return number, Quality.BAD, Reason.OUT_OF_RANGE
+    return number, quality, reason
+
+
 _NUMBER = (int, float)
+_INT_AS_FLOAT = 2**1023
+"""An int strictly within this bound converts to a float without overflow."""
 
 
 class TagDB:
@@ -156,6 +173,12 @@ class TagDB:
     ) -> bool:
         """Set value and quality from the process side; returns True if anything changed.
 
+        The source time (ADR 0037): ``source_t`` when given (a device's sample time, every
+        sample, changed or not); else this scan's time when the value, quality or reason
+        changes, and unchanged when they do not: what the logic computes carries the time
+        it last changed (OPC UA Part 4 §7.11.3: "the time of the last change of the value
+        or statusCode"), not the last scan that computed it again.
+
         A forced tag ignores the process value (commissioning override) but keeps
         its forced value and says so.
         """
@@ -169,25 +192,28 @@ class TagDB:
                 if value - value != 0.0:
                     quality, reason = Quality.BAD, Reason.OUT_OF_RANGE
             elif value is not None:
-                try:
-                    value = float(value)
-                except (TypeError, ValueError):
-                    # A driver or logic handing over the wrong type is a fault, not a crash.
-                    value, quality, reason = None, Quality.BAD, Reason.CONFIG_ERROR
-                else:
-                    if value - value != 0.0:
-                        quality, reason = Quality.BAD, Reason.OUT_OF_RANGE
-        tag.source_t = self.scan_t if source_t is None else source_t
+                value, quality, reason = _as_float_value(value, quality, reason)
         if value != tag.value or quality is not tag.quality or reason is not tag.reason:
+            scan_t = self.scan_t
+            tag.source_t = scan_t if source_t is None else source_t
             tag.value = value
-            tag.number = value if type(value) is float else _number(value)
+            # An int (a counter, every scan) without ``_number``'s call.
+            if type(value) is float:
+                tag.number = value
+            elif type(value) is int and -_INT_AS_FLOAT < value < _INT_AS_FLOAT:
+                tag.number = float(value)
+            else:
+                tag.number = _number(value)
             tag.quality = quality
             tag.reason = reason
-            tag.server_t = self.scan_t
+            tag.server_t = scan_t
             self.version = version = self.version + 1
             tag.version = version
             self._order.move_to_end(tag.index)
             return True
+        if source_t is not None:
+            # The source gave the same value again, at ``source_t`` (a device's new sample).
+            tag.source_t = source_t
         return False
 
     def update_many(self, writes: Iterable[tuple[Tag, Value | None]]) -> None:
@@ -196,10 +222,11 @@ class TagDB:
 
         For the outputs a phase writes every scan (the channel's commands, the guard's
         trips and limits, a step chain's request and clocks), most of them unchanged: a
-        tag that already holds its value, GOOD and without a reason, only has its source
-        time moved, as its update would (a GOOD float tag holds a finite float); a float
-        tag given a new finite float takes it as its update would; both here rather than
-        in one ``update`` call each (issue 29: a profile of the dry run).
+        tag that already holds its value, GOOD and without a reason, is left as it is, as
+        its update would leave it (a GOOD float tag holds a finite float; its source time
+        says when it last changed, ADR 0037); a float tag given a new finite float takes
+        it as its update would; both here rather than in one ``update`` call each
+        (issue 29: a profile of the dry run).
         ``test_tagdb_update_many.py`` proves it equal to the updates one by one for every
         kind of tag and value."""
         scan_t = self.scan_t
@@ -207,8 +234,8 @@ class TagDB:
             if tag.forced:
                 continue  # ``update`` leaves a forced tag as it is
             if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
-                tag.source_t = scan_t
-            elif type(value) is float and value - value == 0.0:
+                continue  # unchanged: ``update`` leaves it as it is
+            if type(value) is float and value - value == 0.0:
                 # ``update`` of a finite float, inline (any tag: a float tag takes it as it
                 # is, GOOD, and so does every other): it changes the tag (its value,
                 # quality or reason differs: the test above).
@@ -235,25 +262,25 @@ class TagDB:
                 if type(value) is float and value - value == 0.0:
                     # ``update`` of a finite float, inline (any tag: a float tag takes it
                     # as it is, GOOD, and so does every other).
-                    tag.source_t = scan_t
                     if value != v or tag.quality is not _GOOD or tag.reason is not _NONE:
                         tag.value = tag.number = value
                         tag.quality = _GOOD
                         tag.reason = _NONE
-                        tag.server_t = scan_t
+                        tag.source_t = tag.server_t = scan_t
                         self.version = tag.version = self.version + 1
                         self._order.move_to_end(tag.index)
                     continue
             self.update(tag, tag.as_float() + delta)
 
-    def stamp(self, tag: Tag, source_t: float | None = None) -> None:
-        """The source says the tag's value still holds: its source time moves to
-        ``source_t`` (None: this scan's time), nothing else, as an :meth:`update` with the
-        value, quality and reason the tag has does (a forced tag keeps everything). For a
-        caller that knows nothing else changed: a third of an update's work (issue 13:
-        half the updates of a dry run's scan changed only the source time)."""
+    def stamp(self, tag: Tag, source_t: float) -> None:
+        """The source says the tag's value still holds at ``source_t`` (a device's new
+        sample that read the same): its source time moves there, nothing else, as an
+        :meth:`update` with the value, quality and reason the tag has and this source time
+        does (a forced tag keeps everything). For a caller that knows nothing else
+        changed: a third of an update's work (issue 13: half the updates of a dry run's
+        scan changed only the source time)."""
         if not tag.forced:
-            tag.source_t = self.scan_t if source_t is None else source_t
+            tag.source_t = source_t
 
     def set_quality(self, tag: Tag, quality: Quality, reason: Reason) -> bool:
         return self.update(tag, tag.value, quality, reason, tag.source_t)

@@ -401,11 +401,12 @@ def test_a_scripted_run_leaves_every_tag_as_the_plain_scan_does(name: str) -> No
     compare(lambda fast: Bench(recipe, fast, None), script)
 
 
-def test_a_quiet_run_takes_the_steady_way_and_stamps_the_tags_that_hold(
+def test_a_quiet_run_takes_the_steady_way_and_leaves_the_tags_that_hold_as_they_are(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """Not a promise of speed: a guard that the short way is the one taken (else the test
-    above compares the plain scan with itself)."""
+    above compares the plain scan with itself). A tag that holds keeps the time it last
+    changed (ADR 0037)."""
     bench = Bench("steady", True, None)
     taken: list[float] = []
     original = ChainRunner._steady_running
@@ -417,11 +418,11 @@ def test_a_quiet_run_takes_the_steady_way_and_stamps_the_tags_that_hold(
     monkeypatch.setattr(ChainRunner, "_steady_running", spy)
     step = bench.db["ch0.chain.step"]
     bench.scan(1.0)  # the first scan publishes the step
-    version = step.version
+    version, changed_t = step.version, step.source_t
     for _ in range(3):
         bench.scan(1.0)
     assert taken == [1.0, 2.0, 3.0, 4.0]
-    assert (step.value, step.version, step.source_t) == ("charge", version, 4.0)
+    assert (step.value, step.version, step.source_t) == ("charge", version, changed_t)
 
 
 # --- condition values ---------------------------------------------------------------------

@@ -432,7 +432,8 @@ FORCED: dict[str, Any] = {"float": 1.5, "int": 2, "bool": True, "str": "idle"}
 def test_a_stamp_is_an_update_that_changes_nothing(dtype: str, steps: list[Any]) -> None:
     """What the call sites that stamp rely on: when the value equals a GOOD, reason-less
     tag's value (a float tag's is then finite), the update would change nothing but the
-    source time; and ``stamp`` does just that, forced or not."""
+    source time it is given (nothing at all without one: ADR 0037); and ``stamp`` does
+    just that, forced or not."""
     db, ref = TagDB(), TagDB()
     spec = TagSpec("t", dtype=dtype)  # type: ignore[arg-type]
     tag, twin = db.add(spec), ref.add(spec)
@@ -446,7 +447,8 @@ def test_a_stamp_is_an_update_that_changes_nothing(dtype: str, steps: list[Any])
                 else:
                     d.unforce("t")
         if value == tag.value and tag.quality is Quality.GOOD and tag.reason is Reason.NONE:
-            db.stamp(tag, source_t)
+            if source_t is not None:
+                db.stamp(tag, source_t)
             assert ref.update(twin, value, Quality.GOOD, Reason.NONE, source_t) is False
         else:
             db.update(tag, value, quality, reason, source_t)

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from supervisor.core.quality import Quality, Reason
 from supervisor.safety.alarms import Alarm
 from supervisor.tags import Tag, TagDB, TagSpec
 
@@ -173,6 +174,29 @@ def test_a_stamp_moves_only_the_source_time_of_a_tag_that_is_not_forced(forced: 
     before = (tag.value, tag.quality, tag.reason, tag.server_t, tag.version, db.version)
     source_t = tag.source_t
     db.set_scan_time(2.0)
-    db.stamp(tag)
+    db.stamp(tag, 2.0)
     assert (tag.value, tag.quality, tag.reason, tag.server_t, tag.version, db.version) == before
     assert tag.source_t == (source_t if forced else 2.0)
+
+
+def test_an_output_that_holds_keeps_the_time_it_last_changed_an_input_its_samples() -> None:
+    """ADR 0037 (OPC UA Part 4 §7.11.3: the source time is "the time of the last change of
+    the value or statusCode"): written again unchanged, by any of the writes the logic
+    uses, a tag keeps its source time; a change, of value or quality, moves it; a source
+    time given (a device's sample) is taken, changed or not."""
+    db = TagDB()
+    out, counter, inp = db.add(TagSpec("out")), db.add(TagSpec("counter")), db.add(TagSpec("in"))
+    db.set_scan_time(1.0)
+    db.update(out, 0.5)
+    db.update_many([(counter, 2.0)])
+    db.update(inp, 3.0, source_t=0.9)
+    db.set_scan_time(2.0)
+    db.update(out, 0.5)
+    db.update_many([(out, 0.5)])
+    db.add_many([(counter, 0.0)])
+    db.update(inp, 3.0, source_t=1.9)
+    assert (out.source_t, counter.source_t, inp.source_t) == (1.0, 1.0, 1.9)
+    db.set_scan_time(3.0)
+    db.update(out, 0.5, Quality.UNCERTAIN, Reason.LAST_KNOWN)
+    db.add_many([(counter, 1.0)])
+    assert (out.source_t, counter.source_t, counter.value) == (3.0, 3.0, 3.0)

@@ -182,7 +182,7 @@ def test_a_source_time_that_moved_without_a_new_version_is_shown_as_it_is_now(
     db.set_scan_time(virtual_clock.now())
     version = db.version
     for t in db:  # a poll that found the same values: no new version, a new source time
-        db.update(t, t.value)
+        db.update(t, t.value, source_t=db.scan_t)
     assert db.version == version
     text = asyncio.run(fragments.encode(db))
     assert text == _list_text(db, virtual_clock)
