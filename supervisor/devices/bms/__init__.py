@@ -56,6 +56,7 @@ def _driver(name: str, dev: BmsDevice, wiring: DriverWiring) -> Driver:
         factory,
         poll_period_s=dev.poll_period_s,
         stale_factor=dev.stale_factor,
+        allow_extra_bytes=dev.allow_extra_bytes,
     )
 
 
