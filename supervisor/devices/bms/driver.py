@@ -27,9 +27,9 @@ identifier with its raw bytes, and otherwise ignored: the previous value ages in
 
 A bus on which nothing at all arrives for ``silence_timeout_s`` (default: ``stale_factor`` ×
 the longest period, when every value is stale anyway) is treated as a lost link: the poll
-fails (BAD/comm failure) and the bus is reopened with backoff. That is what makes a
-socketcand client recover: python-can's client cannot tell a closed connection from a quiet
-one (``recv`` just returns ``None``).
+fails (BAD/comm failure) and the bus is reopened with backoff: a CAN interface that went
+down behind a socketcand daemon, or an adapter that stopped, says nothing else. (A daemon
+that closes the connection is seen at once: the socketcand bus raises.)
 """
 
 from __future__ import annotations
@@ -38,7 +38,6 @@ import asyncio
 import concurrent.futures
 import contextlib
 import logging
-import socket
 import threading
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -63,6 +62,7 @@ from supervisor.devices.bms.protocol import (
     implausible,
     period_s,
 )
+from supervisor.fieldbus.socketcand import SocketcandBus
 
 log = logging.getLogger(__name__)
 
@@ -353,18 +353,14 @@ def socketcand_bus_factory(
     port: int,
     channel: str = "can0",
     *,
-    probe_timeout_s: float = 1.0,
+    connect_timeout_s: float = 1.0,
 ) -> Callable[[], can.BusABC]:
-    """A ``bus_factory`` for python-can's socketcand client.
-
-    The client retries ``connect()`` in a busy loop for 10 s when nobody listens; a plain TCP
-    probe first makes a server that is down fail fast (the driver then backs off).
-    """
+    """A ``bus_factory`` for a socketcand daemon, read as a stream
+    (:class:`~supervisor.fieldbus.socketcand.SocketcandBus`: python-can's own client breaks
+    when the daemon sends a frame in the same segment as its ``< ok >``, issue 32)."""
 
     def factory() -> can.BusABC:
-        with socket.create_connection((host, port), timeout=probe_timeout_s):
-            pass
-        return can.Bus(interface="socketcand", channel=channel, host=host, port=port)
+        return SocketcandBus(channel, host, port, connect_timeout_s=connect_timeout_s)
 
     return factory
 
