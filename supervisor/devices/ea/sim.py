@@ -337,7 +337,6 @@ class EaSimulator:
             ("MEAS:POW", True): lambda c: f"{self._measure().power_w:.2f} W",
             ("MEAS:ARR", True): lambda c: format_meas_array(self._measure()),
             ("SYST:ERR", True): self._err,
-            ("SYST:ERR:NEXT", True): self._err,
             ("STAT:QUES:COND", True): lambda c: str(self._ques),
             ("STAT:OPER:COND", True): lambda c: str(self._oper()),
             (WATCHDOG_TIME_HEADER, False): self._mon_tim,
