@@ -31,8 +31,11 @@ from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 from supervisor.core.logrepeat import RepeatFilter
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
     from supervisor.app.service import Supervisor
     from supervisor.config.models import BenchConfig
+    from supervisor.core.units import Dim
 
 log = logging.getLogger("supervisor")
 
@@ -322,41 +325,86 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 # --- check ---------------------------------------------------------------------------
-def _check_one(
-    path: Path, warnings: list[str] | None = None
-) -> tuple[list[ConfigError], tuple[ConfigError, ...]]:
-    """The errors of one file, a recipe's warnings (a parameter nothing reads); an I/O
-    map's network exposure appended to ``warnings``. Each kind of file imports only what
-    checks it: a recipe neither the device kinds nor the I/O map's models (issue 30)."""
-    from supervisor.config.yamlpos import load_yaml
+Checked = tuple[list[ConfigError], tuple[ConfigError, ...], list[str]]
+"""A file's errors, a recipe's warnings (a parameter nothing reads), an I/O map's network
+exposure (warnings too)."""
+
+
+def _check_map(path: Path, tags: dict[str, Dim]) -> Checked:
+    """An I/O map's errors and exposure; its tags' dimensions added to ``tags``."""
+    from supervisor.config.exposure import exposure_warnings
+    from supervisor.devices.registry import load_bench
 
     try:
-        data, pos = load_yaml(path)
-        if isinstance(data, dict) and "recipe" in data:
-            from supervisor.chains.compiler import compile_recipe
-            from supervisor.config.recipe import recipe_of
-
-            # The document parsed above, not the file read again (load_recipe's checks).
-            recipe = recipe_of(data, pos, str(path))
-            return [], compile_recipe(recipe, pos, str(path)).warnings
-        from supervisor.config.exposure import exposure_warnings
-        from supervisor.devices.registry import load_bench
-
         cfg = load_bench(path)
-        if warnings is not None:
-            warnings.extend(exposure_warnings(cfg))
     except ConfigErrors as exc:
-        return exc.errors, ()
+        return exc.errors, (), []
+    tags.update(_tag_dims(cfg))
+    return [], (), exposure_warnings(cfg)
+
+
+def _tag_dims(cfg: BenchConfig) -> dict[str, Dim]:
+    """The dimension of each tag an I/O map maps (what a recipe's condition may compare it
+    with), as the bench it builds gives them (``Bench.tag_dims``)."""
+    from supervisor.core.units import UNITS, Dim
+
+    out: dict[str, Dim] = {}
+    for m in cfg.tags:
+        info = cfg.devices[m.device].points().get(m.point)
+        if m.threshold is not None or (info is not None and info.dtype == "bool"):
+            out[m.name] = Dim.BOOL
+        elif info is not None and info.dtype in ("float", "int"):
+            dim, factor = UNITS.get(m.unit, (Dim.NONE, 1.0))
+            out[m.name] = dim if factor == 1.0 else Dim.NONE
+    return out
+
+
+def _check_recipe(path: Path, data: Any, pos: Any, tags: Mapping[str, Dim]) -> Checked:
+    """A recipe's errors and warnings; the bench tags it may name: ``tags``."""
+    from supervisor.chains.compiler import Target, compile_recipe
+    from supervisor.config.recipe import recipe_of
+
+    try:
+        # The document parsed once (load_recipe's checks), not the file read again.
+        recipe = recipe_of(data, pos, str(path))
+        target = Target(tags=tags) if tags else None
+        return [], compile_recipe(recipe, pos, str(path), target).warnings, []
+    except ConfigErrors as exc:
+        return exc.errors, (), []
     except ConfigError as exc:
-        return [exc], ()
-    return [], ()
+        return [exc], (), []
+
+
+def check_files(paths: Sequence[Path]) -> list[Checked]:
+    """Each file's :data:`Checked`, in order. The I/O maps first: a recipe may name the tags
+    of the maps checked with it (``supervisor check io_maps/sim.yaml recipes/x.yaml``: a
+    condition on ``bms.cell_max``). Each kind of file imports only what checks it: a recipe
+    neither the device kinds nor the I/O map's models (issue 30)."""
+    from supervisor.config.yamlpos import load_yaml
+
+    out: dict[int, Checked] = {}
+    recipes: list[tuple[int, Any, Any]] = []
+    tags: dict[str, Dim] = {}
+    for k, path in enumerate(paths):
+        try:
+            data, pos = load_yaml(path)
+        except ConfigError as exc:
+            out[k] = ([exc], (), [])
+            continue
+        if isinstance(data, dict) and "recipe" in data:
+            recipes.append((k, data, pos))
+        else:
+            out[k] = _check_map(path, tags)
+    for k, data, pos in recipes:
+        out[k] = _check_recipe(paths[k], data, pos, tags)
+    return [out[k] for k in range(len(paths))]
 
 
 def cmd_check(args: argparse.Namespace) -> int:
     bad = 0
-    for f in args.files:
-        exposure: list[str] = []
-        errors, warnings = _check_one(Path(f), exposure)
+    for f, (errors, warnings, exposure) in zip(
+        args.files, check_files([Path(f) for f in args.files]), strict=True
+    ):
         for w in warnings:
             _err(f"warning: {w.location_message()}")
         for e in errors:
@@ -498,6 +546,17 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
     if not Path(args.recipe).exists():
         _err(f"{args.recipe}: no such recipe")
         return EXIT_USAGE
+    io_map = None
+    if args.io_map is not None:
+        from supervisor.devices.registry import load_bench
+
+        if args.model is not None or args.cells != 1:
+            _err("--model and --cells are the built-in bench's; --io-map runs the map's plant")
+            return EXIT_USAGE
+        io_map = load_bench(args.io_map)  # ConfigErrors: said as `supervisor check` says them
+    elif args.channel is not None:
+        _err("--channel names a channel of the I/O map given with --io-map")
+        return EXIT_USAGE
     res = asyncio.run(
         dry_run(
             args.recipe,
@@ -510,6 +569,8 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
             start=args.start,
             max_hours=args.max_hours,
             results_dir=Path(args.results) if args.results else None,
+            io_map=io_map,
+            channel=args.channel,
         )
     )
     for line in format_report(res):
@@ -758,6 +819,61 @@ def _add_opcua_parser(sub: Any) -> None:
     ou.set_defaults(func=cmd_opcua)
 
 
+def _add_dry_run_parser(sub: Any) -> None:
+    """``supervisor dry-run``'s arguments."""
+    d = sub.add_parser(
+        "dry-run",
+        help="run a recipe against the battery model, virtual time",
+        description="Run a recipe against the battery model on the virtual clock: step"
+        " timeline, predicted duration, capacity per cycle.",
+        epilog="exit codes: 0 the recipe came to an end (Complete, Stopped, Aborted, or Held"
+        " by an alarm: the report says which); 1 it did not finish within --max-hours (the"
+        " report says where it was: step, cycle, test time); 2 a usage or recipe error."
+        " A long run's timeline and cycles are shown by their first and last halves.",
+    )
+    d.add_argument("recipe")
+    d.add_argument("--model", choices=["nimh-aa", "liion-pack"], default=None)
+    d.add_argument(
+        "--io-map",
+        default=None,
+        metavar="MAP",
+        help="run on a channel of this I/O map: its own supply, battery and sensors, simulated",
+    )
+    d.add_argument(
+        "--channel", default=None, help="the I/O map's channel (default: its only channel)"
+    )
+    d.add_argument("--param", action="append", default=[], metavar="NAME=VALUE")
+    d.add_argument(
+        "--capacity-ah",
+        type=_bounded(DRY_RUN_MIN_CAPACITY_AH, DRY_RUN_MAX_CAPACITY_AH, "Ah"),
+        default=None,
+        help="rated capacity of the cell",
+    )
+    d.add_argument(
+        "--soc", type=_bounded(0.0, 1.0), default=None, help="state of charge at start, 0..1"
+    )
+    d.add_argument("--cells", type=_cells, default=1, help="Li-ion cells in series")
+    d.add_argument(
+        "--period-s",
+        type=_bounded(MIN_SCAN_PERIOD_S, MAX_SCAN_PERIOD_S, "s"),
+        default=1.0,
+        help="scan period of the dry run",
+    )
+    d.add_argument(
+        "--start", type=_time_of_day, default="08:00", help="local time of day the test starts"
+    )
+    d.add_argument(
+        "--max-hours",
+        type=_bounded(0.0, DRY_RUN_MAX_HOURS, "h", low_included=False),
+        default=1000.0,
+        help="stop the dry run after this much virtual time (default 1000 h; exit 1)",
+    )
+    d.add_argument(
+        "--results", type=_results_dir, default=None, help="write result files under this folder"
+    )
+    d.set_defaults(func=cmd_dry_run)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="supervisor", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -801,48 +917,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default=".", help="project root: writes io_maps/ and recipes/ schemas")
     s.set_defaults(func=cmd_schema)
 
-    d = sub.add_parser(
-        "dry-run",
-        help="run a recipe against the battery model, virtual time",
-        description="Run a recipe against the battery model on the virtual clock: step"
-        " timeline, predicted duration, capacity per cycle.",
-        epilog="exit codes: 0 the recipe came to an end (Complete, Stopped, Aborted, or Held"
-        " by an alarm: the report says which); 1 it did not finish within --max-hours (the"
-        " report says where it was: step, cycle, test time); 2 a usage or recipe error."
-        " A long run's timeline and cycles are shown by their first and last halves.",
-    )
-    d.add_argument("recipe")
-    d.add_argument("--model", choices=["nimh-aa", "liion-pack"], default=None)
-    d.add_argument("--param", action="append", default=[], metavar="NAME=VALUE")
-    d.add_argument(
-        "--capacity-ah",
-        type=_bounded(DRY_RUN_MIN_CAPACITY_AH, DRY_RUN_MAX_CAPACITY_AH, "Ah"),
-        default=None,
-        help="rated capacity of the cell",
-    )
-    d.add_argument(
-        "--soc", type=_bounded(0.0, 1.0), default=None, help="state of charge at start, 0..1"
-    )
-    d.add_argument("--cells", type=_cells, default=1, help="Li-ion cells in series")
-    d.add_argument(
-        "--period-s",
-        type=_bounded(MIN_SCAN_PERIOD_S, MAX_SCAN_PERIOD_S, "s"),
-        default=1.0,
-        help="scan period of the dry run",
-    )
-    d.add_argument(
-        "--start", type=_time_of_day, default="08:00", help="local time of day the test starts"
-    )
-    d.add_argument(
-        "--max-hours",
-        type=_bounded(0.0, DRY_RUN_MAX_HOURS, "h", low_included=False),
-        default=1000.0,
-        help="stop the dry run after this much virtual time (default 1000 h; exit 1)",
-    )
-    d.add_argument(
-        "--results", type=_results_dir, default=None, help="write result files under this folder"
-    )
-    d.set_defaults(func=cmd_dry_run)
+    _add_dry_run_parser(sub)
 
     im = sub.add_parser("import", help="turn a Chadèche sequence file or a profile into YAML")
     im.add_argument("kind", choices=["chadeche", "profile"])

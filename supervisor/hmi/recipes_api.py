@@ -12,7 +12,8 @@
   the dry run (``supervisor dry-run``'s, injected as :class:`DryRunner`: this layer does not
   import the application's) with its timeline, capacity per cycle and a V/I trace of at
   most ``MAX_TRACE_POINTS`` points. ``channel``: the recipe is also checked against that
-  channel's limits and the preview's cell gets its capacity. One at a time (409 else).
+  channel's limits and runs on that channel's own plant (its supply, battery and sensors,
+  simulated from the I/O map). One at a time (409 else).
 - ``PUT /api/recipes/{name} {"text", "overwrite"?}``: engineers only; validated first, then
   written atomically (a temporary file in the same folder, then a rename: a reader sees the
   old recipe or the new one, never half of one). 422 with the errors and nothing written;
@@ -122,7 +123,8 @@ class DryRunner(Protocol):
     the dry run's answer as a mapping (``recipe``, ``end_reason``, ``finished``,
     ``simulated_s``, ``timed_out``, ``summary`` as summary.json, ``trace`` as
     :meth:`Trace.as_json`), or ``{"errors": [{"message", "file", "line", "col"}]}``; raises
-    when no answer came (the reason is its message)."""
+    when no answer came (the reason is its message). ``channel``: run on that channel's own
+    plant (its supply, battery and sensors, from the bench's I/O map)."""
 
     async def __call__(
         self,
@@ -132,6 +134,7 @@ class DryRunner(Protocol):
         capacity_ah: float | None,
         max_hours: float,
         timeout_s: float,
+        channel: str | None = None,
     ) -> Mapping[str, Any]: ...
 
 
@@ -515,13 +518,21 @@ class RecipesApi:
     def _target(self, body: Mapping[str, Any]) -> Target | None:
         channel = body.get("channel")
         if channel is None:
-            return None
+            return self._bench_target()
         if not isinstance(channel, str) or self.config.target_of is None:
             raise BadBody(400, "channel must be a channel's name")
         if channel not in self.config.channels:
             known = ", ".join(sorted(self.config.channels))
             raise BadBody(404, f"unknown channel {channel!r} ({known})")
         return self.config.target_of(channel)
+
+    def _bench_target(self) -> Target | None:
+        """No channel named: the bench's tags alone, which a recipe's conditions may name
+        (``bms.cell_max``, as ``supervisor check MAP RECIPE`` checks it); no channel's
+        limits. None without a bench."""
+        if self.config.target_of is None or not self.config.channels:
+            return None
+        return Target(tags=self.config.target_of(next(iter(self.config.channels))).tags)
 
     # --- reading ------------------------------------------------------------------------
     def _listing(self) -> list[dict[str, Any]]:
@@ -663,8 +674,9 @@ class RecipesApi:
     ) -> web.Response:
         timeout_s = self.config.dry_run_timeout_s
         capacity_ah = target.capacity_ah if target is not None else None
+        channel = target.channel if target is not None else None
         try:
-            res = await runner(file, text, params, capacity_ah, max_hours, timeout_s)
+            res = await runner(file, text, params, capacity_ah, max_hours, timeout_s, channel)
         except Exception as exc:  # no answer (killed at its limit, crashed): say why
             log.error("recipes: dry run of %s: %s", file, exc)
             return _error(503, f"{exc} (README: Input limits)")
@@ -711,7 +723,7 @@ class RecipesApi:
                 raise BadBody(400, "overwrite must be true or false")
             file = self.file_of(name)
             text = recipe_text(body, file)
-            checked = await self._check(text, file, None)
+            checked = await self._check(text, file, self._bench_target())
         except BadBody as exc:
             return exc.response()
         except ConfigErrors as exc:
