@@ -608,6 +608,9 @@ class HttpApi:
                 web.post("/api/channels/{channel}/commands/{verb}", self._channel_command),
                 web.get("/api/alarms", self._alarms),
                 web.post("/api/alarms/{alarm}/{action}", self._alarm_command),
+                # The bench-wide software e-stop (seed 002 §1.5) and its reset.
+                web.post("/api/estop", self._estop_command),
+                web.post("/api/estop/reset", self._estop_command),
             ]
         )
         add_openapi_route(app)  # GET /api/openapi.json (hmi/openapi.yaml)
@@ -761,6 +764,18 @@ class HttpApi:
             return exc.response()
         command = Command(Target.alarm(alarm), Verb(action), args, self.actor(request))
         return await self._answer(command)
+
+    async def _estop_command(self, request: web.Request) -> web.Response:
+        """``POST /api/estop`` presses the software e-stop (every channel tripped, as by the
+        button); ``POST /api/estop/reset`` releases it once acknowledged. No arguments."""
+        reset = request.path.endswith("/reset")
+        what = "estop reset" if reset else "estop"
+        try:
+            args = await read_json_object(request, empty_ok=True, what=f"{what}: the arguments")
+        except BodyError as exc:
+            return exc.response()
+        verb = Verb.ESTOP_RESET if reset else Verb.ESTOP
+        return await self._answer(Command(Target.bench(), verb, args, self.actor(request)))
 
     async def _alarms(self, request: web.Request) -> web.Response:
         """Alarms not in their normal state (first-out first), and the latest transitions
