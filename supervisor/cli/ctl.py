@@ -160,12 +160,7 @@ def add_parser(sub: Any) -> None:
     what.add_parser(
         "ack", help="acknowledge what holds a channel, or one alarm (its id in `ctl alarms`)"
     ).add_argument("channel", metavar="CHANNEL|ALARM")
-    what.add_parser("alarms", help="the alarms that are active or not acknowledged")
-    what.add_parser(
-        "estop",
-        help="press the bench-wide software e-stop (every channel tripped, as by the button);"
-        " `estop reset` releases it once its alarm is acknowledged (`ack estop`)",
-    ).add_argument("action", nargs="?", choices=("reset",), default=None)
+    _add_bench_parsers(what)
     w = what.add_parser(
         "watch", help="live lines until Ctrl-C (or --count): each step/state change"
     )
@@ -186,6 +181,16 @@ def add_parser(sub: Any) -> None:
         "cert", help="print this client's certificate file (made if missing), to be trusted"
     )
     p.set_defaults(func=cmd_ctl)
+
+
+def _add_bench_parsers(what: Any) -> None:
+    """The commands about the whole bench: its alarms, its software e-stop."""
+    what.add_parser("alarms", help="the alarms that are active or not acknowledged")
+    what.add_parser(
+        "estop",
+        help="press the bench-wide software e-stop (every channel tripped, as by the button);"
+        " `estop reset` releases it once its alarm is acknowledged (`ack estop`)",
+    ).add_argument("action", nargs="?", choices=("reset",), default=None)
 
 
 def default_pki() -> Path:

@@ -608,9 +608,6 @@ class HttpApi:
                 web.post("/api/channels/{channel}/commands/{verb}", self._channel_command),
                 web.get("/api/alarms", self._alarms),
                 web.post("/api/alarms/{alarm}/{action}", self._alarm_command),
-                # The bench-wide software e-stop (seed 002 §1.5) and its reset.
-                web.post("/api/estop", self._estop_command),
-                web.post("/api/estop/reset", self._estop_command),
             ]
         )
         add_openapi_route(app)  # GET /api/openapi.json (hmi/openapi.yaml)
@@ -627,14 +624,25 @@ class HttpApi:
             add_recipe_routes(app, recipes)
         if tests is not None:  # /api/tests… (hmi/tests_api.py)
             add_test_routes(app, tests, clock)
-        if estop is not None:
+        self._add_estop_routes(app)
+        self.app = app
+
+    def _add_estop_routes(self, app: web.Application) -> None:
+        """The bench-wide software e-stop (seed 002 §1.5) and its reset, on every bench; the
+        simulated bench's e-stop button and plant state when this API has them."""
+        app.add_routes(
+            [
+                web.post("/api/estop", self._estop_command),
+                web.post("/api/estop/reset", self._estop_command),
+            ]
+        )
+        if self._estop is not None:
             # Simulation only: the e-stop button of the simulated bench.
             app.add_routes([web.put("/api/sim/estop", self._sim_estop)])
-        if sim_state is not None:
+        if self._sim_state is not None:
             # Simulation only: what the simulated plant does (contactor, supply), so that a
             # test or a person can see the hardware's side, not only the supervisor's.
             app.add_routes([web.get("/api/sim/state", self._sim_state_get)])
-        self.app = app
 
     @property
     def url(self) -> str:

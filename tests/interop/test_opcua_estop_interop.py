@@ -75,7 +75,9 @@ async def test_a_viewer_is_denied_an_operator_trips_every_channel_and_resets_onc
     await rig.scans(2)
     assert bench.alarms["estop"].state is AlarmState.NORMAL
     assert [
-        (e.actor, e.command, e.accepted) for e in bench.commands.log if e.command.startswith("estop")
+        (e.actor, e.command, e.accepted)
+        for e in bench.commands.log
+        if e.command.startswith("estop")
     ] == [
         ("opcua:bob", "estop", False),
         ("opcua:alice", "estop", True),

@@ -167,9 +167,7 @@ async def test_acknowledged_then_reset_releases_it_and_energises_nothing(
     assert res.accepted, res.reason
     assert res.reason.startswith("e-stop reset by carol: the software e-stop is released")
     assert bench.alarms["estop"].state is AlarmState.NORMAL
-    transitions = [
-        (e.transition, e.actor) for e in bench.alarms.history if e.alarm_id == "estop"
-    ]
+    transitions = [(e.transition, e.actor) for e in bench.alarms.history if e.alarm_id == "estop"]
     assert transitions == [
         (Transition.ACTIVATED, ""),
         (Transition.ACKNOWLEDGED, "carol"),
