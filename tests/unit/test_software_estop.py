@@ -20,7 +20,8 @@ from supervisor.chains.states import State
 from supervisor.commands import Command, Result, ResultKind, Verb
 from supervisor.config.models import EstopConfig
 from supervisor.core.clock import VirtualClock
-from supervisor.safety import AlarmManager, AlarmState, Estop, Transition
+from supervisor.safety import AlarmManager, AlarmState, Transition
+from supervisor.safety.interlocks import Estop
 from supervisor.tags import Access, TagDB, TagSpec
 from supervisor.testing import run_scans
 
