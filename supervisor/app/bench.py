@@ -130,6 +130,7 @@ class Bench:
             loader=self,
             protected=bench_safety_tags(self.cfg),  # what a force may never touch
             recipe_folders=RecipeFolders.of(self.cfg.recipe_folders),  # ADR 0026
+            estop=self.safety.estop,  # the software e-stop presses the same button
         )
         for name, runner in self.runners.items():
             runner.command_handler = self._command_tag(name)

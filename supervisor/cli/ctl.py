@@ -92,6 +92,8 @@ FIELDS: Final = (
     "current_cmd",
 )
 ALARM_FIELDS: Final = ("State", "Active", "Acked", "Severity", "Message")
+# `ctl estop [reset]` → the Bench object's method (methods.py::BENCH_METHODS).
+ESTOP_METHODS: Final = {None: "EmergencyStop", "reset": "ResetEmergencyStop"}
 
 
 class CtlError(Exception):
@@ -158,7 +160,7 @@ def add_parser(sub: Any) -> None:
     what.add_parser(
         "ack", help="acknowledge what holds a channel, or one alarm (its id in `ctl alarms`)"
     ).add_argument("channel", metavar="CHANNEL|ALARM")
-    what.add_parser("alarms", help="the alarms that are active or not acknowledged")
+    _add_bench_parsers(what)
     w = what.add_parser(
         "watch", help="live lines until Ctrl-C (or --count): each step/state change"
     )
@@ -179,6 +181,16 @@ def add_parser(sub: Any) -> None:
         "cert", help="print this client's certificate file (made if missing), to be trusted"
     )
     p.set_defaults(func=cmd_ctl)
+
+
+def _add_bench_parsers(what: Any) -> None:
+    """The commands about the whole bench: its alarms, its software e-stop."""
+    what.add_parser("alarms", help="the alarms that are active or not acknowledged")
+    what.add_parser(
+        "estop",
+        help="press the bench-wide software e-stop (every channel tripped, as by the button);"
+        " `estop reset` releases it once its alarm is acknowledged (`ack estop`)",
+    ).add_argument("action", nargs="?", choices=("reset",), default=None)
 
 
 def default_pki() -> Path:
@@ -514,9 +526,12 @@ class Bench:
 
     async def call(self, channel: str, method: str, *args: Any) -> tuple[bool, str, str]:
         """(accepted, the server's Result text, the status code's name)."""
+        return await self.call_on(f"/Bench/Channels/{channel}", method, *args)
+
+    async def call_on(self, obj: str, method: str, *args: Any) -> tuple[bool, str, str]:
+        """``method`` of the object ``obj`` (``/Bench``, a channel's), as :meth:`call`."""
         from asyncua import ua
 
-        obj = f"/Bench/Channels/{channel}"
         req = ua.CallMethodRequest()
         req.ObjectId = self.node(obj)
         req.MethodId = self.node(f"{obj}/{method}")
@@ -538,6 +553,8 @@ async def _do(bench: Bench, args: argparse.Namespace) -> int:
         return await _alarms(bench)
     if args.what == "watch":
         return await _watch(bench, args)
+    if args.what == "estop":
+        return await _estop(bench, args.action)
     if args.what == "ack" and args.channel not in bench.channels:
         if args.channel in await bench.alarm_ids():
             return await _ack_alarm(bench, args.channel)
@@ -633,6 +650,16 @@ def watch_line(channel: str, v: dict[str, Any], wall: float) -> str:
         f" TET= {v['chain.test_time'] or 0:.0f} V={_num(v['voltage'], '.3f')} mAh={mah}"
         f" {_text(chain_state(v))} {_text(v['chain.step'])}, {date}"
     )
+
+
+async def _estop(bench: Bench, action: str | None) -> int:
+    """Press (or reset) the software e-stop: the server's answer, or its refusal (exit 2)."""
+    ok, text, code = await bench.call_on("/Bench", ESTOP_METHODS[action])
+    if not ok:
+        what = "estop reset" if action == "reset" else "estop"
+        raise CtlError(f"{what} refused ({code}): {text}", EXIT_REFUSED)
+    _out(text)
+    return EXIT_OK
 
 
 async def _ack_alarm(bench: Bench, alarm: str) -> int:

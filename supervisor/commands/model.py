@@ -69,6 +69,10 @@ class Verb(StrEnum):
     # Commissioning overrides of a tag (engineer only; never a tag the safety phase uses).
     FORCE = "force"
     UNFORCE = "unforce"
+    # The bench-wide software e-stop (seed 002 §1.5): press it, and reset it once
+    # acknowledged (the hardware e-stop's rule).
+    ESTOP = "estop"
+    ESTOP_RESET = "estop_reset"
 
     @classmethod
     def parse(cls, text: str) -> Verb | None:
@@ -101,7 +105,8 @@ CHANNEL_VERBS = (
     Verb.WRITE,
 )
 ALARM_VERBS = (Verb.ACKNOWLEDGE, Verb.RESET, Verb.SHELVE, Verb.UNSHELVE)
-BENCH_VERBS = (Verb.WRITE, Verb.FORCE, Verb.UNFORCE)
+BENCH_VERBS = (Verb.WRITE, Verb.FORCE, Verb.UNFORCE, Verb.ESTOP, Verb.ESTOP_RESET)
+ESTOP_VERBS = (Verb.ESTOP, Verb.ESTOP_RESET)
 
 
 @dataclass(frozen=True, slots=True)
@@ -139,6 +144,16 @@ class Command:
     @classmethod
     def unforce(cls, tag: str, actor: str = "operator") -> Command:
         return cls(Target.bench(), Verb.UNFORCE, {"tag": tag}, actor)
+
+    @classmethod
+    def estop(cls, actor: str = "operator") -> Command:
+        """Press the bench-wide software e-stop: every channel tripped, as by the button."""
+        return cls(Target.bench(), Verb.ESTOP, {}, actor)
+
+    @classmethod
+    def estop_reset(cls, actor: str = "operator") -> Command:
+        """Release the software e-stop and reset the ``estop`` trip (acknowledged first)."""
+        return cls(Target.bench(), Verb.ESTOP_RESET, {}, actor)
 
     def describe(self) -> str:
         """``mode manual (keep setpoint)``, ``manual_current 0.3 A``, ``write x := 1``."""

@@ -51,6 +51,7 @@ from supervisor.commands.model import (
     BENCH_VERBS,
     CHAIN_VERBS,
     CHANNEL_VERBS,
+    ESTOP_VERBS,
     Command,
     CommandEvent,
     Result,
@@ -72,7 +73,7 @@ from supervisor.config.limits import RECIPE_COMPILE_TIMEOUT_S
 from supervisor.core.clock import Clock
 from supervisor.core.errors import ConfigError, ConfigErrors, OperatorError
 from supervisor.publish.provenance import METADATA_ARGUMENTS, MetadataError, metadata_from_arguments
-from supervisor.safety import AlarmManager, ChannelGuard
+from supervisor.safety import AlarmManager, ChannelGuard, Estop
 from supervisor.tags import Access, TagDB
 from supervisor.tags.spec import clipped_repr, finite_float
 
@@ -114,6 +115,7 @@ class CommandPath:
         compile_timeout_s: float = RECIPE_COMPILE_TIMEOUT_S,
         protected: Mapping[str, str] | None = None,
         recipe_folders: RecipeFolders | None = None,
+        estop: Estop | None = None,
     ) -> None:
         self.db = db
         self.clock = clock
@@ -127,6 +129,8 @@ class CommandPath:
         # network client; a bench always has its I/O map's folders). Commands given in
         # this host's shell (``Command.local``) read what that shell's user can read.
         self.recipe_folders = recipe_folders
+        # The bench's e-stop (safety.estop): its software button (``estop``, ``estop_reset``).
+        self.estop = estop
         # Tags a force may never touch → what reads them (commands/force.py); without the
         # bench's list, at least every channel guard's.
         self.protected: Mapping[str, str] = (
@@ -256,6 +260,8 @@ class CommandPath:
             raise Refusal(ResultKind.NOT_FOUND, f"the bench has no command {command.verb.value}")
         if command.verb in (Verb.FORCE, Verb.UNFORCE):
             return self._force(command)
+        if command.verb in ESTOP_VERBS:
+            return self._estop(command)
         return self._write(command, command.args)
 
     # --- channels -----------------------------------------------------------------------
@@ -684,6 +690,30 @@ class CommandPath:
         self.db.force(name, value)
         return Result.ok(f"{name} forced := {value!r} (until unforced)", tag=name)
 
+    # --- the software e-stop -------------------------------------------------------------
+    def _estop(self, c: Command) -> Result:
+        """Press or reset the bench-wide software e-stop (operators; a viewer is refused
+        by the role hook before this). A press is never refused for the bench's state: a
+        second one is accepted and says who pressed first. A reset takes the hardware
+        e-stop's rule: refused while unacknowledged or while the button is pressed."""
+        _only(c)
+        what = "press the e-stop" if c.verb is Verb.ESTOP else "reset the e-stop"
+        if self.roles.access_of(c.actor) < Access.OPERATOR:
+            raise Refusal(ResultKind.FORBIDDEN, f"{c.actor} may not {what}: needs operator access")
+        estop = self.estop
+        if estop is None:
+            raise Refusal(
+                ResultKind.NOT_FOUND,
+                "this bench has no e-stop (safety.estop in its I/O map): abort each channel",
+            )
+        if c.verb is Verb.ESTOP:
+            return Result.ok(estop.press(c.actor), alarm=estop.alarm.id)
+        try:
+            reason = estop.release(c.actor)
+        except OperatorError as exc:
+            raise Refusal(ResultKind.REFUSED, str(exc)) from None
+        return Result.ok(reason, alarm=estop.alarm.id)
+
     # --- the record -----------------------------------------------------------------------
     def _record(self, c: Command, result: Result) -> None:
         now = self.clock.now()
@@ -702,12 +732,16 @@ class CommandPath:
         self.log.append(ev)
         level = logging.INFO if result.accepted else logging.WARNING
         log.log(level, "command on %s: %s", ev.target, ev.text)
-        runner = self.runners.get(channel)
-        if runner is not None:
+        # A bench-wide e-stop goes into every channel's timeline (their result files).
+        names = list(self.runners) if c.verb in ESTOP_VERBS else [channel]
+        for name in names:
+            runner = self.runners.get(name)
+            if runner is None:
+                continue
             try:
                 runner.record_command(ev.text)
             except Exception:
-                log.exception("%s: recording a command failed", channel)
+                log.exception("%s: recording a command failed", name)
         for fn in self.listeners:
             try:
                 fn(ev)

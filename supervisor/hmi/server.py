@@ -624,14 +624,25 @@ class HttpApi:
             add_recipe_routes(app, recipes)
         if tests is not None:  # /api/tests… (hmi/tests_api.py)
             add_test_routes(app, tests, clock)
-        if estop is not None:
+        self._add_estop_routes(app)
+        self.app = app
+
+    def _add_estop_routes(self, app: web.Application) -> None:
+        """The bench-wide software e-stop (seed 002 §1.5) and its reset, on every bench; the
+        simulated bench's e-stop button and plant state when this API has them."""
+        app.add_routes(
+            [
+                web.post("/api/estop", self._estop_command),
+                web.post("/api/estop/reset", self._estop_command),
+            ]
+        )
+        if self._estop is not None:
             # Simulation only: the e-stop button of the simulated bench.
             app.add_routes([web.put("/api/sim/estop", self._sim_estop)])
-        if sim_state is not None:
+        if self._sim_state is not None:
             # Simulation only: what the simulated plant does (contactor, supply), so that a
             # test or a person can see the hardware's side, not only the supervisor's.
             app.add_routes([web.get("/api/sim/state", self._sim_state_get)])
-        self.app = app
 
     @property
     def url(self) -> str:
@@ -761,6 +772,18 @@ class HttpApi:
             return exc.response()
         command = Command(Target.alarm(alarm), Verb(action), args, self.actor(request))
         return await self._answer(command)
+
+    async def _estop_command(self, request: web.Request) -> web.Response:
+        """``POST /api/estop`` presses the software e-stop (every channel tripped, as by the
+        button); ``POST /api/estop/reset`` releases it once acknowledged. No arguments."""
+        reset = request.path.endswith("/reset")
+        what = "estop reset" if reset else "estop"
+        try:
+            args = await read_json_object(request, empty_ok=True, what=f"{what}: the arguments")
+        except BodyError as exc:
+            return exc.response()
+        verb = Verb.ESTOP_RESET if reset else Verb.ESTOP
+        return await self._answer(Command(Target.bench(), verb, args, self.actor(request)))
 
     async def _alarms(self, request: web.Request) -> web.Response:
         """Alarms not in their normal state (first-out first), and the latest transitions

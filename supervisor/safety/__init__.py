@@ -17,6 +17,7 @@ from supervisor.safety.alarms import (
 )
 from supervisor.safety.build import build_safety
 from supervisor.safety.guard import ChannelGuard
+from supervisor.safety.interlocks import Estop, SoftwarePress
 from supervisor.safety.phase import SafetyCheck, SafetyPhase
 
 __all__ = [
@@ -25,9 +26,11 @@ __all__ = [
     "AlarmManager",
     "AlarmState",
     "ChannelGuard",
+    "Estop",
     "SafetyCheck",
     "SafetyPhase",
     "Severity",
+    "SoftwarePress",
     "Transition",
     "build_safety",
 ]

@@ -18,8 +18,9 @@ def build_safety(cfg: BenchConfig, db: TagDB, alarms: AlarmManager) -> SafetyPha
     anything before it crashes the scan)."""
     checks: list[SafetyCheck] = []
     s = cfg.safety
-    if s.estop is not None:
-        checks.append(Estop(s.estop, db, alarms))
+    estop = Estop(s.estop, db, alarms) if s.estop is not None else None
+    if estop is not None:
+        checks.append(estop)
     checks += [Interlock(i, db, alarms) for i in s.interlocks]
     tag_alarms = TagAlarms(db, alarms)
     if tag_alarms.levels:
@@ -31,4 +32,5 @@ def build_safety(cfg: BenchConfig, db: TagDB, alarms: AlarmManager) -> SafetyPha
         checks.append(Heartbeat(s.heartbeat, db))
     phase = SafetyPhase(checks)
     phase.guards = {g.name: g for g in guards}
+    phase.estop = estop  # the software e-stop's commands press the same button
     return phase

@@ -373,6 +373,10 @@ class ChannelGuard:
             if trips:
                 fault, first_out = trips[0].message, trips[0].id
                 action = "abort" if any(a.action == "abort" for a in trips) else "hold"
+                if not self._fault.value and self._enable.value:
+                    # A new trip, its own or a bench-wide one (the e-stop, an interlock):
+                    # the Manual enable drops, so that the reset energises nothing.
+                    self.db.update(self._enable, False)
             self._trips_out = (
                 (self._fault, fault),
                 (self._action, action),

@@ -6,6 +6,12 @@ and the heartbeat of the contactor's hardware watchdog.
   resets only once the circuit is closed again. A sense that is not GOOD (the ADAM lost)
   cannot show a press: it trips every channel too (fail safe), but holds their tests rather
   than aborting them — the hardware e-stop still cuts the supply's mains on its own.
+- **Software e-stop** (seed 002 §1.5, beside the hardware one): ``Estop.press`` by a person
+  (HTTP, OPC UA, the screens, ``supervisor ctl estop``, all through the command path) is a
+  press of the same button as far as the bench is concerned: the same ``estop`` alarm, so
+  the same trip of every channel, abort and software e-stop relay. It stays pressed until
+  ``Estop.release``, which follows the hardware e-stop's rule: acknowledged first, then
+  reset (and not while the hardware button is still pressed).
 - **Interlocks** (``safety.interlocks`` in the I/O map): a tag above, below or equal to a
   value (a value that is not GOOD trips too), with an on-delay and a deadband for the way
   back; latched; they hold (or abort) the channels they name, all by default.
@@ -22,9 +28,18 @@ from dataclasses import dataclass
 
 from supervisor.config.models import EstopConfig, HeartbeatConfig, InterlockConfig
 from supervisor.core.delay import OnDelay
+from supervisor.core.errors import OperatorError
 from supervisor.safety.alarms import Alarm, AlarmManager, Severity
 from supervisor.tags import Tag, TagDB
 from supervisor.tags.spec import AlarmLimits
+
+
+@dataclass(frozen=True, slots=True)
+class SoftwarePress:
+    """Who pressed the software e-stop, and when (``Clock.now()``)."""
+
+    actor: str
+    t: float
 
 
 class Estop:
@@ -41,11 +56,24 @@ class Estop:
             "estop.unknown", severity=Severity.HIGH, latched=True, action="hold"
         )
         self.alarms = alarms
+        self.software: SoftwarePress | None = None
+        """The software e-stop, pressed (by whom) until released; None: not pressed."""
+
+    @property
+    def hardware_pressed(self) -> bool:
+        """The sense input reads the circuit open (a sense that is not GOOD shows no press:
+        ``estop.unknown`` holds the bench for that)."""
+        s = self.sense
+        return s.good and s.value is not True
 
     def evaluate(self, now: float, dt: float) -> None:
         s = self.sense
-        pressed = s.good and s.value is not True
-        self.alarms.set(self.alarm, pressed, f"e-stop: {s.name} is false (circuit open)")
+        causes: list[str] = []
+        if self.hardware_pressed:
+            causes.append(f"{s.name} is false (circuit open)")
+        if self.software is not None:
+            causes.append(f"software e-stop pressed by {self.software.actor}")
+        self.alarms.set(self.alarm, bool(causes), "e-stop: " + "; ".join(causes))
         why = f"e-stop state unknown: {s.name} is {s.quality.name} ({s.reason})"
         self.alarms.set(self.unknown, not s.good, why)
         if self.relay is not None:
@@ -55,6 +83,56 @@ class Estop:
     def fail_safe(self, why: str) -> None:
         if self.relay is not None:
             self.db.update(self.relay, False)
+
+    # --- the software e-stop (by the command path, between two scans) -------------------
+    def press(self, actor: str) -> str:
+        """Press the software e-stop: the ``estop`` trip activates now (the relay opens now;
+        the next scan's guards take every channel safe and abort its recipe). Pressing it
+        again is never refused: the first press stands, and the answer says who made it."""
+        now = self.alarms.clock.now()
+        first = self.software
+        if first is None:
+            self.software = SoftwarePress(actor, now)
+        self.evaluate(now, 0.0)
+        if first is not None:
+            return (
+                f"software e-stop already pressed by {first.actor}: every channel stays"
+                " tripped (acknowledge, then reset the e-stop)"
+            )
+        return (
+            f"software e-stop pressed by {actor}: every channel tripped, recipes aborted;"
+            " acknowledge, then reset the e-stop"
+        )
+
+    def release_refusal(self) -> str:
+        """Why the e-stop may not be reset now ("" when it may): the hardware e-stop's rule
+        (acknowledged before reset, never while its cause is present)."""
+        a = self.alarm
+        if self.software is None and not a.tripped:
+            return "the e-stop is not pressed: nothing to reset"
+        if not a.acked:
+            return f"acknowledge the e-stop first (alarm estop is unacknowledged: {a.message})"
+        if self.hardware_pressed:
+            return (
+                f"the hardware e-stop is still pressed ({self.sense.name} is false):"
+                " release the button first"
+            )
+        return ""
+
+    def release(self, actor: str) -> str:
+        """Release the software e-stop and reset the ``estop`` trip (``OperatorError`` with
+        the reason when ``release_refusal`` has one). The channels stay safe: each needs
+        its own reset, and nothing is energised again on its own."""
+        why = self.release_refusal()
+        if why:
+            raise OperatorError(f"e-stop reset refused: {why}")
+        self.software = None
+        self.evaluate(self.alarms.clock.now(), 0.0)
+        self.alarms.reset(self.alarm.id, actor)
+        return (
+            f"e-stop reset by {actor}: the software e-stop is released; each channel stays"
+            " safe until it is reset"
+        )
 
 
 class Interlock:

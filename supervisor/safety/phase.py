@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
     from supervisor.safety.guard import ChannelGuard
+    from supervisor.safety.interlocks import Estop
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +39,7 @@ class SafetyPhase:
         self.checks: list[SafetyCheck] = list(checks)
         self.errors = 0
         self.guards: dict[str, ChannelGuard] = {}  # channel name -> its guard
+        self.estop: Estop | None = None  # the bench's e-stop (safety.estop), if it has one
 
     def run(self, now: float, dt: float) -> None:
         for check in self.checks:

@@ -41,6 +41,7 @@ async def test_the_tree_mirrors_the_bench_channels_devices_alarms_diagnostics(ri
         assert "Bench" in objects
         assert await names(bench) == [
             "Channels", "Devices", "Alarms", "Diagnostics", "ForceTag", "UnforceTag",
+            "EmergencyStop", "ResetEmergencyStop",
             "Identification",
         ]  # fmt: skip
         channels = c.get_node(ua.NodeId("/Bench/Channels", ns))

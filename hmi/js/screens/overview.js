@@ -1,7 +1,8 @@
 // Overview: the bench mimic (e-stop, supply, contactor, BMS) and one tile per channel.
 // Every tag it shows is named by /api/bench (supervisor/hmi/layout.py): no device names here.
 // High-performance HMI: grey when normal; colour only for what is abnormal.
-import { bindTags, esc, fmtDuration, $, $$ } from "../dom.js";
+import { post } from "../api.js";
+import { bindTags, esc, fmtDuration, showResult, $, $$ } from "../dom.js";
 
 /** The tag of a mimic element: /api/bench gives a tag name or {tag: name, ...}. */
 const mimicTag = (m) => (m && typeof m === "object" ? m.tag : m) || null;
@@ -82,6 +83,60 @@ function shownRows(device) {
   );
 }
 
+/** The bench-wide software e-stop (seed 002 §1.5): the one red button of the screens
+ * (ISA-101: red is for what stops the bench or is abnormal), behind a confirmation;
+ * "Reset e-stop" is an ordinary button: the server refuses it, with the reason, until the
+ * e-stop alarm is acknowledged (Alarms screen) and while the button is pressed. */
+function estopControls() {
+  return `<div class="kv"><span>trip</span><b id="estop-trip">none</b></div>
+    <div class="estop-controls">
+      <button type="button" class="estop" id="estop-press" aria-haspopup="dialog">E-STOP all channels</button>
+      <button type="button" class="small" id="estop-reset">Reset e-stop</button>
+    </div>`;
+}
+
+const ESTOP_DIALOG = `<dialog id="estop-confirm" aria-labelledby="estop-confirm-title">
+    <h2 id="estop-confirm-title">Software e-stop: stop every channel?</h2>
+    <p>Every channel trips as by the e-stop button: recipes aborted, no current, supply
+      output off, contactor open. Starting again needs the e-stop alarm acknowledged, then
+      <b>Reset e-stop</b>, then each channel reset.</p>
+    <div class="buttons">
+      <button type="button" class="estop" id="estop-confirm-yes">E-STOP all channels</button>
+      <button type="button" id="estop-confirm-no" autofocus>Cancel</button>
+    </div>
+  </dialog>`;
+
+/** The bench's e-stop trip (the alarm ``estop``: the button or the software e-stop) as
+ * the E-stop box shows it: "none", or its state and what pressed it, in the alarm colour. */
+function paintEstopTrip(root, live) {
+  const el = $("#estop-trip", root);
+  if (!el) return;
+  const a = live.alarms.find((x) => x.id === "estop" && x.state !== "normal");
+  el.textContent = a ? `${a.state}: ${a.message.replace(/^e-stop: /, "")}` : "none";
+  el.classList.toggle("abn", Boolean(a));
+}
+
+/** The e-stop buttons' handlers (on the Overview's root, whose HTML has them). */
+function bindEstop(root) {
+  const press = $("#estop-press", root);
+  if (!press) return;
+  const dialog = $("#estop-confirm", root);
+  const out = $("#estop-result", root);
+  press.addEventListener("click", () => dialog.showModal());
+  $("#estop-confirm-no", root).addEventListener("click", () => dialog.close());
+  $("#estop-confirm-yes", root).addEventListener("click", async () => {
+    dialog.close();
+    out.hidden = false;
+    out.textContent = "e-stop…";
+    showResult(out, await post("/api/estop"), "e-stop pressed");
+  });
+  $("#estop-reset", root).addEventListener("click", async () => {
+    out.hidden = false;
+    out.textContent = "reset…";
+    showResult(out, await post("/api/estop/reset"), "e-stop reset");
+  });
+}
+
 export async function render({ root, app }) {
   root.dataset.title = "Overview";
   const b = app.bench;
@@ -93,7 +148,12 @@ export async function render({ root, app }) {
   const device = (name) => b.devices.find((d) => d.name === name);
   const mimic = [];
   if (estop)
-    mimic.push(mimicBox("estop", "E-stop", [row("circuit", estop, 'data-true="closed" data-false="PRESSED" data-abn="false" class="big"')]));
+    mimic.push(
+      mimicBox("estop", "E-stop", [
+        row("circuit", estop, 'data-true="closed" data-false="PRESSED" data-abn="false" class="big"'),
+        estopControls(),
+      ]),
+    );
   if (supply)
     mimic.push(
       mimicBox("supply", "Supply", [
@@ -118,10 +178,15 @@ export async function render({ root, app }) {
   root.innerHTML = `
     <h1 class="sr-only">Overview</h1>
     ${mimic.length ? `<div class="mimic" aria-label="Bench mimic">${mimic.join('<span class="wire" aria-hidden="true"></span>')}</div>` : ""}
+    ${estop ? `<p id="estop-result" class="result" role="status" aria-live="polite" hidden></p>${ESTOP_DIALOG}` : ""}
     <div class="tiles">${b.channels.map(channelTile).join("")}</div>`;
+  bindEstop(root);
   const refresh = bindTags(root, app.live);
   const tiles = b.channels.map((ch) => [ch, $(`#tile-${CSS.escape(ch.name)}`, root)]);
-  const paintAll = () => tiles.forEach(([ch, el]) => paintTile(el, ch, app.live));
+  const paintAll = () => {
+    tiles.forEach(([ch, el]) => paintTile(el, ch, app.live));
+    paintEstopTrip(root, app.live);
+  };
   paintAll();
   return {
     update(change) {

@@ -118,6 +118,19 @@ BENCH_METHODS: Final[tuple[Method, ...]] = (
         ),
     ),
     Method("UnforceTag", "unforce", "Engineers: hand a forced tag back to the process", (TAG,)),
+    # The bench-wide software e-stop (seed 002 §1.5), with the session's user as its actor.
+    Method(
+        "EmergencyStop",
+        "estop",
+        "Operators: press the software e-stop: every channel tripped as by the e-stop button"
+        " (the estop alarm), recipes aborted, outputs safe; a second press names the first",
+    ),
+    Method(
+        "ResetEmergencyStop",
+        "estop_reset",
+        "Operators: release the software e-stop and reset the estop trip, once acknowledged"
+        " (Bad_InvalidState with the reason before, or while the e-stop button is pressed)",
+    ),
 )
 """The methods of the Bench object (ADR 0015)."""
 
@@ -282,6 +295,8 @@ def request(
         if method.verb == "force":
             fargs["value"] = values[1]  # parsed by the server, which knows the tag's type
         return Request("bench", "", method.verb, fargs, actor)
+    if method.verb in ("estop", "estop_reset"):
+        return Request("bench", "", method.verb, {}, actor)
     if method.verb == "manual_current":
         return Request("channel", channel, "manual_current", {"value": float(values[0])}, actor)
     return Request("channel", channel, method.verb, {}, actor)
