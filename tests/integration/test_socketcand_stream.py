@@ -13,12 +13,12 @@ from pathlib import Path
 
 import can
 import pytest
+from socketcand_peer import SocketcandPeer, frame_element
 
 from supervisor.core.clock import RealClock
 from supervisor.core.quality import Quality, Reason
 from supervisor.devices.bms.driver import FAULT_PACK_VOLTAGE, BmsDriver, socketcand_bus_factory
 from supervisor.fieldbus.socketcand import SocketcandBus
-from tests.socketcand_peer import SocketcandPeer, frame_element
 
 pytestmark = pytest.mark.integration
 
