@@ -14,6 +14,7 @@ it (``tests/unit/test_adam_protocol.py``).
 from __future__ import annotations
 
 import importlib
+import logging
 from collections.abc import Awaitable, Callable, Mapping
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Final
@@ -60,6 +61,15 @@ EXCEPTION_MEANINGS: Final[Mapping[int, str]] = MappingProxyType(
         0x0B: "gateway no response",
     }
 )
+
+
+def quiet_pymodbus() -> None:
+    """pymodbus logs its servers' and clients' routine at INFO (and a second server's
+    identical line as "Repeating...."): the bench's own log says what matters, so its
+    INFO is left out unless someone set a level for it."""
+    pymodbus_log = logging.getLogger("pymodbus")
+    if pymodbus_log.level == logging.NOTSET:
+        pymodbus_log.setLevel(logging.WARNING)
 
 
 class ModbusExceptionAnswer(Exception):

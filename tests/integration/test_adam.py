@@ -97,3 +97,20 @@ async def test_analog_values_are_served_by_fc03_and_fc04(bench: AdamRig) -> None
 def test_server_refuses_a_bad_unit_id() -> None:
     with pytest.raises(ValueError, match="unit_id"):
         AdamSimulator(AdamUnit({0: "5017"}), unit_id=300)
+
+
+async def test_two_simulated_units_log_nothing_of_pymodbus_at_info(
+    caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """pymodbus logs its servers' routine at INFO, and a second server's identical line as
+    "Repeating....", which `make run` printed: the bench's own log says what matters."""
+    import logging
+
+    monkeypatch.setattr(logging.getLogger("pymodbus"), "level", logging.NOTSET)
+    caplog.set_level(logging.INFO)
+    sims = [AdamSimulator(AdamUnit({0: "5017"}), host="127.0.0.1", port=0) for _ in range(2)]
+    for sim in sims:
+        await sim.start()
+    for sim in sims:
+        await sim.stop()
+    assert [r.getMessage() for r in caplog.records if r.name.startswith("pymodbus")] == []

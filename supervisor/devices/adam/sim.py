@@ -44,6 +44,7 @@ from supervisor.fieldbus.modbus import (
     FC_WRITE_SINGLE_COIL,
     FC_WRITE_SINGLE_REGISTER,
     ModbusExceptionAnswer,
+    quiet_pymodbus,
 )
 from supervisor.sim.plant import BenchPlant
 
@@ -110,6 +111,7 @@ class AdamSimulator:
         """Listen on ``host:port``; again on the same port after :meth:`stop`."""
         if self._server is not None:
             raise RuntimeError("ADAM simulator already running")
+        quiet_pymodbus()
         blocks: tuple[list[SimData], list[SimData], list[SimData], list[SimData]] = (
             # Coils of all 8 slots, discrete inputs (none simulated: placeholder, every
             # FC02 is refused), holding and input registers of all 8 slots. The unit

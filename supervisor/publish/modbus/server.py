@@ -47,6 +47,7 @@ from pymodbus.transaction import TransactionManager
 from supervisor.core.driver import Value
 from supervisor.core.gate import ScanGate
 from supervisor.core.loops import GatedLoop, await_thread_end
+from supervisor.fieldbus.modbus import quiet_pymodbus
 from supervisor.publish.changes import ChangeBatch, ChangeSnapshots, ChangeSource
 from supervisor.publish.modbus.image import Decoded, RegisterImage, decode, encode
 from supervisor.publish.modbus.regmap import REFUSALS, Point, RegisterMap, Table
@@ -340,6 +341,7 @@ class ModbusServer:
     async def start(self) -> None:
         """Listen and serve until ``stop``; ``OSError`` when the port cannot be bound."""
         self._bench_loop = asyncio.get_running_loop()
+        quiet_pymodbus()
         # Every tag as it is now, read between two scans; from now on the scan's batches.
         self.feed.take()
         self.image.load({t.spec.name: (t.value, t.quality, t.reason) for t in self.db})
