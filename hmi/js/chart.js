@@ -170,16 +170,23 @@ export function bandRange(index, count, min, max) {
   return [lo - b0 * full, lo - b0 * full + full];
 }
 
-/** Round ticks (1, 2, 2.5 or 5 × 10^k) inside band `index` of `count` of [min, max]. */
-export function bandSplits(index, count, min, max) {
+const TICK_SPACING_PX = 14; // between two tick labels of a band (12 px text)
+
+/**
+ * Round ticks (1, 2, 2.5 or 5 × 10^k) inside band `index` of `count` of [min, max], as
+ * many as fit in the band's `heightPx` at TICK_SPACING_PX apart (two at least).
+ */
+export function bandSplits(index, count, min, max, heightPx = 200) {
   const [b0, b1] = bandOf(index, count);
   const lo = min + b0 * (max - min);
   const hi = min + b1 * (max - min);
-  const raw = (hi - lo) / 3;
+  const fit = Math.max(2, Math.round(((b1 - b0) * heightPx) / TICK_SPACING_PX));
+  const raw = (hi - lo) / fit;
   const mag = 10 ** Math.floor(Math.log10(raw));
-  const incr = [1, 2, 2.5, 5, 10].map((m) => m * mag).find((s) => s >= raw) ?? 10 * mag;
+  const incr = [1, 2, 2.5, 5, 10].map((m) => m * mag).find((s) => s >= raw);
   const out = [];
-  for (let k = Math.ceil(lo / incr); k * incr <= hi; k++) out.push(+(k * incr).toPrecision(12));
+  // (a tick on the band's edge stays, whatever the rounding of the range)
+  for (let k = Math.ceil(lo / incr - 1e-9); k * incr <= hi + incr * 1e-9; k++) out.push(+(k * incr).toPrecision(12));
   return out;
 }
 
@@ -187,8 +194,9 @@ export function bandSplits(index, count, min, max) {
  * A trend: `pens` ({label, scale, unit}) on a time axis, drawn as steps (a value holds
  * until its next change, as the historian stores it), each pen in its colour and dash,
  * each scale with its own axis in its pen's colour and a band of its own; a legend with
- * the values under the cursor; a pen shown or hidden by `setPen(i, on)` (the screen's pen
- * selection) or a click in the legend, `onPens(shown)` told of either.
+ * the values under the cursor (`showLatest()`: the latest values, the cursor away); a pen
+ * shown or hidden by `setPen(i, on)` (the screen's pen selection) or a click in the
+ * legend, `onPens(shown)` told of either.
  */
 export function trendChart(el, { pens, height, hidden = [], onSelect = () => {}, onPens = () => {} }) {
   const scales = [...new Set(pens.map((p) => p.scale))];
@@ -238,7 +246,8 @@ export function trendChart(el, { pens, height, hidden = [], onSelect = () => {},
           labelFont: "bold 12px system-ui, sans-serif",
           grid: { stroke: "rgba(31, 42, 54, 0.1)", width: 1 },
           ticks: { stroke: colour, width: 1, size: 5 },
-          splits: (u, i, min, max) => bandSplits(...place(u, k), min, max),
+          splits: (u, i, min, max) => bandSplits(...place(u, k), min, max, u.bbox.height / devicePixelRatio),
+          values: (u, splits) => splits.map((v) => String(+v.toPrecision(6))),
           size: 56,
         };
       }),
@@ -261,5 +270,9 @@ export function trendChart(el, { pens, height, hidden = [], onSelect = () => {},
   };
   const chart = new uPlot(opts, [[], ...pens.map(() => [])], el);
   const setPen = (i, on) => chart.setSeries(i + 1, { show: on });
-  return { chart, setPen, stop: autoResize(chart, el, height) };
+  // The legend gives the values under the cursor; the cursor away, the latest ones.
+  const showLatest = () => {
+    if (!(chart.cursor.left >= 0) && chart.data[0].length) chart.setLegend({ idx: chart.data[0].length - 1 });
+  };
+  return { chart, setPen, showLatest, stop: autoResize(chart, el, height) };
 }

@@ -15,7 +15,7 @@ import statistics
 import time
 from typing import Any
 
-from browserrig import SCREENS, VIEWPORT, Supervisor, login, wait_for
+from browserrig import SCREENS, VIEWPORT, Supervisor, login, screenshot, wait_for
 
 ALARM_RED = "rgb(200, 16, 46)"  # --alarm of hmi.css: never a pen's colour
 
@@ -225,6 +225,7 @@ def test_ch4_s_pens_are_distinct_with_a_legend_and_voltage_and_temperature_apart
     t_y = statistics.median(rows["temperature degC"])
     assert abs(v_y - t_y) > 30, (v_y, t_y)
     assert all(box["top"] <= y <= box["bottom"] for y in (v_y, t_y))
+    screenshot(page, "channel-ch4-trend-pens")
 
 
 def test_an_operator_picks_the_pens_and_the_choice_stays(page: Any, bench: Supervisor) -> None:

@@ -14,7 +14,7 @@ const SPANS_S = [
   ["2 h", 7200],
   ["8 h", 28800],
 ];
-const TREND_HEIGHT = 280;
+const TREND_HEIGHT = 320;
 const MAX_LIVE_POINTS = 20000;
 const REDRAW_MS = 500;
 const HOLD_S = 1.0;
@@ -353,6 +353,7 @@ export async function render({ root, app, params }) {
       const now = Date.now() / 1000;
       chart.setScale("x", { min: now - spanS, max: now });
     }
+    trend.showLatest();
   };
   async function loadHistory() {
     const end = Date.now() / 1000;
