@@ -170,17 +170,18 @@ export function bandRange(index, count, min, max) {
   return [lo - b0 * full, lo - b0 * full + full];
 }
 
-const TICK_SPACING_PX = 14; // between two tick labels of a band (12 px text)
+const TICK_SPACING_PX = 14; // between two tick labels of a band (12 px text), at least
+const MAX_TICKS = 5; // in a band: more would be a grid to read, not a scale
 
 /**
  * Round ticks (1, 2, 2.5 or 5 × 10^k) inside band `index` of `count` of [min, max], as
- * many as fit in the band's `heightPx` at TICK_SPACING_PX apart (two at least).
+ * many as fit in the band's `heightPx` at TICK_SPACING_PX apart (two to MAX_TICKS).
  */
 export function bandSplits(index, count, min, max, heightPx = 200) {
   const [b0, b1] = bandOf(index, count);
   const lo = min + b0 * (max - min);
   const hi = min + b1 * (max - min);
-  const fit = Math.max(2, Math.round(((b1 - b0) * heightPx) / TICK_SPACING_PX));
+  const fit = Math.min(MAX_TICKS, Math.max(2, Math.round(((b1 - b0) * heightPx) / TICK_SPACING_PX)));
   const raw = (hi - lo) / fit;
   const mag = 10 ** Math.floor(Math.log10(raw));
   const incr = [1, 2, 2.5, 5, 10].map((m) => m * mag).find((s) => s >= raw);
@@ -231,6 +232,8 @@ export function trendChart(el, { pens, height, hidden = [], onSelect = () => {},
         width: 2,
         paths: step,
         points: { show: false },
+        // In the legend: no value is a dash, not an empty cell.
+        value: (u, v) => (v == null ? "—" : String(+v.toPrecision(6))),
       })),
     ],
     axes: [

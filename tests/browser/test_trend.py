@@ -199,6 +199,37 @@ def test_pens_joined_from_changes_hold_their_values_at_each_other_s_times(
     ]
 
 
+def test_every_scale_s_data_lies_in_a_band_of_its_own_with_its_ticks(as_operator: Any) -> None:
+    """For every number of scales shown (1 to 6) and every place, with data flat or not,
+    negative, small or large: the data (its range) fills a band of its own, the bands do
+    not overlap, and the ticks lie in the band."""
+    page = as_operator
+    bands = page.evaluate(
+        """async () => {
+          const { bandRange, bandSplits } = await import('/static/js/chart.js');
+          const data = [
+            [15, 15], [-0.2, 0], [24.9, 25.3], [3.778, 3.782], [-300, 300], [1e-4, 3e-4], [0, 0],
+          ];
+          const out = [];
+          for (let count = 1; count <= 6; count++)
+            for (let index = 0; index < count; index++)
+              for (const [lo, hi] of data) {
+                const [min, max] = bandRange(index, count, lo, hi);
+                const frac = (v) => (v - min) / (max - min);  // 0 at the plot's bottom
+                const ticks = bandSplits(index, count, min, max, 240);
+                out.push({ count, index, lo: frac(lo), hi: frac(hi), ticks: ticks.map(frac) });
+              }
+          return out;
+        }"""
+    )
+    for b in bands:
+        count, index = b["count"], b["index"]
+        bottom, top = (count - 1 - index) / count, (count - index) / count
+        assert bottom < b["lo"] <= b["hi"] < top, b
+        assert len(b["ticks"]) >= 1, b
+        assert all(bottom <= t <= top for t in b["ticks"]), b
+
+
 def test_ch4_s_pens_are_distinct_with_a_legend_and_voltage_and_temperature_apart(
     page: Any, bench: Supervisor
 ) -> None:
