@@ -291,6 +291,7 @@ export async function render({ root, app, params }) {
   ];
   let seriesLabels = [];
   let trend = null;
+  let destroyed = false;
   // The pens an operator hid on this channel stay hidden on the next visit (this browser).
   const pensKey = `hmi.trend.hidden.${name}`;
   const hiddenPens = () => {
@@ -364,13 +365,17 @@ export async function render({ root, app, params }) {
     // Changes only (raw) or per-interval means (a long range): held until the next either way.
     const tables = answers.map((a) => {
       if (!a.ok) return { before: null, t: [], v: [] };
-      const rows = a.data.samples || (a.data.buckets || []).map((b) => ({ t: b.t, value: b.mean }));
+      const rows = a.data.samples || (a.data.buckets || []).map((b) => ({ t: b.t, value: b.mean, quality: b.quality }));
+      // A BAD value is a gap until the next good one, as in the live points.
+      const good = (r) => (r && r.quality !== "BAD" && typeof r.value === "number" ? r.value : null);
+      const before = a.data.before;
       return {
-        before: a.data.before || null,
+        before: before ? { t: before.t, value: good(before) } : null,
         t: rows.map((r) => r.t),
-        v: rows.map((r) => (typeof r.value === "number" ? r.value : null)),
+        v: rows.map(good),
       };
     });
+    if (destroyed) return; // the screen left while the historian answered
     if (!trend) makeTrend(answers);
     const keep = data; // live points that came in meanwhile stay
     // Held until `end` (now): the historian saw no change since the last sample.
@@ -458,6 +463,7 @@ export async function render({ root, app, params }) {
       paintHead();
     },
     destroy() {
+      destroyed = true;
       clearInterval(timer);
       trend?.stop();
       trend?.chart.destroy();
