@@ -199,4 +199,4 @@ check: lint typecheck
 	$(PYTEST) -m "not integration" tests/unit
 
 clean:
-	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache $(INTEROP)/node_modules hmi/node_modules
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache $(INTEROP)/node_modules hmi/node_modules tests/browser/node_modules
