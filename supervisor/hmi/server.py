@@ -38,6 +38,7 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import Value
 from supervisor.core.quality import Quality, Reason
 from supervisor.hmi.body import BodyError, read_json, read_json_object, refuse_unknown
+from supervisor.hmi.compress import GzipMemo, json_text_response
 from supervisor.hmi.csrf import RequestOrigins
 from supervisor.hmi.history_api import HistoryQuery, add_history_routes
 from supervisor.hmi.limits import ConnectionGuard, ConnectionLimits
@@ -593,6 +594,7 @@ class HttpApi:
         self.guard: ConnectionGuard | None = None
         """The listener's connection counts (after ``start``)."""
         self.snapshots = TagSnapshots(db, clock, pacing)
+        self._tags_gzip = GzipMemo()
         app = web.Application()
         # Cross-site request forgery: JSON bodies and same-origin pages only (issue 27).
         RequestOrigins(allowed_origins).install(app)
@@ -681,9 +683,10 @@ class HttpApi:
             await self.snapshots.clear_of_scan()
             tags = [t for t in self.db if t.name.startswith(prefix)]
             text = await self.snapshots.fragments[False].encode(tags)
-        else:
-            _, text = await self.snapshots.image()
-        return web.Response(text=text, content_type="application/json")
+            return await json_text_response(request, text)
+        version, text = await self.snapshots.image()
+        # gzip for a client that takes it, once per version (supervisor.hmi.compress).
+        return await json_text_response(request, text, self._tags_gzip, version)
 
     async def _get(self, request: web.Request) -> web.Response:
         tag = self.db.get(request.match_info["name"])
