@@ -124,15 +124,18 @@ class StaticFiles:
 
     async def _send(self, request: web.Request, path: Path) -> web.StreamResponse:
         """``path`` as the answer: its gzip when the client takes it, else the file."""
-        content_type = mimetypes.guess_type(path)[0]
-        gzippable = compressible(content_type) and hdrs.RANGE not in request.headers
-        if not (gzippable and accepts_gzip(request)):
-            headers = {**NO_STORE, **VARY} if compressible(content_type) else NO_STORE
-            return web.FileResponse(path, headers=headers)
-        assert content_type is not None  # compressible
+        # One content type for both answers (aiohttp's own table differs from Python's).
+        content_type = mimetypes.guess_type(path)[0] or "application/octet-stream"
+        plain_headers = {**NO_STORE, "Content-Type": content_type}
+        if compressible(content_type):
+            plain_headers.update(VARY)
+        if hdrs.RANGE in request.headers or not (
+            compressible(content_type) and accepts_gzip(request)
+        ):
+            return web.FileResponse(path, headers=plain_headers)
         packed = await self._packed(path)
         if packed is None:
-            return web.FileResponse(path, headers={**NO_STORE, **VARY})
+            return web.FileResponse(path, headers=plain_headers)
         headers = {
             **NO_STORE,
             "ETag": f'"{packed.etag}"',
