@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import zlib
-from collections.abc import Hashable
+from collections.abc import Awaitable, Callable, Hashable
 from typing import Final
 
 from aiohttp import hdrs, web
@@ -115,3 +115,27 @@ async def json_text_response(
     else:
         body = await gzip_off_loop(text.encode(), LIVE_LEVEL)
     return gzip_response(body, "application/json", {}, charset="utf-8")
+
+
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+
+
+@web.middleware
+async def gzip_json(request: web.Request, handler: Handler) -> web.StreamResponse:
+    """The API's other JSON answers (``/api/bench``, history, events, tests, alarms...)
+    gzip by aiohttp when the client takes it and the body is worth it (aiohttp compresses a
+    body of more than 4 KB in a worker thread). An answer already encoded (the tag list),
+    streamed or prepared by its handler (the WebSocket, files) is left as it is."""
+    response = await handler(request)
+    if (
+        isinstance(response, web.Response)
+        and not response.prepared
+        and response.content_type == "application/json"
+        and "Content-Encoding" not in response.headers
+        and isinstance(response.body, bytes | bytearray)
+        and len(response.body) >= GZIP_MIN_BYTES
+    ):
+        response.headers.update(VARY)
+        if accepts_gzip(request):
+            response.enable_compression(web.ContentCoding.gzip)
+    return response

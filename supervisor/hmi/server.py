@@ -38,7 +38,7 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import Value
 from supervisor.core.quality import Quality, Reason
 from supervisor.hmi.body import BodyError, read_json, read_json_object, refuse_unknown
-from supervisor.hmi.compress import GzipMemo, json_text_response
+from supervisor.hmi.compress import GzipMemo, gzip_json, json_text_response
 from supervisor.hmi.csrf import RequestOrigins
 from supervisor.hmi.history_api import HistoryQuery, add_history_routes
 from supervisor.hmi.limits import ConnectionGuard, ConnectionLimits
@@ -600,6 +600,8 @@ class HttpApi:
         RequestOrigins(allowed_origins).install(app)
         # Outermost: every error under /api/ is JSON, aiohttp's own and the refusals too.
         app.middlewares.insert(0, json_errors)
+        # Outside it, so that a large error answer is compressed too (supervisor.hmi.compress).
+        app.middlewares.insert(0, gzip_json)
         app.on_response_prepare.append(_security_headers)
         app.add_routes(
             [

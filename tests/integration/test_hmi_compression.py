@@ -229,3 +229,22 @@ async def test_one_compression_per_version_shared_by_every_request(
     _, body, _ = await _get(server, "/api/tags", GZIP)
     assert memo.compressed == 2
     assert b"99.0" in gzip.decompress(body)
+
+
+@pytest.mark.parametrize("path", ["/api/openapi.json", "/api/tags/text", "/api/nothing"])
+async def test_the_api_s_other_json_answers_are_the_same_gzip_or_plain(
+    api: tuple[BaseTestServer, HttpApi], path: str
+) -> None:
+    """The OpenAPI description (large), a tag (small), an error (JSON too)."""
+    server, _ = api
+    status, plain, plain_headers = await _get(server, path, PLAIN)
+    status_gz, packed, headers = await _get(server, path, GZIP)
+    assert status == status_gz
+    assert headers["Content-Type"] == plain_headers["Content-Type"]
+    if len(plain) < GZIP_MIN_BYTES:
+        assert packed == plain and "Content-Encoding" not in headers
+    else:
+        assert headers["Content-Encoding"] == "gzip"
+        assert headers["Vary"] == "Accept-Encoding"
+        assert gzip.decompress(packed) == plain
+    assert (path == "/api/openapi.json") == (len(plain) >= GZIP_MIN_BYTES)
