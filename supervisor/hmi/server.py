@@ -554,6 +554,19 @@ async def json_errors(request: web.Request, handler: Handler) -> web.StreamRespo
         )
 
 
+def _application(allowed_origins: Iterable[str]) -> web.Application:
+    """The API's application with what every request and answer goes through."""
+    app = web.Application()
+    # Cross-site request forgery: JSON bodies and same-origin pages only (issue 27).
+    RequestOrigins(allowed_origins).install(app)
+    # Outermost: every error under /api/ is JSON, aiohttp's own and the refusals too.
+    app.middlewares.insert(0, json_errors)
+    # Outside it, so that a large error answer is compressed too (supervisor.hmi.compress).
+    app.middlewares.insert(0, gzip_json)
+    app.on_response_prepare.append(_security_headers)
+    return app
+
+
 VALUE_BODY: Final = '{"value": ...}'
 RECIPE_BODY: Final = '{"file": "...", "parameters": {...}}'
 
@@ -595,14 +608,7 @@ class HttpApi:
         """The listener's connection counts (after ``start``)."""
         self.snapshots = TagSnapshots(db, clock, pacing)
         self._tags_gzip = GzipMemo()
-        app = web.Application()
-        # Cross-site request forgery: JSON bodies and same-origin pages only (issue 27).
-        RequestOrigins(allowed_origins).install(app)
-        # Outermost: every error under /api/ is JSON, aiohttp's own and the refusals too.
-        app.middlewares.insert(0, json_errors)
-        # Outside it, so that a large error answer is compressed too (supervisor.hmi.compress).
-        app.middlewares.insert(0, gzip_json)
-        app.on_response_prepare.append(_security_headers)
+        app = _application(allowed_origins)
         app.add_routes(
             [
                 web.get("/api/tags", self._list),

@@ -22,25 +22,22 @@ def _body_bytes(bench: Supervisor, url: str, encoding: str) -> tuple[int, str]:
         return len(res.read()), res.headers.get("Content-Encoding", "")
 
 
-def test_the_first_load_is_less_than_half_its_uncompressed_weight(
-    browser: Any, bench: Supervisor
-) -> None:
-    ctx = browser.new_context(viewport=VIEWPORT)  # nothing cached
+Loaded = list[tuple[str, str, int, dict[str, str]]]
+"""Each request of a load: method, URL, bytes transferred (body and headers), answer's headers."""
+
+
+def first_load(browser: Any, bench: Supervisor) -> Loaded:
+    """What a fresh Chromium (nothing cached) loads to log in and show the Overview."""
+    ctx = browser.new_context(viewport=VIEWPORT)
     page = ctx.new_page()
-    loaded: list[tuple[str, str, int, dict[str, str]]] = []
+    loaded: Loaded = []
 
     def finished(req: Any) -> None:
         sizes = req.sizes()
         response = req.response()
         headers = response.headers if response is not None else {}
-        loaded.append(
-            (
-                req.method,
-                req.url,
-                sizes["responseBodySize"] + sizes["responseHeadersSize"],
-                headers,
-            )
-        )
+        size_b = sizes["responseBodySize"] + sizes["responseHeadersSize"]
+        loaded.append((req.method, req.url, size_b, headers))
 
     page.on("requestfinished", finished)
     try:
@@ -55,6 +52,13 @@ def test_the_first_load_is_less_than_half_its_uncompressed_weight(
         page.wait_for_load_state("networkidle")
     finally:
         ctx.close()
+    return loaded
+
+
+def test_the_first_load_is_less_than_half_its_uncompressed_weight(
+    browser: Any, bench: Supervisor
+) -> None:
+    loaded = first_load(browser, bench)
     gets = [(url, headers) for method, url, _, headers in loaded if method == "GET"]
     assert any(u.endswith("/api/tags") for u, _ in gets), gets
     # Every text answer worth it came gzip to the browser.
@@ -67,13 +71,12 @@ def test_the_first_load_is_less_than_half_its_uncompressed_weight(
     ]
     assert not plain_text, plain_text
     browser_b = sum(b for _, _, b, _ in loaded)
-    before_b = after_b = 0
     rows = []
     for url, _ in gets:
         plain, _ = _body_bytes(bench, url, "identity")
         packed, encoding = _body_bytes(bench, url, "gzip")
-        before_b, after_b = before_b + plain, after_b + packed
         rows.append((url.removeprefix(bench.base), plain, packed, encoding))
+    before_b, after_b = sum(r[1] for r in rows), sum(r[2] for r in rows)
     print(
         f"first load (login + overview), {len(loaded)} requests: bodies {before_b / 1024:.1f} KB"
         f" plain, {after_b / 1024:.1f} KB gzip; Chromium transferred {browser_b / 1024:.1f} KB"
