@@ -27,6 +27,8 @@ CHAIN_FIELDS = (
     "alarm",
     "interlock",
     "last_event",
+    "last_transition",
+    "last_command",
     "progress",
     "eta_s",
     "internal_resistance",
@@ -65,6 +67,20 @@ def add_chain_tags(db: TagDB, n: str) -> None:
         TagSpec(f"{n}.chain.alarm", dtype="str", initial=""),
         TagSpec(f"{n}.chain.interlock", dtype="str", initial=""),
         TagSpec(f"{n}.chain.last_event", dtype="str", initial=""),
+        # The last event split by what it is (issue 33, finding 5): a refused command must
+        # not hide why the chain went where it is.
+        TagSpec(
+            f"{n}.chain.last_transition",
+            dtype="str",
+            initial="",
+            description="The chain's last step or state transition, with its cause",
+        ),
+        TagSpec(
+            f"{n}.chain.last_command",
+            dtype="str",
+            initial="",
+            description="The last operator command on the channel, accepted or refused, by whom",
+        ),
         TagSpec(f"{n}.chain.progress", unit="1", initial=0.0, history=CLOCK_HISTORY),
         TagSpec(f"{n}.chain.eta_s", unit="s", initial=None, history=CLOCK_HISTORY),
         TagSpec(f"{n}.chain.internal_resistance", unit="ohm", initial=None),

@@ -72,6 +72,10 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 EVENTS_KEPT = 200
+TRANSITION_KINDS = ("step", "state")
+"""The events that are the chain's own transitions (``chN.chain.last_transition``): a step
+entered, a cycle ended, a state changed, each with its cause; not a command, a message or
+an alarm."""
 _GOOD = Quality.GOOD
 _NONE = Reason.NONE
 _RUNNING = State.RUNNING
@@ -303,6 +307,7 @@ class ChainRunner:
         command path, which has logged it): into this chain's events, and into the test's
         timeline while a test is under way."""
         under_way = self.state not in LOADABLE
+        self._set("last_command", text)
         self._emit("command" if under_way else "message", text, quiet=True, echo=True)
 
     def _start(self, actor: str) -> None:
@@ -913,6 +918,8 @@ class ChainRunner:
         )
         self.events.append(ev)
         self._set("last_event", text)
+        if kind in TRANSITION_KINDS:
+            self._set("last_transition", text)
         if not quiet:
             log.info("%s: %s", self.name, text)
         # A copy: a listener may replace listeners (a start after a reset attaches the
