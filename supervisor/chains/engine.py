@@ -85,6 +85,8 @@ class ChainRunner:
     """Executes a Program on one channel. Runs as a scan logic phase before the channel."""
 
     _fast = True
+    _acting: tuple[State, State, str] | None = None
+    """The last entry into an acting state: from, to, cause (``_note_acting``)."""
     """The running scan computes only the condition values the program reads and asks a
     behaviour only what it answers differently from a rest step, and a steady scan (see
     ``run``) takes its short way (docs/adr/0018, "Dry run"); False only in the tests that
@@ -896,6 +898,18 @@ class ChainRunner:
         elif state in FINAL and not r.end_reason:
             r.end_reason = cause
         self._emit("state", f"{old.value} → {state.value} ({cause})")
+        self._note_acting(old, state, cause)
+
+    def _note_acting(self, old: State, state: State, cause: str) -> None:
+        """The last transition as the screen shows it: an acting state's end ("done" in the
+        next scan) with the cause that began it — "Running → Holding → Held (hold by
+        hmi:operator)", not "Holding → Held (done)"."""
+        acting = self._acting
+        if cause == "done" and acting is not None and acting[1] is old:
+            self._set(
+                "last_transition", f"{acting[0].value} → {old.value} → {state.value} ({acting[2]})"
+            )
+        self._acting = (old, state, cause) if state in AUTO_NEXT else None
 
     def _end_record(self) -> None:
         """Sampling rules: a record at the end, so the result files end where the test
