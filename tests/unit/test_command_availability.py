@@ -32,13 +32,14 @@ SHORT = "recipe: q\nsteps:\n  - {id: r, rest: 1 s}\n"
 FORCEABLE = "room.temp"  # a thermocouple no safety rule reads: commissioning may force it
 
 
+ACCESS = {"viewer": Access.READ_ONLY, "operator": Access.OPERATOR, "engineer": Access.ENGINEER}
+
+
 class ByName:
     """Roles by the actor's name: ``viewer``, ``operator``, ``engineer``."""
 
-    ACCESS = {"viewer": Access.READ_ONLY, "operator": Access.OPERATOR, "engineer": Access.ENGINEER}
-
     def access_of(self, actor: str) -> Access:
-        return self.ACCESS[actor]
+        return ACCESS[actor]
 
     def refuses(self, command: Command) -> str:
         return f"viewer may not {command.verb.value}" if command.actor == "viewer" else ""
