@@ -21,7 +21,14 @@ from supervisor.commands import CommandPath, Result
 
 
 def _button(r: Result) -> dict[str, Any]:
-    return {"accepted": r.accepted, "kind": r.kind.value, "reason": r.reason}
+    # The status the command would be answered with: the screen words a refusal ahead as
+    # it words one sent ("Refused (409): …").
+    return {
+        "accepted": r.accepted,
+        "kind": r.kind.value,
+        "reason": r.reason,
+        "status": r.http_status,
+    }
 
 
 def add_command_bar_route(
