@@ -123,6 +123,7 @@ export function mountCommandBar({ root, app, name, ch, onLoaded }) {
   const dialog = $("#cmd-confirm", root);
   const base = `/api/channels/${encodeURIComponent(name)}`;
   let answers = null; // the last GET …/commands answer's "commands"
+  let info = {}; // … and its channel's state, recipe and test
   let asking = null;
   let askAgain = false;
   let gone = false;
@@ -158,6 +159,7 @@ export function mountCommandBar({ root, app, name, ch, onLoaded }) {
         const answer = await get(`${base}/commands`);
         if (gone) return;
         answers = answer.ok && answer.data.commands ? answer.data.commands : null;
+        info = answers ? answer.data : info;
         paint();
         bar.dataset.asked = String(Number(bar.dataset.asked || 0) + 1);
       } while (askAgain && !gone);
@@ -190,9 +192,11 @@ export function mountCommandBar({ root, app, name, ch, onLoaded }) {
   let onYes = null;
   const confirmThen = (key, what, action) => {
     const c = CONFIRM[key];
-    const test = app.live.value(`${p}chain.test_id`) || "none";
-    const recipe = app.live.value(`${p}chain.recipe`) || "none";
-    const state = app.live.value(t.state) || "unknown";
+    // The live values (the freshest), else what the supervisor said with its answer.
+    const live = (tag, known) => (tag && app.live.value(tag) !== undefined ? app.live.value(tag) : known);
+    const test = live(t.test_id, info.test_id) || "none";
+    const recipe = live(t.recipe, info.recipe) || "none";
+    const state = live(t.state, info.state) || "unknown";
     $("#cmd-confirm-title", root).textContent = `${c.title} on ${name}: test ${test}?`;
     $("#cmd-confirm-what", root).textContent =
       `${what ? `${what} — ` : ""}channel ${name}, test ${test} (recipe ${recipe}), state ${state}.`;
@@ -228,7 +232,7 @@ export function mountCommandBar({ root, app, name, ch, onLoaded }) {
     if (comment) m.comment = comment;
     return m;
   };
-  const finished = () => ["Complete", "Stopped", "Aborted"].includes(app.live.value(t.state));
+  const finished = () => ["Complete", "Stopped", "Aborted"].includes(app.live.value(t.state) ?? info.state);
   for (const b of $$("[data-verb]", bar))
     b.addEventListener("click", () => {
       if (refusedAhead(b)) return;
@@ -275,7 +279,7 @@ export function mountCommandBar({ root, app, name, ch, onLoaded }) {
     if (refusedAhead($("#cmd-unforce", root))) return;
     const tag = $("#force-tag", root).value.trim();
     busy("unforce…");
-    showResult(out, await api("DELETE", `/api/tags/${encodeURIComponent(tag)}/force`));
+    showResult(out, await api("DELETE", `/api/tags/${encodeURIComponent(tag)}/force`, {}));
     ask();
   });
 
