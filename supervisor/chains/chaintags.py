@@ -36,6 +36,25 @@ CHAIN_FIELDS = (
 )
 
 
+def _last_event_split(n: str) -> tuple[TagSpec, ...]:
+    """The last event split by what it is (issue 33, finding 5; ADR 0039): a refused command
+    must not hide why the chain went where it is."""
+    return (
+        TagSpec(
+            f"{n}.chain.last_transition",
+            dtype="str",
+            initial="",
+            description="The chain's last step or state transition, with its cause",
+        ),
+        TagSpec(
+            f"{n}.chain.last_command",
+            dtype="str",
+            initial="",
+            description="The last operator command on the channel, accepted or refused, by whom",
+        ),
+    )
+
+
 def add_chain_tags(db: TagDB, n: str) -> None:
     """Add channel ``n``'s chain tags to ``db``, each at its initial value."""
     db.add(
@@ -67,20 +86,7 @@ def add_chain_tags(db: TagDB, n: str) -> None:
         TagSpec(f"{n}.chain.alarm", dtype="str", initial=""),
         TagSpec(f"{n}.chain.interlock", dtype="str", initial=""),
         TagSpec(f"{n}.chain.last_event", dtype="str", initial=""),
-        # The last event split by what it is (issue 33, finding 5): a refused command must
-        # not hide why the chain went where it is.
-        TagSpec(
-            f"{n}.chain.last_transition",
-            dtype="str",
-            initial="",
-            description="The chain's last step or state transition, with its cause",
-        ),
-        TagSpec(
-            f"{n}.chain.last_command",
-            dtype="str",
-            initial="",
-            description="The last operator command on the channel, accepted or refused, by whom",
-        ),
+        *_last_event_split(n),
         TagSpec(f"{n}.chain.progress", unit="1", initial=0.0, history=CLOCK_HISTORY),
         TagSpec(f"{n}.chain.eta_s", unit="s", initial=None, history=CLOCK_HISTORY),
         TagSpec(f"{n}.chain.internal_resistance", unit="ohm", initial=None),
