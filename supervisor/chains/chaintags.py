@@ -27,11 +27,32 @@ CHAIN_FIELDS = (
     "alarm",
     "interlock",
     "last_event",
+    "last_transition",
+    "last_command",
     "progress",
     "eta_s",
     "internal_resistance",
     "charge_ah",
 )
+
+
+def _last_event_split(n: str) -> tuple[TagSpec, ...]:
+    """The last event split by what it is (issue 33, finding 5; ADR 0039): a refused command
+    must not hide why the chain went where it is."""
+    return (
+        TagSpec(
+            f"{n}.chain.last_transition",
+            dtype="str",
+            initial="",
+            description="The chain's last step or state transition, with its cause",
+        ),
+        TagSpec(
+            f"{n}.chain.last_command",
+            dtype="str",
+            initial="",
+            description="The last operator command on the channel, accepted or refused, by whom",
+        ),
+    )
 
 
 def add_chain_tags(db: TagDB, n: str) -> None:
@@ -65,6 +86,7 @@ def add_chain_tags(db: TagDB, n: str) -> None:
         TagSpec(f"{n}.chain.alarm", dtype="str", initial=""),
         TagSpec(f"{n}.chain.interlock", dtype="str", initial=""),
         TagSpec(f"{n}.chain.last_event", dtype="str", initial=""),
+        *_last_event_split(n),
         TagSpec(f"{n}.chain.progress", unit="1", initial=0.0, history=CLOCK_HISTORY),
         TagSpec(f"{n}.chain.eta_s", unit="s", initial=None, history=CLOCK_HISTORY),
         TagSpec(f"{n}.chain.internal_resistance", unit="ohm", initial=None),

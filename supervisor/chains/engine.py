@@ -72,6 +72,10 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 EVENTS_KEPT = 200
+TRANSITION_KINDS = ("step", "state")
+"""The events that are the chain's own transitions (``chN.chain.last_transition``): a step
+entered, a cycle ended, a state changed, each with its cause; not a command, a message or
+an alarm."""
 _GOOD = Quality.GOOD
 _NONE = Reason.NONE
 _RUNNING = State.RUNNING
@@ -81,6 +85,8 @@ class ChainRunner:
     """Executes a Program on one channel. Runs as a scan logic phase before the channel."""
 
     _fast = True
+    _acting: tuple[State, State, str] | None = None
+    """The last entry into an acting state: from, to, cause (``_note_acting``)."""
     """The running scan computes only the condition values the program reads and asks a
     behaviour only what it answers differently from a rest step, and a steady scan (see
     ``run``) takes its short way (docs/adr/0018, "Dry run"); False only in the tests that
@@ -303,6 +309,7 @@ class ChainRunner:
         command path, which has logged it): into this chain's events, and into the test's
         timeline while a test is under way."""
         under_way = self.state not in LOADABLE
+        self._set("last_command", text)
         self._emit("command" if under_way else "message", text, quiet=True, echo=True)
 
     def _start(self, actor: str) -> None:
@@ -891,6 +898,18 @@ class ChainRunner:
         elif state in FINAL and not r.end_reason:
             r.end_reason = cause
         self._emit("state", f"{old.value} → {state.value} ({cause})")
+        self._note_acting(old, state, cause)
+
+    def _note_acting(self, old: State, state: State, cause: str) -> None:
+        """The last transition as the screen shows it: an acting state's end ("done" in the
+        next scan) with the cause that began it — "Running → Holding → Held (hold by
+        hmi:operator)", not "Holding → Held (done)"."""
+        acting = self._acting
+        if cause == "done" and acting is not None and acting[1] is old:
+            self._set(
+                "last_transition", f"{acting[0].value} → {old.value} → {state.value} ({acting[2]})"
+            )
+        self._acting = (old, state, cause) if state in AUTO_NEXT else None
 
     def _end_record(self) -> None:
         """Sampling rules: a record at the end, so the result files end where the test
@@ -913,6 +932,8 @@ class ChainRunner:
         )
         self.events.append(ev)
         self._set("last_event", text)
+        if kind in TRANSITION_KINDS:
+            self._set("last_transition", text)
         if not quiet:
             log.info("%s: %s", self.name, text)
         # A copy: a listener may replace listeners (a start after a reset attaches the

@@ -104,6 +104,18 @@ CHANNEL_VERBS = (
     Verb.ENABLE,
     Verb.WRITE,
 )
+CHANNEL_BAR: tuple[tuple[str, Verb, Mapping[str, Any]], ...] = (
+    ("load", Verb.LOAD, {}),
+    *((v.value, v, {}) for v in CHAIN_VERBS),
+    ("acknowledge", Verb.ACKNOWLEDGE, {}),
+    ("mode_auto", Verb.MODE, {"value": "auto"}),
+    ("mode_manual", Verb.MODE, {"value": "manual"}),
+    ("manual_current", Verb.MANUAL_CURRENT, {}),
+    ("enable_on", Verb.ENABLE, {"value": True}),
+    ("enable_off", Verb.ENABLE, {"value": False}),
+)
+"""A channel's command bar on the screens: each button's key, verb and the arguments it
+always sends (``CommandPath.available`` answers for each; issue 33, finding 2)."""
 ALARM_VERBS = (Verb.ACKNOWLEDGE, Verb.RESET, Verb.SHELVE, Verb.UNSHELVE)
 BENCH_VERBS = (Verb.WRITE, Verb.FORCE, Verb.UNFORCE, Verb.ESTOP, Verb.ESTOP_RESET)
 ESTOP_VERBS = (Verb.ESTOP, Verb.ESTOP_RESET)

@@ -43,19 +43,21 @@ from pathlib import Path
 from typing import Any
 
 from supervisor.chains.engine import ChainRunner
-from supervisor.chains.states import MANUAL_DRIVEN, State
+from supervisor.chains.states import MANUAL_DRIVEN, State, check_load, decide
 from supervisor.channels import Mode
 from supervisor.commands.force import channel_safety_tags, parse_forced
 from supervisor.commands.model import (
     ALARM_VERBS,
     BENCH_VERBS,
     CHAIN_VERBS,
+    CHANNEL_BAR,
     CHANNEL_VERBS,
     ESTOP_VERBS,
     Command,
     CommandEvent,
     Result,
     ResultKind,
+    Target,
     TargetKind,
     Verb,
 )
@@ -87,6 +89,7 @@ RECIPE_ARGUMENTS = ("recipe", "parameters", *METADATA_ARGUMENTS)
 # A channel's operator tags that are commands: their writes take the command's checks.
 CHANNEL_COMMAND_TAGS = ("command", "mode", "manual_current", "enable", "ack")
 IN_AUTO = "channel {ch} is in auto (step chain): switch to manual first"
+NO_LOADER = "this bench does not load recipes"
 RUNNING = (State.RUNNING, State.RESUMING)
 
 
@@ -265,16 +268,22 @@ class CommandPath:
         return self._write(command, command.args)
 
     # --- channels -----------------------------------------------------------------------
-    def _channel(self, c: Command) -> Result:
+    def _runner(self, c: Command) -> ChainRunner:
+        """The channel ``c`` is about, or not found (an unknown channel, a verb no channel has)."""
         name = c.target.name
         runner = self.runners.get(name)
         if runner is None:
             known = ", ".join(self.runners) or "none"
             raise Refusal(ResultKind.NOT_FOUND, f"unknown channel {name!r} (channels: {known})")
-        v, a = c.verb, c.args
-        if v not in CHANNEL_VERBS:
+        if c.verb not in CHANNEL_VERBS:
             ok = ", ".join(x.value for x in CHANNEL_VERBS)
-            raise Refusal(ResultKind.NOT_FOUND, f"a channel has no command {v.value} ({ok})")
+            raise Refusal(ResultKind.NOT_FOUND, f"a channel has no command {c.verb.value} ({ok})")
+        return runner
+
+    def _channel(self, c: Command) -> Result:
+        name = c.target.name
+        runner = self._runner(c)
+        v, a = c.verb, c.args
         if v is Verb.LOAD:
             _only(c, *RECIPE_ARGUMENTS)
             metadata = _metadata(a)
@@ -310,7 +319,7 @@ class CommandPath:
     def _load(self, name: str, recipe: str, parameters: dict[str, str], local: bool) -> Result:
         loader = self.loader
         if loader is None:
-            raise Refusal(ResultKind.NOT_FOUND, "this bench does not load recipes")
+            raise Refusal(ResultKind.NOT_FOUND, NO_LOADER)
         recipe = self._recipe_file(recipe, local)
         job = _RecipeJob(name, recipe, parameters)
         try:
@@ -347,9 +356,7 @@ class CommandPath:
         self, name: str, runner: ChainRunner, a: Mapping[str, Any], actor: str, local: bool
     ) -> Result:
         # Interlocks and Manual first: a refused start must not load the recipe either.
-        self._interlocks(name, runner, "start")
-        if runner.port.manual_driven:
-            raise Refusal(ResultKind.REFUSED, f"{name}: cannot start while {MANUAL_DRIVEN}")
+        self._start_allowed(name, runner)
         metadata = _metadata(a)
         loader = self.loader
         before = loader.test_metadata.get(name) if loader is not None else None
@@ -390,6 +397,12 @@ class CommandPath:
             state=runner.state.value,
         )
 
+    def _start_allowed(self, name: str, runner: ChainRunner) -> None:
+        """A start's checks that come before its recipe: interlocks, then Manual."""
+        self._interlocks(name, runner, "start")
+        if runner.port.manual_driven:
+            raise Refusal(ResultKind.REFUSED, f"{name}: cannot start while {MANUAL_DRIVEN}")
+
     def _set_metadata(self, name: str, given: dict[str, Any], replace: bool) -> None:
         if self.loader is not None:
             self.loader.set_test_metadata(name, given, replace)
@@ -417,37 +430,33 @@ class CommandPath:
     def _acknowledge(self, name: str, runner: ChainRunner, actor: str) -> Result:
         """Acknowledge what holds the channel: the chain's latched alarm, and its trips
         (ISA-18.2: each is reset once acknowledged and its cause gone)."""
-        done: list[str] = []
-        alarm = runner.situation().alarm
-        if alarm is not None:
+        done = _chain_acked(runner)
+        if done:
             self._run_chain(runner, "ack", actor)
-            done.append(f"chain alarm acknowledged ({alarm})")
         guard = self.guards.get(name)
         if guard is not None:
             try:
                 reset = guard.reset(actor)
             except OperatorError as exc:
-                also = f" ({'; '.join(done)})" if done else ""
-                raise Refusal(
-                    ResultKind.REFUSED,
-                    f"{exc}; acknowledged{also}: reset once the cause is gone",
-                ) from None
+                raise _ack_refused(str(exc), done) from None
             if reset:
                 done.append("reset: " + ", ".join(reset))
         return Result.ok(f"{name}: " + ("; ".join(done) or "nothing to acknowledge"))
+
+    def _acknowledge_allowed(self, name: str, runner: ChainRunner) -> None:
+        """An acknowledgement is refused (after acknowledging) while a trip's cause is
+        present: the guard says so before it is given."""
+        guard = self.guards.get(name)
+        why = guard.reset_refusal() if guard is not None else ""
+        if why:
+            raise _ack_refused(why, _chain_acked(runner))
 
     def _mode(self, name: str, runner: ChainRunner, mode: str, keep: bool, actor: str) -> Result:
         port, db = runner.port, self.db
         if mode == Mode.AUTO.value:
             if port.in_auto:
                 return Result.ok(f"{name}: already in auto", tag=port.mode.name)
-            if port.manual_driven:
-                amps = port.manual_current.as_float()
-                raise Refusal(
-                    ResultKind.REFUSED,
-                    f"{name}: cannot switch to auto while the channel is driven in manual"
-                    f" (enable on, {amps:g} A): turn enable off first",
-                )
+            self._auto_allowed(name, runner)
             db.update(port.mode, Mode.AUTO.value)
             then = " (Held: resume to continue the test)" if runner.state is State.HELD else ""
             return Result.ok(
@@ -472,20 +481,38 @@ class CommandPath:
         done.append("enable on" if enable else "enable off")
         return Result.ok(f"{name}: mode manual: " + ", ".join(done), tag=port.mode.name)
 
-    def _manual_current(self, name: str, runner: ChainRunner, amps: float) -> Result:
+    @staticmethod
+    def _auto_allowed(name: str, runner: ChainRunner) -> None:
+        port = runner.port
+        if not port.in_auto and port.manual_driven:
+            amps = port.manual_current.as_float()
+            raise Refusal(
+                ResultKind.REFUSED,
+                f"{name}: cannot switch to auto while the channel is driven in manual"
+                f" (enable on, {amps:g} A): turn enable off first",
+            )
+
+    @staticmethod
+    def _manual_allowed(name: str, runner: ChainRunner, amps: float | None = None) -> None:
+        """A manual setpoint's (or enable's) checks: Manual mode; ``amps`` within the hard
+        limits when given."""
         port = runner.port
         if port.in_auto:
             raise Refusal(ResultKind.REFUSED, IN_AUTO.format(ch=name))
         # Beyond the hard limits (the I/O map's limits.current_a, the tag's range): refused,
         # never accepted and silently clamped — an answer must say what will flow.
         hard = port.manual_current.spec.range
-        if hard is not None and not hard[0] <= amps <= hard[1]:
+        if amps is not None and hard is not None and not hard[0] <= amps <= hard[1]:
             lo, hi = hard
             raise Refusal(
                 ResultKind.OUT_OF_RANGE,
                 f"{name}: manual setpoint {amps:g} A is beyond the channel's hard limit of"
                 f" {hi if amps > hi else lo:g} A (range {lo:g} … {hi:g} A); refused",
             )
+
+    def _manual_current(self, name: str, runner: ChainRunner, amps: float) -> Result:
+        port = runner.port
+        self._manual_allowed(name, runner, amps)
         self.db.update(port.manual_current, amps)
         off = "" if port.enable.value is True else " (enable is off: nothing flows yet)"
         clamp = self._safety_clamp(name, amps)
@@ -510,12 +537,14 @@ class CommandPath:
             f" as it stands (shown in {name}.clamped while it clamps)"
         )
 
-    def _enable(self, name: str, runner: ChainRunner, on: bool) -> Result:
-        port = runner.port
-        if port.in_auto:
-            raise Refusal(ResultKind.REFUSED, IN_AUTO.format(ch=name))
+    def _enable_allowed(self, name: str, runner: ChainRunner, on: bool) -> None:
+        self._manual_allowed(name, runner)
         if on:
             self._interlocks(name, runner, "enable")
+
+    def _enable(self, name: str, runner: ChainRunner, on: bool) -> Result:
+        port = runner.port
+        self._enable_allowed(name, runner, on)
         self.db.update(port.enable, on)
         amps = port.manual_current.as_float()
         text = f"{name}: enable on at {amps:g} A" if on else f"{name}: enable off"
@@ -644,9 +673,7 @@ class CommandPath:
         else:
             _only(c, "tag")
         name = _text(c.args, "tag")
-        access = self.roles.access_of(c.actor)
-        if access < Access.ENGINEER:
-            raise Refusal(ResultKind.FORBIDDEN, f"{c.verb.value} {name}: needs engineer access")
+        self._force_allowed(c, name)
         tag = self.db.get(name)
         if tag is None:
             raise Refusal(ResultKind.NOT_FOUND, f"unknown tag {name!r}")
@@ -690,6 +717,11 @@ class CommandPath:
         self.db.force(name, value)
         return Result.ok(f"{name} forced := {value!r} (until unforced)", tag=name)
 
+    def _force_allowed(self, c: Command, name: str) -> None:
+        if self.roles.access_of(c.actor) < Access.ENGINEER:
+            what = f"{c.verb.value} {name}" if name else c.verb.value
+            raise Refusal(ResultKind.FORBIDDEN, f"{what}: needs engineer access")
+
     # --- the software e-stop -------------------------------------------------------------
     def _estop(self, c: Command) -> Result:
         """Press or reset the bench-wide software e-stop (operators; a viewer is refused
@@ -713,6 +745,64 @@ class CommandPath:
         except OperatorError as exc:
             raise Refusal(ResultKind.REFUSED, str(exc)) from None
         return Result.ok(reason, alarm=estop.alarm.id)
+
+    # --- what would be accepted now (issue 33: a screen's buttons follow the state) --------
+    def check(self, command: Command) -> Result:
+        """What :meth:`execute` would answer ``command`` now, without executing or recording
+        it: refused with the kind and reason ``execute`` would give, or accepted ("would be
+        accepted"). The checks are ``execute``'s own, in its order — role, target, the
+        state table, Auto/Manual, interlocks; an argument not given is not checked (a
+        recipe's file, a setpoint: known once the operator gives them), nor a start's cell.
+        A channel's commands, and force's role (ValueError for any other command)."""
+        try:
+            why = self.roles.refuses(command)
+            if why:
+                raise Refusal(ResultKind.FORBIDDEN, why)
+            t, v = command.target, command.verb
+            if t.kind is TargetKind.BENCH and v in (Verb.FORCE, Verb.UNFORCE):
+                self._force_allowed(command, str(command.args.get("tag") or ""))
+            elif t.kind is TargetKind.CHANNEL and v is not Verb.WRITE:
+                self._channel_allowed(command)
+            else:
+                raise ValueError(f"{command.describe()} on {t} is not checked ahead")
+        except Refusal as r:
+            return Result.refused(r.kind, r.reason, r.details)
+        return Result.ok(f"{command.target}: {command.describe()} would be accepted")
+
+    def available(self, channel: str, actor: str) -> dict[str, Result]:
+        """A channel's command bar (``CHANNEL_BAR``, and ``force``) as :meth:`check`
+        answers each of its commands for ``actor`` now."""
+        out = {
+            key: self.check(Command(Target.channel(channel), verb, dict(args), actor))
+            for key, verb, args in CHANNEL_BAR
+        }
+        out["force"] = self.check(Command(Target.bench(), Verb.FORCE, {}, actor))
+        return out
+
+    def _channel_allowed(self, c: Command) -> None:
+        """``check`` of a channel command: the checks each handler makes before it acts."""
+        runner = self._runner(c)
+        name, v, a = c.target.name, c.verb, c.args
+        if v is Verb.LOAD:
+            if self.loader is None:
+                raise Refusal(ResultKind.NOT_FOUND, NO_LOADER)
+            _decided(check_load, name, runner.state, runner.port.manual_driven)
+        elif v in CHAIN_VERBS:
+            if v is Verb.START:
+                self._start_allowed(name, runner)
+            elif v is Verb.RESUME:
+                self._interlocks(name, runner, "resume")
+            _decided(decide, name, runner.state, v.value, runner.situation())
+        elif v is Verb.ACKNOWLEDGE:
+            self._acknowledge_allowed(name, runner)
+        elif v is Verb.MODE:
+            if a.get("value") == Mode.AUTO.value:
+                self._auto_allowed(name, runner)
+        elif v is Verb.MANUAL_CURRENT:
+            amps = _number(a, "value", "A") if "value" in a else None
+            self._manual_allowed(name, runner, amps)
+        elif v is Verb.ENABLE:
+            self._enable_allowed(name, runner, _flag(a, "value"))
 
     # --- the record -----------------------------------------------------------------------
     def _record(self, c: Command, result: Result) -> None:
@@ -769,6 +859,26 @@ class _RecipeJob:
     channel: str
     recipe: str
     parameters: Mapping[str, str]
+
+
+def _chain_acked(runner: ChainRunner) -> list[str]:
+    """What an acknowledgement of the channel does to its chain (its latched alarm)."""
+    alarm = runner.situation().alarm
+    return [f"chain alarm acknowledged ({alarm})"] if alarm is not None else []
+
+
+def _ack_refused(why: str, done: list[str]) -> Refusal:
+    also = f" ({'; '.join(done)})" if done else ""
+    return Refusal(ResultKind.REFUSED, f"{why}; acknowledged{also}: reset once the cause is gone")
+
+
+def _decided(rule: Callable[..., object], *args: Any) -> None:
+    """A rule of the state table (``decide``, ``check_load``) as a check: its
+    ``OperatorError`` is a refusal with its words."""
+    try:
+        rule(*args)
+    except OperatorError as exc:
+        raise Refusal(ResultKind.REFUSED, str(exc)) from None
 
 
 # --- arguments ------------------------------------------------------------------------------

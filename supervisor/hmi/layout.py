@@ -70,6 +70,8 @@ CHANNEL_TAGS: dict[str, str] = {
     "alarm": "chain.alarm",
     "interlock": "chain.interlock",
     "last_event": "chain.last_event",
+    "last_transition": "chain.last_transition",
+    "last_command": "chain.last_command",
 }
 """The tags of a channel tile and screen (``null`` when a channel has none, e.g. ``output``
 on a Chadèche board)."""

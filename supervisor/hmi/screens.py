@@ -11,6 +11,7 @@ from supervisor.config.models import HmiConfig
 from supervisor.config.users import UserStore
 from supervisor.core.logins import LoginThrottle
 from supervisor.hmi.auth import HmiAccess, HmiRoles, Sessions
+from supervisor.hmi.commands_api import add_command_bar_route
 from supervisor.hmi.layout import BenchView, Layout
 from supervisor.hmi.live import QUEUE_SIZE, LiveHub
 from supervisor.hmi.server import HttpApi
@@ -39,8 +40,8 @@ def install_screens(
     queue_size: int = QUEUE_SIZE,
     throttle: LoginThrottle | None = None,
 ) -> Screens:
-    """Add login, ``/api/ws``, ``/api/bench|diagnostics``, a channel's program and the
-    static files to ``api``; the command path's role hook learns the HMI's users. The
+    """Add login, ``/api/ws``, ``/api/bench|diagnostics``, a channel's program and command
+    bar, and the static files to ``api``; the command path's role hook learns the HMI's users. The
     caller gives ``screens.live`` to the scan (a publisher) and to the bench's events.
     ``throttle``: the bench's failed-login counts, shared with OPC UA (else its own)."""
     sessions = Sessions(cfg.session_timeout_s, api.clock.now)
@@ -57,6 +58,8 @@ def install_screens(
         max_clients=cfg.max_websockets,
     )
     live.install(api.app)
+    # What a channel's command bar may give now (issue 33): a button follows the state.
+    add_command_bar_route(api.app, api.commands, api.actor)
     layout = None
     if bench is not None:
         layout = Layout(bench, api.clock)

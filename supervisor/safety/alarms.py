@@ -202,15 +202,21 @@ class AlarmManager:
         self._event(alarm, Transition.ACKNOWLEDGED, alarm.message, actor)
         return alarm
 
-    def reset(self, alarm_id: str, actor: str) -> Alarm:
-        """Release a trip (acknowledging it if needed); refused while its cause is present."""
+    def reset_refusal(self, alarm_id: str) -> str:
+        """Why ``reset`` would refuse now, "" when it would not (a screen's button asks)."""
         alarm = self[alarm_id]
         if not alarm.tripped:
-            raise OperatorError(f"alarm {alarm_id} is not a trip waiting for a reset")
+            return f"alarm {alarm_id} is not a trip waiting for a reset"
         if alarm.active:
-            raise OperatorError(
-                f"cannot reset {alarm_id}: the cause is still present ({alarm.message})"
-            )
+            return f"cannot reset {alarm_id}: the cause is still present ({alarm.message})"
+        return ""
+
+    def reset(self, alarm_id: str, actor: str) -> Alarm:
+        """Release a trip (acknowledging it if needed); refused while its cause is present."""
+        why = self.reset_refusal(alarm_id)
+        if why:
+            raise OperatorError(why)
+        alarm = self[alarm_id]
         if not alarm.acked:
             self.acknowledge(alarm_id, actor)
         alarm.tripped = False

@@ -341,6 +341,13 @@ class ChannelGuard:
         self.db.update(self._action, "hold")
         self.db.update(self._enable, False)
 
+    def reset_refusal(self) -> str:
+        """Why ``reset`` would refuse now, "" when it would reset every trip (a screen's
+        Acknowledge button asks; the same words as the refusal)."""
+        alarms = self.alarms
+        refused = [why for a in alarms.trips(self.name) if (why := alarms.reset_refusal(a.id))]
+        return f"{self.name}: " + "; ".join(refused) if refused else ""
+
     def reset(self, actor: str) -> list[str]:
         """Acknowledge every alarm holding the channel and reset the trips whose cause is
         gone; raise OperatorError naming those whose cause is still present."""

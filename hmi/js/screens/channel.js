@@ -2,11 +2,14 @@
 // V/I/T trends and the series /api/bench adds for the channel (its BMS's cell min/max)
 // (historian for the past, live points for now; drawn as held steps, a pen per tag with
 // its colour, axis and band, pens to pick; drag to zoom, buttons to pan) and the
-// commands, each refusal shown with its reason.
-import { get, post, put } from "../api.js";
-import { bindTags, esc, showResult, $, $$ } from "../dom.js";
+// command bar (commandbar.js: buttons that follow the state, confirmations).
+import { get } from "../api.js";
+import { bindTags, esc, $, $$ } from "../dom.js";
 import { PENS, holdJoin, trendChart } from "../chart.js";
 import { paintTile } from "./overview.js";
+import { commandBarHtml, mountCommandBar } from "./commandbar.js";
+
+export { parseParameters } from "./commandbar.js";
 
 const SPANS_S = [
   ["5 min", 300],
@@ -19,37 +22,8 @@ const MAX_LIVE_POINTS = 20000;
 const REDRAW_MS = 500;
 const HOLD_S = 1.0;
 
-const VERBS = [
-  ["start", "Start"],
-  ["hold", "Hold"],
-  ["resume", "Resume"],
-  ["advance", "Advance"],
-  ["stop", "Stop"],
-  ["abort", "Abort"],
-  ["reset", "Reset"],
-  ["acknowledge", "Acknowledge"],
-];
-
 function value(label, tag, attrs = "") {
   return `<div class="kv"><span>${esc(label)}</span><b data-tag="${esc(tag)}" ${attrs}></b></div>`;
-}
-
-/** "name = value" lines into {name: value} (numbers stay text: units such as "0.5 C"). */
-export function parseParameters(text) {
-  const out = {};
-  const errors = [];
-  text.split("\n").forEach((line, i) => {
-    const s = line.trim();
-    if (!s || s.startsWith("#")) return;
-    const m = s.match(/^([A-Za-z_][\w.]*)\s*[=:]\s*(.+)$/);
-    if (!m) {
-      errors.push(`parameters line ${i + 1}: expected name = value, got ${JSON.stringify(s)}`);
-      return;
-    }
-    const raw = m[2].trim();
-    out[m[1]] = /^-?\d+(\.\d+)?(e-?\d+)?$/i.test(raw) ? Number(raw) : raw;
-  });
-  return { parameters: out, errors };
 }
 
 export async function render({ root, app, params }) {
@@ -100,7 +74,8 @@ export async function render({ root, app, params }) {
       ${value("cycle", `${p}chain.cycle`)}
       ${value("step time", `${p}chain.step_time`, 'data-fmt="dur" id="ch-step-time"')}
       ${value("test time", `${p}chain.test_time`, 'data-fmt="dur"')}
-      ${value("last transition", `${p}chain.last_event`, 'data-empty="none" id="ch-last-event" class="wrap"')}
+      ${value("last transition", `${p}chain.last_transition`, 'data-empty="none" id="ch-last-transition" class="wrap"')}
+      ${value("last command", `${p}chain.last_command`, 'data-empty="none" id="ch-last-command" class="wrap"')}
       ${value("interlock", `${p}chain.interlock`, 'data-empty="none" data-abn="nonempty"')}
       ${value("trip", `${p}fault`, 'data-empty="none" data-abn="nonempty"')}
       ${value("cell", `${p}chain.cell_id`, 'data-empty="none" id="ch-cell"')}
@@ -114,35 +89,7 @@ export async function render({ root, app, params }) {
       ${value("output enabled", `${p}enable`, 'data-true="yes" data-false="no"')}
     </section>
     <section class="panel commands" aria-label="Commands">
-      <h2>Commands</h2>
-      ${viewer ? '<p class="muted">You are logged in as a viewer: the supervisor refuses commands (the reason is shown).</p>' : ""}
-      <form id="load-form" class="load">
-        <label for="load-recipe">Recipe</label>
-        <input id="load-recipe" list="recipe-list" placeholder="recipes/capacity-test.yaml" required>
-        <datalist id="recipe-list"></datalist>
-        <label for="load-params">Parameters <small class="muted">(name = value, one a line)</small></label>
-        <textarea id="load-params" rows="3" spellcheck="false"></textarea>
-        <label for="load-cell">Cell id <small class="muted">(up to 64 of A–Z a–z 0–9 space . _ : / + -; sent with Load and Start)</small></label>
-        <input id="load-cell" maxlength="64" pattern="[A-Za-z0-9 ._:/+\-]*" autocomplete="off" spellcheck="false">
-        <label for="load-comment">Comment <small class="muted">(up to 500 characters)</small></label>
-        <textarea id="load-comment" rows="2" maxlength="500"></textarea>
-        <button type="submit" id="cmd-load">Load recipe</button>
-      </form>
-      <div class="buttons" role="group" aria-label="Chain commands">
-        ${VERBS.map(([v, l]) => `<button type="button" data-verb="${v}" id="cmd-${v}">${l}</button>`).join("")}
-      </div>
-      <div class="buttons" role="group" aria-label="Mode">
-        <button type="button" id="cmd-auto" data-mode="auto">Auto</button>
-        <button type="button" id="cmd-manual" data-mode="manual">Manual</button>
-      </div>
-      <form id="manual-form" class="manual">
-        <label for="manual-current">Manual current (A)</label>
-        <input id="manual-current" type="number" step="0.001" required>
-        <button type="submit" id="cmd-manual-current">Set</button>
-        <button type="button" id="cmd-enable" data-enable="true">Enable</button>
-        <button type="button" id="cmd-disable" data-enable="false">Disable</button>
-      </form>
-      <p id="cmd-result" class="result" role="status" aria-live="polite" hidden></p>
+      ${commandBarHtml(viewer)}
     </section>
     <section class="panel chain-panel" aria-label="Step chain">
       <h2>Step chain</h2>
@@ -152,83 +99,11 @@ export async function render({ root, app, params }) {
 
   const refresh = bindTags(root, app.live);
   const head = $(".channel-head", root);
-  const out = $("#cmd-result", root);
   const paintHead = () => paintTile(head, ch, app.live);
   paintHead();
 
-  // --- commands -------------------------------------------------------------------------
-  const command = async (verb, args = {}) => {
-    out.hidden = false;
-    out.classList.remove("refused", "accepted");
-    out.textContent = `${verb}…`;
-    const answer = await post(`/api/channels/${encodeURIComponent(name)}/commands/${verb}`, args);
-    showResult(out, answer);
-    return answer;
-  };
-  // The test's metadata (docs/recipes.md "Test records"): given fields only; the server checks them.
-  const metadata = () => {
-    const out = {};
-    const cell = $("#load-cell", root).value.trim();
-    const comment = $("#load-comment", root).value.trim();
-    if (cell) out.cell_id = cell;
-    if (comment) out.comment = comment;
-    return out;
-  };
-  for (const b of $$("[data-verb]", root))
-    b.addEventListener("click", () => command(b.dataset.verb, b.dataset.verb === "start" ? metadata() : {}));
-  for (const b of $$("[data-mode]", root))
-    b.addEventListener("click", () => command("mode", { value: b.dataset.mode }));
-  for (const b of $$("[data-enable]", root))
-    b.addEventListener("click", () => command("enable", { value: b.dataset.enable === "true" }));
-  $("#manual-form", root).addEventListener("submit", (ev) => {
-    ev.preventDefault();
-    command("manual_current", { value: Number($("#manual-current", root).value) });
-  });
-  const recipeInput = $("#load-recipe", root);
-  const paramsInput = $("#load-params", root);
-  $("#load-form", root).addEventListener("submit", async (ev) => {
-    ev.preventDefault();
-    const { parameters, errors } = parseParameters(paramsInput.value);
-    if (errors.length) {
-      showResult(out, { ok: false, status: 400, data: { reason: errors.join("; ") } });
-      return;
-    }
-    out.hidden = false;
-    out.classList.remove("refused", "accepted");
-    out.textContent = "loading…";
-    const answer = await put(`/api/channels/${encodeURIComponent(name)}/recipe`, {
-      file: recipeInput.value.trim(),
-      parameters,
-      ...metadata(),
-    });
-    showResult(out, answer, "recipe loaded");
-    if (answer.ok) loadProgram();
-  });
-  // The recipes the supervisor knows (if it lists them), their parameters when chosen.
-  const known = new Map();
-  get("/api/recipes").then((answer) => {
-    if (!answer.ok || !Array.isArray(answer.data.recipes)) return;
-    const list = $("#recipe-list", root);
-    for (const r of answer.data.recipes) {
-      known.set(r.file || r.name, r);
-      const o = document.createElement("option");
-      o.value = r.file || r.name;
-      o.label = r.title || r.name;
-      list.append(o);
-    }
-  });
-  recipeInput.addEventListener("change", async () => {
-    const r = known.get(recipeInput.value);
-    if (!r || paramsInput.value.trim()) return;
-    const text = await get(`/api/recipes/${encodeURIComponent(r.name)}`);
-    if (!text.ok) return;
-    const v = await post("/api/recipes/validate", { text: text.data.text, name: r.name });
-    if (v.ok && Array.isArray(v.data.parameters)) {
-      paramsInput.value = v.data.parameters
-        .map((prm) => (typeof prm === "string" ? `${prm} = ` : `${prm.name} = ${prm.default ?? prm.value ?? ""}`))
-        .join("\n");
-    }
-  });
+  // --- commands (commandbar.js) ---------------------------------------------------------
+  const bar = mountCommandBar({ root, app, name, ch, onLoaded: () => loadProgram() });
 
   // --- step chain -----------------------------------------------------------------------
   const chainEl = $("#chain", root);
@@ -448,6 +323,7 @@ export async function render({ root, app, params }) {
   return {
     trendPoints: () => data[0].length,
     update(change) {
+      bar.update(change);
       if (change.kind === "tags") {
         refresh(change.names);
         livePoint(change.names);
@@ -464,6 +340,7 @@ export async function render({ root, app, params }) {
     },
     destroy() {
       destroyed = true;
+      bar.destroy();
       clearInterval(timer);
       trend?.stop();
       trend?.chart.destroy();
