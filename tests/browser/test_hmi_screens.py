@@ -190,6 +190,13 @@ def test_a_command_from_a_stale_page_is_refused_with_the_reason(
     page.click("#cmd-start")
     assert "started" in result_text(page)
     page.wait_for_function("() => document.querySelector('#ch-state').textContent === 'Running'")
+    # The command bar's answer for Running is in (Start refused ahead, Hold accepted): asked
+    # after the start, it must not land after the abort below, or the page would not be
+    # stale (it would refuse Hold itself, ahead).
+    page.wait_for_function(
+        "() => document.querySelector('#cmd-start').getAttribute('aria-disabled') === 'true'"
+        " && document.querySelector('#cmd-hold').getAttribute('aria-disabled') !== 'true'"
+    )
     # The page stops hearing from the supervisor; meanwhile someone else aborts the test.
     held["paused"] = True
     status, body = bench.call("POST", "/api/channels/ch1/commands/abort")
