@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from browserrig import SHORT_RECIPE, Supervisor, login, screenshot, wait_for
+from browserrig import SHORT_RECIPE, Supervisor, screenshot, wait_for
 
 from supervisor.safety.alarms import Severity
 

@@ -35,8 +35,8 @@ def doomed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Supervisor]:
 # What a stale value looks like, element by element, in the page (computed styles).
 STALE_MARKS = """(els) => els.filter((e) => e.checkVisibility()).map((e) => {
   const s = getComputedStyle(e);
-  return {tag: e.dataset.tag || e.id, stale: s.backgroundImage.includes('repeating-linear-gradient'),
-          color: s.color};
+  const stale = s.backgroundImage.includes('repeating-linear-gradient');
+  return {tag: e.dataset.tag || e.id, stale, color: s.color};
 })"""
 
 
