@@ -138,3 +138,16 @@ def test_the_mimic_keeps_its_boxes_and_wires_on_one_line_at_800_px(
         for box in (before, after):
             assert box["top"] <= wire["top"] <= box["bottom"], (box, wire)
     assert max(b["right"] for b in boxes) <= TABLET["width"]
+
+
+@pytest.mark.parametrize(
+    "where", ["#/", "#/channel/ch0", "#/alarms", "#/recipes", "#/tests", "#/diagnostics"]
+)
+def test_no_screen_is_wider_than_an_800_px_tablet(
+    page: Any, two_alarms: Supervisor, where: str
+) -> None:
+    page.set_viewport_size(TABLET)
+    login(page, two_alarms, "operator", where)
+    page.wait_for_selector("#main > *")
+    page.wait_for_load_state("networkidle")
+    assert overflow(page) == 0
