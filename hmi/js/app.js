@@ -142,9 +142,9 @@ function paintHeader() {
 function paintLink() {
   const el = $("#link");
   const labels = { live: "live", polling: "polling", down: "disconnected", connecting: "connecting" };
-  el.textContent = labels[app.live.state] || app.live.state;
-  el.classList.toggle("abn", app.live.state === "down");
-  app.stale.follow(app.live.state);
+  // An open connection that has gone silent is no longer "live" (stale.js).
+  el.textContent = app.stale.silent ? "no data" : labels[app.live.state] || app.live.state;
+  el.classList.toggle("abn", app.live.state === "down" || app.stale.silent);
 }
 
 /** The bench summary of the header (summary.js), on every screen but the login. */
@@ -187,9 +187,13 @@ function watchEnds(names) {
 }
 
 app.live.subscribe((change) => {
-  if (change.kind === "state") paintLink();
+  if (change.kind === "state") {
+    app.stale.follow(app.live.state);
+    paintLink();
+  }
   if (change.kind === "alarms") paintAlarmCount();
   if (change.kind === "tags") watchEnds(change.names);
+  if (change.kind === "tags") app.stale.fresh();
   if (change.kind === "tags" || change.kind === "alarms") repaintSummary();
   if (app.screen?.update) app.screen.update(change);
 });
@@ -282,5 +286,6 @@ function scheduleSessionCheck() {
 app.scheduleSessionCheck = scheduleSessionCheck;
 
 window.addEventListener("hashchange", route);
+app.stale.onChange = paintLink;
 paintLink();
 route();

@@ -1,12 +1,15 @@
-// A page that has lost its supervisor must not look live (ISA-101): once the live data is
-// down, a banner says since when the values are stale — the moment the connection was
-// lost, the last time they were known fresh — and how long ago, and the page's title
-// starts with STALE (a panel's tab or window list shows it). The values themselves are
-// marked by hmi.css (body.stale): hatched and grey, still readable, never in the colour
-// of a live alarm.
+// A page that has lost its supervisor must not look live (ISA-101). Two ways to lose it:
+// the live data is down (the WebSocket closed and the polls fail), or it is silent (the
+// connection is open but nothing comes: every delta carries scan.count, which changes at
+// every scan, so a live supervisor sends one each publish period — at most 10 s). Then a
+// banner says since when the values are stale and how long ago, the page's title starts
+// with STALE (a panel's tab or window list shows it), and hmi.css marks every value
+// (body.stale): hatched and grey, still readable, never in the colour of a live alarm.
 import { $ } from "./dom.js";
 
 const TICK_MS = 1000;
+/** No data for this long on an open connection: stale (over the longest publish period). */
+const SILENCE_S = 15;
 
 /** "12 s", "3 min 5 s", "2 h 10 min": how long ago, coarse enough to read at a glance. */
 export function ago(seconds) {
@@ -21,24 +24,54 @@ export function ago(seconds) {
 export class StaleDisplay {
   constructor() {
     this.sinceMs = null; // when the values were last fresh (null: they are fresh)
+    this.why = "";
+    this.state = "connecting";
+    this.lastFreshMs = Date.now();
+    this.silenceS = SILENCE_S; // the browser tests shorten it
     this.title = document.title;
-    this._timer = null;
+    this.onChange = null; // called when the page turns stale or fresh, or silent or not
+    setInterval(() => this.evaluate(), TICK_MS);
   }
 
-  /** Follow the live data's state: "down" is stale; "live" and "polling" are fresh; while
-   * "connecting" (the page's first load, a log out) there are no values to mark. */
+  /** Follow the live data's state ("down" is stale at once; while "connecting" — the
+   * page's first load, a log out — there are no values to mark). */
   follow(state) {
-    const stale = state === "down";
-    document.body.classList.toggle("stale", stale);
-    if (stale && this.sinceMs === null) {
-      this.sinceMs = Date.now();
-      this._timer = setInterval(() => this.paint(), TICK_MS);
-    } else if (!stale && this.sinceMs !== null) {
+    const open = (x) => x === "live" || x === "polling";
+    // Entering a live state means values just came (a snapshot, a poll's answer).
+    if (open(state) && !open(this.state)) this.lastFreshMs = Date.now();
+    this.state = state;
+    this.evaluate();
+  }
+
+  /** Values arrived (a snapshot, a delta, a poll's answer). */
+  fresh() {
+    this.lastFreshMs = Date.now();
+    if (this.sinceMs !== null) this.evaluate();
+  }
+
+  /** Stale because the open connection is silent (not closed). */
+  get silent() {
+    return this.sinceMs !== null && this.state !== "down";
+  }
+
+  evaluate() {
+    const before = `${this.sinceMs === null}${this.silent}`;
+    const now = Date.now();
+    const open = this.state === "live" || this.state === "polling";
+    const silent = open && now - this.lastFreshMs > this.silenceS * 1000;
+    if (this.state === "down") {
+      // The connection was good until it closed (the WebSocket sends every change): the
+      // values were fresh until now — unless they had already gone silent before.
+      if (this.sinceMs === null) this.sinceMs = now;
+      this.why = "no connection to the supervisor, reconnecting";
+    } else if (silent) {
+      this.sinceMs = this.lastFreshMs;
+      this.why = `the supervisor has sent nothing for ${ago((now - this.lastFreshMs) / 1000)}`;
+    } else {
       this.sinceMs = null;
-      clearInterval(this._timer);
-      this._timer = null;
     }
     this.paint();
+    if (this.onChange && before !== `${this.sinceMs === null}${this.silent}`) this.onChange();
   }
 
   /** The screen's own title (the page sets it at each route): kept, prefixed while stale. */
@@ -48,9 +81,10 @@ export class StaleDisplay {
   }
 
   paint() {
-    const el = $("#stale");
     const since = this.sinceMs;
+    document.body.classList.toggle("stale", since !== null);
     document.title = since === null ? this.title : `STALE — ${this.title}`;
+    const el = $("#stale");
     const link = $("#link");
     if (!el || !link) return;
     el.hidden = since === null;
@@ -60,7 +94,7 @@ export class StaleDisplay {
     }
     const at = new Date(since).toLocaleTimeString(undefined, { hour12: false });
     el.dataset.since = String(since / 1000);
-    el.textContent = `Values stale since ${at} (${ago((Date.now() - since) / 1000)} ago): no data from the supervisor, reconnecting. Every value shown is the last one received.`;
-    link.title = `live data connection lost at ${at}`;
+    el.textContent = `Values stale since ${at} (${ago((Date.now() - since) / 1000)} ago): ${this.why}. Every value shown is the last one received.`;
+    link.title = `no live data since ${at}`;
   }
 }

@@ -2,7 +2,9 @@
 values unmistakable). In Debian's Chromium against a real ``supervisor run`` stopped by
 SIGTERM while ch0 runs a recipe: a banner says the values are frozen and since when (the
 time they were last fresh, which stays put while the page retries), every value and
-state shown is marked stale, and the page's title says so."""
+state shown is marked stale, and the page's title says so. The same when the connection
+stays open but nothing comes (a hung supervisor), and all of it goes when data comes
+back."""
 
 from __future__ import annotations
 
@@ -82,3 +84,36 @@ def test_a_page_that_lost_its_supervisor_marks_every_value_stale_with_the_time(
     assert [m["tag"] for m in marks if m["color"] == red] == []
     screenshot(page, "channel-stale")
     wait_for("the supervisor gone", lambda: doomed.proc.poll() is not None)
+
+
+def test_an_open_but_silent_connection_turns_the_page_stale_until_data_comes_back(
+    page: Any, bench: Supervisor
+) -> None:
+    held = {"paused": False}
+
+    def relay(ws: Any) -> None:
+        server = ws.connect_to_server()
+        server.on_message(lambda msg: None if held["paused"] else ws.send(msg))
+
+    # Between the supervisor and the page, a relay this test can hold: the connection
+    # stays open, nothing reaches the page (as from a supervisor whose loop hangs).
+    page.route_web_socket("**/api/ws", relay)
+    login(page, bench, "operator", "#/channel/ch3")
+    link = "() => document.querySelector('#link').textContent"
+    page.wait_for_function(f"{link} === 'live'")
+    page.evaluate("() => { window.hmi.stale.silenceS = 2; }")  # 15 s in service
+    held["paused"] = True
+    paused_s = page.evaluate("() => Date.now() / 1000")
+    page.wait_for_selector("#stale:not([hidden])", timeout=20_000)
+    since_s = float(page.get_attribute("#stale", "data-since") or 0)
+    # The last data came at most a publish period (0.2 s here) before the hold.
+    assert paused_s - 1 <= since_s <= paused_s + 0.5, (paused_s, since_s)
+    assert "sent nothing" in (page.text_content("#stale") or "")
+    assert page.text_content("#link") == "no data"
+    assert page.evaluate("() => document.body.classList.contains('stale')")
+    screenshot(page, "channel-silent")
+    held["paused"] = False
+    page.wait_for_selector("#stale", state="hidden")
+    page.wait_for_function(f"{link} === 'live'")
+    assert not page.evaluate("() => document.body.classList.contains('stale')")
+    assert not page.title().startswith("STALE")
