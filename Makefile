@@ -20,6 +20,11 @@ NODE_STAMP  := $(INTEROP)/node_modules/.installed
 # the git-ignored hmi/node_modules: the supervisor serves them at /vendor/, never a CDN.
 HMI_STAMP   := hmi/node_modules/.installed
 
+# The browser tests' accessibility engine (axe-core), installed by npm from
+# tests/browser/package-lock.json into the git-ignored tests/browser/node_modules: test
+# tooling that Playwright injects into each screen, never served by the supervisor.
+AXE_STAMP   := tests/browser/node_modules/.installed
+
 # The browser the HMI's browser tests drive (tests/browser/): Debian's Chromium, never a
 # browser downloaded by Playwright.
 CHROMIUM    := /usr/bin/chromium
@@ -28,7 +33,7 @@ CHROMIUM    := /usr/bin/chromium
 VALGRIND    := /usr/bin/valgrind
 SUDO        := $(if $(filter 0,$(shell id -u)),,sudo)
 
-.PHONY: run demo-users test lint typecheck unit bench mutation schema check clean influxd node_modules hmi chromium valgrind
+.PHONY: run demo-users test lint typecheck unit bench mutation schema check clean influxd node_modules hmi axe chromium valgrind
 
 influxd: $(INFLUXD)
 
@@ -44,6 +49,13 @@ hmi: $(HMI_STAMP)
 $(HMI_STAMP): hmi/package.json hmi/package-lock.json
 	@command -v npm >/dev/null || { echo "npm is required to install the HMI's chart library (uPlot)"; exit 2; }
 	cd hmi && npm ci --no-audit --no-fund --loglevel=error
+	touch $@
+
+axe: $(AXE_STAMP)
+
+$(AXE_STAMP): tests/browser/package.json tests/browser/package-lock.json
+	@command -v npm >/dev/null || { echo "npm is required for the browser tests' accessibility check (axe-core)"; exit 2; }
+	cd tests/browser && npm ci --no-audit --no-fund --loglevel=error
 	touch $@
 
 chromium: $(CHROMIUM)
@@ -110,7 +122,7 @@ TEST_JOBS ?= 2
 PYTEST    := $(BIN)/pytest -q -n $(TEST_JOBS) --dist loadfile
 WALL      := tests/integration tests/interop tests/security tests/browser
 
-unit: $(STAMP) $(INFLUXD) $(NODE_STAMP) $(HMI_STAMP) $(CHROMIUM) $(VALGRIND)
+unit: $(STAMP) $(INFLUXD) $(NODE_STAMP) $(HMI_STAMP) $(AXE_STAMP) $(CHROMIUM) $(VALGRIND)
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(PYTEST) tests/unit
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(PYTEST) -m "not quiet" $(WALL)
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/pytest -q -m quiet $(WALL)
@@ -187,4 +199,4 @@ check: lint typecheck
 	$(PYTEST) -m "not integration" tests/unit
 
 clean:
-	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache $(INTEROP)/node_modules hmi/node_modules
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache $(INTEROP)/node_modules hmi/node_modules tests/browser/node_modules

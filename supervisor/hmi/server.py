@@ -38,6 +38,7 @@ from supervisor.core.clock import Clock
 from supervisor.core.driver import Value
 from supervisor.core.quality import Quality, Reason
 from supervisor.hmi.body import BodyError, read_json, read_json_object, refuse_unknown
+from supervisor.hmi.compress import GzipMemo, gzip_json, json_text_response
 from supervisor.hmi.csrf import RequestOrigins
 from supervisor.hmi.history_api import HistoryQuery, add_history_routes
 from supervisor.hmi.limits import ConnectionGuard, ConnectionLimits
@@ -553,6 +554,19 @@ async def json_errors(request: web.Request, handler: Handler) -> web.StreamRespo
         )
 
 
+def _application(allowed_origins: Iterable[str]) -> web.Application:
+    """The API's application with what every request and answer goes through."""
+    app = web.Application()
+    # Cross-site request forgery: JSON bodies and same-origin pages only (issue 27).
+    RequestOrigins(allowed_origins).install(app)
+    # Outermost: every error under /api/ is JSON, aiohttp's own and the refusals too.
+    app.middlewares.insert(0, json_errors)
+    # Outside it, so that a large error answer is compressed too (supervisor.hmi.compress).
+    app.middlewares.insert(0, gzip_json)
+    app.on_response_prepare.append(_security_headers)
+    return app
+
+
 VALUE_BODY: Final = '{"value": ...}'
 RECIPE_BODY: Final = '{"file": "...", "parameters": {...}}'
 
@@ -593,12 +607,8 @@ class HttpApi:
         self.guard: ConnectionGuard | None = None
         """The listener's connection counts (after ``start``)."""
         self.snapshots = TagSnapshots(db, clock, pacing)
-        app = web.Application()
-        # Cross-site request forgery: JSON bodies and same-origin pages only (issue 27).
-        RequestOrigins(allowed_origins).install(app)
-        # Outermost: every error under /api/ is JSON, aiohttp's own and the refusals too.
-        app.middlewares.insert(0, json_errors)
-        app.on_response_prepare.append(_security_headers)
+        self._tags_gzip = GzipMemo()
+        app = _application(allowed_origins)
         app.add_routes(
             [
                 web.get("/api/tags", self._list),
@@ -681,9 +691,10 @@ class HttpApi:
             await self.snapshots.clear_of_scan()
             tags = [t for t in self.db if t.name.startswith(prefix)]
             text = await self.snapshots.fragments[False].encode(tags)
-        else:
-            _, text = await self.snapshots.image()
-        return web.Response(text=text, content_type="application/json")
+            return await json_text_response(request, text)
+        version, text = await self.snapshots.image()
+        # gzip for a client that takes it, once per version (supervisor.hmi.compress).
+        return await json_text_response(request, text, self._tags_gzip, version)
 
     async def _get(self, request: web.Request) -> web.Response:
         tag = self.db.get(request.match_info["name"])

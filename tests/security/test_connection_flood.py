@@ -81,7 +81,13 @@ def test_a_client_sending_one_header_byte_at_a_time_is_cut_off_by_the_header_tim
                     break
         finally:
             s.close()
+        # The supervisor's log is written by its logging thread, after the close: waited
+        # for (bounded), not read at once (the suite under load read it too early).
+        log_deadline = time.monotonic() + 10
         log = sup.log_text()
+        while "no complete request headers" not in log and time.monotonic() < log_deadline:
+            time.sleep(0.05)
+            log = sup.log_text()
     # Closed long before its headers were complete.
     assert closed
     assert sent < len(request)

@@ -8,11 +8,10 @@ in process; commands run between scans, as the HTTP API gives them.
 from __future__ import annotations
 
 import json
-from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
-from commandrig import CV_ON_CHADECHE, DISCHARGE, SUPERVISED, recipe, started_bench
+from commandrig import CV_ON_CHADECHE, DISCHARGE, SUPERVISED, recipe
 
 from supervisor.app import Bench
 from supervisor.chains.states import State
@@ -29,15 +28,6 @@ ACCEPTED, BAD, FORBIDDEN, NOT_FOUND, REFUSED = (
     ResultKind.NOT_FOUND,
     ResultKind.REFUSED,
 )
-
-
-@pytest.fixture
-async def bench(tmp_path: Path) -> AsyncIterator[Bench]:
-    b = await started_bench(tmp_path)
-    try:
-        yield b
-    finally:
-        await b.shutdown()
 
 
 def run(bench: Bench, channel: str, verb: Verb, actor: str = "operator", **args: object) -> Result:

@@ -6,11 +6,9 @@ A virtual-clock bench with every device in process; the sink only records.
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
 from pathlib import Path
 
-import pytest
-from commandrig import DISCHARGE, recipe, started_bench
+from commandrig import DISCHARGE, recipe
 
 from supervisor.app import Bench
 from supervisor.app.events import EventFeed
@@ -30,15 +28,6 @@ class Recorder:
 class Broken:
     def on_event(self, event: BenchEvent) -> None:
         raise RuntimeError("a publisher's bug")
-
-
-@pytest.fixture
-async def bench(tmp_path: Path) -> AsyncIterator[Bench]:
-    b = await started_bench(tmp_path)
-    try:
-        yield b
-    finally:
-        await b.shutdown()
 
 
 async def test_commands_steps_and_alarms_arrive_in_one_shape_with_test_and_actor(

@@ -15,12 +15,12 @@ import dataclasses
 import gc
 import logging
 import threading
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from commandrig import CV_ON_CHADECHE, DISCHARGE, recipe, started_bench
+from commandrig import CV_ON_CHADECHE, DISCHARGE, recipe
 
 import supervisor.commands.path as command_path
 from supervisor.app import Bench
@@ -38,15 +38,6 @@ ROOT = Path(__file__).resolve().parents[2]
 LIMIT_MESSAGE = (
     "file is too large: more than 1 MiB; a recipe may have at most 1 MiB (README: Input limits)"
 )
-
-
-@pytest.fixture
-async def bench(tmp_path: Path) -> AsyncIterator[Bench]:
-    b = await started_bench(tmp_path)
-    try:
-        yield b
-    finally:
-        await b.shutdown()
 
 
 def load(channel: str = "ch0", **args: Any) -> Command:

@@ -10,11 +10,10 @@ tests/integration/test_recipe_load_keeps_the_scan.py.
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
-from commandrig import recipe, started_bench
+from commandrig import recipe
 
 from supervisor.app import Bench
 from supervisor.commands import Command, Verb
@@ -121,15 +120,6 @@ async def test_moving_the_clock_between_two_runs_is_no_stall() -> None:
 
 
 # --- the supervision alarm ---------------------------------------------------------------------
-@pytest.fixture
-async def bench(tmp_path: Path) -> AsyncIterator[Bench]:
-    b = await started_bench(tmp_path)
-    try:
-        yield b
-    finally:
-        await b.shutdown()
-
-
 async def test_a_stall_raises_the_scan_stall_alarm_which_clears_and_waits_for_an_ack(
     bench: Bench, monkeypatch: pytest.MonkeyPatch
 ) -> None:

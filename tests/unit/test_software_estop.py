@@ -9,11 +9,10 @@ every device in process; commands run between scans, as every client gives them.
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
-from commandrig import DISCHARGE, recipe, started_bench
+from commandrig import DISCHARGE, recipe
 
 from supervisor.app import Bench
 from supervisor.chains.states import State
@@ -26,15 +25,6 @@ from supervisor.tags import Access, TagDB, TagSpec
 from supervisor.testing import run_scans
 
 CHANNELS = ("ch0", "ch1", "ch2", "ch3")
-
-
-@pytest.fixture
-async def bench(tmp_path: Path) -> AsyncIterator[Bench]:
-    b = await started_bench(tmp_path)
-    try:
-        yield b
-    finally:
-        await b.shutdown()
 
 
 class ViewerBob:

@@ -1,10 +1,11 @@
 // Channel: live values, the step chain (from the compiled program, never re-parsed here),
 // V/I/T trends and the series /api/bench adds for the channel (its BMS's cell min/max)
-// (historian for the past, live points for now; drag to zoom, buttons to pan) and the
+// (historian for the past, live points for now; drawn as held steps, a pen per tag with
+// its colour, axis and band, pens to pick; drag to zoom, buttons to pan) and the
 // commands, each refusal shown with its reason.
 import { get, post, put } from "../api.js";
 import { bindTags, esc, showResult, $, $$ } from "../dom.js";
-import { uPlot, widthOf, autoResize } from "../chart.js";
+import { PENS, holdJoin, trendChart } from "../chart.js";
 import { paintTile } from "./overview.js";
 
 const SPANS_S = [
@@ -13,7 +14,7 @@ const SPANS_S = [
   ["2 h", 7200],
   ["8 h", 28800],
 ];
-const TREND_HEIGHT = 260;
+const TREND_HEIGHT = 320;
 const MAX_LIVE_POINTS = 20000;
 const REDRAW_MS = 500;
 const HOLD_S = 1.0;
@@ -74,6 +75,20 @@ export async function render({ root, app, params }) {
     <div class="tile-alarm" aria-live="polite"></div>
   </div>
   <div class="channel-grid">
+    <section class="panel trend-panel" aria-label="Trend">
+      <div class="trend-bar">
+        <h2>Trend <small class="muted">drag to zoom</small></h2>
+        <div class="buttons" role="group" aria-label="Trend range">
+          ${SPANS_S.map(([l, s]) => `<button type="button" class="small" data-span="${s}">${l}</button>`).join("")}
+          <button type="button" class="small" id="trend-left" aria-label="pan left">◀</button>
+          <button type="button" class="small" id="trend-right" aria-label="pan right">▶</button>
+          <button type="button" class="small" id="trend-out" aria-label="zoom out">−</button>
+          <button type="button" class="small" id="trend-live" aria-pressed="true">Live</button>
+        </div>
+        <fieldset class="pens" id="trend-pens"><legend>Pens</legend></fieldset>
+      </div>
+      <div id="trend" class="trend" data-points="0"></div>
+    </section>
     <section class="panel values" aria-label="Live values">
       <div class="nums">
         <div><span class="big" data-tag="${esc(t.voltage)}" data-fmt="n3"></span><small>voltage</small></div>
@@ -132,17 +147,6 @@ export async function render({ root, app, params }) {
     <section class="panel chain-panel" aria-label="Step chain">
       <h2>Step chain</h2>
       <div id="chain" class="chain-wrap"><p class="muted">…</p></div>
-    </section>
-    <section class="panel trend-panel" aria-label="Trend">
-      <h2>Trend <small class="muted">drag to zoom</small></h2>
-      <div class="buttons" role="group" aria-label="Trend range">
-        ${SPANS_S.map(([l, s]) => `<button type="button" class="small" data-span="${s}">${l}</button>`).join("")}
-        <button type="button" class="small" id="trend-left" aria-label="pan left">◀</button>
-        <button type="button" class="small" id="trend-right" aria-label="pan right">▶</button>
-        <button type="button" class="small" id="trend-out" aria-label="zoom out">−</button>
-        <button type="button" class="small" id="trend-live" aria-pressed="true">Live</button>
-      </div>
-      <div id="trend" class="trend" data-points="0"></div>
     </section>
   </div>`;
 
@@ -264,72 +268,84 @@ export async function render({ root, app, params }) {
   // --- trend ----------------------------------------------------------------------------
   const trendEl = $("#trend", root);
   // Beside V, I and T, what the bench adds for this channel (a BMS's cell min/max), each on
-  // the scale it names: one axis per scale.
+  // the scale it names: one axis (and one band) per scale.
   const extra = ch.trend || [];
   const trendTags = [t.voltage, t.current, t.temperature, ...extra.map((s) => s.tag)];
   const emptyData = () => [[], ...trendTags.map(() => [])];
-  const EXTRA_STROKES = ["#2f7d4f", "#b05a1e", "#6b4fa0", "#1e7a8a"];
   let spanS = 300;
   let following = true;
   let data = emptyData();
   let dirty = false;
-  let chart = null;
-  let stopResize = () => {};
-  const unitOf = (tag) => app.live.tags.get(tag)?.unit || "";
-  const extraScales = [...new Set(extra.map((s) => s.scale))];
-  const seriesLabels = [
-    `voltage ${unitOf(t.voltage)}`,
-    `current ${unitOf(t.current)}`,
-    `temperature ${unitOf(t.temperature)}`,
-    ...extra.map((s) => `${s.label} ${s.unit || ""}`.trim()),
+  // The units: the live snapshot's, or (a screen opened before the snapshot came) the
+  // historian's answer's; the chart is made at the first answer, its pens named with them.
+  const unitOf = (tag, answer) => app.live.tags.get(tag)?.unit || (answer?.ok && answer.data.unit) || "";
+  const pensOf = (answers) => [
+    { label: `voltage ${unitOf(t.voltage, answers[0])}`.trim(), scale: "V", unit: unitOf(t.voltage, answers[0]) || "V" },
+    { label: `current ${unitOf(t.current, answers[1])}`.trim(), scale: "A", unit: unitOf(t.current, answers[1]) || "A" },
+    {
+      label: `temperature ${unitOf(t.temperature, answers[2])}`.trim(),
+      scale: "T",
+      unit: unitOf(t.temperature, answers[2]) || "°C",
+    },
+    ...extra.map((s) => ({ label: `${s.label} ${s.unit || ""}`.trim(), scale: s.scale, unit: `${s.scale} ${s.unit || ""}`.trim() })),
   ];
-  trendEl.dataset.series = seriesLabels.join("|");
-  const makeChart = () => {
-    const opts = {
-      width: widthOf(trendEl),
-      height: TREND_HEIGHT,
-      cursor: { drag: { x: true, y: false } },
-      scales: { x: { time: true }, V: {}, A: {}, T: {}, ...Object.fromEntries(extraScales.map((k) => [k, {}])) },
-      series: [
-        {},
-        { label: seriesLabels[0], scale: "V", stroke: "#1f2a36", width: 2, spanGaps: true },
-        { label: seriesLabels[1], scale: "A", stroke: "#5a6b7d", width: 1.5, dash: [6, 3], spanGaps: true },
-        { label: seriesLabels[2], scale: "T", stroke: "#8a97a5", width: 1.5, dash: [2, 3], spanGaps: true },
-        ...extra.map((s, i) => ({
-          label: seriesLabels[3 + i],
-          scale: s.scale,
-          stroke: EXTRA_STROKES[i % EXTRA_STROKES.length],
-          width: 1.5,
-          spanGaps: true,
-        })),
-      ],
-      axes: [
-        {},
-        { scale: "V", label: "V" },
-        { scale: "A", label: "A", side: 1, grid: { show: false } },
-        { scale: "T", label: "°C", side: 1, grid: { show: false } },
-        ...extraScales.map((k) => {
-          const unit = extra.find((s) => s.scale === k)?.unit || "";
-          return { scale: k, label: `${k} ${unit}`.trim(), side: 1, grid: { show: false } };
-        }),
-      ],
-      hooks: {
-        setSelect: [
-          (u) => {
-            if (u.select.width > 0) setFollowing(false);
-          },
-        ],
-      },
+  let seriesLabels = [];
+  let trend = null;
+  let destroyed = false;
+  // The pens an operator hid on this channel stay hidden on the next visit (this browser).
+  const pensKey = `hmi.trend.hidden.${name}`;
+  const hiddenPens = () => {
+    try {
+      const list = JSON.parse(localStorage.getItem(pensKey) || "[]");
+      return Array.isArray(list) ? list : [];
+    } catch {
+      return [];
+    }
+  };
+  // The pen selection: a labelled check box per pen, with its colour and dash.
+  const penBox = (pen, i) => {
+    const label = document.createElement("label");
+    label.className = "pen";
+    const box = document.createElement("input");
+    box.type = "checkbox";
+    box.id = `trend-pen-${i}`;
+    box.dataset.pen = pen.label;
+    box.checked = !hiddenPens().includes(pen.label);
+    const swatch = document.createElement("span");
+    swatch.className = "swatch";
+    swatch.setAttribute("aria-hidden", "true");
+    swatch.style.borderTopColor = PENS[i % PENS.length].stroke;
+    const dash = PENS[i % PENS.length].dash;
+    swatch.style.borderTopStyle = !dash.length ? "solid" : dash[0] <= 2 ? "dotted" : "dashed";
+    label.append(box, swatch, pen.label);
+    $("#trend-pens", root).append(label);
+    box.addEventListener("change", () => trend.setPen(i, box.checked));
+    return box;
+  };
+  const makeTrend = (answers) => {
+    const pens = pensOf(answers);
+    seriesLabels = pens.map((pen) => pen.label);
+    trendEl.dataset.series = seriesLabels.join("|");
+    const boxes = pens.map(penBox);
+    const onPens = (shown) => {
+      shown.forEach((on, i) => (boxes[i].checked = on));
+      localStorage.setItem(pensKey, JSON.stringify(pens.filter((_, i) => !shown[i]).map((pen) => pen.label)));
     };
-    chart = new uPlot(opts, data, trendEl);
-    stopResize = autoResize(chart, trendEl, TREND_HEIGHT);
+    trend = trendChart(trendEl, {
+      pens,
+      height: TREND_HEIGHT,
+      hidden: hiddenPens(),
+      onSelect: () => setFollowing(false),
+      onPens,
+    });
   };
   const setFollowing = (on) => {
     following = on;
     $("#trend-live", root).setAttribute("aria-pressed", String(on));
   };
   const redraw = () => {
-    if (!chart) return;
+    if (!trend) return;
+    const chart = trend.chart;
     trendEl.dataset.points = String(data[0].length);
     // The series that have a value to draw (a test reads it; cheap: stops at the first).
     trendEl.dataset.valued = seriesLabels.filter((_, i) => data[i + 1].some((v) => v !== null)).join("|");
@@ -338,6 +354,7 @@ export async function render({ root, app, params }) {
       const now = Date.now() / 1000;
       chart.setScale("x", { min: now - spanS, max: now });
     }
+    trend.showLatest();
   };
   async function loadHistory() {
     const end = Date.now() / 1000;
@@ -345,21 +362,26 @@ export async function render({ root, app, params }) {
     const answers = await Promise.all(
       trendTags.map((tag) => get(`/api/history?tag=${encodeURIComponent(tag)}&start=${start}&end=${end}`)),
     );
+    // Changes only (raw) or per-interval means (a long range): held until the next either way.
     const tables = answers.map((a) => {
-      if (!a.ok) return [[], []];
-      const rows = a.data.samples || (a.data.buckets || []).map((b) => ({ t: b.t, value: b.mean }));
-      const xs = [];
-      const ys = [];
-      for (const r of rows) {
-        xs.push(r.t);
-        ys.push(typeof r.value === "number" ? r.value : null);
-      }
-      return [xs, ys];
+      if (!a.ok) return { before: null, t: [], v: [] };
+      const rows = a.data.samples || (a.data.buckets || []).map((b) => ({ t: b.t, value: b.mean, quality: b.quality }));
+      // A BAD value is a gap until the next good one, as in the live points.
+      const good = (r) => (r && r.quality !== "BAD" && typeof r.value === "number" ? r.value : null);
+      const before = a.data.before;
+      return {
+        before: before ? { t: before.t, value: good(before) } : null,
+        t: rows.map((r) => r.t),
+        v: rows.map(good),
+      };
     });
+    if (destroyed) return; // the screen left while the historian answered
+    if (!trend) makeTrend(answers);
     const keep = data; // live points that came in meanwhile stay
-    const joined = tables.some((tb) => tb[0].length) ? uPlot.join(tables) : emptyData();
+    // Held until `end` (now): the historian saw no change since the last sample.
+    const joined = holdJoin(tables, start, end);
     const lastT = joined[0].length ? joined[0][joined[0].length - 1] : -Infinity;
-    data = joined.map((col) => Array.from(col));
+    data = joined;
     for (let i = 0; i < keep[0].length; i++) {
       if (keep[0][i] > lastT) for (let k = 0; k < keep.length; k++) data[k].push(keep[k][i]);
     }
@@ -383,7 +405,6 @@ export async function render({ root, app, params }) {
     if (data[0].length > MAX_LIVE_POINTS) data = data.map((col) => col.slice(-MAX_LIVE_POINTS));
     dirty = true;
   };
-  makeChart();
   loadHistory();
   const timer = setInterval(() => {
     const now = Date.now() / 1000;
@@ -401,6 +422,8 @@ export async function render({ root, app, params }) {
       loadHistory();
     });
   const shift = (frac) => {
+    if (!trend) return;
+    const chart = trend.chart;
     const { min, max } = chart.scales.x;
     const d = (max - min) * frac;
     setFollowing(false);
@@ -409,6 +432,8 @@ export async function render({ root, app, params }) {
   $("#trend-left", root).addEventListener("click", () => shift(-0.5));
   $("#trend-right", root).addEventListener("click", () => shift(0.5));
   $("#trend-out", root).addEventListener("click", () => {
+    if (!trend) return;
+    const chart = trend.chart;
     const { min, max } = chart.scales.x;
     const mid = (min + max) / 2;
     const half = max - min;
@@ -438,9 +463,10 @@ export async function render({ root, app, params }) {
       paintHead();
     },
     destroy() {
+      destroyed = true;
       clearInterval(timer);
-      stopResize();
-      chart?.destroy();
+      trend?.stop();
+      trend?.chart.destroy();
     },
   };
 }
