@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
+from axe import audit, blocking
 from browserrig import SHORT_RECIPE, Supervisor, screenshot, wait_for
 
 from supervisor.safety.alarms import Severity
@@ -158,5 +159,6 @@ def test_the_summary_bar_counts_channels_and_alarms_on_every_screen(
         # The banner of the newest unacknowledged alarm carries its priority's shape too.
         assert page.locator("#banner svg.prio").count() == 1
         screenshot(page, "alarms-priorities")
+        assert [str(v) for v in blocking(audit(page))] == []
     finally:
         bench.call("PUT", "/api/sim/estop", {"pressed": False})

@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
+from axe import audit, blocking
 from browserrig import (
     SHORT_RECIPE,
     Supervisor,
@@ -82,6 +83,8 @@ def test_a_page_that_lost_its_supervisor_marks_every_value_stale_with_the_time(
     assert page.text_content("#ch-state") == "Running"
     red = "rgb(200, 16, 46)"
     assert [m["tag"] for m in marks if m["color"] == red] == []
+    # Grey on hatching, the banner's white on its dark grey: still 4.5:1 (axe-core).
+    assert [str(v) for v in blocking(audit(page))] == []
     screenshot(page, "channel-stale")
     wait_for("the supervisor gone", lambda: doomed.proc.poll() is not None)
 
