@@ -6,6 +6,9 @@ import { get, post, onUnauthorized } from "./api.js";
 import { Live } from "./live.js";
 import { $, esc } from "./dom.js";
 import { Sound } from "./sound.js";
+import { StaleDisplay } from "./stale.js";
+import { paintSummary } from "./summary.js";
+import { priorityIcon } from "./priority.js";
 import * as login from "./screens/login.js";
 import * as overview from "./screens/overview.js";
 import * as channel from "./screens/channel.js";
@@ -35,6 +38,7 @@ const app = {
   anonymousRead: false, // the supervisor lets a visitor see without logging in
   screen: null,
   sound: new Sound(),
+  stale: new StaleDisplay(),
   goLogin,
 };
 window.hmi = app; // for the browser tests and for a curious engineer's console
@@ -138,9 +142,15 @@ function paintHeader() {
 function paintLink() {
   const el = $("#link");
   const labels = { live: "live", polling: "polling", down: "disconnected", connecting: "connecting" };
-  el.textContent = labels[app.live.state] || app.live.state;
-  el.classList.toggle("abn", app.live.state === "down");
-  document.body.classList.toggle("stale", app.live.state === "down");
+  // An open connection that has gone silent is no longer "live" (stale.js).
+  el.textContent = app.stale.silent ? "no data" : labels[app.live.state] || app.live.state;
+  el.classList.toggle("abn", app.live.state === "down" || app.stale.silent);
+}
+
+/** The bench summary of the header (summary.js), on every screen but the login. */
+function repaintSummary() {
+  const el = $("#summary");
+  if (el && app.bench) paintSummary(el, app.bench, app.live);
 }
 
 let knownAlarms = new Set();
@@ -158,7 +168,8 @@ function paintAlarmCount() {
   const first = unacked[0];
   banner.hidden = !first || parseHash().path === "/login";
   if (first) {
-    banner.innerHTML = `<a href="#/alarms">${esc(first.first_out ? "FIRST OUT " : "")}${esc(first.id)}: ${esc(first.message)}</a>${unacked.length > 1 ? ` (+${unacked.length - 1} more)` : ""}`;
+    // The alarm's priority by shape and colour here too (ISA-101), not only on its screen.
+    banner.innerHTML = `${priorityIcon(first.severity)} <a href="#/alarms">${esc(first.first_out ? "FIRST OUT " : "")}${esc(first.id)}: ${esc(first.message)}</a>${unacked.length > 1 ? ` (+${unacked.length - 1} more)` : ""}`;
   }
 }
 
@@ -176,9 +187,14 @@ function watchEnds(names) {
 }
 
 app.live.subscribe((change) => {
-  if (change.kind === "state") paintLink();
+  if (change.kind === "state") {
+    app.stale.follow(app.live.state);
+    paintLink();
+  }
   if (change.kind === "alarms") paintAlarmCount();
   if (change.kind === "tags") watchEnds(change.names);
+  if (change.kind === "tags") app.stale.fresh();
+  if (change.kind === "tags" || change.kind === "alarms") repaintSummary();
   if (app.screen?.update) app.screen.update(change);
 });
 
@@ -224,6 +240,7 @@ async function route() {
   root.className = `screen-${found[2]}`;
   paintHeader();
   paintAlarmCount();
+  repaintSummary();
   const params = here.path.match(re).slice(1);
   const screen = (await mod.render({ root, app, params, query: here.query })) || null;
   if (gen !== routeGen) {
@@ -231,7 +248,7 @@ async function route() {
     return;
   }
   app.screen = screen;
-  document.title = `${root.dataset.title || found[2]} — bench supervisor`;
+  app.stale.setTitle(`${root.dataset.title || found[2]} — bench supervisor`);
 }
 
 $("#logout").addEventListener("click", async () => {
@@ -269,5 +286,6 @@ function scheduleSessionCheck() {
 app.scheduleSessionCheck = scheduleSessionCheck;
 
 window.addEventListener("hashchange", route);
+app.stale.onChange = paintLink;
 paintLink();
 route();

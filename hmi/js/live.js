@@ -97,7 +97,9 @@ export class Live {
       if (this._stopped) return;
       this.stats.reconnects += 1;
       this._lost = true;
-      this._setState(this._pollTimer ? "polling" : "down");
+      // While the page polls, the polls say whether values come (a failed retry of the
+      // WebSocket is no news): "polling" only after a poll that answered.
+      if (!this._pollTimer) this._setState("down");
       if (this.onDisconnect) this.onDisconnect(opened);
       this._retry();
     };

@@ -3,6 +3,7 @@
 // High-performance HMI: grey when normal; colour only for what is abnormal.
 import { post } from "../api.js";
 import { bindTags, esc, fmtDuration, showResult, $, $$ } from "../dom.js";
+import { priorityIcon } from "../priority.js";
 
 /** The tag of a mimic element: /api/bench gives a tag name or {tag: name, ...}. */
 const mimicTag = (m) => (m && typeof m === "object" ? m.tag : m) || null;
@@ -70,7 +71,18 @@ export function paintTile(el, ch, live) {
   const abnormal = alarms.length > 0 || (typeof fault === "string" && fault !== "");
   el.classList.toggle("abn", abnormal);
   el.classList.toggle("warn", !abnormal && /^(Held|Holding|Aborted|Stopped)$/.test(state));
-  $(".tile-alarm", el).textContent = abnormal ? (alarms[0]?.message || fault) : "";
+  paintTileAlarm($(".tile-alarm", el), abnormal ? alarms : [], abnormal ? fault : "");
+}
+
+/** The tile's alarm line: its highest-priority alarm with the priority's shape (ISA-101:
+ * not colour alone), else the channel's latched fault; rewritten only when it changes
+ * (paintTile runs at every tag change). */
+function paintTileAlarm(el, alarms, fault) {
+  const top = alarms.slice().sort((x, y) => (y.severity || 0) - (x.severity || 0))[0];
+  const html = top ? `${priorityIcon(top.severity)} ${esc(top.message)}` : esc(fault || "");
+  if (el.dataset.html === html) return;
+  el.dataset.html = html;
+  el.innerHTML = html;
 }
 
 const LINK_ATTRS = 'data-true="ok" data-false="LOST" data-abn="false"';
