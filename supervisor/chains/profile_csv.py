@@ -171,8 +171,9 @@ def _settle_bare(column: Column, k: int, body: Sequence[Row]) -> Column:
     value recorded by the run that wrote the file (figure 21's ``Voltage``)."""
     for row in body:
         if k < len(row.cells) and row.cells[k].text:
-            role = "pair" if "/" in row.cells[k].text else "ignored"
-            return Column(role, column.window, scale=column.scale, name=column.name)
+            if "/" in row.cells[k].text:
+                return Column("pair", column.window, scale=column.scale, name=column.name)
+            return Column("ignored", name=column.name)
     return Column("ignored", name=column.name)
 
 
@@ -346,9 +347,9 @@ def parse_profile_csv(raw: bytes, path: str | Path) -> ProfileTable:
         header = _header(rows[0], rows[1:], path)
         rows = rows[1:]
     read: list[tuple[ProfilePoint, Row]] = []
+    named = header if header is not None and not header.by_place else None
     for row in rows:
-        by_name = header is not None and not header.by_place
-        point = _named_point(row, header, layout, path) if by_name else _point(row, layout, path)
+        point = _named_point(row, named, layout, path) if named else _point(row, layout, path)
         if point is not None:
             read.append((point, row))
     if not read:

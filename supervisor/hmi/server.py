@@ -42,6 +42,7 @@ from supervisor.hmi.csrf import RequestOrigins
 from supervisor.hmi.history_api import HistoryQuery, add_history_routes
 from supervisor.hmi.limits import ConnectionGuard, ConnectionLimits
 from supervisor.hmi.openapi import add_openapi_route
+from supervisor.hmi.profiles_api import add_profile_routes
 from supervisor.hmi.recipes_api import RecipesConfig, add_recipe_routes
 from supervisor.hmi.tests_api import TestsConfig, add_test_routes
 from supervisor.safety import Alarm, AlarmEvent
@@ -621,7 +622,9 @@ class HttpApi:
         if history is not None:  # GET /api/history, /api/events (hmi/history_api.py)
             add_history_routes(app, history, db, clock, self.commands.runners)
         if recipes is not None:  # /api/recipes… (hmi/recipes_api.py)
-            add_recipe_routes(app, recipes)
+            recipes_api = add_recipe_routes(app, recipes)
+            # /api/profiles… (hmi/profiles_api.py): a profile CSV loaded onto a channel.
+            add_profile_routes(app, recipes_api, self.commands, self.actor)
         if tests is not None:  # /api/tests… (hmi/tests_api.py)
             add_test_routes(app, tests, clock)
         if estop is not None:
