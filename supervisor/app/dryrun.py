@@ -5,6 +5,12 @@ source is simulated (a Chadèche board with a NiMH cell, or an EA-PSB supply wit
 pack when the recipe needs constant voltage: the real EA driver talking SCPI to the EA
 simulator in process) and time is virtual.
 
+Or a channel of an I/O map (``io_map``, ``channel``): that channel's own plant, every
+device of the map simulated in this process (its supply, its pack or cell, its sensors,
+the contactor and the e-stop sense, wired as the map's ``simulation:`` section says), the
+channel's own limits and tags, at the capacity asked for (default: the map's). Nothing of
+the map's services (screens, OPC UA, Modbus server, InfluxDB, historian) is built.
+
 Every dry run ends with a clear message in bounded memory: the chain reaches an end
 (Complete, Stopped, Aborted, or Held by an alarm: ``finished``), or the run stops at the
 ``max_hours`` cap and says where it was (step, cycle, test time) instead of predicting a
@@ -22,19 +28,27 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 from supervisor.app.bench import Bench, build_bench
 from supervisor.chains.compiler import compile_recipe
-from supervisor.chains.engine import State
+from supervisor.chains.engine import ChainRunner, State
 from supervisor.chains.kinds import kind_of
 from supervisor.chains.program import Program
 from supervisor.chains.run import ChainSnapshot
 from supervisor.commands.recipes import read_recipe_text
 from supervisor.config.limits import DRY_RUN_CYCLES_KEPT, DRY_RUN_EVENTS_KEPT
-from supervisor.config.models import BenchConfig
-from supervisor.config.recipe import load_recipe, load_recipe_text
+from supervisor.config.models import (
+    BenchConfig,
+    DeviceConfig,
+    LinearScaling,
+    SimulationConfig,
+    SpanScaling,
+    TagMapping,
+)
+from supervisor.config.recipe import Recipe, load_recipe, load_recipe_text
 from supervisor.core.clock import VirtualClock
+from supervisor.core.errors import ConfigError
 from supervisor.core.heap import settle_after_start
 from supervisor.core.records import Record
 from supervisor.core.units import parse_quantity
@@ -44,6 +58,10 @@ from supervisor.publish.results import FirstAndLast, ResultCollector
 
 TERMINAL = (State.COMPLETE, State.STOPPED, State.ABORTED, State.HELD)
 DEFAULT_START = "08:00"
+DEFAULT_PERIOD_S = 1.0
+"""A dry run's scan period (``--period-s``), on the built-in bench or an I/O map's: time
+resolution enough for hours-long steps; the map's own scan (0.1 s) made a dry run of ch4 on
+io_maps/sim.yaml about seven times slower."""
 DRY_RUN_CELL_TEMPERATURE_TAG = "cell0.temperature"
 """The NiMH dry-run bench's tag for the simulated cell's temperature."""
 CHUNK_S = 600.0
@@ -184,30 +202,166 @@ def dry_run_config(
     )
 
 
-async def dry_run(
-    recipe_path: str | Path,
-    *,
-    model: str | None = None,
-    params: dict[str, str] | None = None,
+def channel_dry_run_config(
+    cfg: BenchConfig,
+    channel: str,
     capacity_ah: float | None = None,
     soc: float | None = None,
-    cells: int = 1,
-    period_s: float = 1.0,
-    start: str = DEFAULT_START,
-    max_hours: float = 1000.0,
-    results_dir: Path | None = None,
-    text: str | None = None,
-    recorders: Sequence[Callable[[Record], None]] = (),
-    should_stop: Callable[[], bool] | None = None,
-) -> DryRunResult:
-    """``text``: the recipe's text (an upload not saved yet; ``recipe_path`` then only names
-    it in messages and finds its profile CSVs). ``recorders`` get every result record (the
-    HMI's preview trace). ``should_stop``: asked between chunks; True stops the run as the
-    ``max_hours`` cap does (``finished`` False; the HMI's time limit)."""
-    if text is not None:
-        recipe, pos = load_recipe_text(text, str(recipe_path))
-    else:
-        recipe, pos = load_recipe(recipe_path)
+    period_s: float | None = None,
+) -> BenchConfig:
+    """``cfg``'s bench made a dry run's for ``channel``: every device simulated (in process,
+    on loopback addresses nothing listens on), no services; ``capacity_ah``/``soc`` (None:
+    the map's) set the channel's cell or pack in the plant and the channel's rated capacity
+    (C-rates); ``period_s`` (None: the map's) the scan period. ConfigError for a channel
+    the map does not have."""
+    names = [c.name for c in cfg.channels]
+    if channel not in names:
+        raise ConfigError(
+            f"no channel {channel!r} in the I/O map (it has {', '.join(names) or 'none'})",
+            cfg.source_file or None,
+        )
+    data = cfg.model_dump(mode="python", exclude_unset=True)
+    for key in MAP_SERVICES:
+        data.pop(key, None)
+    data["history"] = {"enabled": False}
+    data["devices"] = {name: _simulated(dev) for name, dev in cfg.devices.items()}
+    if period_s is not None:
+        data["scan"] = {**data.get("scan", {}), "period_s": period_s}
+        data["scan"].pop("realtime_priority", None)
+    ch = next(c for c in data["channels"] if c["name"] == channel)
+    if cfg.simulation is None:
+        data["simulation"] = implied_simulation(cfg, channel)
+    cell = _cell_of(data, ch)
+    if capacity_ah is not None:
+        cell["capacity_ah"] = ch["capacity_ah"] = capacity_ah
+    if soc is not None:
+        cell["soc"] = soc
+    return bench_from_data(data, cfg.source_file or "<dry run>")
+
+
+MAP_WARMUP_S: Final = 5.0
+"""Scanned before a dry run on an I/O map starts its recipe: every device connected and
+every slow input in (the BMS sends its pack voltage once a second), as an operator starts
+a test on a bench that has been up a while."""
+MAP_SERVICES: Final = ("hmi", "opcua", "modbus_server", "influxdb", "identification", "recipes")
+"""What a dry run on an I/O map leaves out: it serves nothing and publishes nothing."""
+
+
+def _simulated(dev: DeviceConfig) -> dict[str, Any]:
+    """A device's I/O map entry made simulated, whatever its kind says a simulation is: a
+    Chadèche ``backend: sim``, a network device's ``sim: true`` on loopback (a BMS on
+    kernel SocketCAN through the socketcand simulator)."""
+    data = dev.model_dump(mode="python", exclude_unset=True)
+    fields = type(dev).model_fields
+    if "backend" in fields:
+        data["backend"] = "sim"
+    elif "sim" in fields:
+        data["sim"] = True
+    if "host" in fields:
+        data["host"] = "127.0.0.1"
+    if data.get("interface") == "socketcan":
+        data["interface"] = "socketcand"
+    return data
+
+
+LIION_CELL_MAX_V: Final = 4.2
+"""A Li-ion cell's charge voltage: how many cells in series a channel's limit implies."""
+
+
+def implied_simulation(cfg: BenchConfig, channel: str) -> dict[str, Any]:
+    """The ``simulation:`` section a map without one implies for ``channel`` (a real bench's:
+    its devices are not simulated, so it may not wire a simulation itself): the inputs and
+    outputs the channel's tags name outside its source (current sensor, voltage board,
+    temperature, contactor and its auxiliary contact; the e-stop sense the safety section or
+    a permissive names), with the sensors' scale from the tags' scaling, and a Li-ion pack
+    of the channel's capacity with as many cells in series as its upper voltage limit
+    holds."""
+    c = next(c for c in cfg.channels if c.name == channel)
+    tags = {t.name: t for t in cfg.tags}
+
+    def wired(tag: str | None, relay: bool = False) -> TagMapping | None:
+        m = tags.get(tag) if tag is not None else None
+        if m is None or m.device == c.source.device:
+            return None
+        info = cfg.devices[m.device].points().get(m.point)
+        is_relay = info is not None and info.direction == "out" and info.dtype == "bool"
+        analog = info is not None and info.direction == "in" and info.dtype == "float"
+        return m if (is_relay if relay else analog) else None
+
+    estop = cfg.safety.estop.tag if cfg.safety.estop is not None else None
+    sense = wired(estop) or next((wired(p) for p in c.permissives if wired(p)), None)
+    points: dict[str, TagMapping | None] = {
+        "lem_current": wired(c.current_tag),
+        "voltage_board": wired(c.voltage_tag),
+        "estop_sense": sense,
+        "contactor": wired(c.contactor_tag, relay=True),
+        "contactor_feedback": wired(c.contactor_feedback_tag),
+    }
+    out: dict[str, Any] = {
+        k: {"device": m.device, "point": m.point} for k, m in points.items() if m is not None
+    }
+    for ratio_key, m in (
+        ("lem_volts_per_amp", points["lem_current"]),
+        ("voltage_board_ratio", points["voltage_board"]),
+    ):
+        if m is not None and m.scaling is not None:
+            out[ratio_key] = _raw_per_unit(m)
+    temperature = wired(c.temperature_tag)
+    if temperature is not None:
+        out["thermocouples"] = [{"device": temperature.device, "point": temperature.point}]
+    cells = max(1, int(c.limits.voltage_v[1] / LIION_CELL_MAX_V + 1e-9))
+    out["pack"] = {"model": "liion-pack", "cells_series": cells, "capacity_ah": c.capacity_ah}
+    return out
+
+
+def _raw_per_unit(m: TagMapping) -> float:
+    """A sensor's raw units per engineering unit from its tag's scaling (V/A, V/V)."""
+    scaling = m.scaling
+    if isinstance(scaling, SpanScaling):
+        return (scaling.raw[1] - scaling.raw[0]) / (scaling.eu[1] - scaling.eu[0])
+    assert isinstance(scaling, LinearScaling)
+    return 1.0 / scaling.a
+
+
+def _cell_of(data: dict[str, Any], ch: dict[str, Any]) -> dict[str, Any]:
+    """The simulated battery behind a channel in the bench's data (made in place): a
+    board's cell (``boards[].sim``) or the plant's pack (``simulation.pack``)."""
+    source = ch["source"]
+    boards = data["devices"][source["device"]].get("boards")
+    if source.get("board") is not None and boards is not None:
+        board = next(b for b in boards if b.get("address") == source["board"])
+        cell: dict[str, Any] = board.setdefault("sim", {})
+        return cell
+    simulation = data.setdefault("simulation", {})
+    pack: dict[str, Any] = simulation.setdefault(
+        "pack", SimulationConfig().pack.model_dump(mode="python")
+    )
+    return pack
+
+
+@dataclass
+class _Plant:
+    """The bench a dry run runs on and the channel it runs."""
+
+    bench: Bench
+    channel: str
+    warmup_s: float
+    """Scanned before the start: every device connected, its first images in."""
+    io_map_file: str = ""
+    io_map_sha256: str = ""
+
+
+def _builtin_plant(
+    recipe: Recipe,
+    clock: VirtualClock,
+    model: str | None,
+    capacity_ah: float | None,
+    soc: float | None,
+    cells: int,
+    period_s: float,
+) -> _Plant:
+    """The dry-run bench of :func:`dry_run_config`: a model the recipe suggests (a Li-ion
+    pack when it needs constant voltage or says so), at the recipe's capacity by default."""
     needs_cv = any(kind_of(s.kind).needs_cv for s in recipe.steps)
     if model is None:
         model = "liion-pack" if needs_cv or recipe.chemistry in ("liion", "lfp") else "nimh-aa"
@@ -217,43 +371,76 @@ async def dry_run(
     cap = cap if cap is not None else 2.0
     if soc is None:
         soc = 0.9 if model == "nimh-aa" else 0.5
-    clock = VirtualClock(wall_epoch_s=_epoch(start))
-    bench: Bench = build_bench(
-        dry_run_config(model, cap, soc, period_s, cells), clock, in_process=True
-    )
+    bench = build_bench(dry_run_config(model, cap, soc, period_s, cells), clock, in_process=True)
     assert bench.sim is not None  # every dry-run source is simulated
     # The dry-run bench has no contactor relay (no ADAM), but the plant only lets current
     # flow between supply and pack with its contactor closed: close it for good (the
     # ideal supply that dry runs used before did the same at connect).
     bench.sim.plant.set_contactor(True)
-    runner = bench.runners["ch0"]
-    bench.displays["ch0"].period_s = float("inf")  # a dry run shows its report instead
-    program = compile_recipe(recipe, pos, str(recipe_path), bench.target("ch0"), params or {})
+    return _Plant(bench, "ch0", 3 * period_s)
+
+
+def _map_plant(
+    cfg: BenchConfig,
+    channel: str | None,
+    clock: VirtualClock,
+    capacity_ah: float | None,
+    soc: float | None,
+    period_s: float,
+) -> _Plant:
+    """A channel of an I/O map on its own plant (:func:`channel_dry_run_config`); the only
+    channel when none is named."""
+    if channel is None:
+        if len(cfg.channels) != 1:
+            names = ", ".join(c.name for c in cfg.channels)
+            raise ConfigError(f"name the channel to dry-run (the I/O map has {names})")
+        channel = cfg.channels[0].name
+    dry = channel_dry_run_config(cfg, channel, capacity_ah, soc, period_s)
+    bench = build_bench(dry, clock, in_process=True)
+    return _Plant(bench, channel, MAP_WARMUP_S, cfg.source_file, cfg.source_sha256)
+
+
+async def dry_run(
+    recipe_path: str | Path,
+    *,
+    model: str | None = None,
+    params: dict[str, str] | None = None,
+    capacity_ah: float | None = None,
+    soc: float | None = None,
+    cells: int = 1,
+    period_s: float = DEFAULT_PERIOD_S,
+    start: str = DEFAULT_START,
+    max_hours: float = 1000.0,
+    results_dir: Path | None = None,
+    text: str | None = None,
+    recorders: Sequence[Callable[[Record], None]] = (),
+    should_stop: Callable[[], bool] | None = None,
+    io_map: BenchConfig | None = None,
+    channel: str | None = None,
+) -> DryRunResult:
+    """``text``: the recipe's text (an upload not saved yet; ``recipe_path`` then only names
+    it in messages and finds its profile CSVs). ``recorders`` get every result record (the
+    HMI's preview trace). ``should_stop``: asked between chunks; True stops the run as the
+    ``max_hours`` cap does (``finished`` False; the HMI's time limit). ``io_map``: run on
+    ``channel``'s own plant in that bench (``model`` and ``cells`` are then the map's; its
+    scan runs at ``period_s`` too: a dry run's resolution, not the bench's reaction time);
+    without it, on the built-in dry-run bench."""
+    if text is not None:
+        recipe, pos = load_recipe_text(text, str(recipe_path))
+    else:
+        recipe, pos = load_recipe(recipe_path)
+    clock = VirtualClock(wall_epoch_s=_epoch(start))
+    if io_map is None:
+        plant = _builtin_plant(recipe, clock, model, capacity_ah, soc, cells, period_s)
+    else:
+        plant = _map_plant(io_map, channel, clock, capacity_ah, soc, period_s)
+    bench, ch = plant.bench, plant.channel
+    runner = bench.runners[ch]
+    bench.displays[ch].period_s = float("inf")  # a dry run shows its report instead
+    # Refused here, before anything is started or connected: nothing to shut down.
+    program = compile_recipe(recipe, pos, str(recipe_path), bench.target(ch), params or {})
     runner.load(program, test_id=f"dryrun-{program.name}")
-    collector = ResultCollector(
-        "ch0",
-        program.name,
-        runner.test_id,
-        results_dir / runner.test_id if results_dir else None,
-        events_kept=DRY_RUN_EVENTS_KEPT,
-        cycles_kept=DRY_RUN_CYCLES_KEPT,
-        metadata=TestMetadata(chemistry=recipe.chemistry or "", operator="dry-run"),
-        # What a real run's folder says, without an I/O map: the dry-run bench is built
-        # in code (dry_run_config), its channel section stands for it.
-        provenance=Provenance(
-            bench=bench.cfg.bench,
-            channel="ch0",
-            test_id=runner.test_id,
-            recipe_name=program.name,
-            recipe_file=str(recipe_path),
-            recipe_text=text if text is not None else read_recipe_text(recipe_path),
-            parameters_given=dict(params or {}),
-            parameters_resolved=dict(program.parameters),
-            io_map_file="",
-            io_map_sha256="",
-            io_map_channel=bench.channel_section("ch0"),
-        ),
-    )
+    collector = _collector(plant, program, recipe, recipe_path, text, params, results_dir)
     runner.listeners.append(collector.on_event)
     runner.recorders.append(collector.on_record)
     runner.recorders.extend(recorders)
@@ -266,12 +453,13 @@ async def dry_run(
             sequence.append((ev.step_id, cause))
 
     runner.listeners.append(steps)
+    await bench.start()
     # The run's speed is measured as a whole (simulated over wall time), not scan by scan;
     # from the first scan on: a timed scan takes a branch by its wall duration (a new
     # longest scan), which made a dry run's bytecodes differ from run to run
     # (tests/unit/test_dry_run_cost.py).
     bench.engine.measure_durations = False
-    await bench.engine.run_for(3 * period_s)  # first images in
+    await bench.engine.run_for(plant.warmup_s)  # first images in
     runner.command("start", actor="dry-run")
     # Nothing else runs on this loop during a chunk (should_stop is asked between chunks).
     bench.engine.yield_every_scans = DRY_RUN_YIELD_SCANS
@@ -286,14 +474,7 @@ async def dry_run(
         wall = time.perf_counter() - t0
     finished = runner.state in TERMINAL
     runner.listeners.remove(steps)  # the shutdown's last scans are not part of the run
-    end = runner.end_reason
-    if runner.state is State.HELD:
-        end = str(
-            bench.db["ch0.chain.alarm"].value
-            or bench.db["ch0.fault"].value
-            or runner.hold_reason  # an until's `hold`: the condition that came true
-            or end
-        )
+    end = _end_reason(bench, ch, runner)
     snap = runner.snapshot()
     if not finished and snap is not None:
         end = cap_message(max_hours, snap, program)
@@ -317,6 +498,57 @@ async def dry_run(
         max_hours=max_hours,
         steps_omitted=sequence.omitted,
     )
+
+
+def _collector(
+    plant: _Plant,
+    program: Program,
+    recipe: Recipe,
+    recipe_path: str | Path,
+    text: str | None,
+    params: dict[str, str] | None,
+    results_dir: Path | None,
+) -> ResultCollector:
+    """The run's result files and summary, with what a real run's folder says: the I/O map
+    the channel comes from (none for the built-in bench, built in code: its channel section
+    stands for it)."""
+    bench, ch = plant.bench, plant.channel
+    test_id = bench.runners[ch].test_id
+    return ResultCollector(
+        ch,
+        program.name,
+        test_id,
+        results_dir / test_id if results_dir else None,
+        events_kept=DRY_RUN_EVENTS_KEPT,
+        cycles_kept=DRY_RUN_CYCLES_KEPT,
+        metadata=TestMetadata(chemistry=recipe.chemistry or "", operator="dry-run"),
+        provenance=Provenance(
+            bench=bench.cfg.bench,
+            channel=ch,
+            test_id=test_id,
+            recipe_name=program.name,
+            recipe_file=str(recipe_path),
+            recipe_text=text if text is not None else read_recipe_text(recipe_path),
+            parameters_given=dict(params or {}),
+            parameters_resolved=dict(program.parameters),
+            io_map_file=plant.io_map_file,
+            io_map_sha256=plant.io_map_sha256,
+            io_map_channel=bench.channel_section(ch),
+        ),
+    )
+
+
+def _end_reason(bench: Bench, ch: str, runner: ChainRunner) -> str:
+    """How the chain ended; Held: the alarm, fault or condition that held it."""
+    end = runner.end_reason
+    if runner.state is State.HELD:
+        end = str(
+            bench.db[f"{ch}.chain.alarm"].value
+            or bench.db[f"{ch}.fault"].value
+            or runner.hold_reason  # an until's `hold`: the condition that came true
+            or end
+        )
+    return end
 
 
 @contextmanager

@@ -8,6 +8,11 @@ the 25 h NiMH recipe in a worker thread the scan skipped 12 deadlines and the e-
 went stale (tests/integration/test_hmi_recipes_api.py). A child process has its own lock
 and, in the idle scheduling class, gives way to the scan at once on a busy machine.
 
+A recipe previewed for a channel runs on that channel's own plant (:class:`ChannelPreviews`:
+the child reads the bench's I/O map again and simulates the channel's supply, battery and
+sensors, ``dry_run(io_map=…, channel=…)``), not on the built-in NiMH board: a ch4 recipe
+was refused "channel ch0 allows [-0.4, 0.4] A" (issue 32).
+
 The child (``python -m supervisor.app.preview``) reads one JSON job on stdin and writes one
 JSON answer on stdout: the dry run's end, its summary and a trace of at most
 ``MAX_TRACE_POINTS`` points, or the recipe's errors. It stops itself at its time limit
@@ -25,15 +30,18 @@ import os
 import sys
 import time
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any, Final
 
 from supervisor.app.dryrun import dry_run
+from supervisor.config.models import BenchConfig
 from supervisor.core.errors import ConfigError, ConfigErrors
+from supervisor.devices.registry import load_bench
 from supervisor.hmi.recipes_api import Trace
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PreviewFailed", "preview_in_child"]
+__all__ = ["ChannelPreviews", "PreviewFailed", "preview_in_child", "previews_of"]
 
 GRACE_S: Final = 15.0
 """How long after its time limit the parent waits for the child's answer (it stops at the
@@ -50,10 +58,27 @@ def _error_json(e: ConfigError) -> dict[str, Any]:
     return {"message": e.message, "file": e.file, "line": e.line, "col": e.col}
 
 
+def _io_map(job: Mapping[str, Any]) -> BenchConfig | None:
+    """The running supervisor's I/O map, read again from its file: refused when the file
+    changed since the supervisor loaded it (the preview would not show this bench)."""
+    path = job.get("io_map")
+    if not path or job.get("channel") is None:
+        return None
+    cfg = load_bench(path)
+    if job.get("io_map_sha256") and cfg.source_sha256 != job["io_map_sha256"]:
+        raise ConfigError(
+            "the I/O map changed since the supervisor loaded it: the preview cannot show the"
+            " channel's plant as it runs (restart the supervisor to use the new map)",
+            path,
+        )
+    return cfg
+
+
 async def _run(job: Mapping[str, Any]) -> dict[str, Any]:
     deadline = time.monotonic() + float(job["timeout_s"])
     trace = Trace()
     try:
+        io_map = _io_map(job)
         res = await dry_run(
             job["file"],
             text=job["text"],
@@ -62,6 +87,8 @@ async def _run(job: Mapping[str, Any]) -> dict[str, Any]:
             max_hours=float(job["max_hours"]),
             recorders=(trace,),
             should_stop=lambda: time.monotonic() > deadline,
+            io_map=io_map,
+            channel=job.get("channel") if io_map is not None else None,
         )
     except ConfigErrors as exc:
         return {"errors": [_error_json(e) for e in exc.errors]}
@@ -101,6 +128,44 @@ def child_main() -> int:
     return 0
 
 
+@dataclass(frozen=True)
+class ChannelPreviews:
+    """The previews of one bench (:class:`~supervisor.hmi.recipes_api.DryRunner`): a recipe
+    for a channel runs on that channel's own plant, simulated from the bench's I/O map
+    (``io_map``, the file the supervisor loaded; its SHA-256 as loaded); without a channel,
+    or without a file (a bench built in code), on the built-in dry-run bench."""
+
+    io_map: str = ""
+    io_map_sha256: str = ""
+
+    async def __call__(
+        self,
+        file: str,
+        text: str,
+        params: Mapping[str, str],
+        capacity_ah: float | None,
+        max_hours: float,
+        timeout_s: float,
+        channel: str | None = None,
+    ) -> dict[str, Any]:
+        return await preview_in_child(
+            file,
+            text,
+            params,
+            capacity_ah,
+            max_hours,
+            timeout_s,
+            channel,
+            io_map=self.io_map,
+            io_map_sha256=self.io_map_sha256,
+        )
+
+
+def previews_of(cfg: BenchConfig) -> ChannelPreviews:
+    """The previews of the bench ``cfg`` describes (the composition root's)."""
+    return ChannelPreviews(cfg.source_file, cfg.source_sha256)
+
+
 async def preview_in_child(
     file: str,
     text: str,
@@ -108,8 +173,13 @@ async def preview_in_child(
     capacity_ah: float | None,
     max_hours: float,
     timeout_s: float,
+    channel: str | None = None,
+    *,
+    io_map: str = "",
+    io_map_sha256: str = "",
 ) -> dict[str, Any]:
-    """The preview's answer (see :func:`_run`); ``PreviewFailed`` when none came."""
+    """The preview's answer (see :func:`_run`); ``PreviewFailed`` when none came.
+    ``channel`` with ``io_map``: on that channel's plant (:class:`ChannelPreviews`)."""
     job = {
         "file": file,
         "text": text,
@@ -117,6 +187,9 @@ async def preview_in_child(
         "capacity_ah": capacity_ah,
         "max_hours": max_hours,
         "timeout_s": timeout_s,
+        "channel": channel,
+        "io_map": io_map,
+        "io_map_sha256": io_map_sha256,
     }
     proc = await asyncio.create_subprocess_exec(
         sys.executable,

@@ -27,7 +27,7 @@ from supervisor.app.bench import Bench, build_bench
 from supervisor.app.descriptors import http_limits
 from supervisor.app.hmi import build_screens
 from supervisor.app.lock import BenchLock, BenchLockFailed
-from supervisor.app.preview import preview_in_child
+from supervisor.app.preview import previews_of
 from supervisor.commands import Command, Result, Verb
 from supervisor.config.models import BenchConfig
 from supervisor.core.clock import Clock, RealClock
@@ -259,7 +259,7 @@ def _recipes_config(cfg: BenchConfig, bench: Bench) -> RecipesConfig:
     checks = recipe_checks(cfg.recipes.check_workers, cfg.recipes.check_memory_mib * 1024 * 1024)
     return RecipesConfig(
         folders.folders[0],
-        preview_in_child,
+        previews_of(cfg),
         validate_timeout_s=cfg.recipes.check_timeout_s,
         checks=checks,
         folders=folders,

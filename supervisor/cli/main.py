@@ -498,6 +498,17 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
     if not Path(args.recipe).exists():
         _err(f"{args.recipe}: no such recipe")
         return EXIT_USAGE
+    io_map = None
+    if args.io_map is not None:
+        from supervisor.devices.registry import load_bench
+
+        if args.model is not None or args.cells != 1:
+            _err("--model and --cells are the built-in bench's; --io-map runs the map's plant")
+            return EXIT_USAGE
+        io_map = load_bench(args.io_map)  # ConfigErrors: said as `supervisor check` says them
+    elif args.channel is not None:
+        _err("--channel names a channel of the I/O map given with --io-map")
+        return EXIT_USAGE
     res = asyncio.run(
         dry_run(
             args.recipe,
@@ -510,6 +521,8 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
             start=args.start,
             max_hours=args.max_hours,
             results_dir=Path(args.results) if args.results else None,
+            io_map=io_map,
+            channel=args.channel,
         )
     )
     for line in format_report(res):
@@ -758,6 +771,61 @@ def _add_opcua_parser(sub: Any) -> None:
     ou.set_defaults(func=cmd_opcua)
 
 
+def _add_dry_run_parser(sub: Any) -> None:
+    """``supervisor dry-run``'s arguments."""
+    d = sub.add_parser(
+        "dry-run",
+        help="run a recipe against the battery model, virtual time",
+        description="Run a recipe against the battery model on the virtual clock: step"
+        " timeline, predicted duration, capacity per cycle.",
+        epilog="exit codes: 0 the recipe came to an end (Complete, Stopped, Aborted, or Held"
+        " by an alarm: the report says which); 1 it did not finish within --max-hours (the"
+        " report says where it was: step, cycle, test time); 2 a usage or recipe error."
+        " A long run's timeline and cycles are shown by their first and last halves.",
+    )
+    d.add_argument("recipe")
+    d.add_argument("--model", choices=["nimh-aa", "liion-pack"], default=None)
+    d.add_argument(
+        "--io-map",
+        default=None,
+        metavar="MAP",
+        help="run on a channel of this I/O map: its own supply, battery and sensors, simulated",
+    )
+    d.add_argument(
+        "--channel", default=None, help="the I/O map's channel (default: its only channel)"
+    )
+    d.add_argument("--param", action="append", default=[], metavar="NAME=VALUE")
+    d.add_argument(
+        "--capacity-ah",
+        type=_bounded(DRY_RUN_MIN_CAPACITY_AH, DRY_RUN_MAX_CAPACITY_AH, "Ah"),
+        default=None,
+        help="rated capacity of the cell",
+    )
+    d.add_argument(
+        "--soc", type=_bounded(0.0, 1.0), default=None, help="state of charge at start, 0..1"
+    )
+    d.add_argument("--cells", type=_cells, default=1, help="Li-ion cells in series")
+    d.add_argument(
+        "--period-s",
+        type=_bounded(MIN_SCAN_PERIOD_S, MAX_SCAN_PERIOD_S, "s"),
+        default=1.0,
+        help="scan period of the dry run",
+    )
+    d.add_argument(
+        "--start", type=_time_of_day, default="08:00", help="local time of day the test starts"
+    )
+    d.add_argument(
+        "--max-hours",
+        type=_bounded(0.0, DRY_RUN_MAX_HOURS, "h", low_included=False),
+        default=1000.0,
+        help="stop the dry run after this much virtual time (default 1000 h; exit 1)",
+    )
+    d.add_argument(
+        "--results", type=_results_dir, default=None, help="write result files under this folder"
+    )
+    d.set_defaults(func=cmd_dry_run)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="supervisor", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -801,48 +869,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default=".", help="project root: writes io_maps/ and recipes/ schemas")
     s.set_defaults(func=cmd_schema)
 
-    d = sub.add_parser(
-        "dry-run",
-        help="run a recipe against the battery model, virtual time",
-        description="Run a recipe against the battery model on the virtual clock: step"
-        " timeline, predicted duration, capacity per cycle.",
-        epilog="exit codes: 0 the recipe came to an end (Complete, Stopped, Aborted, or Held"
-        " by an alarm: the report says which); 1 it did not finish within --max-hours (the"
-        " report says where it was: step, cycle, test time); 2 a usage or recipe error."
-        " A long run's timeline and cycles are shown by their first and last halves.",
-    )
-    d.add_argument("recipe")
-    d.add_argument("--model", choices=["nimh-aa", "liion-pack"], default=None)
-    d.add_argument("--param", action="append", default=[], metavar="NAME=VALUE")
-    d.add_argument(
-        "--capacity-ah",
-        type=_bounded(DRY_RUN_MIN_CAPACITY_AH, DRY_RUN_MAX_CAPACITY_AH, "Ah"),
-        default=None,
-        help="rated capacity of the cell",
-    )
-    d.add_argument(
-        "--soc", type=_bounded(0.0, 1.0), default=None, help="state of charge at start, 0..1"
-    )
-    d.add_argument("--cells", type=_cells, default=1, help="Li-ion cells in series")
-    d.add_argument(
-        "--period-s",
-        type=_bounded(MIN_SCAN_PERIOD_S, MAX_SCAN_PERIOD_S, "s"),
-        default=1.0,
-        help="scan period of the dry run",
-    )
-    d.add_argument(
-        "--start", type=_time_of_day, default="08:00", help="local time of day the test starts"
-    )
-    d.add_argument(
-        "--max-hours",
-        type=_bounded(0.0, DRY_RUN_MAX_HOURS, "h", low_included=False),
-        default=1000.0,
-        help="stop the dry run after this much virtual time (default 1000 h; exit 1)",
-    )
-    d.add_argument(
-        "--results", type=_results_dir, default=None, help="write result files under this folder"
-    )
-    d.set_defaults(func=cmd_dry_run)
+    _add_dry_run_parser(sub)
 
     im = sub.add_parser("import", help="turn a Chadèche sequence file or a profile into YAML")
     im.add_argument("kind", choices=["chadeche", "profile"])

@@ -12,7 +12,8 @@
   the dry run (``supervisor dry-run``'s, injected as :class:`DryRunner`: this layer does not
   import the application's) with its timeline, capacity per cycle and a V/I trace of at
   most ``MAX_TRACE_POINTS`` points. ``channel``: the recipe is also checked against that
-  channel's limits and the preview's cell gets its capacity. One at a time (409 else).
+  channel's limits and runs on that channel's own plant (its supply, battery and sensors,
+  simulated from the I/O map). One at a time (409 else).
 - ``PUT /api/recipes/{name} {"text", "overwrite"?}``: engineers only; validated first, then
   written atomically (a temporary file in the same folder, then a rename: a reader sees the
   old recipe or the new one, never half of one). 422 with the errors and nothing written;
@@ -122,7 +123,8 @@ class DryRunner(Protocol):
     the dry run's answer as a mapping (``recipe``, ``end_reason``, ``finished``,
     ``simulated_s``, ``timed_out``, ``summary`` as summary.json, ``trace`` as
     :meth:`Trace.as_json`), or ``{"errors": [{"message", "file", "line", "col"}]}``; raises
-    when no answer came (the reason is its message)."""
+    when no answer came (the reason is its message). ``channel``: run on that channel's own
+    plant (its supply, battery and sensors, from the bench's I/O map)."""
 
     async def __call__(
         self,
@@ -132,6 +134,7 @@ class DryRunner(Protocol):
         capacity_ah: float | None,
         max_hours: float,
         timeout_s: float,
+        channel: str | None = None,
     ) -> Mapping[str, Any]: ...
 
 
@@ -663,8 +666,9 @@ class RecipesApi:
     ) -> web.Response:
         timeout_s = self.config.dry_run_timeout_s
         capacity_ah = target.capacity_ah if target is not None else None
+        channel = target.channel if target is not None else None
         try:
-            res = await runner(file, text, params, capacity_ah, max_hours, timeout_s)
+            res = await runner(file, text, params, capacity_ah, max_hours, timeout_s, channel)
         except Exception as exc:  # no answer (killed at its limit, crashed): say why
             log.error("recipes: dry run of %s: %s", file, exc)
             return _error(503, f"{exc} (README: Input limits)")

@@ -13,7 +13,10 @@ checked on a real unit.
 
 from __future__ import annotations
 
+import re
+from collections.abc import Mapping
 from enum import StrEnum
+from types import MappingProxyType
 from typing import Final, NamedTuple
 
 from supervisor.core.errors import ProtocolError
@@ -80,19 +83,74 @@ LONG_FORMS: Final = {
     "MONITORING": "MON",
     "ACTIVE": "ACT",
     "ACTIVATE": "ACT",
+    "SOURCE": "SOUR",
+    "LEVEL": "LEV",
+    "IMMEDIATE": "IMM",
+    "AMPLITUDE": "AMPL",
+    "NEXT": "NEXT",
 }
+
+OPTIONAL_NODES: Final = (
+    "OUTP[:STAT]",
+    "SYST:LOCK[:STAT]",
+    "[SOUR:]VOLT[:LEV][:IMM][:AMPL]",
+    "[SOUR:]CURR[:LEV][:IMM][:AMPL]",
+    "[SOUR:]POW[:LEV][:IMM][:AMPL]",
+    "SINK:CURR[:LEV][:IMM][:AMPL]",
+    "SINK:POW[:LEV][:IMM][:AMPL]",
+    "[SOUR:]VOLT:PROT[:LEV]",
+    "[SOUR:]CURR:PROT[:LEV]",
+    "[SOUR:]POW:PROT[:LEV]",
+    "SINK:CURR:PROT[:LEV]",
+    "MEAS[:SCAL]:VOLT[:DC]",
+    "MEAS[:SCAL]:CURR[:DC]",
+    "MEAS[:SCAL]:POW[:DC]",
+    "MEAS[:SCAL]:ARR",
+    "SYST:ERR[:NEXT]",
+)
+"""The EA commands with optional nodes (SCPI's ``[...]``: a unit accepts the header with or
+without them), in short form; each means its header without them (``OUTP:STAT OFF`` is
+``OUTP OFF``). ``OUTPut[:STATe]``, ``SYSTem:ERRor[:NEXT]`` and the set values'
+``[:LEVel][:IMMediate][:AMPLitude]`` are SCPI-99's own forms; that an EA unit accepts every
+one of them (and ``[SOURce:]``, ``MEASure[:SCALar]``, ``[:DC]``) is [S] (seed 002's script
+sends ``OUTP:STAT OFF``; EA's programming guide lists its commands in this notation)."""
+
+
+def _variants(pattern: str) -> list[str]:
+    """Every header a pattern of :data:`OPTIONAL_NODES` stands for (``A[:B]`` → ``A``,
+    ``A:B``)."""
+    parts = re.split(r"(\[[^\]]*\])", pattern)
+    headers = [""]
+    for part in parts:
+        if part.startswith("["):
+            headers = [h + extra for h in headers for extra in ("", part[1:-1])]
+        else:
+            headers = [h + part for h in headers]
+    return headers
+
+
+CANONICAL_HEADERS: Final[Mapping[str, str]] = MappingProxyType(
+    {v: _variants(p)[0] for p in OPTIONAL_NODES for v in _variants(p)}
+)
+"""Each header with optional nodes (short form) → the header without them."""
 
 
 # --- commands (simulator side) -------------------------------------------------------------
 def normalize_header(header: str) -> str:
     """:func:`scpi.normalize_header` with the EA's long forms (``SYSTem:COMMunicate:MONitoring``
-    → ``SYST:COMM:MON``)."""
-    return scpi.normalize_header(header, LONG_FORMS)
+    → ``SYST:COMM:MON``) and without its optional nodes (``OUTPut:STATe`` → ``OUTP``)."""
+    short = scpi.normalize_header(header, LONG_FORMS)
+    return CANONICAL_HEADERS.get(short, short)
 
 
 def parse_command(text: str, device: str = DEVICE) -> Command:
-    """:func:`scpi.parse_command` with the EA's long forms."""
-    return scpi.parse_command(text, device, LONG_FORMS)
+    """:func:`scpi.parse_command` with the EA's long forms, its optional nodes left out of
+    the header (:data:`OPTIONAL_NODES`)."""
+    cmd = scpi.parse_command(text, device, LONG_FORMS)
+    header = CANONICAL_HEADERS.get(cmd.header)
+    if header is None:
+        return cmd
+    return Command(header, cmd.query, cmd.argument)
 
 
 # --- words ------------------------------------------------------------------------------------

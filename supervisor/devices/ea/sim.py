@@ -98,7 +98,15 @@ about 7 MiB per hour (issue 13). The newest are kept; the oldest go in blocks of
 length so that trimming costs O(1) per line on average."""
 """Command texts whose parse the simulator remembers (see ``EaSimulator._parse``)."""
 
+RATING_DECIMALS = 2
+"""Decimals of the simulated unit's ``SYST:NOM:…?`` replies (``60.00 V``)."""
+
 _Handler = Callable[[Command], str | None]
+
+
+def reported_rating(value: float) -> float:
+    """A rating as the unit reports it (:data:`RATING_DECIMALS`): the value it enforces."""
+    return float(f"{value:.{RATING_DECIMALS}f}")
 
 
 class _Refused(Exception):
@@ -150,9 +158,13 @@ class EaSimulator:
         self.identity = Identity(
             "EA Elektro-Automatik GmbH & Co. KG", model, SIM_SERIAL, SIM_FIRMWARE
         )
-        self.nominal_v = nominal_v
-        self.nominal_a = nominal_a
-        self.nominal_w = nominal_w
+        # The rating is what the unit reports (``SYST:NOM:…?``, two decimals) and what it
+        # checks set values against: a driver that sets a value at the reported nominal
+        # must not be refused because the rating it was built with had more digits (a
+        # computed 1565.9999999999998 W reported as 1566.00 W refused ``POW 1566``: issue 32).
+        self.nominal_v = reported_rating(nominal_v)
+        self.nominal_a = reported_rating(nominal_a)
+        self.nominal_w = reported_rating(nominal_w)
         self.commands: list[str] = []
         self.lines: list[str] = []
         self.mute = False
@@ -317,15 +329,14 @@ class EaSimulator:
             ("SYST:LOCK:OWN", True): lambda c: self._owner().value,
             ("OUTP", False): self._outp,
             ("OUTP", True): lambda c: "ON" if self.plant.supply.output_on else "OFF",
-            ("SYST:NOM:VOLT", True): lambda c: f"{self.nominal_v:.2f} V",
-            ("SYST:NOM:CURR", True): lambda c: f"{self.nominal_a:.2f} A",
-            ("SYST:NOM:POW", True): lambda c: f"{self.nominal_w:.2f} W",
+            ("SYST:NOM:VOLT", True): lambda c: f"{self.nominal_v:.{RATING_DECIMALS}f} V",
+            ("SYST:NOM:CURR", True): lambda c: f"{self.nominal_a:.{RATING_DECIMALS}f} A",
+            ("SYST:NOM:POW", True): lambda c: f"{self.nominal_w:.{RATING_DECIMALS}f} W",
             ("MEAS:VOLT", True): lambda c: f"{self._measure().voltage_v:.2f} V",
             ("MEAS:CURR", True): lambda c: f"{self._measure().current_a:.2f} A",
             ("MEAS:POW", True): lambda c: f"{self._measure().power_w:.2f} W",
             ("MEAS:ARR", True): lambda c: format_meas_array(self._measure()),
             ("SYST:ERR", True): self._err,
-            ("SYST:ERR:NEXT", True): self._err,
             ("STAT:QUES:COND", True): lambda c: str(self._ques),
             ("STAT:OPER:COND", True): lambda c: str(self._oper()),
             (WATCHDOG_TIME_HEADER, False): self._mon_tim,
