@@ -384,6 +384,7 @@ function profilePanel(root, app) {
 
   const load = async () => {
     if (!source) return;
+    showResult(out, { ok: true, data: { reason: `loading onto ${channel()}…` } });
     const answer = await post("/api/profiles/load", { ...source, channel: channel() });
     showResult(out, answer, `${made?.recipe || "profile"} loaded on ${channel()}`);
     delete out.dataset.dryrun;
@@ -392,6 +393,7 @@ function profilePanel(root, app) {
 
   const start = async () => {
     const ch = channel();
+    showResult(out, { ok: true, data: { reason: `starting ${ch}…` } });
     const answer = await post(`/api/channels/${encodeURIComponent(ch)}/commands/start`, {});
     showResult(out, answer, `${ch} started`);
     if (answer.ok) {
