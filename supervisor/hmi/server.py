@@ -621,10 +621,8 @@ class HttpApi:
         )
         if history is not None:  # GET /api/history, /api/events (hmi/history_api.py)
             add_history_routes(app, history, db, clock, self.commands.runners)
-        if recipes is not None:  # /api/recipes… (hmi/recipes_api.py)
-            recipes_api = add_recipe_routes(app, recipes)
-            # /api/profiles… (hmi/profiles_api.py): a profile CSV loaded onto a channel.
-            add_profile_routes(app, recipes_api, self.commands, self.actor)
+        if recipes is not None:  # /api/recipes…, /api/profiles… (recipes_api, profiles_api)
+            add_profile_routes(app, add_recipe_routes(app, recipes), self.commands, self.actor)
         if tests is not None:  # /api/tests… (hmi/tests_api.py)
             add_test_routes(app, tests, clock)
         if estop is not None:
