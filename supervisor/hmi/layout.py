@@ -24,7 +24,7 @@ from aiohttp import web
 
 from supervisor.chains.engine import ChainRunner
 from supervisor.chains.program import ActionKind, CompiledStep, Program, Transition
-from supervisor.config.models import BenchConfig
+from supervisor.config.models import BenchConfig, ChannelConfig
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver
 from supervisor.core.quality import Quality
@@ -137,6 +137,7 @@ class Layout:
                         role: self._tag(f"{c.name}.{suffix}")
                         for role, suffix in CHANNEL_TAGS.items()
                     },
+                    "trend": self.trend_series(c),
                 }
             )
         devices = [
@@ -159,6 +160,22 @@ class Layout:
             "devices": devices,
             "mimic": self.mimic(),
         }
+
+    def trend_series(self, ch: ChannelConfig) -> list[dict[str, str]]:
+        """The series a channel's trend draws beside its V, I and T: its BMS's lowest and
+        highest cell voltage (what "Show Graphs" of seed 002 plots of the cells; this BMS
+        gives only those), on a scale of their own (``cell``), each as the bench's tag."""
+        if ch.bms is None:
+            return []
+        units = {t.name: t.unit for t in self.bench.cfg.tags}
+        out = []
+        for label, tag in (("cell min", ch.bms.cell_min_tag), ("cell max", ch.bms.cell_max_tag)):
+            name = self._tag(tag)
+            if name is not None:
+                out.append(
+                    {"label": label, "tag": name, "unit": units.get(name, ""), "scale": "cell"}
+                )
+        return out
 
     def shows(self, device: str) -> list[dict[str, str]]:
         """The lines of ``device``'s mimic box (its kind's ``shows``), each as the tag the

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import logging
 import math
 from collections.abc import AsyncIterator, Callable, Iterator
 
@@ -14,7 +15,15 @@ import pytest
 from supervisor.core.clock import Clock, RealClock, VirtualClock
 from supervisor.core.quality import Quality, Reason
 from supervisor.devices import base
-from supervisor.devices.bms.driver import POINTS, BmsDriver, socketcand_bus_factory
+from supervisor.devices.bms.driver import (
+    FAULT_CURRENT,
+    FAULT_PACK_VOLTAGE,
+    FAULT_REFUSED,
+    FAULT_TEMPERATURE,
+    POINTS,
+    BmsDriver,
+    socketcand_bus_factory,
+)
 from supervisor.devices.bms.protocol import BmsValues
 from supervisor.devices.bms.sim import BmsSimulator, SocketcandServer
 
@@ -25,7 +34,7 @@ VALUES = BmsValues(
     min_cell_v=3.271,
     max_cell_v=3.285,
     pack_current_a=-2.5,  # discharging
-    min_temp_c=21.5,
+    min_temp_c=-1.5,
     max_temp_c=24.0,
     avg_temp_c=-0.7,
 )
@@ -34,7 +43,7 @@ EXPECTED = {
     "min_cell_voltage": 3.271,
     "max_cell_voltage": 3.285,
     "pack_current": -2.5,
-    "min_temp": 21.5,
+    "min_temp": -1.5,
     "max_temp": 24.0,
     "avg_temp": -0.7,
 }
@@ -106,7 +115,7 @@ async def virtual_clock_driver(channel: str) -> AsyncIterator[tuple[BmsDriver, V
 
 
 async def test_driver_exposes_the_bms_points() -> None:
-    assert set(POINTS) == {*EXPECTED, "frames_unknown", "frames_bad"}
+    assert set(POINTS) == {*EXPECTED, "frames_unknown", "frames_bad", "faults"}
     assert all(p.direction == "in" for p in POINTS.values())
     assert POINTS["pack_current"].unit == "A"
     assert POINTS["frames_bad"].dtype == "int"
@@ -136,16 +145,15 @@ async def test_a_value_carries_the_arrival_time_of_its_frame(
     assert driver.image()["frames_bad"].t == 7.05
 
 
-async def test_wrong_length_frames_are_counted_as_bad_and_leave_the_value(
+async def test_short_frames_are_counted_as_bad_and_leave_the_value(
     driver: BmsDriver, sim: BmsSimulator
 ) -> None:
     await driver.poll()
     await sim.start()
     await poll_until(driver, lambda: all_good(driver))
     sim.send_raw(0x2B0, bytes.fromhex("42C800"))  # short
-    sim.send_raw(0x2B0, bytes.fromhex("42C8000000000000"))  # longer than the DBC
     sim.send_raw(0x1B0, b"")
-    await poll_until(driver, lambda: driver.image()["frames_bad"].value == 3)
+    await poll_until(driver, lambda: driver.image()["frames_bad"].value == 2)
     assert driver.image()["pack_current"].value == pytest.approx(-2.5)
     assert driver.image()["frames_unknown"].value == 0
     assert any("42c800" in line.replace(" ", "") for line in driver.raw_log)
@@ -233,6 +241,110 @@ async def test_a_silent_bus_is_a_lost_link_and_is_reopened(
 async def test_write_is_refused_the_bms_has_no_outputs(driver: BmsDriver) -> None:
     with pytest.raises(KeyError):
         driver.write("pack_current", 1.0)
+
+
+# --- the seed's frames (annex IV): padded to 8 bytes, plausibility --------------------------
+
+ANNEX_IV = {  # seed 002 annex IV, verbatim (8 bytes each)
+    0x1B0: "00 C3 50 A0 03 00 05 F0",  # 12 800.16 V, cells 0.768 / 1.52 V
+    0x2B0: "00 00 00 64 00 00 00 00",  # float32 bits 0x64: 1.4e-43 A
+    0x3B0: "00 64 00 32 00 19 00 00",  # min 10.0 > max 5.0 degC, avg 2.5
+}
+PLAUSIBLE = {  # the same layout, a 4S pack at rest, padded to 8 bytes as a controller does
+    0x1B0: "00 00 39 D0 0E 6A 0E 7E",  # 14.8 V, cells 3.69 / 3.71 V
+    0x2B0: "C0 A0 00 00 00 00 00 00",  # -5.0 A
+    0x3B0: "FF F1 00 F0 00 C8 00 00",  # -1.5 / 24.0 / 20.0 degC
+}
+
+
+def send_frames(sim: BmsSimulator, frames: dict[int, str]) -> None:
+    for frame_id, text in frames.items():
+        sim.send_raw(frame_id, bytes.fromhex(text))
+
+
+def image_of(driver: BmsDriver) -> dict[str, tuple[object, Quality, Reason]]:
+    return {n: (s.value, s.quality, s.reason) for n, s in driver.image().items()}
+
+
+async def test_the_annex_iv_frames_padded_to_8_bytes_decode_and_the_implausible_are_bad(
+    virtual_clock_driver: tuple[BmsDriver, VirtualClock],
+    sim: BmsSimulator,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    driver, _ = virtual_clock_driver
+    await driver.poll()
+    for _ in range(5):  # five rounds of the same frames: one warning per point, not five
+        send_frames(sim, ANNEX_IV)
+        await poll_until(driver, lambda: driver.image()["pack_voltage"].value is not None)
+    await poll_until(driver, lambda: driver.image()["avg_temp"].value is not None)
+    image = driver.image()
+    bad = (Quality.BAD, Reason.OUT_OF_RANGE)
+    assert image["pack_voltage"].value == pytest.approx(12800.16)
+    assert (image["pack_voltage"].quality, image["pack_voltage"].reason) == bad
+    assert image["pack_current"].value == pytest.approx(1.4e-43, rel=0.01)
+    assert (image["pack_current"].quality, image["pack_current"].reason) == bad
+    for name in ("min_temp", "max_temp", "avg_temp"):
+        assert (image[name].quality, image[name].reason) == bad, name
+    # The cells, 0.768 V and 1.52 V, break no rule of theirs.
+    assert image["min_cell_voltage"].value == pytest.approx(0.768)
+    assert image["min_cell_voltage"].quality is Quality.GOOD
+    assert image["max_cell_voltage"].quality is Quality.GOOD
+    assert image["frames_bad"].value == 0  # 8 bytes each: decoded, none refused
+    assert image["faults"].value == FAULT_PACK_VOLTAGE | FAULT_CURRENT | FAULT_TEMPERATURE
+    warnings = [r.getMessage() for r in caplog.records if "implausible" in r.getMessage()]
+    assert len(warnings) == 5  # pack voltage, current, three temperatures: once each
+    assert any("12800.16 V outside [0, 1000]" in w for w in warnings)
+
+
+async def test_a_plausible_sample_padded_to_8_bytes_is_good_and_ends_the_episode(
+    virtual_clock_driver: tuple[BmsDriver, VirtualClock],
+    sim: BmsSimulator,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    caplog.set_level(logging.INFO, logger="supervisor.devices.bms.driver")
+    driver, _ = virtual_clock_driver
+    await driver.poll()
+    send_frames(sim, ANNEX_IV)
+    await poll_until(driver, lambda: driver.image()["faults"].value != 0)
+    send_frames(sim, PLAUSIBLE)
+    await poll_until(driver, lambda: all_good(driver) and driver.image()["faults"].value == 0)
+    assert {n: driver.image()[n].value for n in EXPECTED} == pytest.approx(
+        {
+            "pack_voltage": 14.8,
+            "min_cell_voltage": 3.69,
+            "max_cell_voltage": 3.71,
+            "pack_current": -5.0,
+            "min_temp": -1.5,
+            "max_temp": 24.0,
+            "avg_temp": 20.0,
+        }
+    )
+    assert sum("plausible again" in r.getMessage() for r in caplog.records) == 5
+
+
+async def test_padded_frames_refused_when_extra_bytes_are_not_allowed_are_logged_once(
+    channel: str, sim: BmsSimulator, caplog: pytest.LogCaptureFixture
+) -> None:
+    driver = BmsDriver(
+        "bms",
+        VirtualClock(),
+        lambda: can.Bus(interface="virtual", channel=channel),
+        silence_timeout_s=math.inf,
+        allow_extra_bytes=False,
+    )
+    try:
+        await driver.poll()
+        for _ in range(3):
+            send_frames(sim, PLAUSIBLE)
+        # 0x1B0 is 8 bytes in the DBC: only 0x2B0 and 0x3B0 are refused.
+        await poll_until(driver, lambda: driver.image()["frames_bad"].value == 6)
+        assert driver.image()["pack_current"].value is None
+        assert driver.image()["faults"].value & FAULT_REFUSED
+        refused = [r for r in caplog.records if "bad frame" in r.getMessage()]
+        assert len(refused) == 2  # once per identifier
+        assert "PackCurrent (0x2B0) has 8 bytes, DBC says 4" in refused[0].getMessage()
+    finally:
+        await driver.close()
 
 
 # --- socketcand ---------------------------------------------------------------------------

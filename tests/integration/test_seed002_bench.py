@@ -300,7 +300,9 @@ async def test_the_ea_channels_result_file_holds_every_measurement_of_the_pack(
 ) -> None:
     """Seed 002 §2.3 "Save Data": voltage, current, temperature, BMS faults, cell voltages
     and cell temperatures; here in BDF's auxiliary columns after its own, with the pack's
-    three voltage readings (the voltage board is ``Voltage / V``) and its three currents."""
+    three voltage readings (the voltage board is ``Voltage / V``) and its three currents,
+    the cells' lowest and highest voltage, the lowest, highest and average temperature and
+    the BMS's fault bits (issue 32, finding 6)."""
     import csv
 
     recipe = tmp_path / "charge.yaml"
@@ -324,6 +326,8 @@ async def test_the_ea_channels_result_file_holds_every_measurement_of_the_pack(
         "bms.cell_max / V",
         "bms.temp_min / degC",
         "bms.temp_max / degC",
+        "bms.temp_avg / degC",
+        "bms.faults / 1",
         "Fault",
     ]
     assert list(rows[0])[-len(aux) :] == aux
@@ -336,5 +340,8 @@ async def test_the_ea_channels_result_file_holds_every_measurement_of_the_pack(
         assert 3.0 < float(r["bms.cell_min / V"]) <= float(r["bms.cell_max / V"]) < 4.2
         assert float(r["bms.cell_max / V"]) == pytest.approx(pack_v / 4, abs=0.1)
         assert float(r["bms.temp_min / degC"]) <= float(r["bms.temp_max / degC"])
+        low, high = float(r["bms.temp_min / degC"]), float(r["bms.temp_max / degC"])
+        assert low <= float(r["bms.temp_avg / degC"]) <= high
+        assert r["bms.faults / 1"] == "0"  # the BMS's fault bits: none
         assert float(r["pack.current / A"]) == pytest.approx(5.0, abs=0.3)
         assert r["Fault"] == ""  # no trip: an empty cell

@@ -21,6 +21,7 @@ from supervisor.devices.bms.protocol import (
     decode,
     encode,
     encode_values,
+    implausible,
     load_database,
     period_s,
 )
@@ -80,14 +81,69 @@ def test_a_short_frame_is_a_protocol_error_keeping_the_raw_bytes(frame_id: int, 
     assert not isinstance(info.value, UnknownFrameError)
 
 
-def test_a_frame_longer_than_the_dbc_is_a_protocol_error_unless_padding_is_allowed() -> None:
-    # The seed's sample current frame: 8 bytes where the DBC says 4.
+def test_a_frame_padded_to_8_bytes_decodes_unless_extra_bytes_are_refused() -> None:
+    # The seed's sample current frame: 8 bytes where the DBC says 4 (a controller pads).
     padded = bytes.fromhex("0000006400000000")
-    with pytest.raises(ProtocolError) as info:
-        decode(0x2B0, padded)
-    assert info.value.raw == padded
-    value = decode(0x2B0, padded, allow_extra_bytes=True)["PackCurrent"]
+    value = decode(0x2B0, padded)["PackCurrent"]
     assert value == pytest.approx(1.4e-43, rel=0.01)  # 0x64 as float32 bits: a denormal
+    with pytest.raises(ProtocolError) as info:
+        decode(0x2B0, padded, allow_extra_bytes=False)
+    assert info.value.raw == padded
+
+
+ANNEX_IV = {  # seed 002 annex IV, verbatim: 8 bytes each
+    PACK_VOLTAGES_ID: "00 C3 50 A0 03 00 05 F0",
+    PACK_CURRENT_ID: "00 00 00 64 00 00 00 00",
+    PACK_TEMPERATURES_ID: "00 64 00 32 00 19 00 00",
+}
+
+
+def test_the_annex_iv_frames_decode_as_the_seeds_code_does_and_are_implausible() -> None:
+    decoded = {i: decode(i, bytes.fromhex(h)) for i, h in ANNEX_IV.items()}
+    assert decoded[PACK_VOLTAGES_ID] == pytest.approx(
+        {"PackVoltage": 12800.16, "MinCellVoltage": 0.768, "MaxCellVoltage": 1.52}
+    )
+    assert decoded[PACK_TEMPERATURES_ID] == pytest.approx(
+        {"MinTemp": 10.0, "MaxTemp": 5.0, "AvgTemp": 2.5}
+    )
+    why = {i: implausible(i, v) for i, v in decoded.items()}
+    assert set(why[PACK_VOLTAGES_ID]) == {"PackVoltage"}  # the cells are 0.768 and 1.52 V
+    assert "outside [0, 1000]" in why[PACK_VOLTAGES_ID]["PackVoltage"]
+    assert "subnormal" in why[PACK_CURRENT_ID]["PackCurrent"]
+    assert set(why[PACK_TEMPERATURES_ID]) == {"MinTemp", "MaxTemp", "AvgTemp"}
+    assert "MinTemp 10 degC > MaxTemp 5 degC" in why[PACK_TEMPERATURES_ID]["MinTemp"]
+
+
+def test_a_plausible_pack_breaks_no_rule() -> None:
+    frames = encode_values(
+        BmsValues(14.8, 3.69, 3.71, -5.0, min_temp_c=-1.5, max_temp_c=24.0, avg_temp_c=-0.7)
+    )
+    assert all(implausible(i, decode(i, data)) == {} for i, data in frames.items())
+    assert implausible(PACK_CURRENT_ID, {"PackCurrent": 0.0}) == {}  # zero is no subnormal
+
+
+@pytest.mark.parametrize(
+    ("frame_id", "signals", "broken"),
+    [
+        (
+            PACK_VOLTAGES_ID,
+            {"PackVoltage": 14.8, "MinCellVoltage": 3.8, "MaxCellVoltage": 3.7},
+            {"MinCellVoltage", "MaxCellVoltage"},
+        ),
+        (
+            PACK_VOLTAGES_ID,
+            {"PackVoltage": 14.8, "MinCellVoltage": 3.7, "MaxCellVoltage": 5.2},
+            {"MaxCellVoltage"},
+        ),
+        (PACK_CURRENT_ID, {"PackCurrent": -1500.0}, {"PackCurrent"}),
+        (PACK_TEMPERATURES_ID, {"MinTemp": 20.0, "MaxTemp": 25.0, "AvgTemp": 26.0}, {"AvgTemp"}),
+        (PACK_TEMPERATURES_ID, {"MinTemp": -41.0, "MaxTemp": 25.0, "AvgTemp": 20.0}, {"MinTemp"}),
+    ],
+)
+def test_each_plausibility_rule_names_the_signals_that_break_it(
+    frame_id: int, signals: dict[str, float], broken: set[str]
+) -> None:
+    assert set(implausible(frame_id, signals)) == broken
 
 
 @pytest.mark.parametrize("bits", ["7FC00000", "7F800000", "FF800000"])
@@ -159,13 +215,11 @@ def test_any_id_and_bytes_give_finite_values_or_a_protocol_error(
 
 
 @given(
-    voltage=st.integers(0, 2**32 - 1),
-    cells=st.tuples(st.integers(0, 0xFFFF), st.integers(0, 0xFFFF)),
-    temps=st.tuples(*(st.integers(-32768, 32767) for _ in range(3))),
-    # The DBC range is ±3.4E+38, slightly narrower than float32's ±3.4028E+38.
-    current=st.floats(width=32, allow_nan=False, allow_infinity=False).filter(
-        lambda x: abs(x) <= 3.4e38
-    ),
+    voltage=st.integers(0, 1_000_000),
+    cells=st.tuples(st.integers(0, 5000), st.integers(0, 5000)),
+    temps=st.tuples(*(st.integers(-400, 1250) for _ in range(3))),
+    # Within the DBC's (plausibility) range: encode refuses values outside it.
+    current=st.floats(-1000, 1000, width=32),
 )
 def test_every_in_range_value_round_trips(
     voltage: int,

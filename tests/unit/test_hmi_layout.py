@@ -53,6 +53,7 @@ def test_the_bench_layout_names_each_channel_s_tags(layout: Layout) -> None:
     assert ch0["tags"]["output"] is None  # a Chadèche board has no output switch
     ch4 = body["channels"][4]
     assert (ch4["kind"], ch4["tags"]["output"]) == ("ea-psb", "ch4.output_fb")
+    assert ch0["trend"] == []  # no BMS
     assert {d["name"]: d["health_tag"] for d in body["devices"]} == {
         "chadeche": "chadeche.connected",
         "adam": "adam.connected",
@@ -162,3 +163,12 @@ def test_a_compiled_recipe_is_drawn_as_its_chain() -> None:
         {"to": "next cycle", "condition": "always", "action": "next_cycle"}
     ]
     assert body["tags"]["step_index"] == "ch0.chain.step_index"
+
+
+def test_the_bms_channel_s_trend_adds_the_cell_min_and_max(layout: Layout) -> None:
+    """Issue 32, finding 6: "Show Graphs" of seed 002 plots the cells beside V, I, T."""
+    ch4 = layout.bench_json()["channels"][4]
+    assert ch4["trend"] == [
+        {"label": "cell min", "tag": "bms.cell_min", "unit": "V", "scale": "cell"},
+        {"label": "cell max", "tag": "bms.cell_max", "unit": "V", "scale": "cell"},
+    ]

@@ -1,6 +1,7 @@
 // Channel: live values, the step chain (from the compiled program, never re-parsed here),
-// V/I/T trends (historian for the past, live points for now; drag to zoom, buttons to pan)
-// and the commands, each refusal shown with its reason.
+// V/I/T trends and the series /api/bench adds for the channel (its BMS's cell min/max)
+// (historian for the past, live points for now; drag to zoom, buttons to pan) and the
+// commands, each refusal shown with its reason.
 import { get, post, put } from "../api.js";
 import { bindTags, esc, showResult, $, $$ } from "../dom.js";
 import { uPlot, widthOf, autoResize } from "../chart.js";
@@ -262,31 +263,55 @@ export async function render({ root, app, params }) {
 
   // --- trend ----------------------------------------------------------------------------
   const trendEl = $("#trend", root);
-  const trendTags = [t.voltage, t.current, t.temperature];
+  // Beside V, I and T, what the bench adds for this channel (a BMS's cell min/max), each on
+  // the scale it names: one axis per scale.
+  const extra = ch.trend || [];
+  const trendTags = [t.voltage, t.current, t.temperature, ...extra.map((s) => s.tag)];
+  const emptyData = () => [[], ...trendTags.map(() => [])];
+  const EXTRA_STROKES = ["#2f7d4f", "#b05a1e", "#6b4fa0", "#1e7a8a"];
   let spanS = 300;
   let following = true;
-  let data = [[], [], [], []];
+  let data = emptyData();
   let dirty = false;
   let chart = null;
   let stopResize = () => {};
   const unitOf = (tag) => app.live.tags.get(tag)?.unit || "";
+  const extraScales = [...new Set(extra.map((s) => s.scale))];
+  const seriesLabels = [
+    `voltage ${unitOf(t.voltage)}`,
+    `current ${unitOf(t.current)}`,
+    `temperature ${unitOf(t.temperature)}`,
+    ...extra.map((s) => `${s.label} ${s.unit || ""}`.trim()),
+  ];
+  trendEl.dataset.series = seriesLabels.join("|");
   const makeChart = () => {
     const opts = {
       width: widthOf(trendEl),
       height: TREND_HEIGHT,
       cursor: { drag: { x: true, y: false } },
-      scales: { x: { time: true }, V: {}, A: {}, T: {} },
+      scales: { x: { time: true }, V: {}, A: {}, T: {}, ...Object.fromEntries(extraScales.map((k) => [k, {}])) },
       series: [
         {},
-        { label: `voltage ${unitOf(t.voltage)}`, scale: "V", stroke: "#1f2a36", width: 2, spanGaps: true },
-        { label: `current ${unitOf(t.current)}`, scale: "A", stroke: "#5a6b7d", width: 1.5, dash: [6, 3], spanGaps: true },
-        { label: `temperature ${unitOf(t.temperature)}`, scale: "T", stroke: "#8a97a5", width: 1.5, dash: [2, 3], spanGaps: true },
+        { label: seriesLabels[0], scale: "V", stroke: "#1f2a36", width: 2, spanGaps: true },
+        { label: seriesLabels[1], scale: "A", stroke: "#5a6b7d", width: 1.5, dash: [6, 3], spanGaps: true },
+        { label: seriesLabels[2], scale: "T", stroke: "#8a97a5", width: 1.5, dash: [2, 3], spanGaps: true },
+        ...extra.map((s, i) => ({
+          label: seriesLabels[3 + i],
+          scale: s.scale,
+          stroke: EXTRA_STROKES[i % EXTRA_STROKES.length],
+          width: 1.5,
+          spanGaps: true,
+        })),
       ],
       axes: [
         {},
         { scale: "V", label: "V" },
         { scale: "A", label: "A", side: 1, grid: { show: false } },
         { scale: "T", label: "°C", side: 1, grid: { show: false } },
+        ...extraScales.map((k) => {
+          const unit = extra.find((s) => s.scale === k)?.unit || "";
+          return { scale: k, label: `${k} ${unit}`.trim(), side: 1, grid: { show: false } };
+        }),
       ],
       hooks: {
         setSelect: [
@@ -306,6 +331,8 @@ export async function render({ root, app, params }) {
   const redraw = () => {
     if (!chart) return;
     trendEl.dataset.points = String(data[0].length);
+    // The series that have a value to draw (a test reads it; cheap: stops at the first).
+    trendEl.dataset.valued = seriesLabels.filter((_, i) => data[i + 1].some((v) => v !== null)).join("|");
     chart.setData(data, false);
     if (following) {
       const now = Date.now() / 1000;
@@ -330,15 +357,15 @@ export async function render({ root, app, params }) {
       return [xs, ys];
     });
     const keep = data; // live points that came in meanwhile stay
-    const joined = tables.some((tb) => tb[0].length) ? uPlot.join(tables) : [[], [], [], []];
+    const joined = tables.some((tb) => tb[0].length) ? uPlot.join(tables) : emptyData();
     const lastT = joined[0].length ? joined[0][joined[0].length - 1] : -Infinity;
     data = joined.map((col) => Array.from(col));
     for (let i = 0; i < keep[0].length; i++) {
-      if (keep[0][i] > lastT) for (let k = 0; k < 4; k++) data[k].push(keep[k][i]);
+      if (keep[0][i] > lastT) for (let k = 0; k < keep.length; k++) data[k].push(keep[k][i]);
     }
     redraw();
   }
-  // A live point on each change of V, I or T, and (sample and hold, as a SCADA trend
+  // A live point on each change of a trend's tag, and (sample and hold, as a SCADA trend
   // does) at least every HOLD_S: a value that does not change is still the current one.
   const livePoint = (names, now) => {
     if (names && !trendTags.some((n) => names.includes(n))) return;

@@ -37,7 +37,7 @@ def bus_factory(dev: BmsDevice) -> Callable[[], can.BusABC]:
     from supervisor.devices.bms.driver import socketcand_bus_factory
 
     if dev.interface == "socketcand":
-        # Probes the server first: python-can's client otherwise spins while it is down.
+        # The product's own client: reads the daemon's TCP stream element by element.
         return socketcand_bus_factory(dev.host, dev.port, dev.channel)
     return lambda: can.Bus(interface=dev.interface, channel=dev.channel)
 
@@ -56,6 +56,7 @@ def _driver(name: str, dev: BmsDevice, wiring: DriverWiring) -> Driver:
         factory,
         poll_period_s=dev.poll_period_s,
         stale_factor=dev.stale_factor,
+        allow_extra_bytes=dev.allow_extra_bytes,
     )
 
 

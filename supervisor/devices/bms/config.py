@@ -28,6 +28,9 @@ POINTS: Final[Mapping[str, PointInfo]] = MappingProxyType(
             PointInfo("avg_temp", "in", "float", "degC", "average temperature (0x3B0)"),
             PointInfo("frames_unknown", "in", "int", "", "frames with an id not in the DBC"),
             PointInfo("frames_bad", "in", "int", "", "frames that could not be decoded"),
+            # Unit "1" (BDF's dimensionless, as "Cycle Count / 1"): a channel's result file
+            # records it by default with the measurements of its BMS.
+            PointInfo("faults", "in", "int", "1", "fault bits (driver.FAULT_BITS), 0: none"),
         )
     }
 )
@@ -44,6 +47,11 @@ class BmsDevice(DeviceConfig):
     poll_period_s: float = Field(0.05, gt=0)
     stale_factor: float = Field(3.0, ge=1.0, description="a value is stale after k x period")
     stale_after_s: float = Field(3.0, gt=0)
+    allow_extra_bytes: bool = Field(
+        True,
+        description="decode frames longer than the DBC says (padded to 8 bytes by the"
+        " controller), extra bytes ignored; false refuses them",
+    )
     sim: bool = False
 
     @property

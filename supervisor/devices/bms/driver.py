@@ -7,8 +7,17 @@ The BMS only broadcasts; there is nothing to write. Points (all inputs):
   (100 ms);
 - ``min_temp``, ``max_temp``, ``avg_temp`` (degC) from 0x3B0 (1000 ms);
 - ``frames_unknown``, ``frames_bad`` (int): frames with an identifier not in the DBC, and
-  frames that could not be used (length different from the DBC, non-finite value, error or
-  remote frame), counted since the driver was created.
+  frames that could not be used (shorter than the DBC, non-finite value, error or remote
+  frame), counted since the driver was created;
+- ``faults`` (int, the BMS's fault bits as this supervisor sees them: this BMS sends none):
+  :data:`FAULT_BITS`, 0 when everything is plausible, fresh and decodable.
+
+A frame longer than its DBC message (a controller padding to 8 bytes) decodes, its extra
+bytes ignored, unless ``allow_extra_bytes=False``. A decoded value that is no plausible
+measurement (:func:`~supervisor.devices.bms.protocol.implausible`: outside the DBC range, a
+subnormal float, a minimum above its maximum) is BAD/OUT_OF_RANGE, its value kept for
+diagnostics; the rule it breaks is logged once when the episode starts and once when it
+ends, not at every frame.
 
 Each poll drains every frame already received (without blocking, at most
 ``max_frames_per_poll``). A value's ``Sample.t`` is the arrival time of its frame
@@ -18,9 +27,9 @@ identifier with its raw bytes, and otherwise ignored: the previous value ages in
 
 A bus on which nothing at all arrives for ``silence_timeout_s`` (default: ``stale_factor`` ×
 the longest period, when every value is stale anyway) is treated as a lost link: the poll
-fails (BAD/comm failure) and the bus is reopened with backoff. That is what makes a
-socketcand client recover: python-can's client cannot tell a closed connection from a quiet
-one (``recv`` just returns ``None``).
+fails (BAD/comm failure) and the bus is reopened with backoff: a CAN interface that went
+down behind a socketcand daemon, or an adapter that stopped, says nothing else. (A daemon
+that closes the connection is seen at once: the socketcand bus raises.)
 """
 
 from __future__ import annotations
@@ -29,9 +38,8 @@ import asyncio
 import concurrent.futures
 import contextlib
 import logging
-import socket
 import threading
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Final
@@ -51,8 +59,10 @@ from supervisor.devices.bms.protocol import (
     PACK_VOLTAGES_ID,
     UnknownFrameError,
     decode,
+    implausible,
     period_s,
 )
+from supervisor.fieldbus.socketcand import SocketcandBus
 
 log = logging.getLogger(__name__)
 
@@ -80,11 +90,42 @@ FRAME_POINTS: Final[Mapping[int, Mapping[str, str]]] = MappingProxyType(
 
 _ERROR_FRAME_KEY = -1  # "logged once" key for error frames
 
+FAULT_PACK_VOLTAGE: Final = 1 << 0
+FAULT_CELL_VOLTAGE: Final = 1 << 1
+FAULT_CURRENT: Final = 1 << 2
+FAULT_TEMPERATURE: Final = 1 << 3
+FAULT_STALE: Final = 1 << 4
+FAULT_REFUSED: Final = 1 << 5
+FAULT_BITS: Final[Mapping[int, str]] = MappingProxyType(
+    {
+        FAULT_PACK_VOLTAGE: "pack voltage implausible",
+        FAULT_CELL_VOLTAGE: "cell voltage implausible",
+        FAULT_CURRENT: "current implausible",
+        FAULT_TEMPERATURE: "temperature implausible",
+        FAULT_STALE: "a frame is stale (not received within its period x stale_factor)",
+        FAULT_REFUSED: "the latest frame of an id was refused (short, non-finite)",
+    }
+)
+"""The ``faults`` point's bits: what the seed's HMI records as "BMS Faults"."""
+_POINT_FAULT: Final[Mapping[str, int]] = MappingProxyType(
+    {
+        "pack_voltage": FAULT_PACK_VOLTAGE,
+        "min_cell_voltage": FAULT_CELL_VOLTAGE,
+        "max_cell_voltage": FAULT_CELL_VOLTAGE,
+        "pack_current": FAULT_CURRENT,
+        "min_temp": FAULT_TEMPERATURE,
+        "max_temp": FAULT_TEMPERATURE,
+        "avg_temp": FAULT_TEMPERATURE,
+    }
+)
+
 
 @dataclass(slots=True)
 class _Frame:
     t: float
     values: dict[str, float]
+    implausible: dict[str, str]
+    """Point -> the plausibility rule its value breaks."""
 
 
 class BmsDriver(PolledDriver):
@@ -92,7 +133,8 @@ class BmsDriver(PolledDriver):
 
     ``silence_timeout_s``: ``None`` = ``stale_factor`` × the longest frame period;
     ``math.inf`` never declares the link lost. ``allow_extra_bytes``: accept frames longer
-    than the DBC says (extra bytes ignored) instead of counting them in ``frames_bad``.
+    than the DBC says (extra bytes ignored: a controller pads to 8 bytes); False counts
+    them in ``frames_bad``.
     """
 
     def __init__(
@@ -106,7 +148,7 @@ class BmsDriver(PolledDriver):
         silence_timeout_s: float | None = None,
         connect_timeout_s: float = CONNECT_TIMEOUT_S,
         max_frames_per_poll: int = MAX_FRAMES_PER_POLL,
-        allow_extra_bytes: bool = False,
+        allow_extra_bytes: bool = True,
     ) -> None:
         if not stale_factor >= 1.0:
             raise ValueError(f"{name}: stale_factor must be >= 1")
@@ -133,6 +175,8 @@ class BmsDriver(PolledDriver):
         self.frames_bad = 0
         self._unknown_logged: set[int] = set()
         self._bad_logged: set[int] = set()
+        self._refused: set[int] = set()  # ids whose latest frame was refused
+        self._implausible_now: set[str] = set()  # points in an implausible episode
 
     def points(self) -> Mapping[str, PointInfo]:
         return POINTS
@@ -226,13 +270,33 @@ class BmsDriver(PolledDriver):
             self._count_unknown(frame_id, f"0x{frame_id:03X}", raw)
             return
         except ProtocolError as exc:
+            self._refused.add(frame_id)
             self._count_bad(frame_id, str(exc), raw)
             return
+        self._refused.discard(frame_id)
         names = FRAME_POINTS[frame_id]
         values = {names[signal]: value for signal, value in signals.items()}
         if "pack_current" in values:
             values["pack_current"] *= BMS_CURRENT_SIGN
-        self._frames[frame_id] = _Frame(now, values)
+        why = {names[signal]: text for signal, text in implausible(frame_id, signals).items()}
+        self._log_plausibility(names.values(), why, raw)
+        self._frames[frame_id] = _Frame(now, values, why)
+
+    def _log_plausibility(self, points: Iterable[str], why: Mapping[str, str], raw: bytes) -> None:
+        """Once when a point's implausible episode starts, once when it ends."""
+        for point in points:
+            if point in why and point not in self._implausible_now:
+                self._implausible_now.add(point)
+                log.warning(
+                    "%s: %s implausible, BAD until a plausible value: %s (data %s)",
+                    self.name,
+                    point,
+                    why[point],
+                    raw.hex(" "),
+                )
+            elif point not in why and point in self._implausible_now:
+                self._implausible_now.discard(point)
+                log.info("%s: %s plausible again", self.name, point)
 
     def _count_unknown(self, key: int, what: str, raw: bytes) -> None:
         self.frames_unknown += 1
@@ -249,23 +313,30 @@ class BmsDriver(PolledDriver):
 
     def _samples(self, now: float) -> dict[str, Sample]:
         out: dict[str, Sample] = {}
+        faults = FAULT_REFUSED if self._refused else 0
         for frame_id, names in FRAME_POINTS.items():
             limit = self.stale_factor * period_s(frame_id)
             frame = self._frames.get(frame_id)
             if frame is None:
                 # Never received: "initial" while the first one may still be on its way.
                 reason = Reason.INITIAL if now - self._connect_t <= limit else Reason.STALE
+                faults |= FAULT_STALE if reason is Reason.STALE else 0
                 for point in names.values():
                     out[point] = Sample(None, Quality.BAD, reason, 0.0)
                 continue
             fresh = now - frame.t <= limit
+            faults |= 0 if fresh else FAULT_STALE
             for point, value in frame.values.items():
-                if fresh:
-                    out[point] = Sample(value, Quality.GOOD, Reason.NONE, frame.t)
-                else:
+                if not fresh:
                     out[point] = Sample(value, Quality.BAD, Reason.STALE, frame.t)
+                elif point in frame.implausible:
+                    faults |= _POINT_FAULT[point]
+                    out[point] = Sample(value, Quality.BAD, Reason.OUT_OF_RANGE, frame.t)
+                else:
+                    out[point] = Sample(value, Quality.GOOD, Reason.NONE, frame.t)
         out["frames_unknown"] = Sample(self.frames_unknown, Quality.GOOD, Reason.NONE, now)
         out["frames_bad"] = Sample(self.frames_bad, Quality.GOOD, Reason.NONE, now)
+        out["faults"] = Sample(faults, Quality.GOOD, Reason.NONE, now)
         return out
 
 
@@ -282,18 +353,14 @@ def socketcand_bus_factory(
     port: int,
     channel: str = "can0",
     *,
-    probe_timeout_s: float = 1.0,
+    connect_timeout_s: float = 1.0,
 ) -> Callable[[], can.BusABC]:
-    """A ``bus_factory`` for python-can's socketcand client.
-
-    The client retries ``connect()`` in a busy loop for 10 s when nobody listens; a plain TCP
-    probe first makes a server that is down fail fast (the driver then backs off).
-    """
+    """A ``bus_factory`` for a socketcand daemon, read as a stream
+    (:class:`~supervisor.fieldbus.socketcand.SocketcandBus`: python-can's own client breaks
+    when the daemon sends a frame in the same segment as its ``< ok >``, issue 32)."""
 
     def factory() -> can.BusABC:
-        with socket.create_connection((host, port), timeout=probe_timeout_s):
-            pass
-        return can.Bus(interface="socketcand", channel=channel, host=host, port=port)
+        return SocketcandBus(channel, host, port, connect_timeout_s=connect_timeout_s)
 
     return factory
 
@@ -301,6 +368,7 @@ def socketcand_bus_factory(
 __all__ = [
     "BMS_CURRENT_SIGN",
     "CONNECT_TIMEOUT_S",
+    "FAULT_BITS",
     "FRAME_POINTS",
     "MAX_FRAMES_PER_POLL",
     "POINTS",

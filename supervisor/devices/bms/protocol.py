@@ -9,11 +9,21 @@ reference/devices.md) and decoded with cantools only, never by hand-written byte
 - 0x3B0 ``PackTemperatures`` (6 bytes, every 1000 ms): min/max/average temperature, signed
   16 bit big-endian, 0.1 °C per bit.
 
-Length policy: a frame shorter than its DBC length cannot be decoded; a LONGER frame is
-decoded by cantools as if the extra bytes were not there, but here it is rejected too
-(:class:`~supervisor.core.errors.ProtocolError`): a length that disagrees with the DBC means
-the DBC or the device is not what we think, and a silently truncated decode would hide it.
-``allow_extra_bytes=True`` accepts padded frames (see the note on ``decode``).
+Length policy: a CAN controller pads a frame to 8 bytes (the seed's own frames for 0x2B0
+and 0x3B0 are 8 bytes), so a frame at least as long as its DBC message decodes, its extra
+bytes ignored; a SHORTER frame cannot be decoded
+(:class:`~supervisor.core.errors.ProtocolError`). ``allow_extra_bytes=False`` refuses longer
+frames too (a bench whose BMS is known to send exact lengths, where a longer one means the
+DBC is not the device's).
+
+Plausibility (:func:`implausible`): a decoded value is not necessarily a measurement. The
+DBC's ``[min|max]`` of each signal is its plausible range (chosen here, UNVERIFIED against
+the BMS's data sheet: a pack of at most 1000 V, cells of 0–5 V, ±1000 A, −40…125 °C); a
+non-zero subnormal float32 current (the seed's ``00 00 00 64`` is 1.4e-43 A: an integer
+written into a float field) is no measurement; the minimum cell voltage and temperature
+may not exceed the maximum, and the average temperature lies between them. The seed's
+sample frames break three of these rules (12 800.16 V, 1.4e-43 A, a minimum temperature
+above the maximum).
 
 No I/O here. Every device fact the seed leaves open is one named constant marked UNVERIFIED.
 """
@@ -106,16 +116,14 @@ def period_s(frame_id: int) -> float:
     return PERIODS_MS[frame_id] / 1000.0
 
 
-def decode(frame_id: int, data: bytes, *, allow_extra_bytes: bool = False) -> dict[str, float]:
+def decode(frame_id: int, data: bytes, *, allow_extra_bytes: bool = True) -> dict[str, float]:
     """Physical values of one frame, by DBC signal name (``PackVoltage``: V, ...).
 
     Raises :class:`UnknownFrameError` for an identifier not in the DBC and
-    :class:`ProtocolError` (raw bytes kept) for a frame whose length differs from the DBC
-    length or that decodes to a non-finite value (float32 NaN/inf current). Never raises
-    anything else. ``allow_extra_bytes``: accept frames longer than the DBC length and ignore
-    the extra bytes (cantools' own behaviour); off by default, see the module docstring. Note
-    that the seed's illustrative frames for 0x2B0 and 0x3B0 are 8 bytes long (padded), so a
-    BMS that always sends DLC 8 needs it.
+    :class:`ProtocolError` (raw bytes kept) for a frame shorter than its DBC length (or
+    longer, with ``allow_extra_bytes=False``) or that decodes to a non-finite value (float32
+    NaN/inf current). Never raises anything else. Values are not judged here: see
+    :func:`implausible`.
     """
     raw = bytes(data)
     message = _messages_by_id().get(frame_id)
@@ -143,6 +151,44 @@ def decode(frame_id: int, data: bytes, *, allow_extra_bytes: bool = False) -> di
             raise ProtocolError(DEVICE, f"{message.name}.{signal} is {number}", raw=raw)
         values[signal] = number
     return values
+
+
+FLOAT32_MIN_NORMAL: Final = 1.1754943508222875e-38
+"""Smallest normal float32: a non-zero value below it is subnormal, never a measurement."""
+
+
+def implausible(frame_id: int, signals: Mapping[str, float]) -> dict[str, str]:
+    """The signals of one decoded frame that are no plausible measurement, each with why
+    (empty: all plausible). See the module docstring for the rules."""
+    message = message_for(frame_id)
+    why: dict[str, str] = {}
+    for sig in message.signals:
+        value = signals.get(sig.name)
+        if value is None:
+            continue
+        low, high = sig.minimum, sig.maximum
+        if (low is not None and value < low) or (high is not None and value > high):
+            why[sig.name] = f"{sig.name} {value:.10g} {sig.unit} outside [{low:g}, {high:g}] (DBC)"
+        elif sig.is_float and value != 0.0 and abs(value) < FLOAT32_MIN_NORMAL:
+            why[sig.name] = f"{sig.name} {value:g} {sig.unit} is a subnormal float32"
+    _ordered(why, signals, "MinCellVoltage", "MaxCellVoltage", "V")
+    _ordered(why, signals, "MinTemp", "MaxTemp", "degC")
+    avg, low, high = (signals.get(n) for n in ("AvgTemp", "MinTemp", "MaxTemp"))
+    if avg is not None and low is not None and high is not None and not low <= avg <= high:
+        why.setdefault("AvgTemp", f"AvgTemp {avg:g} degC not within [MinTemp, MaxTemp]")
+    return why
+
+
+def _ordered(
+    why: dict[str, str], signals: Mapping[str, float], lo: str, hi: str, unit: str
+) -> None:
+    """Both of a minimum and a maximum are implausible when the minimum exceeds the maximum
+    (which of the two is wrong cannot be told)."""
+    low, high = signals.get(lo), signals.get(hi)
+    if low is not None and high is not None and low > high:
+        text = f"{lo} {low:g} {unit} > {hi} {high:g} {unit}"
+        why.setdefault(lo, text)
+        why.setdefault(hi, text)
 
 
 def encode(name_or_id: str | int, signals: Mapping[str, float]) -> bytes:
