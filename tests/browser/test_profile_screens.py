@@ -1,7 +1,8 @@
 """Issue 32 "Must show", in Debian's Chromium against a real ``supervisor run`` of the
 simulated bench: a profile CSV (seed 002 figure 21's columns and Unix timestamps) loaded
 onto ch4 from the Recipes screen — previewed, refused at its line and column when broken,
-dry-run on ch4, loaded, started — and ch4's trend then drawing V, I and T.
+dry-run on ch4's own plant (PACK's finding 4), loaded, started — and ch4's trend then
+drawing V, I, T and the BMS's cell min/max (CAN's finding 6).
 
 The bench runs on the wall clock: the test waits for what it expects with timeouts."""
 
@@ -96,11 +97,14 @@ def test_a_profile_csv_is_loaded_onto_ch4_dry_run_started_and_ch4_s_trend_shows_
         lambda: int(page.get_attribute("#trend", "data-points") or 0) > points_before + 3,
         timeout_s=30,
     )
-    labels = page.eval_on_selector_all(
-        "#trend .u-legend .u-series .u-label", "els => els.map(e => e.textContent)"
+    # V, I, T and the BMS's cell min/max (finding 6, CAN's branch), each drawn with values.
+    series = str(page.get_attribute("#trend", "data-series")).split("|")
+    assert series == ["voltage V", "current A", "temperature degC", "cell min V", "cell max V"]
+    page.wait_for_function(
+        "names => names.every(s =>"
+        " (document.querySelector('#trend').dataset.valued || '').split('|').includes(s))",
+        arg=series,
     )
-    for quantity in ("voltage", "current", "temperature"):
-        assert any(label.startswith(quantity) for label in labels), labels
     # I follows the profile (a charge of 2 or 5 A), V and T are the pack's.
     current = wait_for(
         "ch4's current to follow the profile",
@@ -112,4 +116,5 @@ def test_a_profile_csv_is_loaded_onto_ch4_dry_run_started_and_ch4_s_trend_shows_
     assert 1.0 < current < 5.5
     assert 12.0 < bench.tag("pack.voltage") < 16.8
     assert isinstance(bench.tag("pack.temp"), float)
+    assert 3.0 < bench.tag("bms.cell_min") <= bench.tag("bms.cell_max") < 4.2
     screenshot(page, "channel-ch4-profile")
