@@ -232,7 +232,7 @@ def _cell_values(
 ) -> list[float | None]:
     """The numbers of one cell (two for a ``min/max`` pair), scaled to s, A, V, °C."""
     if column.role == "time":
-        return [_time(cell, layout, path, line) * column.scale]
+        return [_scaled(_time(cell, layout, path, line), column.scale)]
     parts = cell.text.split("/") if cell.text else []
     expected = 2 if column.role == "pair" else 1
     if cell.text and len(parts) != expected:
@@ -241,7 +241,15 @@ def _cell_values(
             f"{cell.text!r}: column {column.name!r} takes {what}", path, line, cell.col
         )
     values = [_number(part.strip(), layout, path, line, cell.col) for part in parts]
-    return [v * column.scale if v is not None else None for v in values] or [None] * expected
+    if not values:
+        return [None] * expected
+    return [_scaled(v, column.scale) if v is not None else None for v in values]
+
+
+def _scaled(value: float, scale: float) -> float:
+    """``value`` in the base unit: divided for a sub-unit (``700 mA`` is 0.7 A, where
+    ``700 * 1e-3`` is 0.7000000000000001)."""
+    return value / round(1 / scale) if scale < 1 else value * scale
 
 
 def _named_point(row: Row, header: _Header, layout: Layout, path: Path) -> ProfilePoint | None:

@@ -79,6 +79,12 @@ def test_usual_names_and_units_in_any_case_and_order_are_read(
     assert got == pytest.approx(expected)
 
 
+def test_a_sub_unit_is_divided_into_the_value_one_would_write() -> None:
+    text = "Time (ms),Current (mA)\n0,700\n300,-100\n700,0\n"
+    points = parse_profile_csv(text.encode(), "p.csv").points
+    assert [(p.t_s, p.current_a) for p in points] == [(0.0, 0.7), (0.3, -0.1), (0.7, 0.0)]
+
+
 def test_the_seed_s_profile_form_with_three_min_max_windows_is_read() -> None:
     text = (
         "Temps (s)\tCourant (A)\tTension Min/Max\tCourant Min/Max\tTempérature Min/Max\n"
