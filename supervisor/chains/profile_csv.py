@@ -257,13 +257,15 @@ def _named_point(row: Row, header: _Header, layout: Layout, path: Path) -> Profi
     if not any(cell.text for cell in row.cells):
         return None
     columns = header.columns
-    if len(row.cells) > len(columns):
-        extra = row.cells[len(columns)]
+    # Empty cells past the names are a spreadsheet's trailing separators.
+    extra = [k for k in range(len(columns), len(row.cells)) if row.cells[k].text]
+    if extra:
         raise ConfigError(
-            f"this row has {len(row.cells)} cells; the header names {len(columns)} columns",
+            f"this row has a value in column {extra[0] + 1}; the header names"
+            f" {len(columns)} columns",
             path,
             row.line,
-            extra.col,
+            row.cells[extra[0]].col,
         )
     fields: dict[str, float | None] = {}
     cols: dict[str, int] = {}

@@ -118,8 +118,11 @@ def test_a_row_longer_than_a_named_header_is_refused_at_its_first_extra_cell(
     tmp_path: Path,
 ) -> None:
     with pytest.raises(ConfigError) as info:
-        read_profile_csv(write(tmp_path, "Time (s),Current (mA)\n0,500,7\n"))
-    assert (info.value.line, info.value.col) == (2, 7)
+        read_profile_csv(write(tmp_path, "Time (s),Current (mA)\n0,500,,7\n"))
+    assert (info.value.line, info.value.col) == (2, 8)
+    assert "a value in column 4; the header names 2 columns" in info.value.message
+    # Empty cells past the names are a spreadsheet's trailing separators.
+    assert len(read_profile_csv(write(tmp_path, "Time (s),Current (mA)\n0,500,,\n1,0,\n"))) == 2
 
 
 def test_the_imported_recipe_says_what_was_noticed(tmp_path: Path) -> None:
