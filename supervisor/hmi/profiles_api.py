@@ -245,7 +245,9 @@ class ProfilesApi:
             raise BadBody(404, f"unknown channel {channel!r} ({known})")
         return channel, self.config.target_of(channel)
 
-    async def _read(self, request: web.Request, channel_needed: bool) -> tuple[Any, ...]:
+    async def _read(
+        self, request: web.Request, channel_needed: bool
+    ) -> tuple[dict[str, Any], bytes, str | None]:
         """``(answer, raw, channel)``: the job's answer for the request's profile."""
         body = await read_json_object(request, MAX_BODY_BYTES)
         unknown = sorted(set(body) - {*_SOURCES, "name", "channel"})

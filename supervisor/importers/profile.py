@@ -33,7 +33,7 @@ from supervisor.chains.profile_recipe import (
 )
 from supervisor.core.errors import ConfigError, ConfigErrors
 
-__all__ = ["import_profile"]
+__all__ = ["import_profile", "import_profile_noting"]
 
 
 def import_profile(
@@ -47,6 +47,14 @@ def import_profile(
     Raises ConfigErrors naming the CSV (with line) when it cannot be read or the rows do
     not make a valid profile (times not increasing, a negative time, non-finite values).
     """
+    return import_profile_noting(csv_path, name=name, output=output)[0]
+
+
+def import_profile_noting(
+    csv_path: str | Path, *, name: str | None = None, output: str | Path | None = None
+) -> tuple[str, tuple[str, ...]]:
+    """:func:`import_profile`'s text and what the reader noticed (columns not used, Unix
+    timestamps made relative), which the command line also prints."""
     path = Path(csv_path)
     file = str(path)
     try:
@@ -65,4 +73,4 @@ def import_profile(
         where = str(recipe_path)
     text = profile_recipe_text(table, file, recipe, None if ref is None else str(ref))
     compile_profile_recipe(text, where, file, None)
-    return text
+    return text, table.notices

@@ -10,6 +10,7 @@ import yaml
 
 from supervisor.app.dryrun import dry_run
 from supervisor.chains.profile_csv import parse_profile_csv, read_profile_csv, read_profile_table
+from supervisor.cli.main import main
 from supervisor.core.errors import ConfigError
 from supervisor.importers import import_profile
 
@@ -131,3 +132,14 @@ def test_the_imported_recipe_says_what_was_noticed(tmp_path: Path) -> None:
     rows = yaml.safe_load(text)["steps"][0]["profile"]["rows"]
     assert [r["current"] for r in rows] == [0.5, 0.6, 0.7, 0.8, 0.9]
     assert rows[-1]["t"] == pytest.approx(1.0, abs=1e-5)
+
+
+def test_the_command_line_prints_the_notices(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    csv = write(tmp_path, FIGURE_21, "sample_profile.csv")
+    out = tmp_path / "sample.yaml"
+    assert main(["import", "profile", str(csv), "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "note: times are Unix timestamps" in err and "note: columns 'Voltage'" in err
+    assert "# note: times are Unix timestamps" in out.read_text(encoding="utf-8")
