@@ -3,6 +3,8 @@ timestamps (seed 002, figures 21 and 26) made relative to the first row with a n
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -10,7 +12,6 @@ import yaml
 
 from supervisor.app.dryrun import dry_run
 from supervisor.chains.profile_csv import parse_profile_csv, read_profile_csv, read_profile_table
-from supervisor.cli.main import main
 from supervisor.core.errors import ConfigError
 from supervisor.importers import import_profile
 
@@ -134,12 +135,28 @@ def test_the_imported_recipe_says_what_was_noticed(tmp_path: Path) -> None:
     assert rows[-1]["t"] == pytest.approx(1.0, abs=1e-5)
 
 
-def test_the_command_line_prints_the_notices(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_the_command_line_prints_the_notices(tmp_path: Path) -> None:
     csv = write(tmp_path, FIGURE_21, "sample_profile.csv")
     out = tmp_path / "sample.yaml"
-    assert main(["import", "profile", str(csv), "-o", str(out)]) == 0
-    err = capsys.readouterr().err
-    assert "note: times are Unix timestamps" in err and "note: columns 'Voltage'" in err
+    # The real command in a child process (its stderr is the command's, nothing else's).
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "supervisor.cli.main",
+            "import",
+            "profile",
+            str(csv),
+            "-o",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=120,
+        cwd=Path(__file__).resolve().parents[2],
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "note: times are Unix timestamps" in proc.stderr
+    assert "note: columns 'Voltage'" in proc.stderr
     assert "# note: times are Unix timestamps" in out.read_text(encoding="utf-8")
