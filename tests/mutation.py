@@ -86,6 +86,9 @@ CHADECHE_DIR = "tests/data/chadeche"
 SOURCES_DIR = "tests/data/mutation_sources"
 SEQUENCE = f"{CHADECHE_DIR}/figure10.txt"  # the valid sequence a .prm variant is imported with
 PRM = f"{CHADECHE_DIR}/chadeche0.prm"  # the valid .prm some sequence variants are given
+RECIPE_MAP = "io_maps/sim.yaml"
+"""The I/O map a shipped recipe's variants are checked with, as a user checks a recipe that
+names bench tags (``bms.cell_max``): ``supervisor check io_maps/sim.yaml RECIPE``."""
 
 Expect = Literal["refuse", "either"]
 Target = Literal["check", "chadeche", "prm", "profile"]
@@ -236,7 +239,8 @@ class Variant:
         path = folder / self.file_name
         path.write_bytes(self.content)
         if self.target == "check":
-            return Feed(["check", shown(path)], [shown(path)], [])
+            with_map = [str(root / RECIPE_MAP)] if self.source.startswith("recipes/") else []
+            return Feed(["check", *with_map, shown(path)], [shown(path)], [])
         if self.target == "profile":
             recipe = path.with_suffix(".yaml")
             recipe.write_text(_PROFILE_RECIPE.format(name=path.name), encoding="utf-8")

@@ -26,12 +26,12 @@ import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Final
 
 from supervisor.app.bench import Bench, build_bench
-from supervisor.chains.compiler import compile_recipe
+from supervisor.chains.compiler import Target, compile_recipe
 from supervisor.chains.engine import ChainRunner, State
 from supervisor.chains.kinds import kind_of
 from supervisor.chains.program import Program
@@ -347,8 +347,19 @@ class _Plant:
     channel: str
     warmup_s: float
     """Scanned before the start: every device connected, its first images in."""
+    scan_period_s: float | None = None
+    """The real bench's scan period, which the recipe is checked against (a pulse shorter
+    than it is refused there, not because the dry run scans more coarsely); None: the
+    dry-run bench's own."""
     io_map_file: str = ""
     io_map_sha256: str = ""
+
+    def target(self) -> Target:
+        """What the recipe may ask of the channel, checked as on the real bench."""
+        target = self.bench.target(self.channel)
+        if self.scan_period_s is None:
+            return target
+        return replace(target, scan_period_s=self.scan_period_s)
 
 
 def _builtin_plant(
@@ -397,7 +408,9 @@ def _map_plant(
         channel = cfg.channels[0].name
     dry = channel_dry_run_config(cfg, channel, capacity_ah, soc, period_s)
     bench = build_bench(dry, clock, in_process=True)
-    return _Plant(bench, channel, MAP_WARMUP_S, cfg.source_file, cfg.source_sha256)
+    return _Plant(
+        bench, channel, MAP_WARMUP_S, cfg.scan.period_s, cfg.source_file, cfg.source_sha256
+    )
 
 
 async def dry_run(
@@ -438,7 +451,7 @@ async def dry_run(
     runner = bench.runners[ch]
     bench.displays[ch].period_s = float("inf")  # a dry run shows its report instead
     # Refused here, before anything is started or connected: nothing to shut down.
-    program = compile_recipe(recipe, pos, str(recipe_path), bench.target(ch), params or {})
+    program = compile_recipe(recipe, pos, str(recipe_path), plant.target(), params or {})
     runner.load(program, test_id=f"dryrun-{program.name}")
     collector = _collector(plant, program, recipe, recipe_path, text, params, results_dir)
     runner.listeners.append(collector.on_event)

@@ -31,8 +31,11 @@ from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
 from supervisor.core.logrepeat import RepeatFilter
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
     from supervisor.app.service import Supervisor
     from supervisor.config.models import BenchConfig
+    from supervisor.core.units import Dim
 
 log = logging.getLogger("supervisor")
 
@@ -322,41 +325,86 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 # --- check ---------------------------------------------------------------------------
-def _check_one(
-    path: Path, warnings: list[str] | None = None
-) -> tuple[list[ConfigError], tuple[ConfigError, ...]]:
-    """The errors of one file, a recipe's warnings (a parameter nothing reads); an I/O
-    map's network exposure appended to ``warnings``. Each kind of file imports only what
-    checks it: a recipe neither the device kinds nor the I/O map's models (issue 30)."""
-    from supervisor.config.yamlpos import load_yaml
+Checked = tuple[list[ConfigError], tuple[ConfigError, ...], list[str]]
+"""A file's errors, a recipe's warnings (a parameter nothing reads), an I/O map's network
+exposure (warnings too)."""
+
+
+def _check_map(path: Path, tags: dict[str, Dim]) -> Checked:
+    """An I/O map's errors and exposure; its tags' dimensions added to ``tags``."""
+    from supervisor.config.exposure import exposure_warnings
+    from supervisor.devices.registry import load_bench
 
     try:
-        data, pos = load_yaml(path)
-        if isinstance(data, dict) and "recipe" in data:
-            from supervisor.chains.compiler import compile_recipe
-            from supervisor.config.recipe import recipe_of
-
-            # The document parsed above, not the file read again (load_recipe's checks).
-            recipe = recipe_of(data, pos, str(path))
-            return [], compile_recipe(recipe, pos, str(path)).warnings
-        from supervisor.config.exposure import exposure_warnings
-        from supervisor.devices.registry import load_bench
-
         cfg = load_bench(path)
-        if warnings is not None:
-            warnings.extend(exposure_warnings(cfg))
     except ConfigErrors as exc:
-        return exc.errors, ()
+        return exc.errors, (), []
+    tags.update(_tag_dims(cfg))
+    return [], (), exposure_warnings(cfg)
+
+
+def _tag_dims(cfg: BenchConfig) -> dict[str, Dim]:
+    """The dimension of each tag an I/O map maps (what a recipe's condition may compare it
+    with), as the bench it builds gives them (``Bench.tag_dims``)."""
+    from supervisor.core.units import UNITS, Dim
+
+    out: dict[str, Dim] = {}
+    for m in cfg.tags:
+        info = cfg.devices[m.device].points().get(m.point)
+        if m.threshold is not None or (info is not None and info.dtype == "bool"):
+            out[m.name] = Dim.BOOL
+        elif info is not None and info.dtype in ("float", "int"):
+            dim, factor = UNITS.get(m.unit, (Dim.NONE, 1.0))
+            out[m.name] = dim if factor == 1.0 else Dim.NONE
+    return out
+
+
+def _check_recipe(path: Path, data: Any, pos: Any, tags: Mapping[str, Dim]) -> Checked:
+    """A recipe's errors and warnings; the bench tags it may name: ``tags``."""
+    from supervisor.chains.compiler import Target, compile_recipe
+    from supervisor.config.recipe import recipe_of
+
+    try:
+        # The document parsed once (load_recipe's checks), not the file read again.
+        recipe = recipe_of(data, pos, str(path))
+        target = Target(tags=tags) if tags else None
+        return [], compile_recipe(recipe, pos, str(path), target).warnings, []
+    except ConfigErrors as exc:
+        return exc.errors, (), []
     except ConfigError as exc:
-        return [exc], ()
-    return [], ()
+        return [exc], (), []
+
+
+def check_files(paths: Sequence[Path]) -> list[Checked]:
+    """Each file's :data:`Checked`, in order. The I/O maps first: a recipe may name the tags
+    of the maps checked with it (``supervisor check io_maps/sim.yaml recipes/x.yaml``: a
+    condition on ``bms.cell_max``). Each kind of file imports only what checks it: a recipe
+    neither the device kinds nor the I/O map's models (issue 30)."""
+    from supervisor.config.yamlpos import load_yaml
+
+    out: dict[int, Checked] = {}
+    recipes: list[tuple[int, Any, Any]] = []
+    tags: dict[str, Dim] = {}
+    for k, path in enumerate(paths):
+        try:
+            data, pos = load_yaml(path)
+        except ConfigError as exc:
+            out[k] = ([exc], (), [])
+            continue
+        if isinstance(data, dict) and "recipe" in data:
+            recipes.append((k, data, pos))
+        else:
+            out[k] = _check_map(path, tags)
+    for k, data, pos in recipes:
+        out[k] = _check_recipe(paths[k], data, pos, tags)
+    return [out[k] for k in range(len(paths))]
 
 
 def cmd_check(args: argparse.Namespace) -> int:
     bad = 0
-    for f in args.files:
-        exposure: list[str] = []
-        errors, warnings = _check_one(Path(f), exposure)
+    for f, (errors, warnings, exposure) in zip(
+        args.files, check_files([Path(f) for f in args.files]), strict=True
+    ):
         for w in warnings:
             _err(f"warning: {w.location_message()}")
         for e in errors:

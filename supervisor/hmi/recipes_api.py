@@ -518,13 +518,21 @@ class RecipesApi:
     def _target(self, body: Mapping[str, Any]) -> Target | None:
         channel = body.get("channel")
         if channel is None:
-            return None
+            return self._bench_target()
         if not isinstance(channel, str) or self.config.target_of is None:
             raise BadBody(400, "channel must be a channel's name")
         if channel not in self.config.channels:
             known = ", ".join(sorted(self.config.channels))
             raise BadBody(404, f"unknown channel {channel!r} ({known})")
         return self.config.target_of(channel)
+
+    def _bench_target(self) -> Target | None:
+        """No channel named: the bench's tags alone, which a recipe's conditions may name
+        (``bms.cell_max``, as ``supervisor check MAP RECIPE`` checks it); no channel's
+        limits. None without a bench."""
+        if self.config.target_of is None or not self.config.channels:
+            return None
+        return Target(tags=self.config.target_of(next(iter(self.config.channels))).tags)
 
     # --- reading ------------------------------------------------------------------------
     def _listing(self) -> list[dict[str, Any]]:
@@ -715,7 +723,7 @@ class RecipesApi:
                 raise BadBody(400, "overwrite must be true or false")
             file = self.file_of(name)
             text = recipe_text(body, file)
-            checked = await self._check(text, file, None)
+            checked = await self._check(text, file, self._bench_target())
         except BadBody as exc:
             return exc.response()
         except ConfigErrors as exc:

@@ -10,9 +10,13 @@ from pathlib import Path
 
 import pytest
 
+from supervisor.app.bench import build_bench
+from supervisor.chains.compiler import Target
 from supervisor.cli.main import main
+from supervisor.core.clock import VirtualClock
 from supervisor.core.errors import ConfigErrors
 from supervisor.core.records import Record
+from supervisor.devices.registry import load_bench
 from supervisor.hmi.recipes_api import (
     MAX_TRACE_POINTS,
     RecipesApi,
@@ -49,9 +53,17 @@ def test_a_broken_text_is_refused_with_the_lines_supervisor_check_prints(
         assert e["text"] == f"{path}:{e['line']}:{e['column']}: {e['message']}"
 
 
+@pytest.fixture(scope="module")
+def sim_bench_tags() -> Target:
+    """What the screens validate a recipe against without a channel on the simulated
+    bench: its tags (a recipe may name ``bms.cell_max``), as ``RecipesApi`` does."""
+    bench = build_bench(load_bench(ROOT / "io_maps" / "sim.yaml"), VirtualClock(), simulate=False)
+    return Target(tags=bench.tag_dims())
+
+
 @pytest.mark.parametrize("path", GOOD, ids=lambda p: p.name)
-def test_every_shipped_recipe_validates(path: Path) -> None:
-    checked = check_recipe_text(path.read_text(encoding="utf-8"), str(path))
+def test_every_shipped_recipe_validates(path: Path, sim_bench_tags: Target) -> None:
+    checked = check_recipe_text(path.read_text(encoding="utf-8"), str(path), sim_bench_tags)
     answer = checked.as_json()
     assert answer["ok"] is True and answer["steps"] == len(checked.program.steps) > 0
 
@@ -154,3 +166,19 @@ def test_a_trace_keeps_at_most_its_points_from_the_first_record_to_the_last(n: i
         assert max(gaps) == min(gaps)  # evenly (the last point may come sooner)
     else:
         assert len(t) == n
+
+
+def test_without_a_channel_a_recipe_is_checked_against_the_benchs_tags(
+    tmp_path: Path, sim_bench_tags: Target
+) -> None:
+    # Validate and save name no channel: the seed 002 pack's capacity test (conditions on
+    # bms.cell_max, bms.cell_min, bms.temp_max) was refused "unknown name" on a bench that
+    # has those tags (issue 32).
+    bench = build_bench(load_bench(ROOT / "io_maps" / "sim.yaml"), VirtualClock(), simulate=False)
+    a = RecipesApi(RecipesConfig(tmp_path, target_of=bench.target, channels=bench.runners))
+    target = a._target({})
+    assert target is not None and target.channel is None and target.current_limits_a is None
+    assert target.tags == sim_bench_tags.tags
+    path = ROOT / "recipes" / "pack4s-cccv-capacity.yaml"
+    check_recipe_text(path.read_text(encoding="utf-8"), str(path), target)
+    assert api(tmp_path)._target({}) is None  # no bench: nothing known of its tags

@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from supervisor.app import preview
+from supervisor.app.bench import build_bench
 from supervisor.app.dryrun import dry_run, implied_simulation
 from supervisor.chains.states import State
 from supervisor.cli.main import main
@@ -25,6 +27,7 @@ from supervisor.core.clock import VirtualClock
 from supervisor.core.errors import ConfigError
 from supervisor.devices.ea import EaSimulator
 from supervisor.devices.registry import load_bench
+from supervisor.hmi.recipes_api import RecipesApi, RecipesConfig
 from supervisor.sim.battery import make_model
 from supervisor.sim.plant import BenchPlant
 
@@ -220,3 +223,27 @@ def test_a_real_bench_maps_channel_implies_its_sensor_wiring_and_pack() -> None:
         # 58 V at most: 13 cells of 4.2 V; the channel's 50 Ah.
         "pack": {"model": "liion-pack", "cells_series": 13, "capacity_ah": 50.0},
     }
+
+
+async def test_the_recipes_screens_dry_run_hands_the_channel_to_the_preview(
+    tmp_path: Path,
+) -> None:
+    asked: list[tuple[float | None, str | None]] = []
+
+    async def runner(
+        file: str,
+        text: str,
+        params: Mapping[str, str],
+        capacity_ah: float | None,
+        max_hours: float,
+        timeout_s: float,
+        channel: str | None = None,
+    ) -> Mapping[str, Any]:
+        asked.append((capacity_ah, channel))
+        return {"errors": [{"message": "stop here", "file": file, "line": 1, "col": 1}]}
+
+    bench = build_bench(load_bench(SIM_MAP), VirtualClock(), simulate=False)
+    api = RecipesApi(RecipesConfig(tmp_path, runner, bench.target, bench.runners))
+    await api._dry_run(runner, "r.yaml", CH4_CHARGE, {}, bench.target("ch4"), 1.0)
+    await api._dry_run(runner, "r.yaml", CH4_CHARGE, {}, None, 1.0)
+    assert asked == [(10.0, "ch4"), (None, None)]
