@@ -38,8 +38,8 @@ def record_columns(cfg: BenchConfig, ch: ChannelConfig) -> list[RecordColumn]:
     by default every measurement (a tag with a unit, on an input point) of the devices that
     serve it — its source, the devices of its voltage, current, temperature and contactor
     tags and of its BMS and voltage-check tags — but those in the BDF columns already, in
-    the order of ``tags:``; then its trip text when it has a BMS (this BMS reports no fault
-    bits: the supervisor's verdict on its values is the channel's trip)."""
+    the order of ``tags:``; then its trip text when it has a BMS (the BMS's own fault bits,
+    its driver's ``faults`` point, are a measurement of its device when a tag maps it)."""
     if ch.record is not None:
         return [e if isinstance(e, RecordColumn) else _column(cfg, ch, e) for e in ch.record]
     by_name = {t.name: t for t in cfg.tags}

@@ -228,7 +228,10 @@ class SocketcandBus(can.BusABC):
             elif kind not in ("ok", "echo"):
                 self._log_once(kind, f"ignoring '< {element} >'")
         except ValueError as exc:
-            self._log_once(f"bad {kind}", f"ignoring a malformed element: {exc}")
+            if kind == "error":  # a reply (``< error unknown command >``), not an error frame
+                self._log_once(f"said {element}", f"the daemon says '< {element} >'")
+            else:
+                self._log_once(f"bad {kind}", f"ignoring a malformed element: {exc}")
 
     def _log_once(self, key: str, text: str) -> None:
         if key not in self._logged:
