@@ -150,3 +150,21 @@ async def test_a_file_outside_the_listing_is_refused_before_it_is_opened(client:
     for name in ("../x.csv", "profiles/../../x.csv", "/etc/passwd", "recipe.yaml"):
         status, body = await client.call("POST", "/profiles/preview", {"file": name})
         assert status == 400, (name, body)
+
+
+async def test_a_load_from_another_origin_or_not_declared_json_is_refused(
+    client: Client,
+) -> None:
+    body = upload(FIGURE_21, channel="ch1")
+    foreign = {"X-Test-Role": "operator", **JSON, "Origin": "http://elsewhere.invalid"}
+    async with client.session.post(
+        client.base + "/profiles/load", json=body, headers=foreign
+    ) as resp:
+        assert resp.status == 403
+    plain = {"X-Test-Role": "operator", "Content-Type": "text/plain"}
+    async with client.session.post(
+        client.base + "/profiles/load", data=b"{}", headers=plain
+    ) as resp:
+        assert resp.status == 415
+    assert not (client.folder / "profiles").exists()
+    assert client.bench.runners["ch1"].program is None
