@@ -11,6 +11,7 @@ is written as comments at the top, so the recipe says how it was made.
 
 from __future__ import annotations
 
+import itertools
 import math
 import re
 from collections.abc import Sequence
@@ -27,12 +28,16 @@ from supervisor.core.errors import ConfigError, ConfigErrors
 __all__ = [
     "check_points",
     "compile_profile_recipe",
+    "log_period_s",
     "profile_recipe_name",
     "profile_recipe_text",
     "too_long_inline",
 ]
 
 FIELDS: Final = ("v_min", "v_max", "i_min", "i_max", "t_min", "t_max")
+LOG_PERIOD_S: Final = (0.25, 120.0)
+"""A profile step's logging period, at least the seed's sampling (250 ms: a profile of
+millisecond rows does not make a line per scan), at most a recipe's default."""
 
 
 def profile_recipe_name(stem: str, name: str | None = None) -> str:
@@ -46,6 +51,13 @@ def profile_recipe_name(stem: str, name: str | None = None) -> str:
         return name
     made = re.sub(r"[^A-Za-z0-9_\-]+", "-", stem).strip("-") or "profile"
     return made if re.match(r"^[A-Za-z_]", made) else f"profile-{made}"
+
+
+def log_period_s(points: Sequence[ProfilePoint]) -> float:
+    """The step's logging period: its rows' shortest spacing within ``LOG_PERIOD_S``."""
+    gaps = [b.t_s - a.t_s for a, b in itertools.pairwise(points)]
+    low, high = LOG_PERIOD_S
+    return round(min(high, max(low, min(gaps, default=high))), 3)
 
 
 def _row(p: ProfilePoint) -> str:
@@ -87,6 +99,9 @@ def _lines(
         "steps:",
         "  - id: profile",
         f"    comment: {yaml_scalar(f'{len(points)} rows, {span:g} s')}",
+        "    # A result line per row (its shortest spacing, 0.25 s to 120 s): the profile's",
+        "    # own resolution in the results, as the seed's HMI logs it (every 250 ms).",
+        f"    log: {{period: {log_period_s(points):g} s}}",
         "    profile:",
     ]
     if csv_ref is None:

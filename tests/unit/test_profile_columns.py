@@ -130,7 +130,10 @@ def test_a_row_longer_than_a_named_header_is_refused_at_its_first_extra_cell(
 def test_the_imported_recipe_says_what_was_noticed(tmp_path: Path) -> None:
     text = import_profile(write(tmp_path, FIGURE_21, "sample_profile.csv"))
     assert "# note: times are Unix timestamps" in text
-    rows = yaml.safe_load(text)["steps"][0]["profile"]["rows"]
+    step = yaml.safe_load(text)["steps"][0]
+    # A result line per row (figure 21: every 250 ms), not the recipe default's 120 s.
+    assert step["log"] == {"period": "0.25 s"}
+    rows = step["profile"]["rows"]
     assert [r["current"] for r in rows] == [0.5, 0.6, 0.7, 0.8, 0.9]
     assert rows[-1]["t"] == pytest.approx(1.0, abs=1e-5)
 
