@@ -404,7 +404,9 @@ def _map_plant(
     if channel is None:
         if len(cfg.channels) != 1:
             names = ", ".join(c.name for c in cfg.channels)
-            raise ConfigError(f"name the channel to dry-run (the I/O map has {names})")
+            raise ConfigError(
+                f"name the channel to dry-run (the I/O map has {names})", cfg.source_file or None
+            )
         channel = cfg.channels[0].name
     dry = channel_dry_run_config(cfg, channel, capacity_ah, soc, period_s)
     bench = build_bench(dry, clock, in_process=True)

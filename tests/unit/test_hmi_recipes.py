@@ -26,6 +26,7 @@ from supervisor.hmi.recipes_api import (
     error_json,
     valid_name,
 )
+from supervisor.testing.recipes import bench_tags
 
 ROOT = Path(__file__).resolve().parents[2]
 BAD = sorted((ROOT / "tests" / "data" / "bad_recipes").glob("*.yaml"))
@@ -57,8 +58,7 @@ def test_a_broken_text_is_refused_with_the_lines_supervisor_check_prints(
 def sim_bench_tags() -> Target:
     """What the screens validate a recipe against without a channel on the simulated
     bench: its tags (a recipe may name ``bms.cell_max``), as ``RecipesApi`` does."""
-    bench = build_bench(load_bench(ROOT / "io_maps" / "sim.yaml"), VirtualClock(), simulate=False)
-    return Target(tags=bench.tag_dims())
+    return bench_tags()
 
 
 @pytest.mark.parametrize("path", GOOD, ids=lambda p: p.name)

@@ -247,3 +247,12 @@ async def test_the_recipes_screens_dry_run_hands_the_channel_to_the_preview(
     await api._dry_run(runner, "r.yaml", CH4_CHARGE, {}, bench.target("ch4"), 1.0)
     await api._dry_run(runner, "r.yaml", CH4_CHARGE, {}, None, 1.0)
     assert asked == [(10.0, "ch4"), (None, None)]
+
+
+def test_the_cli_asks_for_the_channel_of_a_map_with_several(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recipe = write(tmp_path, CH4_CHARGE)
+    assert main(["dry-run", str(recipe), "--io-map", str(SIM_MAP)]) == 2
+    err = capsys.readouterr().err
+    assert f"{SIM_MAP}: name the channel to dry-run (the I/O map has ch0, ch1, ch2, ch3," in err
