@@ -618,9 +618,12 @@ def cmd_import(args: argparse.Namespace) -> int:
             _err("calibration (-1 -2 -s -o) belongs to the I/O map, under the board:")
             _err(res.calibration_snippet)
         return EXIT_OK
-    from supervisor.importers.profile import import_profile
+    from supervisor.importers.profile import import_profile_noting
 
-    _write_or_print(import_profile(args.file, name=args.name, output=args.output), args.output)
+    text, notices = import_profile_noting(args.file, name=args.name, output=args.output)
+    for notice in notices:  # also in the recipe, as "# note:" lines
+        _err(f"note: {notice}")
+    _write_or_print(text, args.output)
     return EXIT_OK
 
 

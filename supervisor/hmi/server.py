@@ -43,6 +43,7 @@ from supervisor.hmi.csrf import RequestOrigins
 from supervisor.hmi.history_api import HistoryQuery, add_history_routes
 from supervisor.hmi.limits import ConnectionGuard, ConnectionLimits
 from supervisor.hmi.openapi import add_openapi_route
+from supervisor.hmi.profiles_api import add_profile_routes
 from supervisor.hmi.recipes_api import RecipesConfig, add_recipe_routes
 from supervisor.hmi.tests_api import TestsConfig, add_test_routes
 from supervisor.safety import Alarm, AlarmEvent
@@ -630,8 +631,8 @@ class HttpApi:
         )
         if history is not None:  # GET /api/history, /api/events (hmi/history_api.py)
             add_history_routes(app, history, db, clock, self.commands.runners)
-        if recipes is not None:  # /api/recipes… (hmi/recipes_api.py)
-            add_recipe_routes(app, recipes)
+        if recipes is not None:  # /api/recipes…, /api/profiles… (recipes_api, profiles_api)
+            add_profile_routes(app, add_recipe_routes(app, recipes), self.commands, self.actor)
         if tests is not None:  # /api/tests… (hmi/tests_api.py)
             add_test_routes(app, tests, clock)
         self._add_estop_routes(app)

@@ -1,7 +1,10 @@
 // Recipes: the list, the YAML in an editor with line numbers, validation errors shown at
 // their line (the supervisor's own messages, as `supervisor check`), and a dry-run preview
 // (timeline, duration, capacity per cycle) before anything is saved or started.
-import { get, post, put } from "../api.js";
+// Load profile (seed 002's Tk HMI, issue 32): a profile CSV uploaded or picked from the
+// recipes folder, previewed (table, chart, what the reader noticed), refused at its file,
+// line and column, dry-run on the chosen channel, loaded onto it and started.
+import { get, post, put, reasonOf } from "../api.js";
 import { esc, fmtDuration, fmtTime, showResult, $ } from "../dom.js";
 import { simplePlot, timeAxis, timelinePlot } from "../chart.js";
 
@@ -31,6 +34,26 @@ export async function render({ root, app, params }) {
           <label><input type="checkbox" id="recipe-overwrite"> overwrite</label>
         </div>
         <p id="recipe-result" class="result" role="status" aria-live="polite" hidden></p>
+      </section>
+      <section class="panel preview" aria-label="Load profile" id="profile-panel">
+        <h2>Load profile</h2>
+        <div class="editor-bar">
+          <label class="file">Upload CSV <input type="file" id="profile-file" accept=".csv,.txt,text/csv"></label>
+          <label for="profile-pick">or from the folder</label><select id="profile-pick"><option value="">—</option></select>
+          <label for="profile-channel">Channel</label><select id="profile-channel"></select>
+        </div>
+        <p id="profile-summary" class="muted">No profile loaded.</p>
+        <ul id="profile-errors" class="errors" aria-live="polite"></ul>
+        <ul id="profile-notices" aria-live="polite"></ul>
+        <div id="profile-chart" class="plot"></div>
+        <div id="profile-table-wrap"></div>
+        <div class="buttons">
+          <button type="button" id="profile-dryrun" disabled>Dry run</button>
+          <button type="button" id="profile-load" disabled>Load onto channel</button>
+          <button type="button" id="profile-start" class="primary" disabled>Start</button>
+        </div>
+        <p id="profile-result" class="result" role="status" aria-live="polite" hidden></p>
+        <div id="profile-dry" class="plot"></div>
       </section>
       <section class="panel preview" aria-label="Dry run preview" id="preview" hidden>
         <h2>Dry run</h2>
@@ -236,12 +259,174 @@ export async function render({ root, app, params }) {
     validate();
   });
 
+  const profile = profilePanel(root, app);
   paintGutter();
   loadList();
   if (current) loadRecipe(current);
   return {
     destroy() {
       while (plots.length) plots.pop().stop();
+      profile.destroy();
     },
   };
+}
+
+const PROFILE_FIELDS = [
+  ["t_s", "t (s)"],
+  ["current_a", "I (A)"],
+  ["v_min", "V min"],
+  ["v_max", "V max"],
+  ["i_min", "I min"],
+  ["i_max", "I max"],
+  ["t_min", "T min"],
+  ["t_max", "T max"],
+];
+
+/** A file's bytes as base64: the server finds its encoding (UTF-8 or CP1252) as from a file. */
+async function base64Of(file) {
+  const bytes = new Uint8Array(await file.arrayBuffer());
+  let bin = "";
+  for (let i = 0; i < bytes.length; i += 0x8000) bin += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
+  return btoa(bin);
+}
+
+/** The "Load profile" panel: its state is the profile's source and the recipe made of it. */
+function profilePanel(root, app) {
+  const el = (id) => $(`#${id}`, root);
+  const out = el("profile-result");
+  const plots = [];
+  let source = null; // {csv_base64, name} or {file}
+  let made = null; // the preview's answer
+  const channel = () => el("profile-channel").value;
+  const buttons = ["profile-dryrun", "profile-load", "profile-start"].map(el);
+  const clearPlots = () => {
+    while (plots.length) {
+      const pl = plots.pop();
+      pl.stop();
+      pl.chart.destroy();
+    }
+  };
+  const enable = (ok) => {
+    buttons[0].disabled = buttons[1].disabled = !ok;
+    buttons[2].disabled = true; // after a load only
+  };
+
+  const channels = (app.bench?.channels || []).map((c) => c.name);
+  el("profile-channel").innerHTML = channels.map((n) => `<option value="${esc(n)}">${esc(n)}</option>`).join("");
+
+  const showTable = (rows, total) => {
+    const used = PROFILE_FIELDS.filter(([k]) => rows.some((r) => r[k] !== null && r[k] !== undefined));
+    const more = total > rows.length ? `<caption>first ${rows.length} of ${total} rows</caption>` : "";
+    el("profile-table-wrap").innerHTML = `<table class="grid" id="profile-table">${more}
+      <thead><tr>${used.map(([, h]) => `<th>${esc(h)}</th>`).join("")}</tr></thead>
+      <tbody>${rows.map((r) => `<tr>${used.map(([k]) => `<td>${r[k] ?? ""}</td>`).join("")}</tr>`).join("")}</tbody></table>`;
+  };
+
+  const preview = async () => {
+    if (!source) return;
+    enable(false);
+    made = null;
+    clearPlots();
+    el("profile-table-wrap").innerHTML = "";
+    el("profile-notices").innerHTML = "";
+    el("profile-errors").innerHTML = "";
+    el("profile-summary").textContent = "reading…";
+    const answer = await post("/api/profiles/preview", { ...source, channel: channel() || undefined });
+    if (!answer.ok) {
+      const errors = Array.isArray(answer.data.errors) ? answer.data.errors : [{ text: reasonOf(answer) }];
+      el("profile-errors").innerHTML = errors.map((e) => `<li class="refused">${esc(e.text || e.message)}</li>`).join("");
+      el("profile-summary").textContent = "Profile refused: nothing can be loaded until it is fixed.";
+      return;
+    }
+    made = answer.data;
+    el("profile-summary").textContent = `${made.rows} rows, ${fmtDuration(made.duration_s)} — recipe ${made.recipe}`;
+    el("profile-notices").innerHTML = made.notices.map((n) => `<li class="notice">${esc(n)}</li>`).join("");
+    showTable(made.table, made.rows);
+    const ax = timeAxis(made.duration_s || 0);
+    plots.push(
+      simplePlot(el("profile-chart"), {
+        title: "Profile: current (A, + charges)",
+        xLabel: ax.unit,
+        series: [{ label: "A" }],
+        x: made.chart.t_s.map((t) => t / ax.scale),
+        ys: [made.chart.current_a],
+        stepped: true,
+      }),
+    );
+    enable(true);
+  };
+
+  const dryRun = async () => {
+    if (!made) return;
+    showResult(out, { ok: true, data: { reason: "dry run…" } });
+    const answer = await post("/api/recipes/dryrun", { text: made.text, name: made.recipe, channel: channel() });
+    if (!answer.ok || answer.data.ok === false) {
+      showResult(out, { ...answer, ok: false });
+      return;
+    }
+    const d = answer.data;
+    showResult(out, { ok: true, data: { reason: `dry run on ${channel()}: ${fmtDuration(d.duration_s)}, ${d.finished ? "completes" : "does not complete"}: ${d.end_reason || "—"}` } });
+    out.dataset.dryrun = d.finished ? "finished" : "unfinished";
+    const tr = d.trace;
+    if (tr && tr.t_s && tr.t_s.length) {
+      const ax = timeAxis(d.duration_s || 0);
+      plots.push(
+        simplePlot(el("profile-dry"), {
+          title: "Dry run: predicted voltage and current",
+          xLabel: ax.unit,
+          series: [{ label: "V" }, { label: "A" }],
+          x: tr.t_s.map((s) => s / ax.scale),
+          ys: [tr.voltage_v, tr.current_a],
+        }),
+      );
+    }
+  };
+
+  const load = async () => {
+    if (!source) return;
+    showResult(out, { ok: true, data: { reason: `loading onto ${channel()}…` } });
+    const answer = await post("/api/profiles/load", { ...source, channel: channel() });
+    showResult(out, answer, `${made?.recipe || "profile"} loaded on ${channel()}`);
+    delete out.dataset.dryrun;
+    buttons[2].disabled = !answer.ok;
+  };
+
+  const start = async () => {
+    const ch = channel();
+    showResult(out, { ok: true, data: { reason: `starting ${ch}…` } });
+    const answer = await post(`/api/channels/${encodeURIComponent(ch)}/commands/start`, {});
+    showResult(out, answer, `${ch} started`);
+    if (answer.ok) {
+      out.insertAdjacentHTML("beforeend", ` <a href="#/channel/${encodeURIComponent(ch)}" id="profile-goto">see ${esc(ch)}</a>`);
+    }
+  };
+
+  const listProfiles = async () => {
+    const answer = await get("/api/profiles");
+    if (!answer.ok) return;
+    el("profile-pick").innerHTML =
+      `<option value="">—</option>` +
+      (answer.data.profiles || []).map((p) => `<option value="${esc(p.name)}">${esc(p.name)}</option>`).join("");
+  };
+
+  el("profile-file").addEventListener("change", async (ev) => {
+    const file = ev.target.files[0];
+    if (!file) return;
+    source = { csv_base64: await base64Of(file), name: file.name };
+    el("profile-pick").value = "";
+    preview();
+  });
+  el("profile-pick").addEventListener("change", (ev) => {
+    source = ev.target.value ? { file: ev.target.value } : null;
+    preview();
+  });
+  el("profile-channel").addEventListener("change", preview);
+  buttons[0].addEventListener("click", dryRun);
+  buttons[1].addEventListener("click", async () => {
+    await load();
+    listProfiles();
+  });
+  buttons[2].addEventListener("click", start);
+  listProfiles();
+  return { destroy: clearPlots };
 }
