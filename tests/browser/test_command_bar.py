@@ -41,9 +41,14 @@ def allowed(page: Any, button: str) -> None:
     assert page.get_attribute(f"#{button}", "title") is None
 
 
-def started(bench: Supervisor, channel: str) -> str:
-    """``channel`` running the short recipe (loaded and started over the API); its test id."""
-    status, body = bench.call("PUT", f"/api/channels/{channel}/recipe", {"file": SHORT_RECIPE.stem})
+LONG_RECIPE = "nimh-ds2710"
+"""A test of hours: still Running however slow the machine is while the page asks (the
+short cycle ends by itself after 26 s)."""
+
+
+def started(bench: Supervisor, channel: str, recipe: str = SHORT_RECIPE.stem) -> str:
+    """``channel`` running ``recipe`` (loaded and started over the API); its test id."""
+    status, body = bench.call("PUT", f"/api/channels/{channel}/recipe", {"file": recipe})
     assert status == 200, body
     status, body = bench.call("POST", f"/api/channels/{channel}/commands/start")
     assert status == 200, body
@@ -112,7 +117,7 @@ def test_the_chain_buttons_follow_the_state_with_the_reason_as_tooltip(
 def test_stop_abort_reset_ask_first_naming_the_channel_and_the_test(
     page: Any, bench: Supervisor
 ) -> None:
-    test_id = started(bench, "ch1")
+    test_id = started(bench, "ch1", LONG_RECIPE)
     login(page, bench, "operator", "#/channel/ch1")
     allowed(page, "cmd-abort")
     # Abort asks, naming ch1 and its test; Cancel sends nothing.
@@ -136,7 +141,7 @@ def test_stop_abort_reset_ask_first_naming_the_channel_and_the_test(
     page.click("#cmd-confirm-yes")
     assert "Aborted → Idle" in result_text(page)
     # Stop asks as well.
-    test_id = started(bench, "ch1")
+    test_id = started(bench, "ch1", LONG_RECIPE)
     allowed(page, "cmd-stop")
     asked = confirm(page, "cmd-stop")
     assert "Stop on ch1" in asked and test_id in asked, asked
