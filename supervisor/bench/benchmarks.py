@@ -11,6 +11,7 @@ from typing import Any
 
 from supervisor.bench import report
 from supervisor.bench.loadgen import SignalGenerator
+from supervisor.bench.ports import free_port
 from supervisor.channels import Channel, ChannelLimits
 from supervisor.core.clock import RealClock, VirtualClock
 from supervisor.devices.registry import bench_from_data
@@ -282,14 +283,6 @@ async def seed002_benchmark(io_map: str) -> int:
     return 0
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def _seed002_file(io_map: str, folder: str, period_s: float | None = None) -> str:
     """The seed 002 part of ``io_map`` (ADAM, EA, BMS and the EA channel) on free loopback
     ports, written into ``folder``; ``period_s`` overrides the scan period."""
@@ -301,7 +294,7 @@ def _seed002_file(io_map: str, folder: str, period_s: float | None = None) -> st
     data["devices"] = {k: v for k, v in data["devices"].items() if k in ("adam", "ea", "bms")}
     data["channels"] = [c for c in data["channels"] if c["source"]["device"] == "ea"]
     for dev in data["devices"].values():
-        dev["port"] = _free_port()
+        dev["port"] = free_port()
     if period_s is not None:
         data.setdefault("scan", {})["period_s"] = period_s
     path = Path(folder) / "seed002.yaml"
@@ -708,7 +701,7 @@ async def opcua_benchmark(
                 "devices": {"gen": {"driver": "chadeche", "boards": [{"address": 0}]}},
             }
         )
-        settings = dataclasses.replace(OpcUaSettings.of(cfg), port=_free_port(), security=("none",))
+        settings = dataclasses.replace(OpcUaSettings.of(cfg), port=free_port(), security=("none",))
 
         async def refuse(req: Request) -> Answer:
             return Answer(False, "benchmark", "refused")
@@ -759,7 +752,7 @@ async def opcua_benchmark(
     async def bare(tmp: Path) -> None:
         server = Server()
         await server.init()
-        port = _free_port()
+        port = free_port()
         server.set_endpoint(f"opc.tcp://127.0.0.1:{port}/bare")
         server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
         uri = namespace_uri("bare")

@@ -37,6 +37,8 @@ from typing import Any, Final
 
 import yaml
 
+from supervisor.bench.ports import free_port
+
 ROOT: Final = Path(__file__).resolve().parents[2]
 SUPERVISOR_NOFILE: Final = 1024
 """The supervisor's soft and hard descriptor limit in the flood (systemd's default soft)."""
@@ -53,13 +55,6 @@ MIB: Final = 1024 * 1024
 def _say(msg: str) -> None:
     sys.stdout.write(msg + "\n")
     sys.stdout.flush()
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 def flood_map(

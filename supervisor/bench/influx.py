@@ -26,6 +26,7 @@ import urllib.request
 from pathlib import Path
 
 from supervisor.bench import report
+from supervisor.bench.ports import free_port
 from supervisor.bench.processes import stop_with_parent
 from supervisor.core.quality import Quality
 from supervisor.publish.changes import Sample
@@ -50,25 +51,17 @@ def _influxd() -> Path | None:
     return Path(named) if named and Path(named).is_file() else None
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 class _Server:
     """A throwaway influxd on loopback with its data in ``root``, stopped by its pid."""
 
     def __init__(self, binary: Path, root: Path) -> None:
         root.mkdir(parents=True, exist_ok=True)
-        self.port = _free_port()
+        self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         conf = root / "influxdb.conf"
         conf.write_text(
             f"""reporting-disabled = true
-bind-address = "127.0.0.1:{_free_port()}"
+bind-address = "127.0.0.1:{free_port()}"
 [meta]
   dir = "{root / "meta"}"
 [data]

@@ -17,6 +17,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from supervisor.bench.ports import free_port
 from supervisor.publish.results import read_timeline
 from supervisor.scan import ScanStats
 
@@ -146,14 +147,6 @@ class _Process:
         return self.proc.returncode
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def _connected(url: str) -> bool:
     tags = ("ea.connected", "adam.connected", "bms.connected", "estop.ok")
     return all(_http("GET", f"{url}/tags/{t}")["value"] is True for t in tags)
@@ -188,7 +181,7 @@ def kill_restart_map(workdir: Path, io_map: str = "io_maps/sim.yaml") -> Path:
             # which a test resumed in a discharge would take for an empty pack.
             c.setdefault("voltage_tag", "pack.voltage")
     for dev in data["devices"].values():
-        dev["port"] = _free_port()
+        dev["port"] = free_port()
     data["hmi"]["port"] = 0
     data["hmi"]["login"] = False  # its HTTP client does not log in (loopback)
     data.pop("opcua", None)  # not what this measures (and 4840 may be taken)
@@ -226,7 +219,7 @@ def kill_restart(
     ch = KILL_RESTART_CHANNEL
     state_file = workdir / "var" / STATE_NAME
     results: list[KillRestart] = []
-    control_port = _free_port()
+    control_port = free_port()
     control = f"http://127.0.0.1:{control_port}/api"  # the sim's plant state and e-stop
     sim = _Process(
         [*exe, "sim", str(bench_map), "--control-port", str(control_port)], workdir, logs

@@ -63,7 +63,8 @@ from typing import Any
 import yaml
 
 from supervisor.bench import report
-from supervisor.bench.subject import Simulators, Supervisor, free_port, prepare, recipe_args
+from supervisor.bench.ports import free_port
+from supervisor.bench.subject import Simulators, Supervisor, prepare, recipe_args
 from supervisor.scan.engine import STATS_WINDOW
 
 log = logging.getLogger(__name__)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import logging
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -24,18 +23,13 @@ from typing import Any
 
 import yaml
 
+from supervisor.bench.ports import free_port
 from supervisor.bench.processes import stop_with_parent
 
 log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 90.0
 STOP_TIMEOUT_S = 30.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def prepare(io_map: Path, root: Path, influx_url: str | None = None) -> tuple[Path, int, int]:

@@ -1,15 +1,12 @@
-"""Free loopback ports for servers a test starts (tests only ever bind 127.0.0.1)."""
+"""Free loopback ports for servers a test starts (tests only ever bind 127.0.0.1): the
+benchmarks' one function (``supervisor/bench/ports.py``: never the same port twice in a
+process)."""
 
 from __future__ import annotations
 
-import socket
-
-LOOPBACK = "127.0.0.1"
+from supervisor.bench.ports import LOOPBACK, free_port
 
 
 def free_tcp_port(host: str = LOOPBACK) -> int:
-    """A TCP port nobody listens on right now (the OS picks it; another process could take
-    it before the test binds it, which loopback tests on one machine accept)."""
-    with socket.socket() as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
+    """A TCP port nobody listens on right now, not handed out before by this process."""
+    return free_port(host)
