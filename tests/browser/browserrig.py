@@ -298,3 +298,15 @@ def login(page: Any, bench: Supervisor, user: str, where: str = "#/") -> None:
         page.fill("#login-password", USERS[user])
         page.click("#login-submit")
     page.wait_for_selector("#top:not([hidden])")
+
+
+def result_text(page: Any, selector: str = "#cmd-result") -> str:
+    """The answer a command's result line shows, once it is complete (not the "…" of one
+    under way)."""
+    page.wait_for_selector(f"{selector}:not([hidden])")
+    page.wait_for_function(
+        "(sel) => { const t = document.querySelector(sel).textContent;"
+        " return t && !t.endsWith('…'); }",
+        arg=selector,
+    )
+    return str(page.text_content(selector))

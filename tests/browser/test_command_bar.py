@@ -18,16 +18,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from browserrig import SHORT_RECIPE, Supervisor, login, screenshot, wait_for
-
-
-def result_text(page: Any) -> str:
-    page.wait_for_selector("#cmd-result:not([hidden])")
-    page.wait_for_function(
-        "() => { const t = document.querySelector('#cmd-result').textContent;"
-        " return t && !t.endsWith('…'); }"
-    )
-    return str(page.text_content("#cmd-result"))
+from browserrig import SHORT_RECIPE, Supervisor, login, result_text, screenshot, wait_for
 
 
 def refused_ahead(page: Any, button: str) -> str:
@@ -54,6 +45,22 @@ def started(bench: Supervisor, channel: str, recipe: str = SHORT_RECIPE.stem) ->
     assert status == 200, body
     wait_for(f"{channel} running", lambda: bench.tag(f"{channel}.chain.state") == "Running")
     return str(bench.tag(f"{channel}.chain.test_id"))
+
+
+def shows_state(page: Any, state: str) -> None:
+    """Until the channel screen shows ``state`` (its live feed has caught up)."""
+    page.wait_for_function(
+        "(s) => document.querySelector('#ch-state').textContent === s", arg=state
+    )
+
+
+def answer(page: Any, text: str) -> None:
+    """Until the result line holds ``text``: the answer to the command just given, not the
+    one before it still shown."""
+    page.wait_for_function(
+        "(t) => (document.querySelector('#cmd-result').textContent || '').includes(t)",
+        arg=text,
+    )
 
 
 def confirm(page: Any, button: str) -> str:
@@ -132,24 +139,28 @@ def test_stop_abort_reset_ask_first_naming_the_channel_and_the_test(
     # Confirmed, it is given.
     confirm(page, "cmd-abort")
     page.click("#cmd-confirm-yes")
-    assert "Running → Aborting" in result_text(page)
+    answer(page, "Running → Aborting")
     wait_for("ch1 aborted", lambda: bench.tag("ch1.chain.state") == "Aborted")
-    # Reset of the finished test asks too, naming it.
+    # Reset of the finished test asks too, naming it (once the page shows it finished, as
+    # an operator would see it: the live state says whether a reset ends a test).
+    shows_state(page, "Aborted")
     allowed(page, "cmd-reset")
     asked = confirm(page, "cmd-reset")
     assert "Reset on ch1" in asked and test_id in asked and "Aborted" in asked, asked
     page.click("#cmd-confirm-yes")
-    assert "Aborted → Idle" in result_text(page)
+    answer(page, "Aborted → Idle")
     # Stop asks as well.
     test_id = started(bench, "ch1", LONG_RECIPE)
+    shows_state(page, "Running")
     allowed(page, "cmd-stop")
     asked = confirm(page, "cmd-stop")
     assert "Stop on ch1" in asked and test_id in asked, asked
     page.click("#cmd-confirm-yes")
     wait_for("ch1 stopped", lambda: bench.tag("ch1.chain.state") == "Stopped")
+    shows_state(page, "Stopped")
     # Hold does not end a test: it asks nothing.
     page.click("#cmd-hold", force=True)
-    assert result_text(page).startswith("Refused (409)")  # Stopped: refused ahead
+    answer(page, "Refused (409)")  # Stopped: refused
     assert not page.locator("#cmd-confirm").is_visible()
 
 

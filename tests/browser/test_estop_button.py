@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from browserrig import Supervisor, login, screenshot, wait_for
+from browserrig import Supervisor, login, result_text, screenshot, wait_for
 
 RED = "rgb(200, 16, 46)"  # --alarm in hmi/css/hmi.css
 
@@ -37,12 +37,7 @@ def estop_state(bench: Supervisor) -> str:
 
 
 def result(page: Any) -> str:
-    page.wait_for_selector("#estop-result:not([hidden])")
-    page.wait_for_function(
-        "() => { const t = document.querySelector('#estop-result').textContent;"
-        " return t && !t.endsWith('…'); }"
-    )
-    return str(page.text_content("#estop-result"))
+    return result_text(page, "#estop-result")
 
 
 def test_the_overview_estop_is_the_one_red_button_and_asks_first(

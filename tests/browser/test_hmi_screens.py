@@ -27,6 +27,7 @@ from browserrig import (
     free_port,
     hmi_options,
     login,
+    result_text,
     save_figures,
     screenshot,
     start_supervisor,
@@ -37,15 +38,6 @@ from browserrig import (
 
 LATENCY_CHANGES = 60
 TABLET = {"width": 800, "height": 1180}
-
-
-def result_text(page: Any) -> str:
-    page.wait_for_selector("#cmd-result:not([hidden])")
-    page.wait_for_function(
-        "() => { const t = document.querySelector('#cmd-result').textContent;"
-        " return t && !t.endsWith('…'); }"
-    )
-    return str(page.text_content("#cmd-result"))
 
 
 def test_an_operator_logs_in_and_sees_the_bench_mimic_and_a_tile_per_channel(
