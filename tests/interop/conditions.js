@@ -18,11 +18,8 @@
 //       "intervalMs": …}: HistoryRead ReadProcessedDetails;
 //   {"do": "raw", "node": node, "start": ms, "end": ms}: HistoryRead ReadRawModifiedDetails.
 "use strict";
-const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
+const { open } = require("./client.js");
 const {
-  OPCUAClient,
-  MessageSecurityMode,
-  SecurityPolicy,
   AttributeIds,
   BrowseDirection,
   DataType,
@@ -31,7 +28,6 @@ const {
   ReadProcessedDetails,
   TimestampsToReturn,
   constructEventFilter,
-  UserTokenType,
 } = require("node-opcua-client");
 
 const cfg = JSON.parse(process.argv[2]);
@@ -162,29 +158,7 @@ async function run(session, action, id) {
 }
 
 async function main() {
-  const certificateManager = new OPCUACertificateManager({
-    rootFolder: cfg.pki,
-    automaticallyAcceptUnknownCertificate: true,
-  });
-  const client = OPCUAClient.create({
-    applicationName: "bench-supervisor interop conditions",
-    applicationUri: cfg.applicationUri,
-    securityMode: MessageSecurityMode.None,
-    securityPolicy: SecurityPolicy.None,
-    certificateFile: cfg.cert,
-    privateKeyFile: cfg.key,
-    clientCertificateManager: certificateManager,
-    endpointMustExist: false,
-    connectionStrategy: { maxRetry: 2, initialDelay: 200, maxDelay: 1000 },
-  });
-  await client.connect(cfg.endpoint);
-  say("connected");
-  const session = await client.createSession({
-    type: UserTokenType.UserName,
-    userName: cfg.user,
-    password: cfg.password,
-  });
-  say("session");
+  const { client, session } = await open(cfg, "conditions", say);
   const ns = (await session.readNamespaceArray()).indexOf(cfg.namespace);
   const id = (s) => (s.startsWith("s:") ? `ns=${ns};s=${s.slice(2)}` : s);
   for (const action of cfg.actions) {

@@ -7,13 +7,9 @@
 //                   "start": <ms since 1970>, "end": <ms>, "user": ..., "password": ...,
 //                   "secure": false, "applicationUri": ..., "cert": ..., "key": ..., "pki": ...}'
 "use strict";
-const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
+const { open } = require("./client.js");
 const {
-  OPCUAClient,
-  MessageSecurityMode,
-  SecurityPolicy,
   TimestampsToReturn,
-  UserTokenType,
 } = require("node-opcua-client");
 
 const cfg = JSON.parse(process.argv[2]);
@@ -49,29 +45,7 @@ async function raw(session, nodeId, options, continuationPoint) {
 }
 
 async function main() {
-  const certificateManager = new OPCUACertificateManager({
-    rootFolder: cfg.pki,
-    automaticallyAcceptUnknownCertificate: true,
-  });
-  const client = OPCUAClient.create({
-    applicationName: "bench-supervisor interop history",
-    applicationUri: cfg.applicationUri,
-    securityMode: cfg.secure ? MessageSecurityMode.SignAndEncrypt : MessageSecurityMode.None,
-    securityPolicy: cfg.secure ? SecurityPolicy.Basic256Sha256 : SecurityPolicy.None,
-    certificateFile: cfg.cert,
-    privateKeyFile: cfg.key,
-    clientCertificateManager: certificateManager,
-    endpointMustExist: false,
-    connectionStrategy: { maxRetry: 2, initialDelay: 200, maxDelay: 1000 },
-  });
-  await client.connect(cfg.endpoint);
-  say("connected");
-  const session = await client.createSession({
-    type: UserTokenType.UserName,
-    userName: cfg.user,
-    password: cfg.password,
-  });
-  say("session");
+  const { client, session } = await open(cfg, "history", say, cfg.secure);
   const ns = (await session.readNamespaceArray()).indexOf(cfg.namespace);
   const id = (s) => `ns=${ns};s=${s}`;
 

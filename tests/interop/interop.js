@@ -6,16 +6,12 @@
 // node interop.js '{"endpoint": ..., "namespace": ..., "recipe": ..., "user": ...,
 //                   "password": ..., "secure": false, "cert": ..., "key": ..., "pki": ...}'
 "use strict";
-const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
+const { open } = require("./client.js");
 const {
-  OPCUAClient,
-  MessageSecurityMode,
-  SecurityPolicy,
   AttributeIds,
   DataType,
   TimestampsToReturn,
   constructEventFilter,
-  UserTokenType,
 } = require("node-opcua-client");
 
 const cfg = JSON.parse(process.argv[2]);
@@ -32,29 +28,7 @@ async function until(what, cond, ms) {
 }
 
 async function main() {
-  const certificateManager = new OPCUACertificateManager({
-    rootFolder: cfg.pki,
-    automaticallyAcceptUnknownCertificate: true,
-  });
-  const client = OPCUAClient.create({
-    applicationName: "bench-supervisor interop",
-    applicationUri: cfg.applicationUri,
-    securityMode: cfg.secure ? MessageSecurityMode.SignAndEncrypt : MessageSecurityMode.None,
-    securityPolicy: cfg.secure ? SecurityPolicy.Basic256Sha256 : SecurityPolicy.None,
-    certificateFile: cfg.cert,
-    privateKeyFile: cfg.key,
-    clientCertificateManager: certificateManager,
-    endpointMustExist: false,
-    connectionStrategy: { maxRetry: 2, initialDelay: 200, maxDelay: 1000 },
-  });
-  await client.connect(cfg.endpoint);
-  say("connected");
-  const session = await client.createSession({
-    type: UserTokenType.UserName,
-    userName: cfg.user,
-    password: cfg.password,
-  });
-  say("session");
+  const { client, session } = await open(cfg, "", say, cfg.secure);
   const nsArray = (await session.readNamespaceArray());
   const ns = nsArray.indexOf(cfg.namespace);
   out.namespaceIndex = ns;

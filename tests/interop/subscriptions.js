@@ -16,8 +16,8 @@
 //   {"read": <tag>}               read it with each TimestampsToReturn, say {"read": ...}
 //   {"end": true}                 close and exit
 "use strict";
+const { open } = require("./client.js");
 const readline = require("node:readline");
-const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
 const { ReadRequest } = require("node-opcua-service-read");
 const {
   AttributeIds,
@@ -27,11 +27,7 @@ const {
   DataChangeTrigger,
   DataType,
   DeadbandType,
-  MessageSecurityMode,
-  OPCUAClient,
-  SecurityPolicy,
   TimestampsToReturn,
-  UserTokenType,
   resolveNodeId,
 } = require("node-opcua-client");
 
@@ -115,27 +111,7 @@ function monitor(subscription, id, item, received) {
 }
 
 async function main() {
-  const certificateManager = new OPCUACertificateManager({
-    rootFolder: cfg.pki,
-    automaticallyAcceptUnknownCertificate: true,
-  });
-  const client = OPCUAClient.create({
-    applicationName: "bench-supervisor interop subscriptions",
-    applicationUri: cfg.applicationUri,
-    securityMode: MessageSecurityMode.None,
-    securityPolicy: SecurityPolicy.None,
-    certificateFile: cfg.cert,
-    privateKeyFile: cfg.key,
-    clientCertificateManager: certificateManager,
-    endpointMustExist: false,
-    connectionStrategy: { maxRetry: 2, initialDelay: 200, maxDelay: 1000 },
-  });
-  await client.connect(cfg.endpoint);
-  const session = await client.createSession({
-    type: UserTokenType.UserName,
-    userName: cfg.user,
-    password: cfg.password,
-  });
+  const { client, session } = await open(cfg, "subscriptions");
   const ns = (await session.readNamespaceArray()).indexOf(cfg.namespace);
   const id = (s) => `ns=${ns};s=${s}`;
 

@@ -8,15 +8,11 @@
 // node types.js '{"endpoint": ..., "namespace": ..., "user": ..., "password": ...,
 //                 "applicationUri": ..., "cert": ..., "key": ..., "pki": ...}'
 "use strict";
-const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
+const { open } = require("./client.js");
 const {
-  OPCUAClient,
-  MessageSecurityMode,
-  SecurityPolicy,
   AttributeIds,
   BrowseDirection,
   NodeClass,
-  UserTokenType,
 } = require("node-opcua-client");
 
 const cfg = JSON.parse(process.argv[2]);
@@ -44,29 +40,7 @@ function plain(v) {
 }
 
 async function main() {
-  const certificateManager = new OPCUACertificateManager({
-    rootFolder: cfg.pki,
-    automaticallyAcceptUnknownCertificate: true,
-  });
-  const client = OPCUAClient.create({
-    applicationName: "bench-supervisor interop types",
-    applicationUri: cfg.applicationUri,
-    securityMode: MessageSecurityMode.None,
-    securityPolicy: SecurityPolicy.None,
-    certificateFile: cfg.cert,
-    privateKeyFile: cfg.key,
-    clientCertificateManager: certificateManager,
-    endpointMustExist: false,
-    connectionStrategy: { maxRetry: 2, initialDelay: 200, maxDelay: 1000 },
-  });
-  await client.connect(cfg.endpoint);
-  say("connected");
-  const session = await client.createSession({
-    type: UserTokenType.UserName,
-    userName: cfg.user,
-    password: cfg.password,
-  });
-  say("session");
+  const { client, session } = await open(cfg, "types", say);
   const namespaces = await session.readNamespaceArray();
   out.namespaces = namespaces;
   const ns = namespaces.indexOf(cfg.namespace);
