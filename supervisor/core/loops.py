@@ -16,7 +16,7 @@ import contextvars
 import logging
 import selectors
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Coroutine
 from typing import Any
 
 from supervisor.core.gate import ScanGate
@@ -110,3 +110,23 @@ async def await_thread_end(
         log.exception("%s ended with an error", what)
     if thread is not None:
         await asyncio.to_thread(thread.join, timeout_s)
+
+
+def run_gated(
+    main: Coroutine[Any, Any, None],
+    ready: concurrent.futures.Future[None],
+    gate: ScanGate | None,
+    what: str,
+) -> None:
+    """A server thread's body: ``main`` on a loop of its own (a :class:`GatedLoop` waiting
+    at the scan gate when there is one). An exception is never lost: before the server said
+    ``ready`` it becomes ``ready``'s (the bench's loop awaits it), after that it is logged."""
+    factory = None if gate is None else (lambda: GatedLoop(gate))
+    try:
+        with asyncio.Runner(loop_factory=factory) as runner:
+            runner.run(main)
+    except BaseException as exc:
+        if not ready.done():
+            ready.set_exception(exc)
+        else:
+            log.exception("%s thread failed", what)

@@ -46,7 +46,7 @@ from pymodbus.transaction import TransactionManager
 
 from supervisor.core.driver import Value
 from supervisor.core.gate import ScanGate
-from supervisor.core.loops import GatedLoop, await_thread_end
+from supervisor.core.loops import await_thread_end, run_gated
 from supervisor.fieldbus.modbus import quiet_pymodbus
 from supervisor.publish.changes import ChangeBatch, ChangeSnapshots, ChangeSource
 from supervisor.publish.modbus.image import Decoded, RegisterImage, decode, encode
@@ -385,16 +385,8 @@ class ModbusServer:
 
     # --- the server's thread ----------------------------------------------------------------
     def _thread_main(self, ready: concurrent.futures.Future[None]) -> None:
-        gate = self.gate
-        factory = None if gate is None else (lambda: GatedLoop(gate))
         try:
-            with asyncio.Runner(loop_factory=factory) as runner:
-                runner.run(self._main(ready))
-        except BaseException as exc:  # never lost: the bench's loop awaits ``ready``
-            if not ready.done():
-                ready.set_exception(exc)
-            else:
-                log.exception("Modbus server thread failed")
+            run_gated(self._main(ready), ready, self.gate, "Modbus server")
         finally:
             if self._done is not None and not self._done.done():
                 self._done.set_result(None)

@@ -40,7 +40,7 @@ from supervisor.config.users import ROLE_ACCESS, UserStore
 from supervisor.core.clock import Clock
 from supervisor.core.gate import ScanGate
 from supervisor.core.logins import LoginThrottle
-from supervisor.core.loops import GatedLoop, await_thread_end
+from supervisor.core.loops import await_thread_end, run_gated
 from supervisor.core.quality import Quality
 from supervisor.core.records import BenchEvent
 from supervisor.publish.historian import HistoryQuery
@@ -234,16 +234,7 @@ class OpcUaServer:
 
     # --- the server's thread -----------------------------------------------------------------
     def _thread_main(self, ready: concurrent.futures.Future[None]) -> None:
-        gate = self.gate
-        factory = None if gate is None else (lambda: GatedLoop(gate))
-        try:
-            with asyncio.Runner(loop_factory=factory) as runner:
-                runner.run(self._main(ready))
-        except BaseException as exc:  # never lost: the bench's loop awaits ``ready``
-            if not ready.done():
-                ready.set_exception(exc)
-            else:
-                log.exception("OPC UA server thread failed")
+        run_gated(self._main(ready), ready, self.gate, "OPC UA server")
 
     async def _main(self, ready: concurrent.futures.Future[None]) -> None:
         assert self._done is not None
