@@ -27,6 +27,7 @@ from typing import Final
 from asyncua import Server, ua
 
 from supervisor.publish.opcua.methods import BENCH_METHODS, METHODS, RESULT, Method, argument
+from supervisor.publish.opcua.nodes import method_node, object_node, variable_node
 
 O = ua.ObjectIds  # noqa: E741 - asyncua's own abbreviation
 VT = ua.VariantType
@@ -164,18 +165,7 @@ def _member_object(
     typedef: int | ua.NodeId,
     ref: int = O.HasComponent,
 ) -> ua.AddNodesItem:
-    it = ua.AddNodesItem()
-    it.RequestedNewNodeId = nid
-    it.BrowseName = browse
-    it.NodeClass = ua.NodeClass.Object
-    it.ParentNodeId = parent
-    it.ReferenceTypeId = ua.NodeId(ref)
-    it.TypeDefinition = typedef if isinstance(typedef, ua.NodeId) else ua.NodeId(typedef)
-    a = ua.ObjectAttributes()
-    a.DisplayName = ua.LocalizedText(browse.Name)
-    a.Description = ua.LocalizedText(browse.Name)
-    it.NodeAttributes = a
-    return it
+    return object_node(nid, browse, parent, ref, typedef)
 
 
 def _member_variable(
@@ -188,24 +178,7 @@ def _member_variable(
     value: ua.Variant | None = None,
     value_rank: int = ua.ValueRank.Scalar,
 ) -> ua.AddNodesItem:
-    it = ua.AddNodesItem()
-    it.RequestedNewNodeId = nid
-    it.BrowseName = browse
-    it.NodeClass = ua.NodeClass.Variable
-    it.ParentNodeId = parent
-    it.ReferenceTypeId = ua.NodeId(ref)
-    it.TypeDefinition = ua.NodeId(typedef)
-    a = ua.VariableAttributes()
-    a.DisplayName = ua.LocalizedText(browse.Name)
-    a.Description = ua.LocalizedText(browse.Name)
-    a.DataType = dtype if isinstance(dtype, ua.NodeId) else ua.NodeId(dtype)
-    a.ValueRank = value_rank
-    if value is not None:
-        a.Value = value
-    a.AccessLevel = ua.AccessLevel.CurrentRead.mask
-    a.UserAccessLevel = ua.AccessLevel.CurrentRead.mask
-    it.NodeAttributes = a
-    return it
+    return variable_node(nid, browse, parent, ref, typedef, dtype, value, value_rank=value_rank)
 
 
 def _methods(
@@ -213,19 +186,8 @@ def _methods(
 ) -> Iterable[ua.AddNodesItem]:
     for m in methods:
         mid = ua.NodeId(f"{prefix}/{m.name}", tidx)
-        it = ua.AddNodesItem()
-        it.RequestedNewNodeId = mid
-        it.BrowseName = ua.QualifiedName(m.name, tidx)
-        it.NodeClass = ua.NodeClass.Method
-        it.ParentNodeId = owner
-        it.ReferenceTypeId = ua.NodeId(O.HasComponent)
-        a = ua.MethodAttributes()
-        a.DisplayName = ua.LocalizedText(m.name)
-        a.Description = ua.LocalizedText(m.description)
-        a.Executable = False  # a declaration: the instances' methods are called
-        a.UserExecutable = False
-        it.NodeAttributes = a
-        yield it
+        # A declaration: the instances' methods are called.
+        yield method_node(mid, ua.QualifiedName(m.name, tidx), owner, m.description, False)
         for prop, args in (("InputArguments", m.args), ("OutputArguments", (RESULT,))):
             if args:
                 yield _member_variable(

@@ -31,6 +31,7 @@ from asyncua import Server, ua
 
 from supervisor.publish.opcua.layout import Folder, Layout, Variable
 from supervisor.publish.opcua.methods import BENCH_METHODS, METHODS, RESULT, Method, argument
+from supervisor.publish.opcua.nodes import READ, method_node, object_node, variable_node
 from supervisor.publish.opcua.objecttypes import (
     CONDITION_MEMBERS,
     PACKML_STATES,
@@ -62,7 +63,6 @@ ALARM_FIELDS: Final = (
 EVENT_FIELDS: Final = ("Channel", "Kind", "Source", "Actor", "TestId", "Recipe")
 """Properties of BenchEventType: where, what, who (the actor of a command)."""
 
-READ: Final = ua.AccessLevel.CurrentRead.mask
 WRITE: Final = ua.AccessLevel.CurrentWrite.mask
 HISTORY: Final = ua.AccessLevel.HistoryRead.mask
 
@@ -86,41 +86,6 @@ class Built:
     command_event: ua.NodeId = field(default_factory=ua.NodeId)
 
 
-def _variable(
-    nid: ua.NodeId,
-    browse: ua.QualifiedName,
-    parent: ua.NodeId,
-    ref: int,
-    typedef: int,
-    dtype: ua.NodeId,
-    value: ua.Variant,
-    description: str = "",
-    access: int = READ,
-    value_rank: int = ua.ValueRank.Scalar,
-    sampling_ms: float = 0.0,
-    historizing: bool = False,
-) -> ua.AddNodesItem:
-    it = ua.AddNodesItem()
-    it.RequestedNewNodeId = nid
-    it.BrowseName = browse
-    it.NodeClass = ua.NodeClass.Variable
-    it.ParentNodeId = parent
-    it.ReferenceTypeId = ua.NodeId(ref)
-    it.TypeDefinition = ua.NodeId(typedef)
-    a = ua.VariableAttributes()
-    a.DisplayName = ua.LocalizedText(browse.Name)
-    a.Description = ua.LocalizedText(description or browse.Name)
-    a.DataType = dtype
-    a.Value = value
-    a.ValueRank = value_rank
-    a.AccessLevel = access
-    a.UserAccessLevel = access
-    a.MinimumSamplingInterval = sampling_ms
-    a.Historizing = historizing
-    it.NodeAttributes = a
-    return it
-
-
 def _object(
     nid: ua.NodeId,
     browse: ua.QualifiedName,
@@ -130,37 +95,10 @@ def _object(
     notifier: bool = False,
     typedef: ua.NodeId | None = None,
 ) -> ua.AddNodesItem:
-    it = ua.AddNodesItem()
-    it.RequestedNewNodeId = nid
-    it.BrowseName = browse
-    it.NodeClass = ua.NodeClass.Object
-    it.ParentNodeId = parent
-    it.ReferenceTypeId = ua.NodeId(O.Organizes if folder else O.HasComponent)
-    it.TypeDefinition = typedef or ua.NodeId(O.FolderType if folder else O.BaseObjectType)
-    a = ua.ObjectAttributes()
-    a.DisplayName = ua.LocalizedText(browse.Name)
-    a.Description = ua.LocalizedText(description or browse.Name)
-    a.EventNotifier = ua.EventNotifier.SubscribeToEvents.mask if notifier else 0
-    it.NodeAttributes = a
-    return it
-
-
-def _method(
-    nid: ua.NodeId, browse: ua.QualifiedName, parent: ua.NodeId, description: str
-) -> ua.AddNodesItem:
-    it = ua.AddNodesItem()
-    it.RequestedNewNodeId = nid
-    it.BrowseName = browse
-    it.NodeClass = ua.NodeClass.Method
-    it.ParentNodeId = parent
-    it.ReferenceTypeId = ua.NodeId(O.HasComponent)
-    a = ua.MethodAttributes()
-    a.DisplayName = ua.LocalizedText(browse.Name)
-    a.Description = ua.LocalizedText(description)
-    a.Executable = True
-    a.UserExecutable = True
-    it.NodeAttributes = a
-    return it
+    """A folder (organised under its parent) or a component object."""
+    ref = O.Organizes if folder else O.HasComponent
+    default = O.FolderType if folder else O.BaseObjectType
+    return object_node(nid, browse, parent, ref, typedef or default, description, notifier)
 
 
 def default_variant(kind: str) -> ua.Variant:
@@ -235,7 +173,7 @@ def _state_machine_items(
     built.tags[name.tag] = (current, "statename")
     built.tags[number.tag] = (number_id, "state")
     built.state_machines[number_id] = StateMachineNodes(current, state_id, built.types_ns)
-    yield _variable(
+    yield variable_node(
         current,
         ua.QualifiedName("CurrentState", 0),
         nid,
@@ -246,7 +184,7 @@ def _state_machine_items(
         "The test's state: its PackML name (ISA-88)",
         sampling_ms=sampling_ms,
     )
-    yield _variable(
+    yield variable_node(
         state_id,
         ua.QualifiedName("Id", 0),
         current,
@@ -256,7 +194,7 @@ def _state_machine_items(
         ua.Variant(state_node(2, built.types_ns), VT.NodeId),
         "The current state's object in ChannelStateMachineType",
     )
-    yield _variable(
+    yield variable_node(
         number_id,
         ua.QualifiedName("Number", 0),
         current,
@@ -296,7 +234,7 @@ def _tag_items(
     browse = ua.QualifiedName(v.browse, browse_ns or idx)
     built.tags[v.tag] = (nid, v.kind)
     if v.kind != "analog":
-        yield _variable(
+        yield variable_node(
             nid,
             browse,
             parent,
@@ -312,7 +250,7 @@ def _tag_items(
         return
     # Part 8: an AnalogItemType has a mandatory EURange; without a configured range the tag
     # is a BaseAnalogType (EURange optional) rather than one with a made-up range.
-    yield _variable(
+    yield variable_node(
         nid,
         browse,
         parent,
@@ -333,7 +271,7 @@ def _analog_properties(v: Variable, nid: ua.NodeId, idx: int) -> Iterable[ua.Add
     a unit), properties of its variable ``nid``."""
     if v.range is not None:
         low, high = v.range
-        yield _variable(
+        yield variable_node(
             ua.NodeId(f"{v.tag}.EURange", idx),
             ua.QualifiedName("EURange", 0),
             nid,
@@ -344,7 +282,7 @@ def _analog_properties(v: Variable, nid: ua.NodeId, idx: int) -> Iterable[ua.Add
             "Range of the value in normal operation",
         )
     if v.unit:
-        yield _variable(
+        yield variable_node(
             ua.NodeId(f"{v.tag}.EngineeringUnits", idx),
             ua.QualifiedName("EngineeringUnits", 0),
             nid,
@@ -419,7 +357,7 @@ def _alarm_items(f: Folder, nid: ua.NodeId, idx: int, built: Built) -> Iterable[
         above = member.path.rpartition("/")[0]  # a state's Id is its property
         owner = ua.NodeId(f"{f.node}/{above}", idx) if above else nid
         built.alarm_fields[(f.alarm, member.path)] = cid
-        yield _variable(
+        yield variable_node(
             cid,
             ua.QualifiedName(member.browse, 0),
             owner,
@@ -432,7 +370,7 @@ def _alarm_items(f: Folder, nid: ua.NodeId, idx: int, built: Built) -> Iterable[
     for name, vt, description in ALARM_FIELDS:
         fid = ua.NodeId(f"{f.node}/{name}", idx)
         built.alarm_fields[(f.alarm, name)] = fid
-        yield _variable(
+        yield variable_node(
             fid,
             ua.QualifiedName(name, idx),
             nid,
@@ -453,11 +391,11 @@ def _method_items(
     for m in own:
         mid = ua.NodeId(f"{f.node}/{m.name}", idx)
         built.methods[mid] = (f.channel, m)
-        yield _method(mid, ua.QualifiedName(m.name, ns_of(m.name)), nid, m.description)
+        yield method_node(mid, ua.QualifiedName(m.name, ns_of(m.name)), nid, m.description)
         for prop, args in (("InputArguments", m.args), ("OutputArguments", (RESULT,))):
             if not args:
                 continue
-            yield _variable(
+            yield variable_node(
                 ua.NodeId(f"{f.node}/{m.name}/{prop}", idx),
                 ua.QualifiedName(prop, 0),
                 mid,
