@@ -39,7 +39,7 @@ import csv
 import json
 import logging
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -346,7 +346,7 @@ class TestsApi:
         )
 
     # --- tests compared (issue 33 finding 10) -------------------------------------------
-    def _curves(self, test_id: str, asked: list[int] | None) -> tuple[int, dict[str, Any]]:
+    def _curves(self, test_id: str, asked: Sequence[int] | None) -> tuple[int, dict[str, Any]]:
         folder = self.root / test_id
         if not folder.is_dir():
             return 404, {"error": "not found", "reason": f"no test {test_id!r}"}
@@ -381,7 +381,7 @@ class TestsApi:
         status, body = await asyncio.to_thread(self._curves, test_id, asked)
         return _json(body, status)
 
-    def _fade(self, cell: str) -> list[dict[str, Any]]:
+    def _fade(self, cell: str) -> Sequence[dict[str, Any]]:
         tests = [t for t in self._listing({}) if t["metadata"].get("cell_id") == cell]
         tests.sort(key=lambda t: (t["started"] or 0.0, t["id"]))  # oldest first
         out, offset = [], 0
@@ -443,7 +443,7 @@ def parse_cycles(text: str) -> list[int]:
 # --- tests compared (issue 33 finding 10) -------------------------------------------------
 def _bdf_of(folder: Path) -> Path | None:
     """The test's BDF file, never one out of the results directory (a link)."""
-    name = next((f["name"] for f in _files(folder) if f["kind"] == "bdf"), None)
+    name = next((str(f["name"]) for f in _files(folder) if f["kind"] == "bdf"), None)
     if name is None:
         return None
     path = folder / name

@@ -100,6 +100,7 @@ def axis_labels(page: Any, selector: str) -> list[str]:
     """The x and y axes' labels (uPlot draws them on its canvas: the chart notes them)."""
     return json.loads(page.get_attribute(selector, "data-axes") or "[]")
 
+
 def test_one_cycle_of_the_tests_ticked_is_overlaid_with_a_legend_and_units(
     page: Any, bench: Supervisor
 ) -> None:
