@@ -23,6 +23,7 @@ import csv
 import logging
 from collections.abc import Collection, Iterator, Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, Final
 
@@ -90,15 +91,24 @@ def _float(cell: str) -> float | None:
     return x if x == x and abs(x) != float("inf") else None  # no NaN, no infinity
 
 
-def direction(step_type: str, current_a: float | None) -> str | None:
-    """Which half a row belongs to: the step's type when it says, else the current's sign
-    (a pulse or a custom step), None for a rest."""
+@lru_cache(maxsize=256)
+def _step_half(step_type: str) -> str | None:
+    """The half a step's type names ("" for a rest, None when it names none)."""
     kind = step_type.upper()
     if "DCH" in kind or "DISCHARGE" in kind:
         return "discharge"
     if "CHG" in kind or "CHARGE" in kind:
         return "charge"
-    if "REST" in kind or current_a is None or abs(current_a) <= CURRENT_DEADBAND_A:
+    return "" if "REST" in kind else None
+
+
+def direction(step_type: str, current_a: float | None) -> str | None:
+    """Which half a row belongs to: the step's type when it says, else the current's sign
+    (a pulse or a custom step), None for a rest."""
+    named = _step_half(step_type)
+    if named is not None:
+        return named or None
+    if current_a is None or abs(current_a) <= CURRENT_DEADBAND_A:
         return None
     return "charge" if current_a > 0 else "discharge"
 
@@ -135,36 +145,34 @@ class _Reader:
         self.cycle_ah = {k: col.get(name) for k, name in _CYCLE_AH.items()}
         self.halves: list[HalfCurve] = []
         self._current: HalfCurve | None = None
-        self._last: dict[str, float] = {}  # the cycle's recorded Ah at its latest row
+        self._before: list[str] | None = None  # the cycle's row before this one
         self._base = 0.0  # the half's recorded Ah before it began
         self._prev: tuple[float, float] | None = None  # (t, current) of the half's last row
         self._row_cycle: int | None = None
 
-    def _recorded_ah(self, row: list[str], half: str) -> float | None:
+    def _recorded_ah(self, row: list[str] | None, half: str) -> float | None:
         k = self.cycle_ah[half]
-        return None if k is None or k >= len(row) else _float(row[k])
+        return None if row is None or k is None or k >= len(row) else _float(row[k])
 
     def row(self, row: list[str], cycle: int) -> None:
         if cycle != self._row_cycle:
-            self._row_cycle, self._current, self._last = cycle, None, {}
+            self._row_cycle, self._current, self._before = cycle, None, None
         i = _float(row[self.i])
         kind = direction(row[self.step_type] if self.step_type is not None else "", i)
-        recorded = {h: self._recorded_ah(row, h) for h in _CYCLE_AH}
         if kind is not None:
-            self._add(row, cycle, kind, i, recorded[kind])
-        self._last = {h: x for h, x in recorded.items() if x is not None}
+            self._add(row, cycle, kind, i)
+        self._before = row
 
-    def _add(
-        self, row: list[str], cycle: int, kind: str, i: float | None, ah: float | None
-    ) -> None:
+    def _add(self, row: list[str], cycle: int, kind: str, i: float | None) -> None:
         t, v = _float(row[self.t]), _float(row[self.v])
         cur = self._current
         if cur is None or cur.half != kind:
             index = 1 + sum(1 for h in self.halves if h.cycle == cycle and h.half == kind)
             cur = self._current = HalfCurve(cycle, kind, index)
             self.halves.append(cur)
-            self._base = self._last.get(kind, 0.0)
+            self._base = self._recorded_ah(self._before, kind) or 0.0
             self._prev = None
+        ah = self._recorded_ah(row, kind)
         if ah is not None:
             x = ah - self._base
         else:  # no recorded capacity: the current's integral, the half's own way
