@@ -156,3 +156,23 @@ def test_the_fade_of_the_cell_found_in_the_list(page: Any, bench: Supervisor) ->
     assert xs == [[1, 2, 3], [4, 5, 6]]
     caps = [a for t in body["tests"] for a in t["discharge_ah"]]
     assert caps == sorted(caps, reverse=True) and len(set(caps)) == len(caps)
+
+
+def test_the_comparison_fits_an_800_px_tablet(page: Any, bench: Supervisor) -> None:
+    page.set_viewport_size({"width": 800, "height": 1180})
+    login(page, bench, "viewer", "#/tests")
+    page.wait_for_selector("#test-table")
+    for test_id in TESTS:
+        page.check(f".compare-pick[value='{test_id}']")
+    page.click("#compare-go")
+    assert len(drawn(page, "#compare-curves")) == 2 * len(TESTS)  # cycle 1 by default
+    screenshot(page, "tests-compare-tablet")
+    width = page.evaluate(
+        "() => document.documentElement.scrollWidth - document.documentElement.clientWidth"
+    )
+    wide = page.eval_on_selector_all(
+        "#main *",
+        "els => els.filter(e => e.getBoundingClientRect().right > 801).slice(0, 8)"
+        ".map(e => `${e.tagName}#${e.id}.${e.className}`)",
+    )
+    assert width == 0, f"the page is {width} px wider than the tablet: {wide}"

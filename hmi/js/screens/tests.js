@@ -134,7 +134,7 @@ export async function render({ root, app, params }) {
     } else {
       const rows = answer.data.tests || [];
       listEl.innerHTML = form + (rows.length
-        ? `<table class="grid" id="test-table"><thead><tr><th>compare</th><th>test</th><th>channel</th><th>cell</th><th>recipe</th><th>state</th><th>started</th><th>ended</th><th>end</th><th>files</th></tr></thead><tbody>
+        ? `<table class="grid" id="test-table"><thead><tr><th>compare</th><th>test</th><th>channel</th><th>cell</th><th>recipe</th><th>state</th><th>started</th><th>ended</th><th>end</th><th class="files">files</th></tr></thead><tbody>
         ${rows
           .map(
             (t) => `<tr class="${t.state === "running" ? "running" : ""}${t.id === id ? " selected" : ""}">
@@ -142,7 +142,7 @@ export async function render({ root, app, params }) {
             <td><a href="#/tests/${encodeURIComponent(t.id)}">${esc(t.id)}</a></td><td>${esc(t.channel)}</td><td>${esc(t.metadata?.cell_id || "")}</td><td>${esc(t.recipe)}</td>
             <td>${esc(t.state)}</td><td>${esc(typeof t.started === "number" ? fmtTime(t.started) : t.started || "")}</td>
             <td>${esc(typeof t.ended === "number" ? fmtTime(t.ended) : t.ended || "")}</td><td>${esc(t.end_reason || "")}</td>
-            <td>${(t.files || []).map((f) => `<a href="${fileUrl(t.id, f.name)}" download="${esc(f.name)}" class="dl">${esc(f.name)}</a>`).join(" ")}</td></tr>`,
+            <td class="files">${(t.files || []).map((f) => `<a href="${fileUrl(t.id, f.name)}" download="${esc(f.name)}" class="dl">${esc(f.name)}</a>`).join(" ")}</td></tr>`,
           )
           .join("")}</tbody></table>
         <form id="compare-form" class="load"><label for="compare-cycle">Cycle</label>
