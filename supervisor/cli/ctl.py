@@ -114,20 +114,8 @@ def _err(msg: str) -> None:
     sys.stderr.flush()
 
 
-def add_parser(sub: Any) -> None:
-    """Register ``supervisor ctl`` on the main parser's subcommands."""
-    p = sub.add_parser(
-        "ctl",
-        help="command a running supervisor over OPC UA (status, start, hold, …)",
-        description="A command-line OPC UA client of a running supervisor.",
-        epilog="exit codes: 0 done; 1 the server cannot be reached, or it does not trust this"
-        " client's certificate (copy it into the server's pki/trusted); 2 a usage error, a"
-        " security mode the server does not offer, a login or a command the server refused"
-        f" (its reason is printed). The password: --password-stdin (its first line),"
-        f" ${PASSWORD_ENV} or --password (seen by anyone who lists processes: avoid it; asked"
-        " for when none is given and --user is). The client certificate: --cert/--key, or"
-        f" made on first use in {default_pki_hint()} (`supervisor ctl cert` prints it).",
-    )
+def _add_session_options(p: argparse.ArgumentParser) -> None:
+    """The server, the login and the message security of ctl's OPC UA session."""
     p.add_argument("--url", default=DEFAULT_URL, help=f"the server (default {DEFAULT_URL})")
     p.add_argument("--user", default=None, help="log in as this user (default: anonymous)")
     given = p.add_mutually_exclusive_group()
@@ -146,6 +134,23 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument("--cert", type=Path, default=None, help="this client's certificate (DER/PEM)")
     p.add_argument("--key", type=Path, default=None, help="its private key (PEM)")
+
+
+def add_parser(sub: Any) -> None:
+    """Register ``supervisor ctl`` on the main parser's subcommands."""
+    p = sub.add_parser(
+        "ctl",
+        help="command a running supervisor over OPC UA (status, start, hold, …)",
+        description="A command-line OPC UA client of a running supervisor.",
+        epilog="exit codes: 0 done; 1 the server cannot be reached, or it does not trust this"
+        " client's certificate (copy it into the server's pki/trusted); 2 a usage error, a"
+        " security mode the server does not offer, a login or a command the server refused"
+        f" (its reason is printed). The password: --password-stdin (its first line),"
+        f" ${PASSWORD_ENV} or --password (seen by anyone who lists processes: avoid it; asked"
+        " for when none is given and --user is). The client certificate: --cert/--key, or"
+        f" made on first use in {default_pki_hint()} (`supervisor ctl cert` prints it).",
+    )
+    _add_session_options(p)
     what = p.add_subparsers(dest="what", required=True)
     what.add_parser(
         "status",
