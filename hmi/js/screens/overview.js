@@ -130,7 +130,7 @@ function paintEstopTrip(root, live) {
   const el = $("#estop-trip", root);
   if (!el) return;
   const a = live.alarms.find((x) => x.id === "estop" && x.state !== "normal");
-  el.textContent = a ? `${a.state}: ${a.message.replace(/^e-stop: /, "")}` : "none";
+  el.textContent = a ? `${a.state}: ${a.message}` : "none";
   el.classList.toggle("abn", Boolean(a));
 }
 
