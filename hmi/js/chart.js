@@ -26,9 +26,11 @@ export function autoResize(chart, el, height) {
  * example): a fixed 60 px let step names ("charge_cc_cv") run under the axis label
  * ("step"). The label's own band (labelSize) lies outside this size.
  */
-export function fitAxisSize(u, values, axisIdx, cycleNum) {
+export function fitAxisSize(u, values, axisIdx) {
   const axis = u.axes[axisIdx];
-  if (cycleNum > 1) return axis._size; // settled: uPlot asks again until sizes converge
+  // uPlot asks again (cycleNum 1, 2, …) until the sizes settle; before its first values
+  // (null), the size it had.
+  if (values === null || values === undefined) return axis._size ?? 40;
   let size = (axis.ticks?.size ?? 10) + (axis.gap ?? 5);
   const longest = (values ?? []).reduce((acc, v) => (String(v ?? "").length > acc.length ? String(v) : acc), "");
   if (longest) {
