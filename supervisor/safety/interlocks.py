@@ -284,17 +284,28 @@ class TagAlarms:
             if not tag.good:
                 continue  # its quality says it already; no limit applies to an unknown value
             x = tag.as_float()
-            unit = tag.spec.unit
             for lv in levels:
                 back = lv.alarm.active
                 db = lim.deadband if back else 0.0
                 hit = x >= lv.limit - db if lv.high else x <= lv.limit + db
-                op = ">=" if lv.high else "<="
-                why = f"{tag.name} {x:g} {unit} {op} {lv.key} {lv.limit:g} {unit}"
+                # The text only when the limit is crossed: an inactive alarm's is not read.
+                why = _level_text(tag, x, lv) if hit else ""
                 self.alarms.set(lv.alarm, lv.delay.update(hit, now), why)
 
     def fail_safe(self, why: str) -> None:
         return None  # plain alarms: nothing to make safe
+
+
+def _level_text(tag: Tag, x: float, lv: _Level) -> AlarmText:
+    """A crossed HH/H/L/LL limit in words: "pack temperature high (H): 51 °C, limit 50 °C"."""
+    unit = UNIT_WORDS.get(tag.spec.unit, tag.spec.unit)
+    side = "high" if lv.high else "low"
+    return AlarmText(
+        f"{signal_name(tag)} {side} ({lv.key}): {x:g} {unit}, limit {lv.limit:g} {unit}",
+        f"level.{lv.key}",
+        {"signal": signal_name(tag), "value": x, "limit": lv.limit, "unit": unit},
+        f"{tag.name} {x:g} {tag.spec.unit} {'>=' if lv.high else '<='} {lv.limit:g}",
+    )
 
 
 class Heartbeat:
