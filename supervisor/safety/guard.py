@@ -534,13 +534,13 @@ class ChannelGuard:
                 return ""
             if tag.good:
                 return AlarmText(
-                    f"Not permitted: {signal_name(tag)} is off",
+                    f"Permissive lost: {signal_name(tag)}",
                     "guard.permissive_off",
                     {"signal": signal_name(tag)},
                     f"permissive {tag.name} is false",
                 )
             return AlarmText(
-                f"Not permitted: {signal_name(tag)} unknown ({tag.quality.name.lower()}:"
+                f"Permissive unknown: {signal_name(tag)} ({tag.quality.name.lower()}:"
                 f" {tag.reason})",
                 "guard.permissive_unknown",
                 {"signal": signal_name(tag), "quality": tag.quality.name, "reason": tag.reason},

@@ -186,7 +186,7 @@ def test_a_reset_is_refused_while_the_permissive_is_still_false() -> None:
     r.scan(1)
     r.set("door.closed", False)
     r.scan(1)
-    assert "Not permitted: door.closed is off" in str(r.ch.fault.value)
+    assert "Permissive lost: door.closed" in str(r.ch.fault.value)
     with pytest.raises(OperatorError, match="cause is still present"):
         r.guard.reset("operator")
     r.db.write("ch0.ack", True)  # the tag way: acknowledged, not reset
