@@ -144,7 +144,8 @@ def test_after_a_dry_run_its_outcome_stays_and_the_preview_is_in_view(
     page.wait_for_selector("#recipe-text")
     page.fill("#recipe-text", SHORT_RECIPE.read_text(encoding="utf-8"))
     page.click("#recipe-dryrun")
-    page.wait_for_selector("#preview:not([hidden]) #dry-timeline .uplot")
+    # A dry run takes seconds on a loaded machine (five helpers, two cores).
+    page.wait_for_selector("#preview:not([hidden]) #dry-timeline .uplot", timeout=60_000)
     page.wait_for_function(
         "() => document.querySelector('#recipe-result').textContent.startsWith('Dry run done')"
     )
@@ -186,3 +187,35 @@ def test_the_step_axis_is_wide_enough_for_its_step_names(as_operator: Any) -> No
         }"""
     )
     assert room["size"] >= room["needed"], room
+
+
+def test_an_alarm_says_what_happened_in_words_with_the_tag_as_its_detail(
+    as_operator: Any, bench: Supervisor
+) -> None:
+    page = as_operator
+    page.goto(f"{bench.base}/#/alarms")
+    page.wait_for_selector("#alarm-active")
+    status, body = bench.call("PUT", "/api/sim/estop", {"pressed": True})
+    assert status == 200, body
+    try:
+        row = page.locator("#alarm-table tr[data-alarm='estop']")
+        row.wait_for()
+        text = row.text_content() or ""
+        assert "Emergency stop pressed (e-stop circuit open)" in text, text
+        assert "(estop.ok is false)" in text  # the tag behind it, for the engineer
+        status, alarms = bench.call("GET", "/api/alarms")
+        (estop,) = [a for a in alarms["active"] if a["id"] == "estop"]
+        assert (estop["code"], estop["detail"]) == ("estop.pressed", "estop.ok is false")
+        screenshot(page, "details-alarm-text")
+    finally:
+        # The bench as it was: released, acknowledged, reset, and each channel reset.
+        bench.call("PUT", "/api/sim/estop", {"pressed": False})
+        wait_for("the e-stop circuit closed", lambda: bench.tag("estop.ok") is True)
+        bench.call("POST", "/api/alarms/estop/acknowledge")
+        bench.call("POST", "/api/alarms/estop/reset")
+        for ch in ("ch0", "ch1", "ch2", "ch3", "ch4"):
+            bench.call("PUT", f"/api/tags/{ch}.ack", {"value": True})
+        wait_for(
+            "every channel reset",
+            lambda: all(not bench.tag(f"ch{k}.fault") for k in range(5)),
+        )
