@@ -20,7 +20,7 @@ import * as diagnostics from "./screens/diagnostics.js";
 const ROUTES = [
   [/^\/login$/, login, "login"],
   [/^\/?$/, overview, "overview"],
-  [/^\/channel\/([^/]+)$/, channel, "overview"],
+  [/^\/channel\/([^/]+)$/, channel, "channel"],
   [/^\/alarms$/, alarms, "alarms"],
   [/^\/recipes(?:\/(.+))?$/, recipes, "recipes"],
   [/^\/tests(?:\/(.+))?$/, tests, "tests"],
@@ -137,6 +137,18 @@ function paintHeader() {
     if (a.dataset.nav === current) a.setAttribute("aria-current", "page");
     else a.removeAttribute("aria-current");
   }
+  paintChannelNav(current === "channel" ? decodeURIComponent(path.split("/")[2] || "") : "");
+}
+
+/** On a channel's screen the nav names that channel, highlighted (not Overview, which it
+ * is not); elsewhere the entry is hidden. */
+function paintChannelNav(name) {
+  const a = $("#nav-channel");
+  if (!a) return;
+  a.hidden = !name;
+  if (!name) return;
+  a.textContent = `Channel ${name}`;
+  a.href = `#/channel/${encodeURIComponent(name)}`;
 }
 
 function paintLink() {

@@ -21,6 +21,25 @@ export function autoResize(chart, el, height) {
   return () => ro.disconnect();
 }
 
+/**
+ * An axis as wide as its widest tick label (uPlot's `size` hook, after its axis-autosize
+ * example): a fixed 60 px let step names ("charge_cc_cv") run under the axis label
+ * ("step"). The label's own band (labelSize) lies outside this size.
+ */
+export function fitAxisSize(u, values, axisIdx) {
+  const axis = u.axes[axisIdx];
+  // uPlot asks again (cycleNum 1, 2, …) until the sizes settle; before its first values
+  // (null), the size it had.
+  if (values === null || values === undefined) return axis._size ?? 40;
+  let size = (axis.ticks?.size ?? 10) + (axis.gap ?? 5);
+  const longest = (values ?? []).reduce((acc, v) => (String(v ?? "").length > acc.length ? String(v) : acc), "");
+  if (longest) {
+    u.ctx.font = axis.font[0];
+    size += u.ctx.measureText(longest).width / (window.devicePixelRatio || 1);
+  }
+  return Math.max(40, Math.ceil(size) + 4);
+}
+
 /** Tick labels with enough digits for small values (mAh-sized Ah, efficiencies). */
 const ticks = (u, vals) => vals.map((v) => (v === null ? "" : Math.abs(v) >= 100 ? v.toFixed(0) : +v.toPrecision(3)));
 
@@ -51,7 +70,7 @@ export function simplePlot(el, { title, xLabel, yLabel, series, x, ys, height = 
       whole
         ? { label: xLabel, incrs: [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000], values: (u, vals) => vals.map((v) => (Number.isInteger(v) ? v : "")) }
         : { label: xLabel, values: ticks },
-      { label: yLabel ?? series.map((s) => s.label).join(" / "), values: yValues ?? ticks, size: 60 },
+      { label: yLabel ?? series.map((s) => s.label).join(" / "), values: yValues ?? ticks, size: fitAxisSize },
     ],
     series: [
       { label: xLabel },

@@ -102,6 +102,11 @@ def alarm_json(alarm: Alarm, clock: Clock) -> dict[str, Any]:
         "severity": int(alarm.severity),
         "severity_name": alarm.severity.name.lower(),
         "message": alarm.message,
+        # For a screen in another language: the message's kind and figures, and the tags
+        # behind it (issue 33, finding 6; supervisor/safety/alarms.py AlarmText).
+        "code": alarm.code,
+        "params": alarm.params,
+        "detail": alarm.detail,
         "latched": alarm.latched,
         "tripped": alarm.tripped,
         "first_out": alarm.first_out,

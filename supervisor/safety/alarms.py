@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum, StrEnum
 
@@ -64,6 +64,35 @@ class Transition(StrEnum):
     UNSHELVED = "unshelved"
 
 
+class AlarmText(str):
+    """An alarm's message as an operator reads it ("Emergency stop pressed (e-stop circuit
+    open)"), carrying what a screen needs to say it in another language — ``code``, the
+    kind of message, stable across releases ("estop.pressed"), and ``params``, the figures
+    and names in it — and ``detail``, the tags behind it ("estop.ok is false") for the
+    engineer. A plain ``str`` everywhere else (logs, events, result files, OPC UA)."""
+
+    code: str
+    params: dict[str, object]
+    detail: str
+
+    def __new__(
+        cls, text: str, code: str, params: Mapping[str, object] | None = None, detail: str = ""
+    ) -> AlarmText:
+        self = super().__new__(cls, text)
+        self.code = code
+        self.params = dict(params or {})
+        self.detail = detail
+        return self
+
+
+def signal_name(tag: object) -> str:
+    """A signal as an operator knows it: its description from the I/O map when it has
+    one ("e-stop circuit closed"), else its tag name."""
+    spec = getattr(tag, "spec", None)
+    described = getattr(spec, "description", "") if spec is not None else ""
+    return str(described or getattr(tag, "name", tag))
+
+
 @dataclass
 class Alarm:
     """One alarm's declaration and state: a plain record, changed only through its
@@ -75,6 +104,9 @@ class Alarm:
     latched: bool  # a trip: holds its group until acknowledged and reset
     affects: tuple[str, ...] | None = None  # a bench-wide trip's channels (None: all)
     message: str = ""
+    code: str = ""  # the kind of its message (AlarmText.code); "" for a plain text
+    params: dict[str, object] = field(default_factory=dict)  # the message's figures, names
+    detail: str = ""  # the tags behind the message, for the engineer
     action: str = "hold"  # what a trip does to its channels: "hold" or "abort"
     active: bool = False  # the condition is present now
     acked: bool = True
@@ -171,7 +203,10 @@ class AlarmManager:
         if active and message and message != alarm.message:
             # Not written again when the same: an alarm that stays active with the same
             # message (an interlock held) does not count as a change every scan.
-            alarm.message = message
+            alarm.message = str(message)  # a plain str for the events, logs and files
+            alarm.code = getattr(message, "code", "")
+            alarm.params = getattr(message, "params", {})
+            alarm.detail = getattr(message, "detail", "")
             self.writes += 1
         if active == alarm.active:
             return

@@ -39,7 +39,7 @@ function activeRow(a) {
     <td>${a.first_out ? '<b class="first-out">FIRST OUT</b> ' : ""}<span class="alarm-id">${idHtml(a.id)}</span>
       <div class="muted">${esc(a.group || "bench")}</div></td>
     <td class="alarm-state">${esc(a.state)}${shelved}<div class="muted">since ${esc(fmtTime(a.activated_time))}</div>${acked}</td>
-    <td class="wrap">${esc(a.message)}</td>
+    <td class="wrap">${esc(a.message)}${a.detail ? ` <small class="muted">(${esc(a.detail)})</small>` : ""}</td>
     <td class="actions"><div class="alarm-actions">
       <button type="button" class="small" data-act="acknowledge">Acknowledge</button>
       <button type="button" class="small" data-act="reset">Reset</button>

@@ -35,6 +35,13 @@ export async function render({ root, app, params }) {
         </div>
         <p id="recipe-result" class="result" role="status" aria-live="polite" hidden></p>
       </section>
+      <section class="panel preview" aria-label="Dry run preview" id="preview" hidden>
+        <h2>Dry run</h2>
+        <p id="dry-summary"></p>
+        <div id="dry-timeline" class="plot"></div>
+        <div id="dry-cycles" class="plot"></div>
+        <div id="dry-trace" class="plot"></div>
+      </section>
       <section class="panel preview" aria-label="Load profile" id="profile-panel">
         <h2>Load profile</h2>
         <div class="editor-bar">
@@ -54,13 +61,6 @@ export async function render({ root, app, params }) {
         </div>
         <p id="profile-result" class="result" role="status" aria-live="polite" hidden></p>
         <div id="profile-dry" class="plot"></div>
-      </section>
-      <section class="panel preview" aria-label="Dry run preview" id="preview" hidden>
-        <h2>Dry run</h2>
-        <p id="dry-summary"></p>
-        <div id="dry-timeline" class="plot"></div>
-        <div id="dry-cycles" class="plot"></div>
-        <div id="dry-trace" class="plot"></div>
       </section>
     </div>`;
   const text = $("#recipe-text", root);
@@ -156,9 +156,14 @@ export async function render({ root, app, params }) {
     }
     showErrors([]);
     const d = answer.data;
-    out.hidden = true;
-    $("#preview", root).hidden = false;
-    $("#dry-summary", root).textContent = `predicted duration ${fmtDuration(d.duration_s)}, end: ${d.end_reason || "—"}, ${(d.cycles || []).length} cycle(s)`;
+    const summary = `predicted duration ${fmtDuration(d.duration_s)}, end: ${d.end_reason || "—"}, ${(d.cycles || []).length} cycle(s)`;
+    // The status line stays (it said "dry run…": it now says how it went), and the
+    // preview, right under the editor, is brought into view (issue 33, finding 6: it
+    // vanished and the result sat below the fold).
+    showResult(out, { ok: true, data: { reason: `Dry run done: ${summary} (preview below)` } });
+    const preview = $("#preview", root);
+    preview.hidden = false;
+    $("#dry-summary", root).textContent = summary;
     while (plots.length) {
       const pl = plots.pop();
       pl.stop();
@@ -196,6 +201,7 @@ export async function render({ root, app, params }) {
         }),
       );
     }
+    out.scrollIntoView({ block: "start" });
   };
 
   const save = async () => {
@@ -380,6 +386,7 @@ function profilePanel(root, app) {
         }),
       );
     }
+    out.scrollIntoView({ block: "start" });
   };
 
   const load = async () => {
