@@ -11,7 +11,7 @@ accepted or refused), ``login``, ``login.failed``, ``login.refused``, ``logout``
 ``recipe.save``, ``io_map.load``, ``calibration.write``, ``user.add``, ``user.remove``.
 """
 
-from supervisor.audit.chain import GENESIS, Broken, Entry, canonical_json, utc_text
+from supervisor.audit.chain import GENESIS, Broken, Entry, canonical_json, utc_of_iso, utc_text
 from supervisor.audit.changes import sha256_text, text_change
 from supervisor.audit.store import (
     AUDIT_NAME,
@@ -55,6 +55,7 @@ __all__ = [
     "read_entries",
     "sha256_text",
     "text_change",
+    "utc_of_iso",
     "utc_text",
     "verify_file",
 ]

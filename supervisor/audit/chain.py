@@ -181,3 +181,19 @@ class ChainCheck:
     def unreadable(self, why: str) -> None:
         """The file could not be read past the last entry fed."""
         self.broken = Broken(self.last_seq + 1, "", f"unreadable (damaged file: {why})")
+
+
+def utc_of_iso(text: str) -> str:
+    """An ISO 8601 time (``2026-12-05``, ``2026-12-05T20:15``, ``…Z``, ``…+01:00``) as
+    ``utc_text``, for comparing with the entries' times; a time without a zone is UTC (the
+    log's own). ``ValueError`` naming what is wrong."""
+    from datetime import UTC, datetime
+
+    given = text.strip()
+    try:
+        parsed = datetime.fromisoformat(given[:-1] + "+00:00" if given.endswith("Z") else given)
+    except ValueError:
+        raise ValueError(f"{text!r} is not an ISO 8601 time (e.g. 2026-12-05T20:15:00Z)") from None
+    if parsed.tzinfo is None:
+        parsed = parsed.replace(tzinfo=UTC)
+    return utc_text(parsed.timestamp())
