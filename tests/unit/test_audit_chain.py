@@ -81,7 +81,7 @@ def test_a_details_value_changed_with_sqlite_is_named_by_verify(tmp_path: Path) 
     path = tmp_path / AUDIT_NAME
     _log(path, 5)
     with _writable(path) as conn:
-        conn.execute("UPDATE entries SET details = '{\"marker\":\"MARK9999\"}' WHERE seq = 3")
+        conn.execute('UPDATE entries SET details = \'{"marker":"MARK9999"}\' WHERE seq = 3')
     v = verify_file(path)
     assert not v.ok
     assert v.broken is not None and v.broken.seq == 3
@@ -131,9 +131,7 @@ def test_an_entry_rewritten_with_its_hash_breaks_the_next_ones_link(tmp_path: Pa
     e = read_entries(path)[1]
     forged = entry_hash(e.seq, e.time, "hmi:mallory", e.kind, e.target, e.details, e.prev_hash)
     with _writable(path) as conn:
-        conn.execute(
-            "UPDATE entries SET actor = 'hmi:mallory', hash = ? WHERE seq = 2", (forged,)
-        )
+        conn.execute("UPDATE entries SET actor = 'hmi:mallory', hash = ? WHERE seq = 2", (forged,))
     v = verify_file(path)
     assert v.broken is not None and v.broken.seq == 3
     assert v.broken.problem.startswith("previous hash mismatch")
