@@ -111,7 +111,8 @@ class Bench:
     commands: CommandPath = field(init=False)
     """The one path of operator commands (HTTP, command line, the ``chN.command`` tags)."""
     audit: AuditLog | None = field(init=False, default=None)
-    """Who did what (``app/audit.py``: opened by ``supervisor run``; closed at shutdown)."""
+    """Who did what (``app/audit.py``): opened and closed by ``supervisor run``
+    (``build_supervisor``, ``Supervisor.release``)."""
     logins: LoginThrottle | None = field(init=False, default=None)
     """Failed-login counts shared by HTTP and OPC UA (``app/logins.py``: made by the first
     server that checks passwords)."""
@@ -494,9 +495,6 @@ class Bench:
         if self.influx is not None:
             # Spools what is queued, sends for at most influxdb.stop_flush_s, keeps the rest.
             await asyncio.to_thread(self.influx.close)
-        if self.audit is not None:
-            await asyncio.to_thread(self.audit.close)  # the last entries written
-            self.audit = None
         if self.sim is not None:
             await self.sim.stop()
         self._started = False

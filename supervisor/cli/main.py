@@ -823,12 +823,14 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
 
-def _add_results_parser(sub: Any) -> None:
-    """Register ``supervisor results verify DIR…``."""
+def _add_record_parsers(sub: Any) -> None:
+    """Register what checks the records: ``supervisor results verify DIR…`` and
+    ``supervisor audit verify|export`` (cli/audit.py)."""
     rs = sub.add_parser("results", help="result folders: verify DIR (complete and unmodified)")
     rs.add_argument("action", choices=["verify"])
     rs.add_argument("folders", nargs="+", metavar="DIR", help="a test's result folder")
     rs.set_defaults(func=cmd_results)
+    audit.add_parser(sub, DEFAULT_IO_MAP)
 
 
 def _add_opcua_parser(sub: Any) -> None:
@@ -981,10 +983,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     _add_opcua_parser(sub)
 
-    _add_results_parser(sub)
+    _add_record_parsers(sub)
     ctl.add_parser(sub)
     modbus.add_parser(sub)
-    audit.add_parser(sub, DEFAULT_IO_MAP)
 
     bench_args.add_parser(sub).set_defaults(func=cmd_bench)
     return p

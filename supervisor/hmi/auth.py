@@ -382,9 +382,7 @@ class HmiAccess:
             resp.headers["Retry-After"] = str(retry_after_s)
             return resp
         if user is None:
-            self.throttle.failed(name, address)
-            log.warning("hmi: failed login for %r from %s", name[:64], address)
-            self._audit(name[:64], "login.failed", {"address": address})
+            self._failed(name, address)
             return _answer({"error": "login failed", "reason": WRONG_CREDENTIALS}, 401)
         self.throttle.succeeded(name, address)
         try:
@@ -392,8 +390,7 @@ class HmiAccess:
         except SessionsFull as exc:
             log.warning("hmi: login of %s refused: %s", user.name, exc)
             return _answer({"error": "too many sessions", "reason": str(exc)}, 503)
-        log.info("hmi: %s logged in (%s) from %s", user.name, user.role, request.remote)
-        self._audit(user.name, "login", {"role": user.role, "address": address})
+        self._logged_in(user, address)
         p = Principal(user.name, user.role, ACTOR_PREFIX + user.name, session)
         resp = _answer(self._session_json(p), 200)
         resp.set_cookie(COOKIE, session.token, httponly=True, samesite="Strict", path="/")
@@ -407,6 +404,15 @@ class HmiAccess:
         resp = _answer({"accepted": True, "reason": ""}, 200)
         resp.del_cookie(COOKIE, path="/")
         return resp
+
+    def _failed(self, name: str, address: str) -> None:
+        self.throttle.failed(name, address)
+        log.warning("hmi: failed login for %r from %s", name[:64], address)
+        self._audit(name[:64], "login.failed", {"address": address})
+
+    def _logged_in(self, user: User, address: str) -> None:
+        log.info("hmi: %s logged in (%s) from %s", user.name, user.role, address)
+        self._audit(user.name, "login", {"role": user.role, "address": address})
 
     def _audit(self, user: str, kind: str, details: dict[str, Any]) -> None:
         # A try refused by the throttle (429) is not recorded one by one: a flood of them

@@ -182,8 +182,7 @@ async def test_a_scripted_session_verifies_exports_and_a_changed_byte_is_named(
         == 0
     )
     exported = json.loads(capsys.readouterr().out)["entries"]
-    done = [(e["actor"], e["kind"], e["target"]) for e in exported]
-    assert done == [
+    assert [(e["actor"], e["kind"], e["target"]) for e in exported] == [
         ("command line", "io_map.load", str(io_map.resolve())),
         ("hmi:erin", "login.failed", "erin"),
         ("hmi:otto", "login", "otto"),
@@ -198,35 +197,39 @@ async def test_a_scripted_session_verifies_exports_and_a_changed_byte_is_named(
         ("hmi:vera", "command.start", "ch1"),
         ("hmi:otto", "logout", "otto"),
     ]
-    load = exported[0]["details"]
-    assert load["sha256"] == sup.bench.cfg.source_sha256 and len(load["sha256"]) == 64
-    start = exported[5]["details"]
+    assert exported[0]["details"]["sha256"] == load_bench(io_map).source_sha256
+    check_details([e["details"] for e in exported])
+
+    # One byte changed in the middle of the file: the hold's entry ("hold" -> "hole").
+    hold = exported[6]
+    change_one_byte(path, b'"command":"hold"', b'"command":"hole"')
+    assert main(["audit", "verify", "--io-map", str(io_map)]) == 1
+    assert capsys.readouterr().out.splitlines()[0] == (
+        f"audit log BROKEN: {path}: entry {hold['seq']} ({hold['time']}): content changed:"
+        " its fields do not give its hash"
+    )
+
+
+def check_details(details: list[dict[str, Any]]) -> None:
+    """What the session's entries say beyond who, what and on what."""
+    start, refused, force = details[5], details[11], details[10]
     assert start["accepted"] is True and start["args"] == {"recipe": "d.yaml"}
-    refused = exported[11]["details"]
     assert refused["accepted"] is False and refused["result"] == "forbidden"
     assert refused["reason"].startswith("viewer may not start ch1")
-    first, second = exported[8]["details"], exported[9]["details"]
+    first, second = details[8], details[9]
     assert first["created"] is True and first["previous_sha256"] is None
     assert second["previous_sha256"] == first["sha256"] and second["created"] is False
     assert "-  - {id: d, discharge: 100 mA" in second["diff"]
     assert "+  - {id: d, discharge: 150 mA" in second["diff"]
-    force = exported[10]["details"]
     assert force["args"] == {"tag": "room.temp", "value": 21.5} and force["accepted"] is True
 
-    # One byte changed in the middle of the file: the hold's entry ("hold" -> "hole").
-    hold = exported[6]
-    data = bytearray(path.read_bytes())
-    marker = b'"command":"hold"'
-    at = data.find(marker)
-    assert at > 0 and data.count(marker) == 1
-    data[at + len(marker) - 2] = ord("e")
-    path.write_bytes(bytes(data))
-    assert main(["audit", "verify", "--io-map", str(io_map)]) == 1
-    out = capsys.readouterr().out
-    assert out.splitlines()[0] == (
-        f"audit log BROKEN: {path}: entry {hold['seq']} ({hold['time']}): content changed:"
-        " its fields do not give its hash"
-    )
+
+def change_one_byte(path: Path, before: bytes, after: bytes) -> None:
+    """``before`` (found once in the file) made ``after``, which differ by one byte."""
+    assert sum(a != b for a, b in zip(before, after, strict=True)) == 1
+    data = path.read_bytes()
+    assert data.count(before) == 1
+    path.write_bytes(data.replace(before, after))
 
 
 def room_alarm(exported: list[dict[str, Any]]) -> str:
