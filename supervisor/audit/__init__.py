@@ -12,7 +12,7 @@ accepted or refused), ``login``, ``login.failed``, ``login.refused``, ``logout``
 """
 
 from supervisor.audit.chain import GENESIS, Broken, Entry, canonical_json, utc_of_iso, utc_text
-from supervisor.audit.changes import sha256_text, text_change
+from supervisor.audit.changes import sha256_bytes, sha256_text, text_change
 from supervisor.audit.store import (
     AUDIT_NAME,
     AuditFileError,
@@ -53,6 +53,7 @@ __all__ = [
     "audit_path",
     "canonical_json",
     "read_entries",
+    "sha256_bytes",
     "sha256_text",
     "text_change",
     "utc_of_iso",

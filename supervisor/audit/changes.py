@@ -17,6 +17,10 @@ def sha256_text(text: str) -> str:
     return hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest()
 
 
+def sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
 def text_change(previous: str | None, text: str, name: str) -> dict[str, Any]:
     """``sha256``, ``previous_sha256`` (None: the file is new) and ``diff`` (unified,
     ``a/name`` → ``b/name``). Computes a diff: call it off the event loop for large texts."""

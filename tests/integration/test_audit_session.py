@@ -21,7 +21,7 @@ from commandrig import io_map as command_map
 from hmirig import JSON, USERS, password
 
 from supervisor.app.service import Supervisor, build_supervisor
-from supervisor.audit import AUDIT_NAME, read_entries
+from supervisor.audit import AUDIT_NAME, read_entries, sha256_text
 from supervisor.cli.main import main
 from supervisor.config.users import add_user
 from supervisor.core.clock import VirtualClock
@@ -259,3 +259,40 @@ async def test_verify_and_export_say_what_is_wrong_in_one_line(
     assert main(["audit", "verify", "--io-map", str(io_map)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "not an audit log" in err
+
+
+PROFILE = "Time,Current\n0,0.1\n1,0.2\n2,0.3\n"
+
+
+async def test_a_profile_loaded_from_the_screens_records_the_recipe_it_wrote(
+    tmp_path: Path,
+) -> None:
+    """The Recipes screen's "Load profile" writes a recipe (``profiles/NAME.yaml``) and
+    loads it: the write is a ``recipe.save`` with both hashes, the load a command."""
+    io_map = bench_map(tmp_path)
+    async with supervisor(io_map) as sup:
+        await run_scans(sup.bench.engine, 10)
+        http = Client(sup)
+        try:
+            otto, _ = await http.login("otto")
+            status, body = await http.call(
+                otto,
+                "POST",
+                "/api/profiles/load",
+                {"csv": PROFILE, "name": "p.csv", "channel": "ch1"},
+            )
+            assert status == 200, body
+        finally:
+            await http.close()
+        audit = sup.bench.audit
+        assert audit is not None and audit.flush()
+        entries = read_entries(audit.path)
+    save, load = entries[-2:]
+    assert (save.actor, save.kind, save.target) == ("hmi:otto", "recipe.save", "profiles/p.yaml")
+    written = (tmp_path / "profiles" / "p.yaml").read_text(encoding="utf-8")
+    assert save.details_json == {
+        "sha256": sha256_text(written),
+        "csv_sha256": sha256_text(PROFILE),
+        "from_profile": True,
+    }
+    assert (load.kind, load.target, load.details_json["accepted"]) == ("command.load", "ch1", True)
