@@ -269,3 +269,23 @@ def test_a_text_change_has_both_hashes_and_a_unified_diff() -> None:
     again = text_change("recipe: a\nsteps: []\n", "recipe: a\nsteps: [x]\n", "recipes/a.yaml")
     assert again["previous_sha256"] == first["sha256"]
     assert "-steps: []\n+steps: [x]\n" in again["diff"]
+
+
+def test_appends_return_while_the_file_is_locked_and_are_written_once_it_is_free(
+    tmp_path: Path,
+) -> None:
+    """The caller (a command on the scan's loop) never waits for SQLite: another process
+    holding the write lock delays the writer thread, not the appends."""
+    path = tmp_path / AUDIT_NAME
+    _log(path, 1)
+    blocker = sqlite3.connect(path, isolation_level=None)
+    blocker.execute("BEGIN IMMEDIATE")  # the write lock, held
+    audit = AuditLog(path).open()
+    for i in range(100):
+        audit.append("hmi:otto", "command.write", "bench", {"i": i})
+    assert audit.appended == 100 and audit.written == 0
+    blocker.execute("COMMIT")
+    blocker.close()
+    assert audit.flush(timeout_s=30.0)
+    audit.close()
+    assert verify_file(path).entries == 101
