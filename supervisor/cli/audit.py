@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, Final
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+FORMULA_STARTS: Final = ("=", "+", "-", "@", "\t", "\r")
 CSV_COLUMNS: Final = ("seq", "time", "actor", "kind", "target", "details", "prev_hash", "hash")
 
 
@@ -143,7 +144,7 @@ def _export(path: Path, args: argparse.Namespace) -> int:
         w = csv.writer(buf, lineterminator="\n")
         w.writerow(CSV_COLUMNS)
         for e in entries:
-            w.writerow([getattr(e, c) for c in CSV_COLUMNS])
+            w.writerow([_cell(getattr(e, c)) for c in CSV_COLUMNS])
         text = buf.getvalue()
     if args.output:
         try:
@@ -155,6 +156,15 @@ def _export(path: Path, args: argparse.Namespace) -> int:
     else:
         sys.stdout.write(text)
     return EXIT_OK
+
+
+def _cell(value: object) -> object:
+    """A text a spreadsheet would run as a formula (a user name tried at the login, a tag
+    name: ``=HYPERLINK(…)``) written with a leading ``'`` (OWASP, CSV injection); the
+    JSON export keeps every text exact."""
+    if isinstance(value, str) and value[:1] in FORMULA_STARTS:
+        return "'" + value
+    return value
 
 
 def _err(msg: str) -> None:

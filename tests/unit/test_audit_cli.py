@@ -6,16 +6,18 @@ wrote."""
 
 from __future__ import annotations
 
+import csv
 import getpass
 import hashlib
 import io
+import json
 from pathlib import Path
 
 import pytest
 import yaml
 from commandrig import io_map as command_map
 
-from supervisor.audit import AUDIT_NAME, read_entries, verify_file
+from supervisor.audit import AUDIT_NAME, AuditLog, read_entries, verify_file
 from supervisor.cli.main import main
 
 
@@ -69,3 +71,20 @@ def test_a_calibration_written_into_the_io_map_is_an_entry_with_its_diff(
     assert "+" in str(details["diff"]) and "current_slope" in str(details["diff"])
     assert details["io_map"] == str(io_map.resolve())
     assert yaml.safe_load(io_map.read_text(encoding="utf-8"))  # still an I/O map
+
+
+def test_a_csv_export_never_hands_a_spreadsheet_a_formula(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / AUDIT_NAME
+    with AuditLog(path) as audit:
+        audit.append('hmi:=HYPERLINK("http://x")', "login.failed", "@SUM(1)", {"address": "-"})
+    assert main(["audit", "export", "--file", str(path), "--since", "2000-01-01"]) == 0
+    row = list(csv.reader(io.StringIO(capsys.readouterr().out)))[1]
+    assert row[2:5] == ['hmi:=HYPERLINK("http://x")', "login.failed", "'@SUM(1)"]
+    assert (
+        main(["audit", "export", "--file", str(path), "--since", "2000-01-01", "--format", "json"])
+        == 0
+    )
+    (entry,) = json.loads(capsys.readouterr().out)["entries"]
+    assert entry["target"] == "@SUM(1)"  # JSON: exact
