@@ -27,7 +27,7 @@ from supervisor.config.users import add_user
 from supervisor.core.clock import VirtualClock
 from supervisor.devices.registry import load_bench
 from supervisor.publish.opcua import OpcUaSettings
-from supervisor.testing import run_scans
+from supervisor.testing import free_tcp_port, run_scans
 
 pytestmark = pytest.mark.integration
 
@@ -44,6 +44,9 @@ def bench_map(tmp: Path) -> Path:
     data["hmi"]["port"] = 0
     data.pop("opcua", None)
     data.pop("modbus_server", None)
+    # The simulated ADAM serves Modbus TCP on the map's port (5020): a free one instead, so
+    # that two of these benches (pytest -n 2) never meet on it.
+    data["devices"]["adam"]["port"] = free_tcp_port()
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     users = OpcUaSettings.of(load_bench(path)).users_file
     for user, role in USERS.items():
