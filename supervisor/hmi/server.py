@@ -45,6 +45,7 @@ from supervisor.hmi.limits import ConnectionGuard, ConnectionLimits
 from supervisor.hmi.openapi import add_openapi_route
 from supervisor.hmi.profiles_api import add_profile_routes
 from supervisor.hmi.recipes_api import RecipesConfig, add_recipe_routes
+from supervisor.hmi.silence_api import add_silence_route
 from supervisor.hmi.tests_api import TestsConfig, add_test_routes
 from supervisor.safety import Alarm, AlarmEvent
 from supervisor.tags import Access, Tag, TagDB
@@ -622,6 +623,8 @@ class HttpApi:
             ]
         )
         add_openapi_route(app)  # GET /api/openapi.json (hmi/openapi.yaml)
+        # A screen's alarm sound silenced, recorded with its actor (hmi/silence_api.py).
+        add_silence_route(app, lambda: self.commands.alarms, self.actor)
         # Forcing (engineers only; never a tag the safety phase uses): ADR 0015.
         app.add_routes(
             [
