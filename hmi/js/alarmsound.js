@@ -12,16 +12,31 @@ import { priorityOf } from "./priority.js";
 export const REPEATING = new Set(["critical", "high"]);
 export const REPEAT_S = 10; // bearable at 3 a.m., short enough that nobody misses it
 
-/** One occurrence of an alarm: its id and when it was activated. */
-const occurrence = (a) => `${a.id}@${a.activated_time ?? ""}`;
+/** One occurrence of an alarm: its id and when it was activated, to the second. The
+ * supervisor converts its monotonic activation time to wall time at each answer, which
+ * moves it by microseconds: never compared exactly. */
+const occurrence = (a) => [a.id, Number(a.activated_time) || 0];
+const SAME_S = 1;
 const storeKey = (user) => `hmi.silenced.${user}`;
+
+/** Occurrences: alarm id -> activation time. */
+class Occurrences extends Map {
+  static of(alarms) {
+    return new Occurrences(alarms.map(occurrence));
+  }
+
+  holds(a) {
+    const [id, t] = occurrence(a);
+    return this.has(id) && Math.abs(this.get(id) - t) < SAME_S;
+  }
+}
 
 function loadSilenced(user) {
   try {
-    const keys = JSON.parse(localStorage.getItem(storeKey(user)) || "[]");
-    return new Set(Array.isArray(keys) ? keys : []);
+    const pairs = JSON.parse(localStorage.getItem(storeKey(user)) || "[]");
+    return new Occurrences(Array.isArray(pairs) ? pairs : []);
   } catch {
-    return new Set();
+    return new Occurrences();
   }
 }
 
@@ -30,8 +45,8 @@ export class AlarmSound {
     this.sound = sound;
     this.repeatS = repeatS;
     this.user = "";
-    this.silenced = new Set(); // occurrences this user silenced (kept per user)
-    this.known = new Set(); // occurrences already announced once
+    this.silenced = new Occurrences(); // what this user silenced (kept per user)
+    this.known = new Occurrences(); // what was already announced once
     this.sounding = []; // the alarms that repeat now
     this.timer = null;
     this.onChange = null; // the header repaints the Silence button
@@ -42,7 +57,7 @@ export class AlarmSound {
     if (user === this.user) return;
     this.user = user || "";
     this.silenced = loadSilenced(this.user);
-    this.known = new Set();
+    this.known = new Occurrences();
   }
 
   /** The live alarms changed (or the sound switch did): who sounds now. */
@@ -50,11 +65,9 @@ export class AlarmSound {
     const unacked = (alarms || []).filter(
       (a) => a.state !== "normal" && !a.shelved && a.state.includes("unacknowledged"),
     );
-    const fresh = unacked.filter((a) => !this.known.has(occurrence(a)) && !this.silenced.has(occurrence(a)));
-    this.known = new Set(unacked.map(occurrence));
-    this.sounding = unacked.filter(
-      (a) => REPEATING.has(priorityOf(a.severity).name) && !this.silenced.has(occurrence(a)),
-    );
+    const fresh = unacked.filter((a) => !this.known.holds(a) && !this.silenced.holds(a));
+    this.known = Occurrences.of(unacked);
+    this.sounding = unacked.filter((a) => REPEATING.has(priorityOf(a.severity).name) && !this.silenced.holds(a));
     if (fresh.length) this.sound.alarm();
     this._schedule();
   }
@@ -85,12 +98,12 @@ export class AlarmSound {
     // Unreachable (status 0): silenced all the same — a sound nobody can stop helps no
     // one; the supervisor's own log shows the connection lost.
     if (!answer.ok && answer.status !== 0) return answer;
-    for (const a of now) this.silenced.add(occurrence(a));
+    for (const a of now) this.silenced.set(...occurrence(a));
     // Only the occurrences still unacknowledged are worth keeping.
-    this.silenced = new Set([...this.silenced].filter((k) => this.known.has(k)));
+    for (const [id] of this.silenced) if (!this.known.has(id)) this.silenced.delete(id);
     localStorage.setItem(storeKey(this.user), JSON.stringify([...this.silenced]));
-    const silenced = new Set(now.map(occurrence));
-    this.sounding = this.sounding.filter((a) => !silenced.has(occurrence(a)));
+    const silenced = Occurrences.of(now);
+    this.sounding = this.sounding.filter((a) => !silenced.holds(a));
     this._schedule();
     return answer;
   }

@@ -268,11 +268,17 @@ sound.addEventListener("change", () => {
   paintAlarmCount();
 });
 
-// "Alarm sounding — Silence" while a high-priority alarm repeats on this screen; "click to
-// allow sound" while the browser waits for a gesture before it plays anything.
+// On the alarm banner's line: "Alarm sounding — Silence" while a high-priority alarm
+// repeats on this screen, and "sound blocked" while the browser waits for a gesture before
+// it plays anything (a reload has had none; the login's click is one). The header's
+// switch says it too, in its tooltip: the header's one line has no room for more.
 function paintSounding() {
+  const blocked = app.sound.blocked && Boolean(app.session);
   $("#alarm-silence").hidden = !app.alarmSound.active;
-  $("#sound-blocked").hidden = !app.sound.blocked || !app.session;
+  $("#sound-blocked").hidden = !blocked;
+  const label = $("#sound").closest("label");
+  label.classList.toggle("blocked", blocked);
+  label.title = blocked ? "sound blocked by the browser until you click the page" : "alarm and end-of-test sound";
 }
 app.alarmSound.onChange = paintSounding;
 app.sound.onChange = paintSounding;
