@@ -34,6 +34,10 @@ def _alarm_ids(body: dict[str, Any]) -> list[str]:
     return ids
 
 
+def _not_found(reason: str) -> web.Response:
+    return web.json_response({"accepted": False, "reason": reason, "kind": "not found"}, status=404)
+
+
 def add_silence_route(
     app: web.Application,
     alarms: Callable[[], AlarmManager | None],
@@ -49,14 +53,12 @@ def add_silence_route(
             return exc.response()
         manager = alarms()
         if manager is None:
-            return web.json_response(
-                {"accepted": False, "reason": "this supervisor has no alarms", "kind": "not found"}, status=404
-            )
+            return _not_found("this supervisor has no alarms")
         who = actor(request)
         try:
             silenced = manager.silence(ids, who)
         except OperatorError as exc:  # an unknown alarm: nothing recorded
-            return web.json_response({"accepted": False, "reason": str(exc), "kind": "not found"}, status=404)
+            return _not_found(str(exc))
         names = [a.id for a in silenced]
         return web.json_response(
             {

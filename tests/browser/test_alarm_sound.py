@@ -140,9 +140,7 @@ def test_a_silence_is_the_operators_own_and_recorded_and_a_new_alarm_sounds_agai
     assert estop_state(bench) == "active, unacknowledged"
     status, body = bench.call("GET", "/api/alarms")
     assert status == 200, body
-    silences = [
-        (e["alarm"], e["actor"]) for e in body["history"] if e["transition"] == "silenced"
-    ]
+    silences = [(e["alarm"], e["actor"]) for e in body["history"] if e["transition"] == "silenced"]
     # (A loaded machine may add a scan stall of its own, silenced with it.)
     assert ("estop", "hmi:operator") in silences, body["history"][-5:]
     assert all(actor == "hmi:operator" for _, actor in silences), silences
