@@ -52,6 +52,18 @@ export class AlarmSound {
     this.onChange = null; // the header repaints the Silence button
   }
 
+  /** How often the sound repeats (``hmi.alarm_sound_repeat_s``, from the session). */
+  setRepeat(seconds) {
+    const s = Number(seconds);
+    if (!(s > 0) || s === this.repeatS) return;
+    this.repeatS = s;
+    if (this.timer !== null) {
+      clearInterval(this.timer);
+      this.timer = null;
+      this._schedule();
+    }
+  }
+
   /** The logged-in user whose silences count (another user's are not theirs). */
   setUser(user) {
     if (user === this.user) return;
@@ -68,7 +80,7 @@ export class AlarmSound {
     const fresh = unacked.filter((a) => !this.known.holds(a) && !this.silenced.holds(a));
     this.known = Occurrences.of(unacked);
     this.sounding = unacked.filter((a) => REPEATING.has(priorityOf(a.severity).name) && !this.silenced.holds(a));
-    if (fresh.length) this.sound.alarm();
+    if (fresh.length) this.sound.alarm(fresh.map((a) => a.id));
     this._schedule();
   }
 
@@ -80,7 +92,7 @@ export class AlarmSound {
     const want = this.active;
     if (want && this.timer === null) {
       this.timer = setInterval(() => {
-        if (this.active) this.sound.alarm();
+        if (this.active) this.sound.alarm(this.sounding.map((a) => a.id));
       }, this.repeatS * 1000);
     } else if (!want && this.timer !== null) {
       clearInterval(this.timer);

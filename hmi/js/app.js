@@ -165,6 +165,7 @@ function paintAlarmCount() {
   // The alarm sound: once for a new alarm, repeating for high priorities (alarmsound.js),
   // for the logged-in user (a silence is theirs).
   app.alarmSound.setUser(app.session?.user || "");
+  app.alarmSound.setRepeat(app.session?.alarm_sound_repeat_s);
   app.alarmSound.update(app.session ? app.live.alarms : []);
   const banner = $("#banner");
   const first = unacked[0];

@@ -11,7 +11,7 @@ export class Sound {
   constructor() {
     this.enabled = localStorage.getItem(KEY) !== "off";
     this.ctx = null;
-    this.played = []; // what was played, for the browser tests: [{kind, at}]
+    this.played = []; // what was played, for the browser tests: [{kind, at, alarms}]
     this.onChange = null; // the header shows whether sound is blocked
     const unblock = () => {
       if (this.ctx && this.ctx.state === "suspended") this.ctx.resume().finally(() => this._changed());
@@ -64,9 +64,10 @@ export class Sound {
     }
   }
 
-  alarm() {
+  /** Two tones for the alarms `ids` (recorded with them). */
+  alarm(ids = []) {
     if (!this.enabled) return;
-    this.played.push({ kind: "alarm", at: Date.now() });
+    this.played.push({ kind: "alarm", at: Date.now(), alarms: ids });
     this._tones([880, 660, 880, 660], 0.18);
   }
 

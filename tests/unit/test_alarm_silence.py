@@ -11,7 +11,9 @@ from collections.abc import AsyncIterator
 import pytest
 from aiohttp import web
 from aiohttp.test_utils import TestClient, TestServer
+from pydantic import ValidationError
 
+from supervisor.config.models import HmiConfig
 from supervisor.core.clock import VirtualClock
 from supervisor.core.errors import OperatorError
 from supervisor.hmi.silence_api import add_silence_route
@@ -111,3 +113,11 @@ async def test_post_silence_refuses_an_unknown_alarm_or_a_bad_body_and_records_n
     assert resp.status == status, answer
     assert not answer["accepted"] and why in answer["reason"]
     assert silences(alarms) == []
+
+
+def test_the_repeat_interval_is_an_hmi_setting_of_ten_seconds_by_default() -> None:
+    assert HmiConfig().alarm_sound_repeat_s == 10.0
+    assert HmiConfig(alarm_sound_repeat_s=4).alarm_sound_repeat_s == 4.0
+    for unbearable in (0.5, 3600):  # a continuous wail, or an alarm heard once an hour
+        with pytest.raises(ValidationError, match="alarm_sound_repeat_s"):
+            HmiConfig(alarm_sound_repeat_s=unbearable)
