@@ -12,11 +12,12 @@ import { priorityOf } from "./priority.js";
 export const REPEATING = new Set(["critical", "high"]);
 export const REPEAT_S = 10; // bearable at 3 a.m., short enough that nobody misses it
 
-/** One occurrence of an alarm: its id and when it was activated, to the second. The
- * supervisor converts its monotonic activation time to wall time at each answer, which
- * moves it by microseconds: never compared exactly. */
+/** One occurrence of an alarm: its id and when it was activated. The supervisor converts
+ * its monotonic activation time to wall time at each answer, which moves it by
+ * microseconds: compared within SAME_S, far below a scan (an alarm activated again has
+ * been seen clear by a scan in between). */
 const occurrence = (a) => [a.id, Number(a.activated_time) || 0];
-const SAME_S = 1;
+const SAME_S = 0.01;
 const storeKey = (user) => `hmi.silenced.${user}`;
 
 /** Occurrences: alarm id -> activation time. */
