@@ -273,6 +273,9 @@ class HmiAccess:
         self._checks = asyncio.Semaphore(LOGIN_CHECKS)
         self.audit: AuditLog | None = None
         """The bench's audit trail: logins, failed logins and logouts (``app/hmi.py``)."""
+        self.alarm_sound_repeat_s = 10.0
+        """How often a screen sounds an unacknowledged high-priority alarm again
+        (``hmi.alarm_sound_repeat_s``): the page learns it with its session."""
 
     def install(self, app: web.Application) -> None:
         app.middlewares.append(self._middleware)
@@ -325,13 +328,15 @@ class HmiAccess:
 
     # --- routes -------------------------------------------------------------------------
     def _session_json(self, p: Principal) -> dict[str, Any]:
+        sound = {"alarm_sound_repeat_s": self.alarm_sound_repeat_s}
         if p.session is None:
-            return {"user": p.user, "role": p.role, "login": self.login}
+            return {"user": p.user, "role": p.role, "login": self.login, **sound}
         return {
             "user": p.user,
             "role": p.role,
             "expires_s": self.sessions.expires_s(p.session),
             "login": True,
+            **sound,
         }
 
     async def _login(self, request: web.Request) -> web.Response:

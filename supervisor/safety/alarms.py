@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum, StrEnum
 
@@ -62,6 +62,7 @@ class Transition(StrEnum):
     RESET = "reset"
     SHELVED = "shelved"
     UNSHELVED = "unshelved"
+    SILENCED = "silenced"  # an operator's screen stopped sounding it (no state change)
 
 
 class AlarmText(str):
@@ -281,6 +282,20 @@ class AlarmManager:
         self.writes += 1
         self._event(alarm, Transition.UNSHELVED, "by request", actor)
         return alarm
+
+    def silence(self, alarm_ids: Iterable[str], actor: str) -> list[Alarm]:
+        """Record that ``actor`` silenced the audible alert of these alarms on their own
+        screen (issue 33 finding 7). Silencing is not acknowledging (ISA-18.2): the alarm
+        keeps its state and stays annunciated, and another operator's screen still sounds
+        it; the record says who silenced what and when, beside the acknowledgements. Only
+        the alarms still waiting for an acknowledgement are recorded (one acknowledged in
+        the meantime no longer sounds anywhere). An unknown id raises ``OperatorError``
+        before anything is recorded."""
+        wanted = [self[alarm_id] for alarm_id in dict.fromkeys(alarm_ids)]
+        silenced = [a for a in wanted if not a.acked]
+        for alarm in silenced:
+            self._event(alarm, Transition.SILENCED, "audible alert silenced on their screen", actor)
+        return silenced
 
     # --- restart ----------------------------------------------------------------------
     def restore(
