@@ -652,7 +652,9 @@ class HttpApi:
                 web.post("/api/alarms/{alarm}/{action}", self._alarm_command),
             ]
         )
-        add_silence_route(app, lambda: self.commands.alarms, self.actor)
+        add_silence_route(
+            app, lambda: self.commands.alarms, self.actor, lambda: self.commands.audit
+        )
 
     def _add_estop_routes(self, app: web.Application) -> None:
         """The bench-wide software e-stop (seed 002 §1.5) and its reset, on every bench; the

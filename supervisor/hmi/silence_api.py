@@ -18,6 +18,7 @@ from typing import Any, Final
 
 from aiohttp import web
 
+from supervisor.audit import AuditLog
 from supervisor.core.errors import OperatorError
 from supervisor.hmi.body import BodyError, read_json_object, refuse_unknown
 from supervisor.safety.alarms import AlarmManager
@@ -42,9 +43,12 @@ def add_silence_route(
     app: web.Application,
     alarms: Callable[[], AlarmManager | None],
     actor: Callable[[web.Request], str],
+    audit: Callable[[], AuditLog | None] = lambda: None,
 ) -> None:
     """``POST /api/alarms/silence``; ``alarms`` gives the bench's alarm model (None: a
-    supervisor without one), ``actor`` who asks (``HttpApi.actor``)."""
+    supervisor without one), ``actor`` who asks (``HttpApi.actor``), ``audit`` the
+    bench's audit trail (supervisor.audit; None: none), where a silence is an entry too —
+    an operator's action, as an acknowledgement is."""
 
     async def silence(request: web.Request) -> web.Response:
         try:
@@ -60,6 +64,9 @@ def add_silence_route(
         except OperatorError as exc:  # an unknown alarm: nothing recorded
             return _not_found(str(exc))
         names = [a.id for a in silenced]
+        trail = audit()
+        if trail is not None and names:  # queued: never waits for the disk, never raises
+            trail.append(who, "alarm.silence", ",".join(names), {"alarms": names})
         return web.json_response(
             {
                 "accepted": True,

@@ -6,13 +6,15 @@ an unknown alarm or a malformed body records nothing."""
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterator
+from pathlib import Path
 
 import pytest
 from aiohttp import web
 from aiohttp.test_utils import TestClient, TestServer
 from pydantic import ValidationError
 
+from supervisor.audit import AUDIT_NAME, AuditLog, read_entries, verify_file
 from supervisor.config.models import HmiConfig
 from supervisor.core.clock import VirtualClock
 from supervisor.core.errors import OperatorError
@@ -70,10 +72,21 @@ def test_only_unacknowledged_alarms_are_silenced_and_an_unknown_one_records_noth
 
 
 @pytest.fixture
-async def client(alarms: AlarmManager) -> AsyncIterator[TestClient[web.Request, web.Application]]:
+def audit(tmp_path: Path) -> Iterator[AuditLog]:
+    trail = AuditLog(tmp_path / AUDIT_NAME).open()
+    yield trail
+    trail.close()
+
+
+@pytest.fixture
+async def client(
+    alarms: AlarmManager, audit: AuditLog
+) -> AsyncIterator[TestClient[web.Request, web.Application]]:
     app = web.Application()
     # Who asks: here a header (the login middleware's actor in the supervisor).
-    add_silence_route(app, lambda: alarms, lambda r: r.headers.get("X-Test-User", "operator"))
+    add_silence_route(
+        app, lambda: alarms, lambda r: r.headers.get("X-Test-User", "operator"), lambda: audit
+    )
     async with TestClient(TestServer(app)) as c:
         yield c
 
@@ -89,6 +102,21 @@ async def test_post_silence_records_the_logged_in_users_silence(
     assert resp.status == 200, body
     assert body["accepted"] and body["silenced"] == ["estop"] and "hmi:otto" in body["reason"]
     assert [(e.alarm_id, e.actor) for e in silences(alarms)] == [("estop", "hmi:otto")]
+
+
+async def test_a_silence_is_an_entry_of_the_audit_trail_and_a_refused_one_is_not(
+    client: TestClient[web.Request, web.Application], alarms: AlarmManager, audit: AuditLog
+) -> None:
+    raised(alarms, "estop", Severity.CRITICAL)
+    headers = {"X-Test-User": "hmi:otto"}
+    await client.post("/api/alarms/silence", json={"alarms": ["nope"]}, headers=headers)
+    await client.post("/api/alarms/silence", json={"alarms": ["estop"]}, headers=headers)
+    assert audit.flush()
+    entries = read_entries(audit.path)
+    assert [(e.actor, e.kind, e.target, e.details_json) for e in entries] == [
+        ("hmi:otto", "alarm.silence", "estop", {"alarms": ["estop"]})
+    ]
+    assert verify_file(audit.path).ok
 
 
 @pytest.mark.parametrize(
