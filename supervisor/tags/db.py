@@ -107,11 +107,6 @@ def _as_float_value(
 
 
 _NUMBER = (int, float)
-_NEVER_NAN = frozenset({str, int, bool, type(None)})
-"""The types whose value always equals itself: the same object given again is the value
-the tag holds (a GOOD float tag's value is finite or None, too), with no comparison
-(most outputs of a scan are the same object again: a step's name, a flag, a state;
-``PyObject_RichCompare`` of two objects of any type is a call)."""
 _INT_AS_FLOAT = 2**1023
 """An int strictly within this bound converts to a float without overflow."""
 
@@ -238,12 +233,7 @@ class TagDB:
         for tag, value in writes:
             if tag.forced:
                 continue  # ``update`` leaves a forced tag as it is
-            old = tag.value
-            if (
-                ((value is old and (tag.is_float or type(old) in _NEVER_NAN)) or value == old)
-                and tag.quality is _GOOD
-                and tag.reason is _NONE
-            ):
+            if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
                 continue  # unchanged: ``update`` leaves it as it is
             if type(value) is float and value - value == 0.0:
                 # ``update`` of a finite float, inline (any tag: a float tag takes it as it
@@ -274,12 +264,7 @@ class TagDB:
         for tag, value in zip(tags, values):  # noqa: B905 (the same length: the caller's)
             if tag.forced:
                 continue  # ``update`` leaves a forced tag as it is
-            old = tag.value
-            if (
-                ((value is old and (tag.is_float or type(old) in _NEVER_NAN)) or value == old)
-                and tag.quality is _GOOD
-                and tag.reason is _NONE
-            ):
+            if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
                 continue  # unchanged: ``update`` leaves it as it is
             if type(value) is float and value - value == 0.0:
                 # ``update`` of a finite float, inline, as in ``update_many``.
