@@ -259,9 +259,10 @@ class TagDB:
         the dry run's profile). ``test_tagdb_update_many.py`` proves it equal to the
         updates one by one."""
         scan_t = self.scan_t
-        # ``zip`` (no keyword: ``strict=True`` is parsed at every call) keeps one pair
-        # object for every step; a counter of our own costs an int addition a tag.
-        for tag, value in zip(tags, values):  # noqa: B905 (the same length: the caller's)
+        k = 0
+        for tag in tags:
+            value = values[k]
+            k += 1
             if tag.forced:
                 continue  # ``update`` leaves a forced tag as it is
             if value == tag.value and tag.quality is _GOOD and tag.reason is _NONE:
@@ -307,7 +308,10 @@ class TagDB:
         tag (the tags in a tuple made once: ``update_each``'s reason).
         ``test_tagdb_update_many.py`` proves it equal to the updates one by one."""
         scan_t = self.scan_t
-        for tag, delta in zip(tags, deltas):  # noqa: B905 (as in ``update_each``)
+        k = 0
+        for tag in tags:
+            delta = deltas[k]
+            k += 1
             v = tag.value
             if type(v) is float and not tag.forced:
                 value = v + delta
