@@ -234,6 +234,10 @@ class Channel:
             self.logic_error,
         ):
             db.update(t, t.value)
+        self._scan_state()
+
+    def _scan_state(self) -> None:
+        """What the phases keep between scans, and the tags they write every scan."""
         self._sources: list[tuple[Tag, Tag]] | None = None
         self._prev_i: float | None = None
         self._prev_p: float | None = None
