@@ -342,10 +342,10 @@ class ChainRunner:
         A steady scan — running, nothing commanded, no fault and no latched alarm, in
         Auto, no sleep or advance pending, in a step that takes time — takes a short way
         (issue 13: nearly every scan of a test is one): the step's rules (``StepRules``,
-        the plain scan's too) without the checks a steady scan cannot need
-        (``_steady_running``), then the outputs and tags as ``_outputs`` and ``_publish``
-        write them, with an unchanged tag only stamped, as its update would leave it
-        (``TagDB.stamp``: a GOOD, reason-less tag holding the same value). Whatever
+        the plain scan's too) without the checks a steady scan cannot need, then the
+        outputs and tags as ``_outputs`` and ``_publish`` write them, in one
+        ``TagDB.update_many`` (``_steady_outputs``: an unchanged tag left as it is, as its
+        update would, ADR 0037). Whatever
         happens in the step (an alarm, a transition, a record) ends the scan the plain
         way. ``tests/unit/test_chain_steady_scan.py`` and
         ``tests/unit/test_step_kinds_equivalence.py`` check it, tag by tag, against the
@@ -367,11 +367,15 @@ class ChainRunner:
         ):
             self._scan(now, dt)
             return
-        program = self.program
-        assert program is not None
+        program, conditions = self.program, self._conditions
+        assert program is not None and conditions is not None
         step = program.steps[index]
         try:
-            steady = self._steady_running(now, r, step)
+            # ``_running`` of a steady scan: the voltage observed and the values read in
+            # one call, then the step's rules (the checks a steady scan cannot need left
+            # out; here, not in a method of its own: a call fewer every scan).
+            values = conditions.observed_values(now, r)
+            steady = self._step_rules(now, r, step, self._behaviours[index], values)
         except Exception as exc:  # as in ``_scan``: an exception in logic is an alarm
             log.exception("%s: chain failed", self.name)
             self._alarm(f"internal error: {exc}")
@@ -382,15 +386,6 @@ class ChainRunner:
             self._publish(now)
             return
         self._steady_outputs(now, r, program, step)
-
-    def _steady_running(self, now: float, r: RunState, step: CompiledStep) -> bool:
-        """``_running`` in a steady scan of ``step`` (see ``run``): the voltage observed
-        and the values read in one call, then the step's rules: True when the step simply
-        goes on, False when something happened (an alarm, a transition, a record)."""
-        conditions = self._conditions
-        assert conditions is not None
-        values = conditions.observed_values(now, r)
-        return self._step_rules(now, r, step, self._behaviours[step.index], values)
 
     def _scan(self, now: float, dt: float) -> None:
         """``run``'s plain way: every case."""
@@ -688,35 +683,55 @@ class ChainRunner:
             cv = self._behaviours[index].cv_target_v
         self.port.request(amps, cv, running)
 
-    _held_writes: tuple[CompiledStep | None, int, tuple[tuple[Tag, Value | None], ...]] = (
-        None,
-        0,
-        (),
-    )
-    """The steady scan's writes that ``step`` and its cycle fix: (step, cycle, pairs)."""
+    _held_writes: tuple[CompiledStep | None, int, bool, bool, tuple[Tag, ...], list[Value | None]]
+    _held_writes = (None, 0, False, False, (), [])
+    """The steady scan's writes for a step, its cycle, whether its progress is shown and
+    whether the test's charge is live: (step, cycle, shown, live, tags, values), the values
+    that these fix set once for them, the others set each scan (``_steady_outputs``)."""
 
     def _step_writes(
-        self, step: CompiledStep, cycle: int
-    ) -> tuple[CompiledStep, int, tuple[tuple[Tag, Value | None], ...]]:
-        """The pairs of ``_steady_outputs`` that ``step`` and ``cycle`` fix, in its order:
-        active, the CV target, the step, its number, the cycle (no tuples made a scan)."""
+        self, step: CompiledStep, cycle: int, shown: bool, live: bool
+    ) -> tuple[CompiledStep, int, bool, bool, tuple[Tag, ...], list[Value | None]]:
+        """The tags ``_steady_outputs`` writes, in its order, and their values, those that
+        ``step`` and ``cycle`` fix set (active, the CV target, the step, its number, the
+        cycle; the others are set each scan): the request, those five, the clocks, the
+        progress and time left if ``shown``, the test's charge if ``live``."""
         port = self.port
-        t_step, t_index, t_cycle = self._publish_tags[:3]
-        pairs: tuple[tuple[Tag, Value | None], ...] = (
-            (port.auto_active, True),
-            (port.auto_voltage, self._behaviours[step.index].cv_target_v),
-            (t_step, step.id),
-            (t_index, step.index + 1),
-            (t_cycle, cycle),
+        t_step, t_index, t_cycle, t_step_time, t_test_time = self._publish_tags
+        tags: tuple[Tag, ...] = (
+            port.auto_current,
+            port.auto_active,
+            port.auto_voltage,
+            t_step,
+            t_index,
+            t_cycle,
+            t_step_time,
+            t_test_time,
         )
-        return step, cycle, pairs
+        values: list[Value | None] = [
+            0.0,
+            True,
+            self._behaviours[step.index].cv_target_v,
+            step.id,
+            step.index + 1,
+            cycle,
+            0.0,
+            0.0,
+        ]
+        if shown:
+            tags += self._progress_tags
+            values += (0.0, None)
+        if live:
+            tags += (self._charge_tag,)
+            values.append(0.0)
+        return step, cycle, shown, live, tags, values
 
     def _steady_outputs(
         self, now: float, r: RunState, program: Program, step: CompiledStep
     ) -> None:
         """``_outputs`` then ``_publish`` of a steady scan of ``step`` (see ``run``): the
         same writes in the same order, what a steady scan cannot change left out, in one
-        ``TagDB.update_many`` (each value computed before the first is written: none reads
+        ``TagDB.update_each`` (each value computed before the first is written: none reads
         a tag written here; ``tests/unit/test_chain_steady_scan.py``)."""
         index = step.index
         behaviour = self._behaviours[index]
@@ -726,24 +741,10 @@ class ChainRunner:
         if not self._interlock_tag.value:
             amps_now = self._setpoints[index]
             amps = self.setpoint() if amps_now is None else amps_now
-        # Then, in their order, what ``port.request(amps, cv, True)`` writes (Running, no
-        # alarm latched: active) and what ``_publish`` of a running step writes: the step,
-        # its number and the cycle (the same but after an event, which leaves the steady
-        # way), the clocks, the progress, the test's charge.
-        clocks = self._publish_tags  # step time and test time: its last two
-        elapsed_s = now - r.t_test0
-        held = self._held_writes  # the pairs a step and its cycle fix, made once for them
-        if held[0] is not step or held[1] != r.cycle:
-            held = self._held_writes = self._step_writes(step, r.cycle)
-        writes: list[tuple[Tag, Value | None]] = [
-            (port.auto_current, amps),
-            *held[2],
-            (clocks[3], now - r.t_step0),
-            (clocks[4], elapsed_s),
-        ]
         # ``self.progress.shown`` of an active test, inline (the same expressions, with
         # ``min(1.0, x)`` and ``max(0.0, x)`` as conditional ones: the same answers, NaN
         # included): the fraction done and the time left (None: unknown), if shown.
+        elapsed_s = now - r.t_test0
         est, current_a = self.progress.estimated_duration_s, behaviour.progress_current_a
         fraction: float | None = None  # None: no progress shown
         left_s: float | None = None  # None: no time left known
@@ -754,15 +755,26 @@ class ChainRunner:
             fraction, amps_a = moved / program.capacity_ah, abs(current_a)
             if amps_a > 0:
                 left_s = (program.capacity_ah - moved) * 3600.0 / amps_a
+        shown, live = fraction is not None, self._charge_live
+        # What ``port.request(amps, cv, True)`` writes (Running, no alarm latched: active)
+        # and what ``_publish`` of a running step writes, in their order: the request, the
+        # step, its number and the cycle (the same but after an event, which leaves the
+        # steady way), the clocks, the progress, the test's charge. The values the step
+        # and its cycle fix are set once for them (``_step_writes``).
+        held = self._held_writes
+        if held[0] is not step or held[1] != r.cycle or held[2] is not shown or held[3] is not live:
+            held = self._held_writes = self._step_writes(step, r.cycle, shown, live)
+        values = held[5]
+        values[0] = amps
+        values[6] = now - r.t_step0
+        values[7] = elapsed_s
         if fraction is not None:
-            t_progress, t_eta = self._progress_tags
-            eta_s = None if left_s is None else left_s if left_s > 0.0 else 0.0
-            writes += ((t_progress, fraction if fraction < 1.0 else 1.0), (t_eta, eta_s))
-        if self._charge_live:
+            values[8] = fraction if fraction < 1.0 else 1.0
+            values[9] = None if left_s is None else left_s if left_s > 0.0 else 0.0
+        if live:
             # ``_publish``'s test charge (``ConditionValues.charge_ah``), inline.
-            charge_ah = program.initial_charge_ah + port.charge_ah.number - r.q0_ah
-            writes.append((self._charge_tag, charge_ah))
-        self.db.update_many(writes)
+            values[-1] = program.initial_charge_ah + port.charge_ah.number - r.q0_ah
+        self.db.update_each(held[4], values)
         if self.samplers:
             self._sample(now, step)
 

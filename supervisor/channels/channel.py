@@ -33,7 +33,7 @@ class, about seven times the cost of the comparison, and ``drive`` compares up t
 times a scan."""
 
 
-_GOOD = Quality.GOOD
+_GOOD, _NONE = Quality.GOOD, Reason.NONE
 
 
 @dataclass(frozen=True, slots=True)
@@ -234,10 +234,38 @@ class Channel:
             self.logic_error,
         ):
             db.update(t, t.value)
+        self._scan_state()
+
+    def _scan_state(self) -> None:
+        """What the phases keep between scans, and the tags they write every scan."""
         self._sources: list[tuple[Tag, Tag]] | None = None
         self._prev_i: float | None = None
         self._prev_p: float | None = None
         self._last_clamp_req: float | None = None
+        # What ``drive`` writes every scan, in its order (``TagDB.update_each``): the clamp
+        # flag, the command, the voltage command, the output switch and the contactor where
+        # the channel has them, the state.
+        self._output_tags: tuple[Tag, ...] = tuple(
+            t
+            for t in (
+                self.clamped,
+                self.current_cmd,
+                self.voltage_cmd,
+                self.output_cmd,
+                self._contactor,
+                self.state,
+            )
+            if t is not None
+        )
+        # The counters ``_integrate`` moves, by the signs of the charge and the energy of
+        # the scan (``[dq_ah >= 0][de_wh >= 0]``): the side counters only grow, charged
+        # what went in, discharged what came out.
+        ah = ((self.charge_ah, self.discharged_ah), (self.charge_ah, self.charged_ah))
+        wh = ((self.energy_wh, self.discharged_wh), (self.energy_wh, self.charged_wh))
+        self._ah_counters: tuple[tuple[Tag, ...], ...] = ah
+        self._counters: tuple[tuple[tuple[Tag, ...], ...], ...] = tuple(
+            tuple(a + w for w in wh) for a in ah
+        )
 
     # --- per scan ------------------------------------------------------------------
     # Two phases of the scan (docs/design.md "One scan"): ``derive`` first, so interlocks and the
@@ -265,7 +293,10 @@ class Channel:
             v, i, power = self.voltage, self.current, self.power
             if v.quality is _GOOD and i.quality is _GOOD:
                 p = v.number * i.number
-                update(power, p)
+                # An update only when it would change the tag (ADR 0037: an unchanged one
+                # is left as it is; the same most scans, no call then).
+                if p != power.value or power.quality is not _GOOD or power.reason is not _NONE:
+                    update(power, p)
                 self._prev_p = p
             else:
                 update(power, power.value, Quality.BAD, Reason.DERIVED_FROM_BAD)
@@ -276,7 +307,7 @@ class Channel:
     def drive(self, now: float, dt: float) -> None:
         """Setpoint selection, clamping to what safety allows, the output commands: the
         request, clamped, and the outputs and state that follow from it, written in one
-        ``update_many`` (each tag as its ``update`` would leave it)."""
+        ``update_each`` (each tag as its ``update`` would leave it)."""
         try:
             if self.fault.value:
                 request, active = 0.0, False
@@ -291,7 +322,7 @@ class Channel:
                     request = self.auto_current.number if active and mode == _AUTO else 0.0
             command, clamped = self._clamp(request)
             cmd = self.current_cmd
-            outputs: list[tuple[Tag, Value]] = [(self.clamped, clamped), (cmd, command)]
+            outputs: list[Value] = [clamped, command]  # the values of ``_output_tags``
             if self.voltage_cmd is not None:
                 vlo, vhi = self.limits.voltage_v
                 target = self.auto_voltage.number if self.mode.value == _AUTO else 0.0
@@ -300,12 +331,12 @@ class Channel:
                     if target > 0
                     else vhi
                 )
-                outputs.append((self.voltage_cmd, cv))
+                outputs.append(cv)
             # Power stage: output and contactor follow "active"; the current is 0 when not.
             if self.output_cmd is not None:
-                outputs.append((self.output_cmd, active))
+                outputs.append(active)
             if self._contactor is not None:
-                outputs.append((self._contactor, active))
+                outputs.append(active)
             # The state's name, from the fault and the command the source gets: the one
             # written here (``update`` stores a number as a float that compares the same),
             # or a forced one.
@@ -314,8 +345,8 @@ class Channel:
             else:
                 c = cmd.number if cmd.forced else command
                 state = "idle" if c == 0.0 else "charging" if c > 0 else "discharging"
-            outputs.append((self.state, state))
-            self.db.update_many(outputs)
+            outputs.append(state)
+            self.db.update_each(self._output_tags, outputs)
         except Exception as exc:
             self._failed(exc)
         else:
@@ -340,21 +371,14 @@ class Channel:
         i_prev, p_prev = self._prev_i, self._prev_p
         if dt > 0 and i_prev is not None:
             dq_ah = i_prev * dt / 3600.0
-            # The side counters only grow: charged what went in, discharged what came out.
-            side_ah = self.charged_ah if dq_ah >= 0 else self.discharged_ah
-            # Each: update(tag, tag.as_float() + delta); one literal (no list grown).
+            # Each counter: update(tag, tag.as_float() + delta), in one call.
             if p_prev is None:
-                self.db.add_many(((self.charge_ah, dq_ah), (side_ah, abs(dq_ah))))
+                self.db.add_each(self._ah_counters[dq_ah >= 0], (dq_ah, abs(dq_ah)))
             else:
                 de_wh = p_prev * dt / 3600.0
-                side_wh = self.charged_wh if de_wh >= 0 else self.discharged_wh
-                self.db.add_many(
-                    (
-                        (self.charge_ah, dq_ah),
-                        (side_ah, abs(dq_ah)),
-                        (self.energy_wh, de_wh),
-                        (side_wh, abs(de_wh)),
-                    )
+                self.db.add_each(
+                    self._counters[dq_ah >= 0][de_wh >= 0],
+                    (dq_ah, abs(dq_ah), de_wh, abs(de_wh)),
                 )
         current = self.current
         self._prev_i = current.number if current.quality is _GOOD else None

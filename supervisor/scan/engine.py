@@ -46,7 +46,7 @@ from supervisor.tags.spec import Scaling, TagSpec
 
 log = logging.getLogger(__name__)
 _perf_counter = time.perf_counter
-_BAD = Quality.BAD
+_GOOD, _BAD, _NONE = Quality.GOOD, Quality.BAD, Reason.NONE
 
 STATS_WINDOW = 10_000
 DRIVER_STOP_S = 5.0
@@ -413,8 +413,14 @@ class ScanEngine:
         db = self.db
         update = db.update
         for d, ctag, ftag in self._conn_tags:
-            update(ctag, d.connected)
-            update(ftag, getattr(d, "failures", 0))
+            # Both change a few times a run: an update only when it would change the tag
+            # (ADR 0037: an unchanged one is left as it is; no call most scans).
+            connected = d.connected
+            if connected != ctag.value or ctag.quality is not _GOOD or ctag.reason is not _NONE:
+                update(ctag, connected)
+            failures = getattr(d, "failures", 0)
+            if failures != ftag.value or ftag.quality is not _GOOD or ftag.reason is not _NONE:
+                update(ftag, failures)
         inputs = self.inputs
         if self._plan_of is not inputs or self._plan_len != len(inputs):
             self._input_plan()

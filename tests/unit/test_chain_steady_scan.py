@@ -21,7 +21,7 @@ from supervisor.chains.compiler import compile_recipe
 from supervisor.chains.conditions import ConditionValues
 from supervisor.chains.engine import ChainRunner
 from supervisor.chains.port import ChannelPort
-from supervisor.chains.program import CompiledStep
+from supervisor.chains.program import CompiledStep, Program
 from supervisor.chains.run import RunState
 from supervisor.channels import Channel, ChannelLimits, Mode
 from supervisor.config.recipe import load_recipe_text
@@ -409,13 +409,15 @@ def test_a_quiet_run_takes_the_steady_way_and_leaves_the_tags_that_hold_as_they_
     changed (ADR 0037)."""
     bench = Bench("steady", True, None)
     taken: list[float] = []
-    original = ChainRunner._steady_running
+    original = ChainRunner._steady_outputs
 
-    def spy(self: ChainRunner, now: float, r: RunState, step: CompiledStep) -> bool:
+    def spy(
+        self: ChainRunner, now: float, r: RunState, program: Program, step: CompiledStep
+    ) -> None:
         taken.append(now)
-        return original(self, now, r, step)
+        original(self, now, r, program, step)
 
-    monkeypatch.setattr(ChainRunner, "_steady_running", spy)
+    monkeypatch.setattr(ChainRunner, "_steady_outputs", spy)
     step = bench.db["ch0.chain.step"]
     bench.scan(1.0)  # the first scan publishes the step
     version, changed_t = step.version, step.source_t

@@ -1,8 +1,10 @@
-"""``TagDB.update_many`` (the outputs of the channels, guards and chains, every scan: issue
-29's profile of the dry run) leaves every tag and the change feed exactly as
-``TagDB.update`` called for each pair in turn does, for every kind of tag, value, quality,
-reason and forcing; ``Tag.as_float`` is the plain rule for every kind of value; and
-``Tag.number``, kept by every way a tag changes, is always ``as_float()`` of its value."""
+"""``TagDB.update_many`` and ``update_each`` (the outputs of the channels, guards and
+chains, every scan: issue 29's profile of the dry run) leave every tag and the change
+feed exactly as ``TagDB.update`` called for each pair in turn does, for every kind of
+tag, value, quality, reason and forcing (``add_many`` and ``add_each`` as the updates of
+each value plus its delta); ``Tag.as_float`` is the plain rule for every kind of value;
+and ``Tag.number``, kept by every way a tag changes, is always ``as_float()`` of its
+value."""
 
 from __future__ import annotations
 
@@ -91,15 +93,17 @@ def number_of(value: Any) -> float:
 def test_a_batch_of_updates_is_each_update_in_turn(
     specs: list[tuple[str, Any]], steps: list[Any]
 ) -> None:
-    many, one = _declared(specs), _declared(specs)
-    tags_many, tags_one = list(many), list(one)
+    many, each, one = _declared(specs), _declared(specs), _declared(specs)
+    tags_many, tags_each, tags_one = list(many), list(each), list(one)
     for scan, (moves, forcing, batch) in enumerate(steps):
-        for db, tags in ((many, tags_many), (one, tags_one)):
+        for db, tags in ((many, tags_many), (each, tags_each), (one, tags_one)):
             _process_side(db, tags, specs, float(scan + 1), moves, forcing)
         many.update_many([(tags_many[k], value) for k, value in batch])
+        each.update_each(tuple(tags_each[k] for k, _ in batch), [value for _, value in batch])
         for k, value in batch:
             one.update(tags_one[k], value)
         assert state(many) == state(one)
+        assert state(each) == state(one)
 
 
 OPERATIONS = ("update", "write", "force", "unforce", "set_quality", "add_many")
@@ -182,17 +186,24 @@ def test_a_tags_value_as_a_float_is_the_plain_rule(dtype: str, value: Any, defau
 def test_increments_are_each_update_of_the_value_plus_its_delta_in_turn(
     specs: list[tuple[str, Any]], steps: list[Any]
 ) -> None:
-    many, one = _declared(specs), _declared(specs)
-    tags_many, tags_one = list(many), list(one)
+    many, each, one = _declared(specs), _declared(specs), _declared(specs)
+    tags_many, tags_each, tags_one = list(many), list(each), list(one)
     for scan, (moves, forcing, increments) in enumerate(steps):
-        for db, tags in ((many, tags_many), (one, tags_one)):
+        for db, tags in ((many, tags_many), (each, tags_each), (one, tags_one)):
             _process_side(db, tags, specs, float(scan + 1), moves, forcing)
         pairs_many = [(tags_many[k], delta) for k, delta in increments]
         pairs_one = [(tags_one[k], delta) for k, delta in increments]
         outcome_many = _outcome(many.add_many, pairs_many)
+        outcome_each = _outcome(
+            each.add_each,
+            tuple(tags_each[k] for k, _ in increments),
+            tuple(delta for _, delta in increments),
+        )
         outcome_one = _outcome(_one_by_one, one, pairs_one)
         assert outcome_many == outcome_one
+        assert outcome_each == outcome_one
         assert state(many) == state(one)
+        assert state(each) == state(one)
 
 
 def _declared(specs: list[tuple[str, Any]], access: Access = Access.READ_ONLY) -> TagDB:
