@@ -4,11 +4,12 @@
 // to the same hash).
 import { get, post, onUnauthorized } from "./api.js";
 import { Live } from "./live.js";
-import { $, esc } from "./dom.js";
+import { $, alarmText, esc } from "./dom.js";
 import { Sound } from "./sound.js";
 import { StaleDisplay } from "./stale.js";
 import { paintSummary } from "./summary.js";
 import { priorityIcon } from "./priority.js";
+import { lang, onLangChange, setLang, t, translateStatic } from "./i18n.js";
 import * as login from "./screens/login.js";
 import * as overview from "./screens/overview.js";
 import * as channel from "./screens/channel.js";
@@ -129,7 +130,7 @@ function paintHeader() {
   top.hidden = !s;
   if (!s) return;
   $("#bench-name").textContent = app.bench?.bench || "bench";
-  $("#who").textContent = s.login === false ? "login off (operator)" : `${s.user} (${s.role})`;
+  $("#who").textContent = s.login === false ? t("header.loginOff") : `${s.user} (${t(`role.${s.role}`)})`;
   $("#logout").hidden = s.login === false;
   const { path } = parseHash();
   const current = ROUTES.find(([re]) => re.test(path))?.[2];
@@ -141,9 +142,9 @@ function paintHeader() {
 
 function paintLink() {
   const el = $("#link");
-  const labels = { live: "live", polling: "polling", down: "disconnected", connecting: "connecting" };
+  const labels = { live: "link.live", polling: "link.polling", down: "link.down", connecting: "link.connecting" };
   // An open connection that has gone silent is no longer "live" (stale.js).
-  el.textContent = app.stale.silent ? "no data" : labels[app.live.state] || app.live.state;
+  el.textContent = app.stale.silent ? t("link.noData") : labels[app.live.state] ? t(labels[app.live.state]) : app.live.state;
   el.classList.toggle("abn", app.live.state === "down" || app.stale.silent);
 }
 
@@ -169,7 +170,7 @@ function paintAlarmCount() {
   banner.hidden = !first || parseHash().path === "/login";
   if (first) {
     // The alarm's priority by shape and colour here too (ISA-101), not only on its screen.
-    banner.innerHTML = `${priorityIcon(first.severity)} <a href="#/alarms">${esc(first.first_out ? "FIRST OUT " : "")}${esc(first.id)}: ${esc(first.message)}</a>${unacked.length > 1 ? ` (+${unacked.length - 1} more)` : ""}`;
+    banner.innerHTML = `${priorityIcon(first.severity)} <a href="#/alarms">${esc(first.first_out ? `${t("alarms.firstOut")} ` : "")}${esc(first.id)}: ${esc(alarmText(first))}</a>${unacked.length > 1 ? ` ${esc(t("banner.more", { n: unacked.length - 1 }))}` : ""}`;
   }
 }
 
@@ -248,7 +249,7 @@ async function route() {
     return;
   }
   app.screen = screen;
-  app.stale.setTitle(`${root.dataset.title || found[2]} — bench supervisor`);
+  app.stale.setTitle(`${root.dataset.title || found[2]} — ${t("app.title")}`);
 }
 
 $("#logout").addEventListener("click", async () => {
@@ -284,6 +285,22 @@ function scheduleSessionCheck() {
   }, (s.expires_s + SESSION_SLACK_S) * 1000);
 }
 app.scheduleSessionCheck = scheduleSessionCheck;
+
+// The language (i18n.js): the static page's texts now, and the switch in the header; a
+// change repaints the header and renders the screen again in the new language.
+translateStatic();
+const langSelect = $("#lang");
+langSelect.value = lang();
+langSelect.addEventListener("change", () => setLang(langSelect.value));
+onLangChange(() => {
+  langSelect.value = lang();
+  translateStatic();
+  const el = $("#summary");
+  if (el) delete el.dataset.key;
+  paintLink();
+  app.stale.paint();
+  route();
+});
 
 window.addEventListener("hashchange", route);
 app.stale.onChange = paintLink;
