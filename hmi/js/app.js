@@ -9,6 +9,7 @@ import { Sound } from "./sound.js";
 import { StaleDisplay } from "./stale.js";
 import { paintSummary } from "./summary.js";
 import { priorityIcon } from "./priority.js";
+import * as i18n from "./i18n.js";
 import { lang, onLangChange, setLang, t, translateStatic } from "./i18n.js";
 import * as login from "./screens/login.js";
 import * as overview from "./screens/overview.js";
@@ -40,6 +41,7 @@ const app = {
   screen: null,
   sound: new Sound(),
   stale: new StaleDisplay(),
+  i18n, // the language and its formats (the browser tests read its catalogues)
   goLogin,
 };
 window.hmi = app; // for the browser tests and for a curious engineer's console
@@ -170,7 +172,7 @@ function paintAlarmCount() {
   banner.hidden = !first || parseHash().path === "/login";
   if (first) {
     // The alarm's priority by shape and colour here too (ISA-101), not only on its screen.
-    banner.innerHTML = `${priorityIcon(first.severity)} <a href="#/alarms">${esc(first.first_out ? `${t("alarms.firstOut")} ` : "")}${esc(first.id)}: ${esc(alarmText(first))}</a>${unacked.length > 1 ? ` ${esc(t("banner.more", { n: unacked.length - 1 }))}` : ""}`;
+    banner.innerHTML = `${priorityIcon(first.severity)} <a href="#/alarms">${esc(first.first_out ? `${t("alarms.firstOut")} ` : "")}${esc(first.id)}: ${esc(alarmText(first))}</a>${unacked.length > 1 ? ` ${esc(t("banner.more", { n: unacked.length - 1, count: unacked.length - 1 }))}` : ""}`;
   }
 }
 

@@ -226,7 +226,7 @@ export function trendChart(el, { pens, height, hidden = [], onSelect = () => {},
     },
     series: [
       // The time under the cursor as the tables write it (the locale's order, 24 h).
-      { value: (u, v) => (v == null ? "—" : fmtDateTime(v)) },
+      { label: t("trend.time"), value: (u, v) => (v == null ? "—" : fmtDateTime(v)) },
       ...pens.map((p, i) => ({
         label: p.label,
         scale: p.scale,

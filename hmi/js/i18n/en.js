@@ -25,7 +25,8 @@ export default {
   "link.noData": "no data",
   "link.title": "live data connection",
   "link.staleSince": "no live data since {at}",
-  "banner.more": "(+{n} more)",
+  "banner.more_one": "(+{n} more)",
+  "banner.more_other": "(+{n} more)",
 
   // stale values (stale.js)
   "stale.titlePrefix": "STALE",
@@ -179,6 +180,7 @@ export default {
   "trend.zoomOut": "zoom out",
   "trend.live": "Live",
   "trend.pens": "Pens",
+  "trend.time": "Time",
 
   // command bar
   "commands.title": "Commands",
@@ -193,6 +195,8 @@ export default {
   "commands.load": "Load recipe",
   "commands.chain": "Chain commands",
   "commands.mode": "Mode",
+  "commands.auto": "Auto",
+  "commands.manual": "Manual",
   "commands.manualCurrent": "Manual current (A)",
   "commands.set": "Set",
   "commands.enable": "Enable",

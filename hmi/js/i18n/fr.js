@@ -26,7 +26,8 @@ export default {
   "link.noData": "aucune donnée",
   "link.title": "liaison des données en direct",
   "link.staleSince": "plus de données en direct depuis {at}",
-  "banner.more": "(+{n} autres)",
+  "banner.more_one": "(+{n} autre)",
+  "banner.more_other": "(+{n} autres)",
 
   // valeurs figées (stale.js)
   "stale.titlePrefix": "FIGÉ",
@@ -61,7 +62,7 @@ export default {
   "value.no": "non",
   "value.NO": "NON",
   "value.na": "n. d.",
-  "value.none": "aucun",
+  "value.none": "néant",
   "value.unknown": "inconnu",
   "value.closed": "fermé",
   "value.open": "ouvert",
@@ -182,6 +183,7 @@ export default {
   "trend.zoomOut": "dézoomer",
   "trend.live": "Direct",
   "trend.pens": "Courbes affichées",
+  "trend.time": "Heure",
 
   // barre de commandes
   "commands.title": "Commandes",
@@ -197,6 +199,8 @@ export default {
   "commands.load": "Charger la recette",
   "commands.chain": "Commandes de la séquence",
   "commands.mode": "Mode",
+  "commands.auto": "Auto",
+  "commands.manual": "Manuel",
   "commands.manualCurrent": "Courant manuel (A)",
   "commands.set": "Appliquer",
   "commands.enable": "Valider",

@@ -128,7 +128,7 @@ export async function render({ root, app, params }) {
       return;
     }
     program = answer.data;
-    chainEl.innerHTML = `<p class="muted">${esc(program.recipe || "")}</p><ol class="chain">${(program.steps || [])
+    chainEl.innerHTML = `<p class="muted">${esc(program.recipe || "")}</p><ol class="chain" translate="no">${(program.steps || [])
       .map(
         (s) => `<li data-step="${esc(s.name)}" data-index="${esc(s.index)}">
           <b>${esc(s.name)}</b> <span class="muted">${esc(s.kind || "")}</span>
@@ -324,6 +324,7 @@ export async function render({ root, app, params }) {
 
   return {
     trendPoints: () => data[0].length,
+    trendChart: () => trend?.chart, // (the browser tests read its time axis)
     update(change) {
       bar.update(change);
       if (change.kind === "tags") {

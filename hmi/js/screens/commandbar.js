@@ -43,8 +43,8 @@ export function commandBarHtml(viewer) {
         ${VERBS.map(([v, l]) => `<button type="button" data-verb="${v}" data-bar="${v}" id="cmd-${v}">${tx(l)}</button>`).join("")}
       </div>
       <div class="buttons" role="group" aria-label="${tx("commands.mode")}">
-        <button type="button" id="cmd-auto" data-mode="auto" data-bar="mode_auto">${tx("mode.auto")}</button>
-        <button type="button" id="cmd-manual" data-mode="manual" data-bar="mode_manual">${tx("mode.manual")}</button>
+        <button type="button" id="cmd-auto" data-mode="auto" data-bar="mode_auto">${tx("commands.auto")}</button>
+        <button type="button" id="cmd-manual" data-mode="manual" data-bar="mode_manual">${tx("commands.manual")}</button>
       </div>
       <form id="manual-form" class="manual">
         <label for="manual-current">${tx("commands.manualCurrent")}</label>

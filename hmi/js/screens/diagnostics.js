@@ -33,13 +33,14 @@ function cell(v) {
 function table(id, rows, abnormal = () => false) {
   if (!rows || !rows.length) return `<p class="muted">${esc(t("value.none"))}</p>`;
   const cols = Array.from(new Set(rows.flatMap((r) => Object.keys(r))));
-  return `<table class="grid" id="${id}"><thead><tr>${cols.map((c) => `<th>${esc(c)}</th>`).join("")}</tr></thead><tbody>
+  // (translate="no": the supervisor's own field names, not the screen's words)
+  return `<table class="grid" id="${id}" translate="no"><thead><tr>${cols.map((c) => `<th>${esc(c)}</th>`).join("")}</tr></thead><tbody>
     ${rows.map((r) => `<tr class="${abnormal(r) ? "abn" : ""}">${cols.map((c) => `<td>${cell(r[c])}</td>`).join("")}</tr>`).join("")}</tbody></table>`;
 }
 
 function kvTable(id, obj) {
   if (!isObj(obj)) return `<p class="muted">${esc(t("value.none"))}</p>`;
-  return `<table class="grid kvt" id="${id}"><tbody>${Object.entries(obj)
+  return `<table class="grid kvt" id="${id}" translate="no"><tbody>${Object.entries(obj)
     .map(([k, v]) => `<tr><th>${esc(k)}</th><td>${cell(v)}</td></tr>`)
     .join("")}</tbody></table>`;
 }
@@ -61,7 +62,7 @@ export async function render({ root, app }) {
       <section class="panel wide"><h2>${tx("diag.publishers")}</h2><div id="diag-publishers"></div></section>
       <section class="panel"><h2>${tx("diag.spool")}</h2><div id="diag-spool"></div></section>
       <section class="panel"><h2>${tx("diag.live")}</h2>
-        <table class="grid kvt" id="diag-live"><tbody>${liveRows(["scan.", "historian.", "hmi.", "influx.", "opcua.", "retain."])}${app.bench.devices
+        <table class="grid kvt" id="diag-live" translate="no"><tbody>${liveRows(["scan.", "historian.", "hmi.", "influx.", "opcua.", "retain."])}${app.bench.devices
           .map((d) => liveRows([`${d.name}.connected`, `${d.name}.comm_failures`]))
           .join("")}</tbody></table></section>
     </div>`;
