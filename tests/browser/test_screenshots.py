@@ -28,7 +28,11 @@ SHOTS: dict[str, tuple[str, str, tuple[str, str] | None]] = {
     "overview": ("#/", "#tile-ch4", None),
     "estop-confirm": ("#/", "#estop-press", ("#estop-press", "#estop-confirm")),
     "channel": ("#/channel/ch0", "#chain li[data-step]", None),
-    "reset-confirm": ("#/channel/ch1", "section.commands[data-asked]", ("#cmd-reset", "#cmd-confirm")),
+    "reset-confirm": (
+        "#/channel/ch1",
+        "section.commands[data-asked]",
+        ("#cmd-reset", "#cmd-confirm"),
+    ),
     "alarms": ("#/alarms", "#alarm-table tr[data-alarm='estop']", None),
     "recipes": ("#/recipes", "#recipe-items", None),
     "recipe": (f"#/recipes/{SHORT_RECIPE.stem}", "#recipe-text", None),
