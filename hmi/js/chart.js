@@ -23,6 +23,9 @@ export function autoResize(chart, el, height) {
   return () => ro.disconnect();
 }
 
+/** A legend's value in the locale's format; none is a dash. */
+const legendValue = (u, v) => (v == null ? "—" : fmtSignificant(v, 6));
+
 /** Tick labels with enough digits for small values (mAh-sized Ah, efficiencies). */
 const ticks = (u, vals) =>
   vals.map((v) => (v === null ? "" : Math.abs(v) >= 100 ? fmtSignificant(Math.round(v), 21) : fmtSignificant(v, 3)));
@@ -57,9 +60,10 @@ export function simplePlot(el, { title, xLabel, yLabel, series, x, ys, height = 
       { label: yLabel ?? series.map((s) => s.label).join(" / "), values: yValues ?? ticks, size: 60 },
     ],
     series: [
-      { label: xLabel },
+      { label: xLabel, value: legendValue },
       ...series.map((s, i) => ({
         label: s.label,
+        value: legendValue,
         ...SERIES_STYLE[i % SERIES_STYLE.length],
         ...(bars || stepped ? { paths: pathsOf(i) } : {}),
         ...(bars ? { fill: i ? "#b9c2cc" : "#6f7a85", dash: undefined } : {}),

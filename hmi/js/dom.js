@@ -1,7 +1,7 @@
 // Small DOM helpers: escaping, value formatting, and the binding of elements to tags
 // (<span data-tag="ch0.voltage" data-fmt="n3">), refreshed on each live delta. Numbers,
 // dates and words in the screens' language (i18n.js).
-import { fmtDateTime, fmtNumber, t, tOr, tValue } from "./i18n.js";
+import { fmtDateTime, fmtNumber, fmtSignificant, t, tOr, tValue } from "./i18n.js";
 
 export function esc(s) {
   return String(s ?? "")
@@ -38,7 +38,22 @@ export function fmtTime(unixS) {
  * supervisor sends them and the catalogue has the code, else the supervisor's message. */
 export function alarmText(a) {
   if (!a) return "";
-  return a.code ? tOr(`alarm.${a.code}`, a.message ?? "", a.params || {}) : a.message ?? "";
+  return a.code ? tOr(`alarm.${a.code}`, a.message ?? "", alarmParams(a.params)) : a.message ?? "";
+}
+
+/** An alarm's numeric params in the locale's format, as the supervisor's own text writes
+ * them: a measured value in volts or amperes with 3 decimals, in °C with 1, a limit or
+ * a tolerance as given (up to 6 significant digits). */
+function alarmParams(params) {
+  const out = {};
+  for (const [k, v] of Object.entries(params || {})) {
+    if (typeof v !== "number") out[k] = v ?? "";
+    else if (/^(limit|tolerance)/.test(k)) out[k] = fmtSignificant(v, 6);
+    else if (k.endsWith("_c")) out[k] = fmtNumber(v, 1);
+    else if (/_(v|a)$/.test(k)) out[k] = fmtNumber(v, 3);
+    else out[k] = fmtSignificant(v, 6);
+  }
+  return out;
 }
 
 /** A tag's value as text by a format: n<digits>, dur, pct, bool, text (default). */

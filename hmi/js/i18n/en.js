@@ -68,6 +68,7 @@ export default {
   "value.linkLost": "LOST",
   "tag.missing": "no such tag on this bench",
   "tag.notFitted": "no sensor fitted on this bench",
+  "api.unreachable": "supervisor unreachable ({error})",
   "result.done": "done",
   "result.refused": "Refused ({status}): {reason}",
   "unit.days": "{n} d",

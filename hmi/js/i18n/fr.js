@@ -71,6 +71,7 @@ export default {
   "value.linkLost": "PERDUE",
   "tag.missing": "variable absente de ce banc",
   "tag.notFitted": "aucun capteur sur ce banc",
+  "api.unreachable": "superviseur injoignable ({error})",
   "result.done": "fait",
   "result.refused": "Refusé ({status}) : {reason}",
   "unit.days": "{n} j",
