@@ -290,12 +290,23 @@ app.scheduleSessionCheck = scheduleSessionCheck;
 
 // The language (i18n.js): the static page's texts now, and the switch in the header; a
 // change repaints the header and renders the screen again in the new language.
+// The switch is a button naming the other language in that language (never translated:
+// whoever cannot read this one must find theirs), compact for the header's one line.
+const LANGUAGE_NAMES = { en: "English", fr: "Français" };
+const langButton = $("#lang");
+function paintLangSwitch() {
+  const other = lang() === "fr" ? "en" : "fr";
+  langButton.textContent = other.toUpperCase();
+  langButton.lang = other;
+  langButton.dataset.lang = other;
+  langButton.title = LANGUAGE_NAMES[other];
+  langButton.setAttribute("aria-label", `${other.toUpperCase()} ${LANGUAGE_NAMES[other]}`);
+}
 translateStatic();
-const langSelect = $("#lang");
-langSelect.value = lang();
-langSelect.addEventListener("change", () => setLang(langSelect.value));
+paintLangSwitch();
+langButton.addEventListener("click", () => setLang(langButton.dataset.lang));
 onLangChange(() => {
-  langSelect.value = lang();
+  paintLangSwitch();
   translateStatic();
   const el = $("#summary");
   if (el) delete el.dataset.key;
