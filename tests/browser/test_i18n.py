@@ -220,24 +220,22 @@ def test_numbers_are_written_in_the_locale_and_zero_is_unsigned(
 CLOCK = re.compile(r"^\d{2}:\d{2}(:\d{2})?$")
 
 
-def _axis_and_table_times(page: Any, bench: Supervisor) -> tuple[list[str], str, str]:
-    """The trend's time-axis labels and its legend's time (ch0), and the Alarms table's
-    "since" date and time of the e-stop alarm."""
+def _axis_and_table_times(page: Any, bench: Supervisor) -> tuple[str, list[str], str]:
+    """The time the trend's legend gives under the cursor and its time axis's labels (ch0),
+    and the Alarms table's "since" date and time of the e-stop alarm."""
     page.goto(f"{bench.base}/#/channel/ch0")
     page.wait_for_selector("#trend .uplot")
-    wait_for(
-        "the trend's time ticks",
-        lambda: page.evaluate("() => hmi.screen.trendChart()?.axes[0]._values?.length"),
-    )
-    ticks = page.evaluate("() => hmi.screen.trendChart().axes[0]._values.filter(Boolean)")
-    legend = page.evaluate(
-        "() => { const u = hmi.screen.trendChart(); u.setLegend({idx: u.data[0].length - 1});"
-        " return document.querySelector('#trend .u-legend .u-series .u-value').textContent; }"
+    wait_for("points on the trend", lambda: int(page.get_attribute("#trend", "data-points") or 0))
+    # The cursor on the plot, as an operator reads a time.
+    page.hover("#trend .u-over")
+    legend = page.text_content("#trend .u-legend .u-series .u-value") or ""
+    ticks = page.evaluate(
+        "() => (hmi.screen.trendChart?.()?.axes[0]._values || []).filter(Boolean)"
     )
     page.goto(f"{bench.base}/#/alarms")
     page.wait_for_selector("#alarm-table tr[data-alarm='estop']")
     since = page.text_content("#alarm-table tr[data-alarm='estop'] .alarm-state .muted") or ""
-    return ticks, legend, since
+    return legend, ticks, since
 
 
 @pytest.mark.parametrize(
@@ -254,13 +252,11 @@ def test_the_trend_axis_and_the_tables_write_times_alike(
     ctx, page, errors = _page(browser, locale)
     try:
         login(page, bench, "operator")
-        ticks, legend, since = _axis_and_table_times(page, bench)
+        legend, ticks, since = _axis_and_table_times(page, bench)
     finally:
         ctx.close()
     assert not errors, errors
-    assert ticks and all(CLOCK.match(t.split("\n")[-1]) for t in ticks), ticks
-    assert not any(re.search(r"[ap]m", t, re.I) for t in ticks), ticks
-    # The cursor's time in the legend as the table writes a time: the same pattern.
+    # The time under the cursor as the table writes a time: the same pattern, 24 h.
     assert re.fullmatch(date, legend), legend
     m = re.search(date, since)
     assert m, since
@@ -268,3 +264,6 @@ def test_the_trend_axis_and_the_tables_write_times_alike(
     today = datetime.now()
     order = (today.day, today.month) if locale.startswith("fr") else (today.month, today.day)
     assert (int(m.group(1)), int(m.group(2))) == order, since
+    # The axis: hours and minutes (and seconds), 24 h, never "3:14pm".
+    assert ticks and all(CLOCK.match(t.split("\n")[-1]) for t in ticks), ticks
+    assert not any(re.search(r"[ap]m", t, re.I) for t in ticks), ticks
