@@ -1,7 +1,7 @@
 // Small DOM helpers: escaping, value formatting, and the binding of elements to tags
 // (<span data-tag="ch0.voltage" data-fmt="n3">), refreshed on each live delta. Numbers,
 // dates and words in the screens' language (i18n.js).
-import { fmtDateTime, fmtNumber, fmtSignificant, t, tOr, tValue } from "./i18n.js";
+import { fmtDateTime, fmtNumber, fmtSignificant, lang, t, tOr, tValue } from "./i18n.js";
 
 export function esc(s) {
   return String(s ?? "")
@@ -34,20 +34,24 @@ export function fmtTime(unixS) {
   return fmtDateTime(unixS);
 }
 
-/** An alarm's text in the screens' language: by its stable `code` and `params` when the
- * supervisor sends them and the catalogue has the code, else the supervisor's message. */
+/** An alarm's text in the screens' language: in English the supervisor's own message (it
+ * writes them in English); in another by its stable `code` and `params` when the
+ * supervisor sends them and the catalogue has the code, else the message as it came. */
 export function alarmText(a) {
   if (!a) return "";
-  return a.code ? tOr(`alarm.${a.code}`, a.message ?? "", alarmParams(a.params)) : a.message ?? "";
+  if (!a.code || lang() === "en") return a.message ?? "";
+  return tOr(`alarm.${a.code}`, a.message ?? "", alarmParams(a.params));
 }
 
 /** An alarm's numeric params in the locale's format, as the supervisor's own text writes
- * them: a measured value in volts or amperes with 3 decimals, in °C with 1, a limit or
- * a tolerance as given (up to 6 significant digits). */
+ * them: a measured value in volts or amperes with 3 decimals, in °C with 1, seconds with
+ * 2, a limit or a tolerance as given (up to 6 significant digits). */
 function alarmParams(params) {
   const out = {};
   for (const [k, v] of Object.entries(params || {})) {
-    if (typeof v !== "number") out[k] = v ?? "";
+    // (a word of a state — "open", "on" — in the language; names and reasons as they are)
+    if (typeof v !== "number") out[k] = typeof v === "string" ? tOr(`alarmWord.${v}`, v) : v ?? "";
+    else if (k.endsWith("_s")) out[k] = fmtNumber(v, 2);
     else if (/^(limit|tolerance)/.test(k)) out[k] = fmtSignificant(v, 6);
     else if (k.endsWith("_c")) out[k] = fmtNumber(v, 1);
     else if (/_(v|a)$/.test(k)) out[k] = fmtNumber(v, 3);
