@@ -1,14 +1,11 @@
 // The screens' language (issue 33, finding 9): French or English, every label and message
 // of the front end from one catalogue per language (i18n/en.js, i18n/fr.js: plain objects
-// of key -> text, no build step), numbers, dates and times in the language's format.
+// of key -> text, no build step; a page loads the one of its language, the other when it
+// is switched to), numbers, dates and times in the language's format.
 // The language: the one chosen with the header's switch (remembered by this browser), else
 // the browser's (navigator.languages: fr* -> French), else English. Texts that come from the
 // supervisor are shown as it sends them unless they carry a stable code (an alarm's
 // `code` and `params`, a state's name): docs/adr/0045-screens-in-french-and-english.md.
-import en from "./i18n/en.js";
-import fr from "./i18n/fr.js";
-
-export const CATALOGUES = { en, fr };
 export const LANGUAGES = ["en", "fr"];
 const KEY = "hmi.lang";
 
@@ -30,7 +27,24 @@ function stored() {
   }
 }
 
+const loaded = {}; // language -> its catalogue, once imported
+
+async function load(language) {
+  if (!loaded[language]) loaded[language] = (await import(`./i18n/${language}.js`)).default;
+  return loaded[language];
+}
+
 let current = stored() || browserLanguage();
+// (top-level await: the app's modules run once the page's language is there, so the
+// first paint is in it)
+await load(current);
+
+/** Both catalogues (the browser tests compare them). */
+export async function catalogues() {
+  const out = {};
+  for (const language of LANGUAGES) out[language] = await load(language);
+  return out;
+}
 
 export const lang = () => current;
 
@@ -46,9 +60,11 @@ export function locale() {
   return current === "fr" ? "fr-FR" : "en-GB";
 }
 
-/** Choose the language (the header's switch): remembered, then `onChange` repaints. */
-export function setLang(value) {
+/** Choose the language (the header's switch): its catalogue loaded, the choice
+ * remembered, then the listeners repaint. */
+export async function setLang(value) {
   if (!LANGUAGES.includes(value) || value === current) return;
+  await load(value);
   current = value;
   try {
     localStorage.setItem(KEY, value);
@@ -66,23 +82,23 @@ export function onLangChange(fn) {
   return () => listeners.delete(fn);
 }
 
-/** Is there a text for `key` (in the current language or English)? */
-export const has = (key) => key in CATALOGUES[current] || key in en;
+/** Is there a text for `key` in the current language? */
+export const has = (key) => key in loaded[current];
 
 /**
  * The text of `key` with its {name} placeholders filled from `params`. With a numeric
  * `params.count`, the plural form `key_one` / `key_other` by the language's rule (French:
- * 0 and 1 are singular) where the catalogue has them. A key missing from the language falls
- * back to English, one missing from both to the key itself (the catalogue test finds it).
+ * 0 and 1 are singular) where the catalogue has them. A key missing from the catalogue is
+ * shown as the key itself (the browser tests check both catalogues have the same keys).
  */
 export function t(key, params = {}) {
-  const cat = CATALOGUES[current];
+  const cat = loaded[current];
   let k = key;
   if (typeof params.count === "number") {
     const form = plural(params.count);
-    if (`${key}_${form}` in cat || `${key}_${form}` in en) k = `${key}_${form}`;
+    if (`${key}_${form}` in cat) k = `${key}_${form}`;
   }
-  const text = k in cat ? cat[k] : k in en ? en[k] : key;
+  const text = k in cat ? cat[k] : key;
   return text.replace(/\{(\w+)\}/g, (m, name) => (name in params ? String(params[name]) : m));
 }
 

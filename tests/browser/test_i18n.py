@@ -62,7 +62,7 @@ def english(browser: Any) -> Iterator[Any]:
 
 
 def _catalogues(page: Any) -> tuple[dict[str, str], dict[str, str]]:
-    cats = page.evaluate("() => window.hmi.i18n.CATALOGUES")
+    cats = page.evaluate("() => window.hmi.i18n.catalogues()")
     return cats["en"], cats["fr"]
 
 
@@ -138,11 +138,13 @@ MIN_LITERAL_LETTERS = 4  # a text with placeholders is matched when it has this 
 
 def _english_only(en: dict[str, str], fr: dict[str, str]) -> list[tuple[str, re.Pattern[str]]]:
     """The English texts that are not French (a word that is the same in both, "message",
-    "cycle", is not English only), each as a pattern: a placeholder matches anything."""
+    "cycle", is not English only), each as a pattern: a placeholder matches anything. Not
+    the alarms' texts by code: without its code an alarm shows the supervisor's message."""
     french_texts = set(fr.values())
     out = []
     for key, text in en.items():
-        if text == fr[key] or text in french_texts:
+        # (an alarm's text without a code is the supervisor's, shown as it came)
+        if text == fr[key] or text in french_texts or key.startswith("alarm."):
             continue
         literal = re.sub(r"\{\w+\}", "", text)
         if "{" in text and len(re.findall(r"[A-Za-z]", literal)) < MIN_LITERAL_LETTERS:
