@@ -2,7 +2,9 @@
 in tests/artifacts/screens/ as SCREEN-LANG-WxH.png (git-ignored): Login, Overview and its
 e-stop confirmation, a channel and its command confirmation, Alarms with an alarm, Recipes
 (the list, a recipe, its dry run), Tests (the list, a test), Diagnostics. Each page must have
-rendered: no error on the page, its title set for the screen, its root not empty.
+rendered: no error on the page, its title set for the screen, its root not empty; the
+French ones are also checked by axe-core (the English ones are, by test_accessibility.py):
+no serious or critical violation.
 
 The bench is the accessibility checks' (a recipe on ch0, an aborted test of ch1, the
 simulated e-stop pressed). One browser context per language and size, logged in once, the
@@ -14,6 +16,7 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
+from axe import audit, blocking
 from browserrig import SCREENS as SCREENS_DIR
 from browserrig import SHORT_RECIPE, VIEWPORT, Supervisor, login, supervisor_fixture, wait_for
 from test_accessibility import _busy, _test_id
@@ -97,6 +100,9 @@ def test_every_screen_renders_and_is_saved_as_a_screenshot(
             page.wait_for_load_state("networkidle")
             _rendered(page, lang, shot)
             _shoot(page, f"{shot}-{lang}-{size}", full_page=not shot.endswith("-confirm"))
+            if lang != "en":
+                bad = blocking(audit(page))
+                assert not bad, (shot, [str(v) for v in bad])
     finally:
         ctx.close()
     assert not errors, errors
