@@ -6,6 +6,7 @@ import { get, post, onUnauthorized } from "./api.js";
 import { Live } from "./live.js";
 import { $, alarmText, esc } from "./dom.js";
 import { Sound } from "./sound.js";
+import { AlarmSound } from "./alarmsound.js";
 import { StaleDisplay } from "./stale.js";
 import { paintSummary } from "./summary.js";
 import { priorityIcon } from "./priority.js";
@@ -22,7 +23,7 @@ import * as diagnostics from "./screens/diagnostics.js";
 const ROUTES = [
   [/^\/login$/, login, "login"],
   [/^\/?$/, overview, "overview"],
-  [/^\/channel\/([^/]+)$/, channel, "overview"],
+  [/^\/channel\/([^/]+)$/, channel, "channel"],
   [/^\/alarms$/, alarms, "alarms"],
   [/^\/recipes(?:\/(.+))?$/, recipes, "recipes"],
   [/^\/tests(?:\/(.+))?$/, tests, "tests"],
@@ -40,10 +41,12 @@ const app = {
   anonymousRead: false, // the supervisor lets a visitor see without logging in
   screen: null,
   sound: new Sound(),
+  alarmSound: null, // the repeating alarm sound and its silence (alarmsound.js)
   stale: new StaleDisplay(),
   i18n, // the language and its formats (the browser tests read its catalogues)
   goLogin,
 };
+app.alarmSound = new AlarmSound(app.sound);
 window.hmi = app; // for the browser tests and for a curious engineer's console
 
 function parseHash() {
@@ -140,6 +143,18 @@ function paintHeader() {
     if (a.dataset.nav === current) a.setAttribute("aria-current", "page");
     else a.removeAttribute("aria-current");
   }
+  paintChannelNav(current === "channel" ? decodeURIComponent(path.split("/")[2] || "") : "");
+}
+
+/** On a channel's screen the nav names that channel, highlighted (not Overview, which it
+ * is not); elsewhere the entry is hidden. */
+function paintChannelNav(name) {
+  const a = $("#nav-channel");
+  if (!a) return;
+  a.hidden = !name;
+  if (!name) return;
+  a.textContent = t("nav.channel", { ch: name });
+  a.href = `#/channel/${encodeURIComponent(name)}`;
 }
 
 function paintLink() {
@@ -156,23 +171,23 @@ function repaintSummary() {
   if (el && app.bench) paintSummary(el, app.bench, app.live);
 }
 
-let knownAlarms = new Set();
 function paintAlarmCount() {
   const active = app.live.alarms.filter((a) => a.state !== "normal" && !a.shelved);
   const unacked = active.filter((a) => a.state.includes("unacknowledged"));
   const el = $("#alarm-count");
   el.textContent = active.length ? String(active.length) : "";
   el.classList.toggle("abn", unacked.length > 0);
-  // A new alarm (an id not annunciated before): the optional audible alert.
-  const ids = new Set(active.map((a) => a.id));
-  for (const id of ids) if (!knownAlarms.has(id) && unacked.some((a) => a.id === id)) app.sound.alarm();
-  knownAlarms = ids;
+  // The alarm sound: once for a new alarm, repeating for high priorities (alarmsound.js),
+  // for the logged-in user (a silence is theirs).
+  app.alarmSound.setUser(app.session?.user || "");
+  app.alarmSound.setRepeat(app.session?.alarm_sound_repeat_s);
+  app.alarmSound.update(app.session ? app.live.alarms : []);
   const banner = $("#banner");
   const first = unacked[0];
   banner.hidden = !first || parseHash().path === "/login";
   if (first) {
     // The alarm's priority by shape and colour here too (ISA-101), not only on its screen.
-    banner.innerHTML = `${priorityIcon(first.severity)} <a href="#/alarms">${esc(first.first_out ? `${t("alarms.firstOut")} ` : "")}${esc(first.id)}: ${esc(alarmText(first))}</a>${unacked.length > 1 ? ` ${esc(t("banner.more", { n: unacked.length - 1, count: unacked.length - 1 }))}` : ""}`;
+    $("#banner-text").innerHTML = `${priorityIcon(first.severity)} <a href="#/alarms">${esc(first.first_out ? `${t("alarms.firstOut")} ` : "")}${esc(first.id)}: ${esc(alarmText(first))}</a>${unacked.length > 1 ? ` ${esc(t("banner.more", { n: unacked.length - 1, count: unacked.length - 1 }))}` : ""}`;
   }
 }
 
@@ -264,7 +279,29 @@ $("#logout").addEventListener("click", async () => {
 
 const sound = $("#sound");
 sound.checked = app.sound.enabled;
-sound.addEventListener("change", () => app.sound.setEnabled(sound.checked));
+sound.addEventListener("change", () => {
+  app.sound.setEnabled(sound.checked);
+  paintAlarmCount();
+});
+
+// On the alarm banner's line: "Alarm sounding — Silence" while a high-priority alarm
+// repeats on this screen, and "sound blocked" while the browser waits for a gesture before
+// it plays anything (a reload has had none; the login's click is one). The header's
+// switch says it too, in its tooltip: the header's one line has no room for more.
+function paintSounding() {
+  const blocked = app.sound.blocked && Boolean(app.session);
+  $("#alarm-silence").hidden = !app.alarmSound.active;
+  $("#sound-blocked").hidden = !blocked;
+  const label = $("#sound").closest("label");
+  label.classList.toggle("blocked", blocked);
+  label.title = blocked ? t("sound.blockedTitle") : t("sound.title");
+}
+app.alarmSound.onChange = paintSounding;
+app.sound.onChange = paintSounding;
+$("#alarm-silence").addEventListener("click", async () => {
+  const answer = await app.alarmSound.silence();
+  if (answer && !answer.ok) $("#alarm-silence").title = answer.data?.reason || t("sound.notSilenced");
+});
 
 // The session expires after hmi.session_timeout_s without a request (the WebSocket's
 // messages do not count). The page asks again just after the time the supervisor gave:

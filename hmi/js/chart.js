@@ -25,6 +25,24 @@ export function autoResize(chart, el, height) {
 
 /** A legend's value in the locale's format; none is a dash. */
 const legendValue = (u, v) => (v == null ? "—" : fmtSignificant(v, 6));
+/**
+ * An axis as wide as its widest tick label (uPlot's `size` hook, after its axis-autosize
+ * example): a fixed 60 px let step names ("charge_cc_cv") run under the axis label
+ * ("step"). The label's own band (labelSize) lies outside this size.
+ */
+export function fitAxisSize(u, values, axisIdx) {
+  const axis = u.axes[axisIdx];
+  // uPlot asks again (cycleNum 1, 2, …) until the sizes settle; before its first values
+  // (null), the size it had.
+  if (values === null || values === undefined) return axis._size ?? 40;
+  let size = (axis.ticks?.size ?? 10) + (axis.gap ?? 5);
+  const longest = (values ?? []).reduce((acc, v) => (String(v ?? "").length > acc.length ? String(v) : acc), "");
+  if (longest) {
+    u.ctx.font = axis.font[0];
+    size += u.ctx.measureText(longest).width / (window.devicePixelRatio || 1);
+  }
+  return Math.max(40, Math.ceil(size) + 4);
+}
 
 /** Tick labels with enough digits for small values (mAh-sized Ah, efficiencies). */
 const ticks = (u, vals) =>
@@ -57,7 +75,7 @@ export function simplePlot(el, { title, xLabel, yLabel, series, x, ys, height = 
       whole
         ? { label: xLabel, incrs: [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000], values: (u, vals) => vals.map((v) => (Number.isInteger(v) ? v : "")) }
         : { label: xLabel, values: ticks },
-      { label: yLabel ?? series.map((s) => s.label).join(" / "), values: yValues ?? ticks, size: 60 },
+      { label: yLabel ?? series.map((s) => s.label).join(" / "), values: yValues ?? ticks, size: fitAxisSize },
     ],
     series: [
       { label: xLabel, value: legendValue },
@@ -287,4 +305,71 @@ export function trendChart(el, { pens, height, hidden = [], onSelect = () => {},
     if (!(chart.cursor.left >= 0) && chart.data[0].length) chart.setLegend({ idx: chart.data[0].length - 1 });
   };
   return { chart, setPen, showLatest, stop: autoResize(chart, el, height) };
+}
+
+// --- tests compared (the Tests screen, issue 33 finding 10) ---------------------------------
+
+/**
+ * Curves that each have their own x values ({x, y}, x rising: V against Ah) on one x axis:
+ * the sorted union of their x, each column null where its curve has no point (uPlot joins
+ * a curve's points across those gaps: `spanGaps`).
+ */
+export function xyJoin(curves) {
+  const xs = [...new Set(curves.flatMap((c) => c.x))].sort((a, b) => a - b);
+  const at = new Map(xs.map((x, i) => [x, i]));
+  const cols = curves.map((c) => {
+    const col = new Array(xs.length).fill(null);
+    c.x.forEach((x, k) => (col[at.get(x)] = c.y[k]));
+    return col;
+  });
+  return [xs, ...cols];
+}
+
+/**
+ * Curves overlaid ({label, x, y, pen?, width?}: pen, an index into PENS, colour and dash
+ * together so a curve is never told by colour alone) with their labels in a legend and
+ * units on both axes (`xLabel`, `yLabel` name them). `points`: a marker at every point (a
+ * capacity per cycle). `integerX`: whole-number ticks (cycles).
+ */
+export function xyPlot(el, { title, xLabel, yLabel, curves, height = 300, points = false, integerX = false }) {
+  const opts = {
+    title,
+    width: widthOf(el),
+    height,
+    scales: { x: { time: false } },
+    axes: [
+      integerX
+        ? { label: xLabel, incrs: [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000], values: (u, vals) => vals.map((v) => (Number.isInteger(v) ? v : "")) }
+        : { label: xLabel, values: ticks },
+      { label: yLabel, values: ticks, size: 60 },
+    ],
+    // The legend names the curves; the values under the cursor are mostly gaps here.
+    legend: { live: false },
+    hooks: {
+      // Each curve's label and points, and the axes' labels (drawn on the canvas, not in
+      // the page), as drawn: a test reads them here.
+      draw: [
+        (u) => {
+          el.dataset.drawn = JSON.stringify(u.series.slice(1).map((s, i) => ({ label: s.label, points: u.data[i + 1].filter((v) => v != null).length })));
+          el.dataset.axes = JSON.stringify(u.axes.map((a) => a.label));
+        },
+      ],
+    },
+    series: [
+      { label: xLabel },
+      ...curves.map((c, i) => {
+        const pen = PENS[(c.pen ?? i) % PENS.length];
+        return {
+          label: c.label,
+          stroke: pen.stroke,
+          dash: pen.dash,
+          width: c.width ?? 2,
+          spanGaps: true,
+          points: { show: points, size: 6, stroke: pen.stroke, fill: pen.stroke },
+        };
+      }),
+    ],
+  };
+  const chart = new uPlot(opts, xyJoin(curves), el);
+  return { chart, stop: autoResize(chart, el, height) };
 }

@@ -60,6 +60,22 @@ function alarmParams(params) {
   return out;
 }
 
+/** A number's text without the sign of a value that rounds to zero: "-0.000" (a current
+ * of -0.0001 A, or -0 itself) reads as a small negative figure that is not there; "0.000".
+ * Kept apart so that any other formatting (toFixed, Intl.NumberFormat) can run its text
+ * through it: it only drops a minus before digits that are all zero. */
+export function noNegativeZero(text) {
+  return /^[-\u2212](?=[^1-9]*$)(?=.*0)/.test(text) ? text.slice(1) : text;
+}
+
+/** A unit as the screens write it; the tags keep their units as they are on the wire
+ * (OPC UA and InfluxDB consumers read "degC"), only what an operator reads changes. */
+const UNIT_LABELS = { degC: "°C", degF: "°F", K: "K", ohm: "Ω", mohm: "mΩ", pct: "%", percent: "%" };
+export function unitLabel(unit) {
+  if (unit === null || unit === undefined) return "";
+  return UNIT_LABELS[unit] ?? String(unit);
+}
+
 /** A tag's value as text by a format: n<digits>, dur, pct, bool, text (default). */
 export function fmtValue(value, fmt, el) {
   if (value === null || value === undefined) return "—";
@@ -121,7 +137,7 @@ export function paint(el, tag) {
   }
   el.classList.remove("q-na");
   const text = fmtValue(tag.value, el.dataset.fmt, el);
-  const unit = el.dataset.unit === "none" || !tag.unit || tag.unit === "1" ? "" : tag.unit;
+  const unit = el.dataset.unit === "none" || !tag.unit || tag.unit === "1" ? "" : unitLabel(tag.unit);
   const withUnit = unit && text !== "—" && el.dataset.fmt !== "dur";
   const shown = withUnit ? `${text} ${unit}` : text;
   if (el.dataset.shown !== shown) {

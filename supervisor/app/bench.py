@@ -16,6 +16,7 @@ from supervisor.app.history import attach_historian
 from supervisor.app.influx import build_influx
 from supervisor.app.retained import RecipeSource, Retention
 from supervisor.app.simulation import SimulatedBench, build_simulation
+from supervisor.audit import AuditLog
 from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target
 from supervisor.chains.engine import ChainRunner
 from supervisor.chains.port import ChannelPort
@@ -109,6 +110,9 @@ class Bench:
     """Real clock: the publishers' threads keep out of the scan's way (``core/gate.py``)."""
     commands: CommandPath = field(init=False)
     """The one path of operator commands (HTTP, command line, the ``chN.command`` tags)."""
+    audit: AuditLog | None = field(init=False, default=None)
+    """Who did what (``app/audit.py``): opened and closed by ``supervisor run``
+    (``build_supervisor``, ``Supervisor.release``)."""
     logins: LoginThrottle | None = field(init=False, default=None)
     """Failed-login counts shared by HTTP and OPC UA (``app/logins.py``: made by the first
     server that checks passwords)."""

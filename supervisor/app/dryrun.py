@@ -614,6 +614,15 @@ def hms(s: float) -> str:
     return f"{s // 3600:d}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
 
+def _efficiency_note(cycle: dict[str, Any]) -> str:
+    """Why a finished cycle has no efficiency, for its line of the report ("" otherwise)."""
+    note = cycle["efficiency_note"]
+    if cycle["coulombic_efficiency"] is not None or not cycle["complete"] or not note:
+        return ""
+    prefix = f"cycle {cycle['cycle']} "
+    return f" ({note.removeprefix(prefix)})"
+
+
 def format_report(res: DryRunResult) -> list[str]:
     summary = res.summary
     lines = [f"dry run of recipe {res.program.name!r} ({res.program.file})", "timeline:"]
@@ -635,6 +644,7 @@ def format_report(res: DryRunResult) -> list[str]:
             f" ({c['charge_energy_wh']:.3f} Wh), discharged {c['discharge_capacity_ah'] * 1000:.1f}"
             f" mAh ({c['discharge_energy_wh']:.3f} Wh)"
             + (f", coulombic efficiency {ce:.3f}" if ce is not None else "")
+            + _efficiency_note(c)
         )
     if res.finished:
         lines.append(f"predicted duration: {hms(res.simulated_s)} ({res.simulated_s / 3600:.2f} h)")

@@ -9,9 +9,11 @@ from pathlib import Path
 from supervisor.app.bench import Bench
 from supervisor.app.events import EventFeed
 from supervisor.app.logins import login_throttle
+from supervisor.audit import audit_path
 from supervisor.config.models import HmiConfig
 from supervisor.config.users import UserStore
 from supervisor.hmi import HttpApi
+from supervisor.hmi.audit_api import add_audit_routes
 from supervisor.hmi.live import QUEUE_SIZE
 from supervisor.hmi.screens import DEFAULT_ROOT, Screens, install_screens
 from supervisor.publish.opcua import OpcUaSettings
@@ -35,6 +37,10 @@ def build_screens(
     # Failed logins are counted with OPC UA's: one throttle per bench.
     throttle = login_throttle(bench) if cfg.login else None
     screens = install_screens(api, cfg, users, bench, root, queue_size, throttle)
+    # The audit trail: its logins recorded; read by engineers (the bench's file, whoever
+    # writes it: a bench built without its log still shows what the file holds).
+    screens.access.audit = bench.audit
+    add_audit_routes(api.app, audit_path(bench.cfg.state_dir))
     bench.engine.publishers.append(screens.live)
     events = EventFeed()
     events.sinks.append(screens.live)

@@ -16,10 +16,12 @@ from collections.abc import Callable
 from supervisor.app.bench import Bench
 from supervisor.app.events import EventFeed
 from supervisor.app.logins import login_throttle
+from supervisor.audit import AuditLog
 from supervisor.commands import Command, Target, Verb
 from supervisor.core.clock import Clock
 from supervisor.core.logins import LoginThrottle
 from supervisor.publish.opcua import (
+    ACTOR_PREFIX,
     AlarmView,
     Answer,
     Layout,
@@ -88,12 +90,26 @@ def build_opcua(
         server = _in_process(
             bench, settings, layout, feed, operate, users, views, threaded, throttle
         )
+    if bench.audit is not None:
+        server.on_login = audit_login(bench.audit)
     events = EventFeed()
     events.sinks.append(feed)
     events.attach(bench)
     if alarms is not None:
         _listen(alarms, feed, bench.clock)
     return server
+
+
+def audit_login(audit: AuditLog) -> Callable[[str, str, str], None]:
+    """An OPC UA password login into the audit trail (``opcua:<user>``), as the HMI's are.
+    Anonymous sessions check no password and are not entries; a try the throttle refused
+    before checking its password is not either (docs/audit.md)."""
+
+    def on_login(outcome: str, user: str, address: str) -> None:
+        kind = "login" if outcome == "succeeded" else "login.failed"
+        audit.append(ACTOR_PREFIX + user[:64], kind, user[:64], {"address": address})
+
+    return on_login
 
 
 def command_path_of(bench: Bench) -> Operate:

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Final
 
+from supervisor.app.audit import open_audit
 from supervisor.app.bench import Bench, build_bench
 from supervisor.app.descriptors import http_limits
 from supervisor.app.hmi import build_screens
@@ -161,6 +162,9 @@ class Supervisor:
         if self.bench.retention is not None:  # left before the bench ran
             self.bench.retention.close()
             self.bench.retention = None
+        if self.bench.audit is not None:  # likewise
+            self.bench.audit.close()
+            self.bench.audit = None
         if self.lock is not None:
             self.lock.release()
 
@@ -193,6 +197,7 @@ def build_supervisor(
     bench: Bench | None = None
     try:
         bench = build_bench(cfg, clock or RealClock(), simulate=simulate)
+        bench.audit = open_audit(bench)  # before any command: the I/O map's load first
         restored = bench.retain()
         bench.record_history()
         sup = _serve_bench(cfg, bench, restored, http_port)
@@ -200,6 +205,9 @@ def build_supervisor(
         if bench is not None and bench.retention is not None:
             bench.retention.close()
             bench.retention = None
+        if bench is not None and bench.audit is not None:
+            bench.audit.close()
+            bench.audit = None
         if held is not None:
             held.release()
         raise
@@ -267,6 +275,7 @@ def _recipes_config(cfg: BenchConfig, bench: Bench) -> RecipesConfig:
         channels=bench.runners,
         role_of=session_role,
         actor_of=session_actor,
+        audit=bench.audit,  # recipe saves: their content's SHA-256 and diff
     )
 
 

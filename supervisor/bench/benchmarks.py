@@ -723,14 +723,14 @@ async def opcua_benchmark(
         try:
             await asyncio.sleep(1.0)  # first scans, then the clients
             before = (engine.stats.overruns, engine.stats.skipped, len(engine.stats.jitters_s))
-            written, dropped, t0 = server.written, feed.dropped, time.perf_counter()
+            written, dropped, t0 = server.written, feed.replaced, time.perf_counter()
             rate, errors = await _opcua_clients(
                 server.endpoint, server.namespace, names, clients, seconds
             )
             st = engine.stats
             wall = time.perf_counter() - t0
             written = int((server.written - written) / wall)
-            dropped = feed.dropped - dropped
+            dropped = feed.replaced - dropped
             jitter = list(st.jitters_s)[before[2] :]
             where = "own thread" if threaded else "scan's loop"
             rows.append(

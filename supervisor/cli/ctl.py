@@ -114,6 +114,28 @@ def _err(msg: str) -> None:
     sys.stderr.flush()
 
 
+def _add_session_options(p: argparse.ArgumentParser) -> None:
+    """The server, the login and the message security of ctl's OPC UA session."""
+    p.add_argument("--url", default=DEFAULT_URL, help=f"the server (default {DEFAULT_URL})")
+    p.add_argument("--user", default=None, help="log in as this user (default: anonymous)")
+    given = p.add_mutually_exclusive_group()
+    given.add_argument("--password", default=None, help=f"the user's password (or ${PASSWORD_ENV})")
+    given.add_argument(
+        "--password-stdin",
+        action="store_true",
+        help="read the password from the first line of standard input (for scripts: a"
+        " password on the command line shows in the process list)",
+    )
+    p.add_argument(
+        "--security",
+        choices=SECURITY,
+        default="none",
+        help="the message security (Basic256Sha256 for sign and sign_and_encrypt; default none)",
+    )
+    p.add_argument("--cert", type=Path, default=None, help="this client's certificate (DER/PEM)")
+    p.add_argument("--key", type=Path, default=None, help="its private key (PEM)")
+
+
 def add_parser(sub: Any) -> None:
     """Register ``supervisor ctl`` on the main parser's subcommands."""
     p = sub.add_parser(
@@ -123,21 +145,12 @@ def add_parser(sub: Any) -> None:
         epilog="exit codes: 0 done; 1 the server cannot be reached, or it does not trust this"
         " client's certificate (copy it into the server's pki/trusted); 2 a usage error, a"
         " security mode the server does not offer, a login or a command the server refused"
-        f" (its reason is printed). The password: --password or ${PASSWORD_ENV} (asked for"
-        " when neither is given and --user is). The client certificate: --cert/--key, or"
+        f" (its reason is printed). The password: --password-stdin (its first line),"
+        f" ${PASSWORD_ENV} or --password (seen by anyone who lists processes: avoid it; asked"
+        " for when none is given and --user is). The client certificate: --cert/--key, or"
         f" made on first use in {default_pki_hint()} (`supervisor ctl cert` prints it).",
     )
-    p.add_argument("--url", default=DEFAULT_URL, help=f"the server (default {DEFAULT_URL})")
-    p.add_argument("--user", default=None, help="log in as this user (default: anonymous)")
-    p.add_argument("--password", default=None, help=f"the user's password (or ${PASSWORD_ENV})")
-    p.add_argument(
-        "--security",
-        choices=SECURITY,
-        default="none",
-        help="the message security (Basic256Sha256 for sign and sign_and_encrypt; default none)",
-    )
-    p.add_argument("--cert", type=Path, default=None, help="this client's certificate (DER/PEM)")
-    p.add_argument("--key", type=Path, default=None, help="its private key (PEM)")
+    _add_session_options(p)
     what = p.add_subparsers(dest="what", required=True)
     what.add_parser(
         "status",
@@ -241,10 +254,7 @@ def _ctl(args: argparse.Namespace) -> int:
         _check_security_options(args)
         if args.what == "cert":
             return asyncio.run(_cert(args))
-        password = args.password if args.password is not None else os.environ.get(PASSWORD_ENV)
-        if args.user and password is None:
-            password = getpass.getpass(f"OPC UA password for {args.user}: ")
-        return asyncio.run(_run(args, password))
+        return asyncio.run(_run(args, _password(args)))
     except CtlError as exc:
         _err(f"supervisor ctl: {exc}")
         return exc.code
@@ -403,6 +413,21 @@ def _first_certificate(der: bytes) -> bytes:
     from cryptography.hazmat.primitives.serialization import Encoding
 
     return bytes(x509_from_der(der).public_bytes(Encoding.DER))
+
+
+def _password(args: argparse.Namespace) -> str | None:
+    """The password from, in turn: standard input's first line, --password, the
+    environment, a prompt (only with --user: anonymous needs none)."""
+    if args.password_stdin:
+        if not args.user:
+            raise CtlError("--password-stdin needs --user (anonymous sessions have none)", 2)
+        return sys.stdin.readline().rstrip("\r\n")
+    password: str | None = args.password
+    if password is None:
+        password = os.environ.get(PASSWORD_ENV)
+    if args.user and password is None:
+        password = getpass.getpass(f"OPC UA password for {args.user}: ")
+    return password
 
 
 async def _run(args: argparse.Namespace, password: str | None) -> int:

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, NoReturn
 
 from supervisor.bench import args as bench_args
-from supervisor.cli import ctl, modbus
+from supervisor.cli import audit, ctl, modbus
 from supervisor.config.limits import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core.encoding import StorableFormatter
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
@@ -690,9 +690,38 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     for k, v in values.items():
         _out(f"  {k}: {v:.6f}")
     if args.io_map:
+        before = _text_or_none(args.io_map)
         write_calibration(args.io_map, args.device, args.board, values)
         _out(f"written to {args.io_map}: device {args.device!r}, board {args.board}")
+        _audit_calibration(args, values, before)
     return EXIT_OK
+
+
+def _text_or_none(path: str) -> str | None:
+    try:
+        return Path(path).read_text("utf-8", "surrogateescape")
+    except OSError:
+        return None
+
+
+def _audit_calibration(
+    args: argparse.Namespace, values: dict[str, float], before: str | None
+) -> None:
+    """The calibration written into the I/O map, into that bench's audit trail: the values,
+    and the map's SHA-256 and diff against what it was."""
+    from supervisor.audit import text_change
+    from supervisor.devices.registry import load_bench
+
+    after = _text_or_none(args.io_map) or ""
+    try:
+        state_dir = load_bench(args.io_map).state_dir
+    except ConfigErrors as exc:  # written, yet refused: say it, the audit has no folder
+        _err(f"warning: calibration not recorded in the audit log: {exc.errors[0]}")
+        return
+    change = text_change(before, after, Path(args.io_map).name)
+    target = f"{args.device} board {args.board}"
+    details = {"io_map": str(Path(args.io_map).resolve()), "values": values, **change}
+    audit.record(state_dir, "calibration.write", target, details)
 
 
 # --- bench ---------------------------------------------------------------------------
@@ -719,7 +748,8 @@ def cmd_opcua(args: argparse.Namespace) -> int:
     if args.action != "list-users" and not args.name:
         _err(f"supervisor opcua {args.action}: give the user's name")
         return EXIT_USAGE
-    path = OpcUaSettings.of(load_bench(args.io_map)).users_file
+    cfg = load_bench(args.io_map)
+    path = OpcUaSettings.of(cfg).users_file
     if args.action == "list-users":
         for name, entry in sorted(read_users(path).items()):
             _out(f"{name}\t{entry.role}")
@@ -729,6 +759,7 @@ def cmd_opcua(args: argparse.Namespace) -> int:
             _err(f"{path}: no user {args.name!r}")
             return EXIT_USAGE
         _out(f"{path}: user {args.name} removed")
+        audit.record(cfg.state_dir, "user.remove", args.name, {"users_file": str(path)})
         return EXIT_OK
     if args.password_stdin:
         password = sys.stdin.readline().rstrip("\r\n")
@@ -741,6 +772,8 @@ def cmd_opcua(args: argparse.Namespace) -> int:
             return EXIT_USAGE
     new = add_user(path, args.name, args.role, password)
     _out(f"{path}: user {args.name} ({args.role}) {'added' if new else 'updated'}")
+    what = {"role": args.role, "new": new, "users_file": str(path)}  # never the password
+    audit.record(cfg.state_dir, "user.add", args.name, what)
     return EXIT_OK
 
 
@@ -790,12 +823,14 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
 
-def _add_results_parser(sub: Any) -> None:
-    """Register ``supervisor results verify DIR…``."""
+def _add_record_parsers(sub: Any) -> None:
+    """Register what checks the records: ``supervisor results verify DIR…`` and
+    ``supervisor audit verify|export`` (cli/audit.py)."""
     rs = sub.add_parser("results", help="result folders: verify DIR (complete and unmodified)")
     rs.add_argument("action", choices=["verify"])
     rs.add_argument("folders", nargs="+", metavar="DIR", help="a test's result folder")
     rs.set_defaults(func=cmd_results)
+    audit.add_parser(sub, DEFAULT_IO_MAP)
 
 
 def _add_opcua_parser(sub: Any) -> None:
@@ -948,7 +983,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     _add_opcua_parser(sub)
 
-    _add_results_parser(sub)
+    _add_record_parsers(sub)
     ctl.add_parser(sub)
     modbus.add_parser(sub)
 

@@ -42,6 +42,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from supervisor.audit import AuditLog
 from supervisor.chains.engine import ChainRunner
 from supervisor.chains.states import MANUAL_DRIVEN, State, check_load, decide
 from supervisor.channels import Mode
@@ -143,6 +144,8 @@ class CommandPath:
         )
         self.log: deque[CommandEvent] = deque(maxlen=LOG_LENGTH)
         self.listeners: list[Callable[[CommandEvent], None]] = []
+        # The bench's audit trail (supervisor.audit): every command, accepted or refused.
+        self.audit: AuditLog | None = None
         # Channel -> the recipe file its worker is compiling (one load at a time each).
         self._loading: dict[str, str] = {}
         # What the worker made of the command being executed (execute_async only).
@@ -837,6 +840,8 @@ class CommandPath:
                 fn(ev)
             except Exception:
                 log.exception("command listener failed")
+        if self.audit is not None:  # queued: never waits for the disk, never raises
+            self.audit.append(c.actor, f"command.{c.verb.value}", ev.target, _audited(c, ev))
 
     def _channel_of(self, c: Command) -> str:
         t = c.target
@@ -850,6 +855,18 @@ class CommandPath:
         tag = c.args.get("tag")
         channel = tag.partition(".")[0] if isinstance(tag, str) else ""
         return channel if channel in self.runners else ""
+
+
+def _audited(c: Command, ev: CommandEvent) -> dict[str, Any]:
+    """What the audit trail keeps of a command: as given (its arguments) and as answered."""
+    return {
+        "command": ev.command,
+        "args": dict(c.args),
+        "accepted": ev.accepted,
+        "result": ev.kind.value,
+        "reason": ev.reason,
+        "channel": ev.channel,
+    }
 
 
 @dataclass(frozen=True)

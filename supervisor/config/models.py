@@ -137,6 +137,13 @@ class HmiConfig(Strict):
         le=7 * 86400.0,
         description="A session unused for this long expires (the page goes back to login).",
     )
+    alarm_sound_repeat_s: float = Field(
+        10.0,
+        ge=2.0,
+        le=600.0,
+        description="An unacknowledged alarm of high or critical priority sounds again on"
+        " each logged-in screen this often, until acknowledged or silenced there.",
+    )
     publish_period_s: float = Field(
         0.2,
         ge=0.05,

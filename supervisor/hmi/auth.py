@@ -44,6 +44,7 @@ from typing import Any, Final
 
 from aiohttp import web
 
+from supervisor.audit import AuditLog
 from supervisor.commands import Command, Verb
 from supervisor.commands.roles import Roles
 from supervisor.config.users import ANONYMOUS, ROLE_ACCESS, ROLES, Role, User, UserStore
@@ -270,6 +271,11 @@ class HmiAccess:
         self.anonymous_read = anonymous_read
         self.throttle = throttle
         self._checks = asyncio.Semaphore(LOGIN_CHECKS)
+        self.audit: AuditLog | None = None
+        """The bench's audit trail: logins, failed logins and logouts (``app/hmi.py``)."""
+        self.alarm_sound_repeat_s = 10.0
+        """How often a screen sounds an unacknowledged high-priority alarm again
+        (``hmi.alarm_sound_repeat_s``): the page learns it with its session."""
 
     def install(self, app: web.Application) -> None:
         app.middlewares.append(self._middleware)
@@ -322,13 +328,15 @@ class HmiAccess:
 
     # --- routes -------------------------------------------------------------------------
     def _session_json(self, p: Principal) -> dict[str, Any]:
+        sound = {"alarm_sound_repeat_s": self.alarm_sound_repeat_s}
         if p.session is None:
-            return {"user": p.user, "role": p.role, "login": self.login}
+            return {"user": p.user, "role": p.role, "login": self.login, **sound}
         return {
             "user": p.user,
             "role": p.role,
             "expires_s": self.sessions.expires_s(p.session),
             "login": True,
+            **sound,
         }
 
     async def _login(self, request: web.Request) -> web.Response:
@@ -379,8 +387,7 @@ class HmiAccess:
             resp.headers["Retry-After"] = str(retry_after_s)
             return resp
         if user is None:
-            self.throttle.failed(name, address)
-            log.warning("hmi: failed login for %r from %s", name[:64], address)
+            self._failed(name, address)
             return _answer({"error": "login failed", "reason": WRONG_CREDENTIALS}, 401)
         self.throttle.succeeded(name, address)
         try:
@@ -388,7 +395,7 @@ class HmiAccess:
         except SessionsFull as exc:
             log.warning("hmi: login of %s refused: %s", user.name, exc)
             return _answer({"error": "too many sessions", "reason": str(exc)}, 503)
-        log.info("hmi: %s logged in (%s) from %s", user.name, user.role, request.remote)
+        self._logged_in(user, address)
         p = Principal(user.name, user.role, ACTOR_PREFIX + user.name, session)
         resp = _answer(self._session_json(p), 200)
         resp.set_cookie(COOKIE, session.token, httponly=True, samesite="Strict", path="/")
@@ -398,9 +405,25 @@ class HmiAccess:
         session = self.sessions.close(request.cookies.get(COOKIE))
         if session is not None:
             log.info("hmi: %s logged out", session.user)
+            self._audit(session.user, "logout", {"address": request.remote or ""})
         resp = _answer({"accepted": True, "reason": ""}, 200)
         resp.del_cookie(COOKIE, path="/")
         return resp
+
+    def _failed(self, name: str, address: str) -> None:
+        self.throttle.failed(name, address)
+        log.warning("hmi: failed login for %r from %s", name[:64], address)
+        self._audit(name[:64], "login.failed", {"address": address})
+
+    def _logged_in(self, user: User, address: str) -> None:
+        log.info("hmi: %s logged in (%s) from %s", user.name, user.role, address)
+        self._audit(user.name, "login", {"role": user.role, "address": address})
+
+    def _audit(self, user: str, kind: str, details: dict[str, Any]) -> None:
+        # A try refused by the throttle (429) is not recorded one by one: a flood of them
+        # costs nothing to send, and the burst alarm says it happens.
+        if self.audit is not None:
+            self.audit.append(ACTOR_PREFIX + user, kind, user, details)
 
     async def _session(self, request: web.Request) -> web.Response:
         found = self.of(request)

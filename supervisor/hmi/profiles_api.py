@@ -39,6 +39,7 @@ from typing import Any, Final
 
 from aiohttp import web
 
+from supervisor.audit import sha256_bytes, sha256_text
 from supervisor.chains.compiler import Target
 from supervisor.chains.profile_csv import parse_profile_csv
 from supervisor.chains.profile_recipe import (
@@ -318,6 +319,9 @@ class ProfilesApi:
         file = f"{PROFILES_DIR}/{recipe}.yaml"
         actor = self.actor_of(request)
         log.info("profiles: %s loads %s (%d rows) on %s", actor, file, answer["rows"], channel)
+        if self.config.audit is not None:  # the recipe written (its load is a command)
+            sums = {"sha256": sha256_text(str(answer["text"])), "csv_sha256": sha256_bytes(raw)}
+            self.config.audit.append(actor, "recipe.save", file, {**sums, "from_profile": True})
         command = Command(CommandTarget.channel(str(channel)), Verb.LOAD, {"recipe": file}, actor)
         result = await self.commands.execute_async(command)
         body = result.as_json()

@@ -46,6 +46,7 @@ from typing import Any, Final, Protocol
 
 from aiohttp import web
 
+from supervisor.audit import AuditLog, text_change
 from supervisor.chains.compiler import Target, compile_recipe
 from supervisor.chains.program import Program
 from supervisor.commands.childjob import (
@@ -161,6 +162,9 @@ class RecipesConfig:
     """Where texts are parsed and compiled: child processes with a deadline and a memory
     limit, killed when abandoned (``commands/childjob.py``). None: the API makes its own
     and kills them when the application stops."""
+    audit: AuditLog | None = None
+    """Where a save is recorded (``recipe.save``: the text's SHA-256, a diff against the
+    version it replaced); None: not recorded."""
 
 
 # --- validation (pure: safe in a child process) -------------------------------------------
@@ -731,6 +735,7 @@ class RecipesApi:
         actor = self.config.actor_of(request)
         async with self._save_lock:
             try:
+                previous = await asyncio.to_thread(_previous_text, Path(file), self.config.audit)
                 created = await asyncio.to_thread(self._write, Path(file), text, overwrite)
             except FileExistsError:
                 return _error(
@@ -748,6 +753,10 @@ class RecipesApi:
             file,
             checked["steps"],
         )
+        audit = self.config.audit
+        if audit is not None:
+            change = await asyncio.to_thread(text_change, previous, text, name)
+            audit.append(actor, "recipe.save", file, {**change, "created": created})
         answer = dict(checked)
         answer.update({"saved": True, "created": created, "name": name, "file": file})
         return _json(answer)
@@ -773,6 +782,16 @@ class RecipesApi:
             return True
         finally:
             tmp.unlink(missing_ok=True)
+
+
+def _previous_text(path: Path, audit: AuditLog | None) -> str | None:
+    """The text a save replaces, for the audit trail's diff (None: none, or not audited)."""
+    if audit is None:
+        return None
+    try:
+        return path.read_text("utf-8", "surrogateescape")
+    except OSError:  # absent (a new recipe), or unreadable: the diff is against nothing
+        return None
 
 
 def add_recipe_routes(

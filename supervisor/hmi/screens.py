@@ -47,6 +47,7 @@ def install_screens(
     sessions = Sessions(cfg.session_timeout_s, api.clock.now)
     throttle = throttle or LoginThrottle(api.clock.now)
     access = HmiAccess(users, sessions, cfg.login, cfg.anonymous_read, throttle)
+    access.alarm_sound_repeat_s = cfg.alarm_sound_repeat_s  # the page's (alarmsound.js)
     access.install(api.app)
     api.commands.roles = HmiRoles(users, api.commands.roles)
     live = LiveHub(

@@ -45,6 +45,7 @@ from supervisor.hmi.limits import ConnectionGuard, ConnectionLimits
 from supervisor.hmi.openapi import add_openapi_route
 from supervisor.hmi.profiles_api import add_profile_routes
 from supervisor.hmi.recipes_api import RecipesConfig, add_recipe_routes
+from supervisor.hmi.silence_api import add_silence_route
 from supervisor.hmi.tests_api import TestsConfig, add_test_routes
 from supervisor.safety import Alarm, AlarmEvent
 from supervisor.tags import Access, Tag, TagDB
@@ -102,6 +103,11 @@ def alarm_json(alarm: Alarm, clock: Clock) -> dict[str, Any]:
         "severity": int(alarm.severity),
         "severity_name": alarm.severity.name.lower(),
         "message": alarm.message,
+        # For a screen in another language: the message's kind and figures, and the tags
+        # behind it (issue 33, finding 6; supervisor/safety/alarms.py AlarmText).
+        "code": alarm.code,
+        "params": alarm.params,
+        "detail": alarm.detail,
         "latched": alarm.latched,
         "tripped": alarm.tripped,
         "first_out": alarm.first_out,
@@ -617,10 +623,9 @@ class HttpApi:
                 web.put("/api/tags/{name}", self._put),
                 web.put("/api/channels/{channel}/recipe", self._recipe),
                 web.post("/api/channels/{channel}/commands/{verb}", self._channel_command),
-                web.get("/api/alarms", self._alarms),
-                web.post("/api/alarms/{alarm}/{action}", self._alarm_command),
             ]
         )
+        self._add_alarm_routes(app)
         add_openapi_route(app)  # GET /api/openapi.json (hmi/openapi.yaml)
         # Forcing (engineers only; never a tag the safety phase uses): ADR 0015.
         app.add_routes(
@@ -637,6 +642,19 @@ class HttpApi:
             add_test_routes(app, tests, clock)
         self._add_estop_routes(app)
         self.app = app
+
+    def _add_alarm_routes(self, app: web.Application) -> None:
+        """The alarms, their commands, and a screen's alarm sound silenced (recorded with
+        its actor: hmi/silence_api.py)."""
+        app.add_routes(
+            [
+                web.get("/api/alarms", self._alarms),
+                web.post("/api/alarms/{alarm}/{action}", self._alarm_command),
+            ]
+        )
+        add_silence_route(
+            app, lambda: self.commands.alarms, self.actor, lambda: self.commands.audit
+        )
 
     def _add_estop_routes(self, app: web.Application) -> None:
         """The bench-wide software e-stop (seed 002 §1.5) and its reset, on every bench; the

@@ -17,6 +17,15 @@ live).
   way's summary as it stands.
 - ``GET /api/tests/{id}/files/{name}``: one of its listed files as an attachment
   (``Content-Disposition``), 404 for anything else.
+- ``GET /api/tests/{id}/curves?cycles=1,5``: voltage against charge of each half of those
+  cycles (default: up to ``CURVE_CYCLES_MAX`` cycles spread over the test, the first and
+  the latest among them), read from its BDF file, decimated (``publish/curves.py``):
+  ``{"id", "cycles", "cycles_total", "points_max", "curves": [{"cycle", "half", "index",
+  "rows", "ah", "v"}]}``.
+- ``GET /api/fade?cell=ID``: the capacity fade of one cell: every test of it, oldest
+  first, with the discharge capacity of each finished cycle against the cell's cumulative
+  cycle number (the cycles of its earlier tests before): ``{"cell", "tests": [{"id",
+  "started", "offset", "cycle", "cumulative_cycle", "discharge_ah"}]}``.
 
 Ids and file names match :data:`ID_PATTERN` (no folder, no ``..``, no hidden or temporary
 file) and a file must be one the listing shows: nothing else under the state directory can
@@ -30,7 +39,7 @@ import csv
 import json
 import logging
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -41,6 +50,12 @@ from supervisor.chains.engine import ChainRunner
 from supervisor.chains.states import ACTIVE
 from supervisor.core.clock import Clock
 from supervisor.hmi.recipes_api import _dumps, cycle_json, timeline_json
+from supervisor.publish.curves import (
+    MAX_POINTS_PER_CURVE,
+    cycle_capacities,
+    cycle_numbers,
+    half_curves,
+)
 from supervisor.publish.provenance import (
     BDF_METADATA_SUFFIX,
     PROVENANCE_NAME,
@@ -72,6 +87,11 @@ CONTENT_TYPES: Final = {
 }
 LIST_QUERY: Final = ("cell",)
 """What ``GET /api/tests`` may be asked (anything else is refused: 400)."""
+CURVES_QUERY: Final = ("cycles",)
+CURVE_CYCLES_MAX: Final = 24
+"""Cycles of one answer of ``/curves``: each of their halves is a curve on one chart."""
+FADE_POINTS_MAX: Final = 5000
+"""Cycles of one test in the fade chart (more are thinned evenly, the last one kept)."""
 
 
 def valid_id(name: str) -> bool:
@@ -325,15 +345,125 @@ class TestsApi:
             },
         )
 
+    # --- tests compared (issue 33 finding 10) -------------------------------------------
+    def _curves(self, test_id: str, asked: Sequence[int] | None) -> tuple[int, dict[str, Any]]:
+        folder = self.root / test_id
+        if not folder.is_dir():
+            return 404, {"error": "not found", "reason": f"no test {test_id!r}"}
+        bdf = _bdf_of(folder)
+        if bdf is None:
+            return 404, {"error": "not found", "reason": f"test {test_id!r} has no BDF file"}
+        numbers = cycle_numbers(folder, self._summary(folder))
+        cycles = asked if asked is not None else spread(numbers, CURVE_CYCLES_MAX)
+        curves = half_curves(bdf, cycles)
+        return 200, {
+            "id": test_id,
+            "cycles": cycles,
+            "cycles_total": len(numbers),
+            "points_max": MAX_POINTS_PER_CURVE,
+            "curves": [c.as_dict() for c in curves],
+        }
+
+    async def curves(self, request: web.Request) -> web.Response:
+        """V against Ah of each half of some cycles of one test (read-only, a viewer's)."""
+        test_id = self._id(request)
+        if test_id is None:
+            return _error(404, f"no test {request.match_info['id'][:80]!r} (a test id)")
+        unknown = sorted(set(request.query) - set(CURVES_QUERY))
+        if unknown:
+            return _error(400, f"unknown query {', '.join(unknown)} (expected: cycles)")
+        asked = None
+        if "cycles" in request.query:
+            try:
+                asked = parse_cycles(request.query["cycles"])
+            except ValueError as exc:
+                return _error(400, str(exc))
+        status, body = await asyncio.to_thread(self._curves, test_id, asked)
+        return _json(body, status)
+
+    def _fade(self, cell: str) -> Sequence[dict[str, Any]]:
+        tests = [t for t in self._listing({}) if t["metadata"].get("cell_id") == cell]
+        tests.sort(key=lambda t: (t["started"] or 0.0, t["id"]))  # oldest first
+        out, offset = [], 0
+        for t in tests:
+            folder = self.root / t["id"]
+            caps, seen = cycle_capacities(folder, self._summary(folder))
+            caps = [caps[k] for k in spread(list(range(len(caps))), FADE_POINTS_MAX)]
+            out.append(
+                {
+                    "id": t["id"],
+                    "started": t["started"],
+                    "offset": offset,
+                    "cycle": [c.cycle for c in caps],
+                    "cumulative_cycle": [offset + c.cycle for c in caps],
+                    "discharge_ah": [c.discharge_ah for c in caps],
+                }
+            )
+            offset += seen
+        return out
+
+    async def fade(self, request: web.Request) -> web.Response:
+        """The discharge capacity per cycle of every test of one cell (read-only)."""
+        unknown = sorted(set(request.query) - set(LIST_QUERY))
+        if unknown or "cell" not in request.query:
+            return _error(400, "expected the query cell=ID (a cell id)")
+        try:
+            cell = check_cell_id(request.query["cell"])
+        except MetadataError as exc:
+            return _error(400, str(exc))
+        if not cell:
+            return _error(400, "cell: empty (a cell id)")
+        tests = await asyncio.to_thread(self._fade, cell)
+        if not tests:
+            return _error(404, f"no finished or running test of cell {cell!r} in the results")
+        return _json({"cell": cell, "tests": tests})
+
+
+def spread(numbers: list[int], limit: int) -> list[int]:
+    """At most ``limit`` of ``numbers``, evenly spread, the first and the last kept."""
+    if len(numbers) <= limit:
+        return numbers
+    step = (len(numbers) - 1) / (limit - 1)
+    return sorted({numbers[round(k * step)] for k in range(limit)})
+
+
+def parse_cycles(text: str) -> list[int]:
+    """``1,5,9`` as cycle numbers; ValueError naming what is wrong."""
+    out = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part.isdigit() or not 0 < int(part) < 10**9:
+            raise ValueError(f"cycles: {part[:20]!r} is not a cycle number (1, 2, …)")
+        out.append(int(part))
+    if len(set(out)) > CURVE_CYCLES_MAX:
+        raise ValueError(f"cycles: at most {CURVE_CYCLES_MAX} cycles at once")
+    return sorted(set(out))
+
+
+# --- tests compared (issue 33 finding 10) -------------------------------------------------
+def _bdf_of(folder: Path) -> Path | None:
+    """The test's BDF file, never one out of the results directory (a link)."""
+    name = next((str(f["name"]) for f in _files(folder) if f["kind"] == "bdf"), None)
+    if name is None:
+        return None
+    path = folder / name
+    if not path.resolve().is_relative_to(folder.parent.resolve()):
+        log.warning("tests: %s points out of %s; refused", path, folder.parent)
+        return None
+    return path
+
 
 def add_test_routes(app: web.Application, config: TestsConfig, clock: Clock) -> TestsApi:
-    """Register ``GET /api/tests``, ``/api/tests/{id}``, ``/api/tests/{id}/files/{name}``."""
+    """Register ``GET /api/tests``, ``/api/tests/{id}``, ``/api/tests/{id}/files/{name}``,
+    ``/api/tests/{id}/curves`` and ``/api/fade``."""
     api = TestsApi(config, clock)
     app.add_routes(
         [
             web.get("/api/tests", api.list),
             web.get("/api/tests/{id}", api.get),
             web.get("/api/tests/{id}/files/{name}", api.file),
+            web.get("/api/tests/{id}/curves", api.curves),
+            web.get("/api/fade", api.fade),
         ]
     )
     return api

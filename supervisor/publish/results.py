@@ -80,6 +80,12 @@ MIN_HALF_CYCLE_FRACTION = 0.01
 an offset integrated during a rest or a top-off, not a half-cycle: the cycle then has no
 efficiency (a ratio against it would read 0 or several hundred)."""
 
+MAX_CLOSED_CYCLE_EFFICIENCY = 1.02
+"""A cycle that gives back more charge than it took (beyond the 2 % a current sensor's
+offset and gain may account for) did not begin where it ended: its first charge was a
+top-up of a partly charged cell (a test starting at 50 % state of charge). Its ratio is
+true arithmetic but no efficiency of the cell, so it is not given as one."""
+
 BDF_COLUMNS = (
     "Test Time / s",
     "Unix Time / s",
@@ -159,6 +165,11 @@ class CycleSummary:
             return f"cycle {self.cycle} has no charge"
         if discharged <= 0 or discharged < MIN_HALF_CYCLE_FRACTION * charged:
             return f"cycle {self.cycle} has no discharge"
+        if discharged > MAX_CLOSED_CYCLE_EFFICIENCY * charged:
+            return (
+                f"cycle {self.cycle} discharged {discharged / charged:.2f} times what it"
+                " charged: it began partly charged, so the ratio is no efficiency"
+            )
         return None
 
     def as_dict(self, why_open: str = "") -> dict[str, Any]:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum, StrEnum
 
@@ -62,6 +62,36 @@ class Transition(StrEnum):
     RESET = "reset"
     SHELVED = "shelved"
     UNSHELVED = "unshelved"
+    SILENCED = "silenced"  # an operator's screen stopped sounding it (no state change)
+
+
+class AlarmText(str):
+    """An alarm's message as an operator reads it ("Emergency stop pressed (e-stop circuit
+    open)"), carrying what a screen needs to say it in another language — ``code``, the
+    kind of message, stable across releases ("estop.pressed"), and ``params``, the figures
+    and names in it — and ``detail``, the tags behind it ("estop.ok is false") for the
+    engineer. A plain ``str`` everywhere else (logs, events, result files, OPC UA)."""
+
+    code: str
+    params: dict[str, object]
+    detail: str
+
+    def __new__(
+        cls, text: str, code: str, params: Mapping[str, object] | None = None, detail: str = ""
+    ) -> AlarmText:
+        self = super().__new__(cls, text)
+        self.code = code
+        self.params = dict(params or {})
+        self.detail = detail
+        return self
+
+
+def signal_name(tag: object) -> str:
+    """A signal as an operator knows it: its description from the I/O map when it has
+    one ("e-stop circuit closed"), else its tag name."""
+    spec = getattr(tag, "spec", None)
+    described = getattr(spec, "description", "") if spec is not None else ""
+    return str(described or getattr(tag, "name", tag))
 
 
 @dataclass
@@ -75,6 +105,9 @@ class Alarm:
     latched: bool  # a trip: holds its group until acknowledged and reset
     affects: tuple[str, ...] | None = None  # a bench-wide trip's channels (None: all)
     message: str = ""
+    code: str = ""  # the kind of its message (AlarmText.code); "" for a plain text
+    params: dict[str, object] = field(default_factory=dict)  # the message's figures, names
+    detail: str = ""  # the tags behind the message, for the engineer
     action: str = "hold"  # what a trip does to its channels: "hold" or "abort"
     active: bool = False  # the condition is present now
     acked: bool = True
@@ -171,7 +204,10 @@ class AlarmManager:
         if active and message and message != alarm.message:
             # Not written again when the same: an alarm that stays active with the same
             # message (an interlock held) does not count as a change every scan.
-            alarm.message = message
+            alarm.message = str(message)  # a plain str for the events, logs and files
+            alarm.code = getattr(message, "code", "")
+            alarm.params = getattr(message, "params", {})
+            alarm.detail = getattr(message, "detail", "")
             self.writes += 1
         if active == alarm.active:
             return
@@ -246,6 +282,20 @@ class AlarmManager:
         self.writes += 1
         self._event(alarm, Transition.UNSHELVED, "by request", actor)
         return alarm
+
+    def silence(self, alarm_ids: Iterable[str], actor: str) -> list[Alarm]:
+        """Record that ``actor`` silenced the audible alert of these alarms on their own
+        screen (issue 33 finding 7). Silencing is not acknowledging (ISA-18.2): the alarm
+        keeps its state and stays annunciated, and another operator's screen still sounds
+        it; the record says who silenced what and when, beside the acknowledgements. Only
+        the alarms still waiting for an acknowledgement are recorded (one acknowledged in
+        the meantime no longer sounds anywhere). An unknown id raises ``OperatorError``
+        before anything is recorded."""
+        wanted = [self[alarm_id] for alarm_id in dict.fromkeys(alarm_ids)]
+        silenced = [a for a in wanted if not a.acked]
+        for alarm in silenced:
+            self._event(alarm, Transition.SILENCED, "audible alert silenced on their screen", actor)
+        return silenced
 
     # --- restart ----------------------------------------------------------------------
     def restore(

@@ -31,7 +31,7 @@ from supervisor.config.models import ChannelConfig
 from supervisor.core.delay import OnDelay
 from supervisor.core.errors import OperatorError
 from supervisor.core.quality import Quality
-from supervisor.safety.alarms import Alarm, AlarmManager, Severity
+from supervisor.safety.alarms import Alarm, AlarmManager, AlarmText, Severity, signal_name
 from supervisor.tags import Tag, TagDB
 
 log = logging.getLogger(__name__)
@@ -446,19 +446,19 @@ class ChannelGuard:
 
     def _internal(self) -> str:
         err = self._logic_error.value
-        return f"internal error: {err}" if err else ""
+        return AlarmText(f"internal error: {err}", "guard.internal", {"error": err}) if err else ""
 
     def _voltage_input(self) -> str:
         v = self._v
         if v.quality is _GOOD or self._intended_a() == 0.0:
             return ""
-        return f"voltage input {v.quality.name} ({v.reason})"
+        return _reading_lost("voltage", v)
 
     def _current_input(self) -> str:
         i = self._i
         if i.quality is _GOOD or self._intended_a() == 0.0:
             return ""
-        return f"current input {i.quality.name} ({i.reason})"
+        return _reading_lost("current", i)
 
     def _source_lost(self) -> str:
         connected = self._connected
@@ -472,18 +472,32 @@ class ChannelGuard:
                 self._gate_tags = self._union_of_reads()
         if connected is None or connected.value is not False or self._intended_a() == 0.0:
             return ""
-        return f"source {self.cfg.source.device} lost ({connected.name} is false)"
+        device = self.cfg.source.device
+        return AlarmText(
+            f"Source {device}: connection lost",
+            "guard.source_lost",
+            {"device": device},
+            f"{connected.name} is false",
+        )
 
     def _voltage_high(self) -> str:
         v, hi = self._v, self._vhi
         if v.quality is _GOOD and self._intended_a() > 0 and v.number >= hi:
-            return f"voltage {v.number:.3f} V at or above hard limit {hi} V while charging"
+            return AlarmText(
+                f"voltage {v.number:.3f} V at or above hard limit {hi} V while charging",
+                "guard.voltage_high",
+                {"value_v": v.number, "limit_v": hi},
+            )
         return ""
 
     def _voltage_low(self) -> str:
         v, lo = self._v, self._vlo
         if v.quality is _GOOD and self._intended_a() < 0 and v.number <= lo:
-            return f"voltage {v.number:.3f} V at or below hard limit {lo} V while discharging"
+            return AlarmText(
+                f"voltage {v.number:.3f} V at or below hard limit {lo} V while discharging",
+                "guard.voltage_low",
+                {"value_v": v.number, "limit_v": lo},
+            )
         return ""
 
     def _temperature(self) -> str:
@@ -492,12 +506,20 @@ class ChannelGuard:
         if t.quality is not _GOOD:
             if self._intended_a() == 0.0:
                 return ""
-            return f"temperature input {t.quality.name} ({t.reason})"
+            return _reading_lost("temperature", t)
         tv = t.number
         if thi is not None and tv >= thi:
-            return f"temperature {tv:.1f} degC at or above limit {thi} degC"
+            return AlarmText(
+                f"temperature {tv:.1f} °C at or above limit {thi} °C",
+                "guard.temperature_high",
+                {"value_c": tv, "limit_c": thi},
+            )
         if tlo is not None and tv <= tlo:
-            return f"temperature {tv:.1f} degC at or below limit {tlo} degC"
+            return AlarmText(
+                f"temperature {tv:.1f} °C at or below limit {tlo} °C",
+                "guard.temperature_low",
+                {"value_c": tv, "limit_c": tlo},
+            )
         return ""
 
     def _permissive(self, tag: Tag, key: str) -> Callable[[], str]:
@@ -510,8 +532,20 @@ class ChannelGuard:
             # reset (the cause is still present even though nothing drives any more).
             if not (self._active() or self.alarms[alarm_id].tripped):
                 return ""
-            why = "is false" if tag.good else f"is {tag.quality.name} ({tag.reason})"
-            return f"permissive {tag.name} {why}"
+            if tag.good:
+                return AlarmText(
+                    f"Permissive lost: {signal_name(tag)}",
+                    "guard.permissive_off",
+                    {"signal": signal_name(tag)},
+                    f"permissive {tag.name} is false",
+                )
+            return AlarmText(
+                f"Permissive unknown: {signal_name(tag)} ({tag.quality.name.lower()}:"
+                f" {tag.reason})",
+                "guard.permissive_unknown",
+                {"signal": signal_name(tag), "quality": tag.quality.name, "reason": tag.reason},
+                f"permissive {tag.name} is {tag.quality.name} ({tag.reason})",
+            )
 
         return condition
 
@@ -520,13 +554,23 @@ class ChannelGuard:
         assert cmd is not None and fb is not None
         want = cmd.value is True
         if not fb.good:
-            return (
-                f"contactor feedback {fb.name} is {fb.quality.name} ({fb.reason})" if want else ""
+            if not want:
+                return ""
+            return AlarmText(
+                f"Contactor feedback unknown ({fb.quality.name.lower()}: {fb.reason})",
+                "guard.contactor_unknown",
+                {"quality": fb.quality.name, "reason": fb.reason},
+                f"{fb.name} is {fb.quality.name} ({fb.reason})",
             )
         if (fb.value is True) == want:
             return ""
-        state = "closed" if fb.value else "open"
-        return f"contactor {state} ({fb.name}) while commanded {'closed' if want else 'open'}"
+        state, asked = ("closed" if fb.value else "open"), ("closed" if want else "open")
+        return AlarmText(
+            f"Contactor {state} while commanded {asked}",
+            "guard.contactor_discrepancy",
+            {"state": state, "commanded": asked},
+            f"{fb.name} is {str(bool(fb.value)).lower()}",
+        )
 
     def _output_discrepancy(self) -> str:
         cmd, fb = self._output_cmd, self._output_fb
@@ -536,8 +580,12 @@ class ChannelGuard:
         want = cmd.value is True
         if (fb.value is True) == want:
             return ""
-        return (
-            f"supply output {'on' if fb.value else 'off'} while commanded {'on' if want else 'off'}"
+        state, asked = ("on" if fb.value else "off"), ("on" if want else "off")
+        return AlarmText(
+            f"supply output {state} while commanded {asked}",
+            "guard.output_discrepancy",
+            {"state": state, "commanded": asked},
+            f"{fb.name} is {str(bool(fb.value)).lower()}",
         )
 
     def _current_discrepancy(self) -> str:
@@ -551,12 +599,16 @@ class ChannelGuard:
         if not i.good or not self._power_path_closed():
             return ""
         ii = i.number
+        params = {"current_a": ii, "setpoint_a": cmd}
         if cmd * ii < 0 and abs(ii) > tol:
-            return f"current {ii:.3f} A flows the wrong way for a setpoint of {cmd:.3f} A"
+            text = f"current {ii:.3f} A flows the wrong way for a setpoint of {cmd:.3f} A"
+            return AlarmText(text, "guard.current_reversed", params)
         if abs(ii) > abs(cmd) + tol:
-            return f"current {ii:.3f} A above its setpoint {cmd:.3f} A"
+            text = f"current {ii:.3f} A above its setpoint {cmd:.3f} A"
+            return AlarmText(text, "guard.current_high", params)
         if abs(ii) < abs(cmd) - tol and not self._regulating_voltage(cmd):
-            return f"current {ii:.3f} A against {cmd:.3f} A commanded"
+            text = f"current {ii:.3f} A against {cmd:.3f} A commanded"
+            return AlarmText(text, "guard.current_low", params)
         return ""
 
     def _regulating_voltage(self, cmd: float) -> bool:
@@ -577,9 +629,18 @@ class ChannelGuard:
             diff = v.number - other.number
             if abs(diff) <= tolerance_v:
                 return ""
-            return (
-                f"voltage {v.number:.3f} V and {other.name} {other.number:.3f} V"
-                f" disagree by {abs(diff):.3f} V (tolerance {tolerance_v:g} V)"
+            return AlarmText(
+                f"voltage {v.number:.3f} V and {signal_name(other)} {other.number:.3f} V"
+                f" disagree by {abs(diff):.3f} V (tolerance {tolerance_v:g} V)",
+                "guard.voltage_disagrees",
+                {
+                    "value_v": v.number,
+                    "signal": signal_name(other),
+                    "other_v": other.number,
+                    "difference_v": abs(diff),
+                    "tolerance_v": tolerance_v,
+                },
+                f"{v.name} against {other.name}",
             )
 
         return condition
@@ -592,15 +653,33 @@ class ChannelGuard:
             if not tag.good:
                 if self._intended_a() == 0.0:
                     continue
-                return f"BMS value {tag.name} is {tag.quality.name} ({tag.reason})"
+                return AlarmText(
+                    f"BMS reading {signal_name(tag)} lost ({tag.quality.name.lower()}:"
+                    f" {tag.reason})",
+                    "guard.bms_reading_lost",
+                    {"signal": signal_name(tag), "quality": tag.quality.name, "reason": tag.reason},
+                    f"{tag.name} is {tag.quality.name} ({tag.reason})",
+                )
             x = tag.number
             if key == "cell_max" and x > hi_v:
-                return f"BMS cell voltage {x:.3f} V above {hi_v:g} V"
+                return AlarmText(
+                    f"BMS cell voltage {x:.3f} V above {hi_v:g} V",
+                    "guard.bms_cell_high",
+                    {"value_v": x, "limit_v": hi_v},
+                )
             if key == "cell_min" and x < lo_v:
-                return f"BMS cell voltage {x:.3f} V below {lo_v:g} V"
+                return AlarmText(
+                    f"BMS cell voltage {x:.3f} V below {lo_v:g} V",
+                    "guard.bms_cell_low",
+                    {"value_v": x, "limit_v": lo_v},
+                )
             tmax = bms.temperature_max_c
             if key == "temperature" and tmax is not None and x >= tmax:
-                return f"BMS temperature {x:.1f} degC at or above {tmax:g} degC"
+                return AlarmText(
+                    f"BMS temperature {x:.1f} °C at or above {tmax:g} °C",
+                    "guard.bms_temperature_high",
+                    {"value_c": x, "limit_c": tmax},
+                )
         return ""
 
 
@@ -610,3 +689,15 @@ def _derate(tag: Tag, headroom: float, band: float) -> float:
     if not tag.good or not math.isfinite(headroom):
         return 0.0
     return min(1.0, max(0.0, headroom / band))
+
+
+def _reading_lost(what: str, tag: Tag) -> AlarmText:
+    """A measurement the guard needs while driving, not GOOD: said in words, the tag's
+    quality and reason kept as the detail."""
+    return AlarmText(
+        f"{what.capitalize()} reading lost while driving ({tag.quality.name.lower()}:"
+        f" {tag.reason})",
+        f"guard.{what}_input",
+        {"quality": tag.quality.name, "reason": tag.reason},
+        f"{tag.name} is {tag.quality.name} ({tag.reason})",
+    )

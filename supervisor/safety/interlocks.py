@@ -29,9 +29,12 @@ from dataclasses import dataclass
 from supervisor.config.models import EstopConfig, HeartbeatConfig, InterlockConfig
 from supervisor.core.delay import OnDelay
 from supervisor.core.errors import OperatorError
-from supervisor.safety.alarms import Alarm, AlarmManager, Severity
+from supervisor.safety.alarms import Alarm, AlarmManager, AlarmText, Severity, signal_name
 from supervisor.tags import Tag, TagDB
 from supervisor.tags.spec import AlarmLimits
+
+UNIT_WORDS = {"degC": "°C"}
+"""Units as an operator reads them in an alarm's text (the tags keep theirs on the wire)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,17 +71,52 @@ class Estop:
 
     def evaluate(self, now: float, dt: float) -> None:
         s = self.sense
-        causes: list[str] = []
-        if self.hardware_pressed:
-            causes.append(f"{s.name} is false (circuit open)")
-        if self.software is not None:
-            causes.append(f"software e-stop pressed by {self.software.actor}")
-        self.alarms.set(self.alarm, bool(causes), "e-stop: " + "; ".join(causes))
-        why = f"e-stop state unknown: {s.name} is {s.quality.name} ({s.reason})"
-        self.alarms.set(self.unknown, not s.good, why)
+        why = self._pressed_text()
+        self.alarms.set(self.alarm, bool(why), why)
+        unknown = AlarmText(
+            f"E-stop state unknown: its input {signal_name(s)} is {s.quality.name.lower()}"
+            f" ({s.reason})",
+            "estop.unknown",
+            {"signal": signal_name(s), "quality": s.quality.name, "reason": s.reason},
+            f"{s.name} is {s.quality.name} ({s.reason})",
+        )
+        self.alarms.set(self.unknown, not s.good, unknown)
         if self.relay is not None:
             # The software e-stop relay is closed only while no e-stop trip holds the bench.
             self.db.update(self.relay, not (self.alarm.tripped or self.unknown.tripped))
+
+    def _circuit(self) -> str:
+        """The e-stop circuit as the I/O map describes its sense ("e-stop circuit closed":
+        the circuit is named, its state said apart)."""
+        return signal_name(self.sense).removesuffix(" closed")
+
+    def _pressed_text(self) -> AlarmText | str:
+        """What pressed the e-stop, in words ("" when nothing does): the button (its circuit
+        open), the software e-stop (by whom), or both."""
+        s, soft = self.sense, self.software
+        hardware = self.hardware_pressed
+        if not hardware and soft is None:
+            return ""
+        detail = f"{s.name} is false" if hardware else ""
+        if hardware and soft is not None:
+            return AlarmText(
+                f"Emergency stop pressed ({self._circuit()} open),"
+                f" and the software e-stop by {soft.actor}",
+                "estop.both",
+                {"signal": signal_name(s), "actor": soft.actor},
+                detail,
+            )
+        if hardware:
+            return AlarmText(
+                f"Emergency stop pressed ({self._circuit()} open)",
+                "estop.pressed",
+                {"signal": signal_name(s)},
+                detail,
+            )
+        assert soft is not None
+        return AlarmText(
+            f"Software e-stop pressed by {soft.actor}", "estop.software", {"actor": soft.actor}
+        )
 
     def fail_safe(self, why: str) -> None:
         if self.relay is not None:
@@ -114,7 +152,7 @@ class Estop:
             return f"acknowledge the e-stop first (alarm estop is unacknowledged: {a.message})"
         if self.hardware_pressed:
             return (
-                f"the hardware e-stop is still pressed ({self.sense.name} is false):"
+                f"the hardware e-stop is still pressed ({self._circuit()} open):"
                 " release the button first"
             )
         return ""
@@ -158,7 +196,17 @@ class Interlock:
         cfg, t = self.cfg, self.tag
         label = cfg.message or f"interlock {cfg.id}"
         if not t.good:
-            return f"{label}: {t.name} is {t.quality.name} ({t.reason})"
+            return AlarmText(
+                f"{label}: {signal_name(t)} unknown ({t.quality.name.lower()}: {t.reason})",
+                "interlock.unknown",
+                {
+                    "label": label,
+                    "signal": signal_name(t),
+                    "quality": t.quality.name,
+                    "reason": t.reason,
+                },
+                f"{t.name} is {t.quality.name} ({t.reason})",
+            )
         # On the way back the value must pass the deadband (no chattering at the limit).
         back = self.alarm.active
         if cfg.equals is not None:
@@ -166,7 +214,7 @@ class Interlock:
             shown = str(t.value).lower()
         else:
             x = t.as_float()
-            shown = f"{x:g} {t.spec.unit}".strip()
+            shown = f"{x:g} {UNIT_WORDS.get(t.spec.unit, t.spec.unit)}".strip()
             if cfg.above is not None:
                 hit = x > cfg.above - (cfg.deadband if back else 0.0)
             else:
@@ -181,7 +229,12 @@ class Interlock:
             if cfg.above is not None
             else f"< {cfg.below:g}"
         )
-        return f"{label}: {t.name} {shown} {limit}"
+        return AlarmText(
+            f"{label}: {signal_name(t)} {shown} (limit {limit})",
+            "interlock.limit",
+            {"label": label, "signal": signal_name(t), "value": shown, "limit": limit},
+            f"{t.name} {shown} {limit}",
+        )
 
     def fail_safe(self, why: str) -> None:
         self.alarms.set(self.alarm, True, why)
@@ -231,17 +284,28 @@ class TagAlarms:
             if not tag.good:
                 continue  # its quality says it already; no limit applies to an unknown value
             x = tag.as_float()
-            unit = tag.spec.unit
             for lv in levels:
                 back = lv.alarm.active
                 db = lim.deadband if back else 0.0
                 hit = x >= lv.limit - db if lv.high else x <= lv.limit + db
-                op = ">=" if lv.high else "<="
-                why = f"{tag.name} {x:g} {unit} {op} {lv.key} {lv.limit:g} {unit}"
+                # The text only when the limit is crossed: an inactive alarm's is not read.
+                why = _level_text(tag, x, lv) if hit else ""
                 self.alarms.set(lv.alarm, lv.delay.update(hit, now), why)
 
     def fail_safe(self, why: str) -> None:
         return None  # plain alarms: nothing to make safe
+
+
+def _level_text(tag: Tag, x: float, lv: _Level) -> AlarmText:
+    """A crossed HH/H/L/LL limit in words: "pack temperature high (H): 51 °C, limit 50 °C"."""
+    unit = UNIT_WORDS.get(tag.spec.unit, tag.spec.unit)
+    side = "high" if lv.high else "low"
+    return AlarmText(
+        f"{signal_name(tag)} {side} ({lv.key}): {x:g} {unit}, limit {lv.limit:g} {unit}",
+        f"level.{lv.key}",
+        {"signal": signal_name(tag), "value": x, "limit": lv.limit, "unit": unit},
+        f"{tag.name} {x:g} {tag.spec.unit} {'>=' if lv.high else '<='} {lv.limit:g}",
+    )
 
 
 class Heartbeat:

@@ -10,7 +10,7 @@ unacknowledged) until someone acknowledges it.
 
 from __future__ import annotations
 
-from supervisor.safety.alarms import AlarmManager, Severity
+from supervisor.safety.alarms import AlarmManager, AlarmText, Severity
 from supervisor.tags import Tag, TagDB
 
 STALL_TAG = "scan.stall_s"
@@ -40,9 +40,11 @@ class ScanStall:
         if late_s > 0.0:
             stalls = self.db.get(STALLS_TAG)
             count = stalls.value if stalls is not None else "?"
-            why = (
+            why = AlarmText(
                 f"scan started {late_s:.2f} s late: its event loop was held between two scans"
-                f" (stall {count} since start; see the log)"
+                f" (stall {count} since start; see the log)",
+                "scan.stall",
+                {"late_s": late_s, "count": count},
             )
             self.alarms.set(alarm, True, why)
         elif alarm.active or alarm.shelved_until is not None:

@@ -16,7 +16,7 @@ def test_the_bms_channel_s_trend_shows_the_cell_min_and_max(
     page.click("#tile-ch4")
     page.wait_for_selector("#trend[data-series]")
     series = str(page.get_attribute("#trend", "data-series")).split("|")
-    assert series == ["voltage V", "current A", "temperature degC", "cell min V", "cell max V"]
+    assert series == ["voltage V", "current A", "temperature °C", "cell min V", "cell max V"]
     page.wait_for_selector("#trend .u-legend")
     legend = page.eval_on_selector_all(
         "#trend .u-legend .u-series .u-label", "els => els.map(e => e.textContent)"

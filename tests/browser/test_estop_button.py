@@ -98,7 +98,7 @@ def test_the_operator_s_press_makes_the_pack_safe_and_the_reset_waits_for_the_ac
         " && document.querySelector('#mimic-supply').textContent.includes('off')"
         " && document.querySelector('#mimic-contactor').textContent.includes('open')"
         " && document.querySelector('#estop-trip').textContent"
-        ".includes('software e-stop pressed by hmi:operator')"
+        ".includes('Software e-stop pressed by hmi:operator')"
     )
     screenshot(page, "overview-software-estop")
     page.click("#estop-reset")

@@ -269,3 +269,21 @@ def test_the_trend_axis_and_the_tables_write_times_alike(
     # The axis: hours and minutes (and seconds), 24 h, never "3:14pm".
     assert ticks and all(CLOCK.match(t.split("\n")[-1]) for t in ticks), ticks
     assert not any(re.search(r"[ap]m", t, re.I) for t in ticks), ticks
+
+
+def test_an_alarm_with_a_code_reads_in_french_with_its_figures(
+    french: Any, bench: Supervisor
+) -> None:
+    # The e-stop pressed (the module's bench): its alarm carries a code and params.
+    status, body = bench.call("GET", "/api/alarms")
+    assert status == 200, body
+    estop = next(a for a in body["active"] if a["id"] == "estop")
+    assert estop.get("code") == "estop.pressed", estop
+    login(french, bench, "operator", "#/alarms")
+    cell = "#alarm-table tr[data-alarm='estop'] td.wrap"
+    french.wait_for_selector(cell)
+    text = french.text_content(cell) or ""
+    assert text.startswith("Arrêt d'urgence enfoncé ("), text
+    assert estop["message"] not in text  # the English words are not there
+    # The tags behind it (the detail) stay as they are, marked as not to translate.
+    assert french.get_attribute(f"{cell} small", "translate") == "no"

@@ -99,7 +99,7 @@ def test_a_profile_csv_is_loaded_onto_ch4_dry_run_started_and_ch4_s_trend_shows_
     )
     # V, I, T and the BMS's cell min/max (finding 6, CAN's branch), each drawn with values.
     series = str(page.get_attribute("#trend", "data-series")).split("|")
-    assert series == ["voltage V", "current A", "temperature degC", "cell min V", "cell max V"]
+    assert series == ["voltage V", "current A", "temperature °C", "cell min V", "cell max V"]
     page.wait_for_function(
         "names => names.every(s =>"
         " (document.querySelector('#trend').dataset.valued || '').split('|').includes(s))",

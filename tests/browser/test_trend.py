@@ -238,7 +238,7 @@ def test_ch4_s_pens_are_distinct_with_a_legend_and_voltage_and_temperature_apart
     assert list(colours) == [
         "voltage V",
         "current A",
-        "temperature degC",
+        "temperature °C",
         "cell min V",
         "cell max V",
     ]
@@ -249,11 +249,11 @@ def test_ch4_s_pens_are_distinct_with_a_legend_and_voltage_and_temperature_apart
     box = plot_box(page)
     rows = {
         pen: rows_of(page, "#trend", colours[pen], box["right"] - 200, box["right"] - 2)
-        for pen in ("voltage V", "temperature degC")
+        for pen in ("voltage V", "temperature °C")
     }
     assert all(rows.values()), rows
     v_y = statistics.median(rows["voltage V"])
-    t_y = statistics.median(rows["temperature degC"])
+    t_y = statistics.median(rows["temperature °C"])
     assert abs(v_y - t_y) > 30, (v_y, t_y)
     assert all(box["top"] <= y <= box["bottom"] for y in (v_y, t_y))
     screenshot(page, "channel-ch4-trend-pens")
@@ -284,7 +284,7 @@ def test_an_operator_picks_the_pens_and_the_choice_stays(page: Any, bench: Super
     wait_for_trend(page)
     assert not page.is_checked("#trend-pens input[data-pen='voltage V']")
     assert not page.is_checked("#trend-pens input[data-pen='current A']")
-    assert page.is_checked("#trend-pens input[data-pen='temperature degC']")
+    assert page.is_checked("#trend-pens input[data-pen='temperature °C']")
 
 
 def test_the_trend_is_fully_visible_without_scrolling_at_1366x768(

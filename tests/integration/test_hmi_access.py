@@ -25,7 +25,13 @@ async def test_a_user_logs_in_and_gets_an_http_only_strict_cookie(tmp_path: Path
             assert resp.status == 200
             body = await resp.json()
             cookie = resp.headers["Set-Cookie"]
-        assert body == {"user": "otto", "role": "operator", "expires_s": 8 * 3600.0, "login": True}
+        assert body == {
+            "user": "otto",
+            "role": "operator",
+            "expires_s": 8 * 3600.0,
+            "login": True,
+            "alarm_sound_repeat_s": 10.0,  # hmi.alarm_sound_repeat_s (ADR 0043)
+        }
         assert cookie.startswith("bench_session=")
         assert "HttpOnly" in cookie and "SameSite=Strict" in cookie and "Path=/" in cookie
         status, session = await hmi.call(s, "GET", "/api/session")
@@ -163,7 +169,10 @@ async def test_with_login_off_everyone_operates_as_before(tmp_path: Path) -> Non
     async with hmi_bench(tmp_path, HmiConfig(login=False)) as hmi:
         s = await hmi.client()
         status, body = await hmi.call(s, "GET", "/api/session")
-        assert (status, body) == (200, {"user": "anonymous", "role": "operator", "login": False})
+        assert (status, body) == (
+            200,
+            {"user": "anonymous", "role": "operator", "login": False, "alarm_sound_repeat_s": 10.0},
+        )
         status, body = await hmi.call(
             s, "POST", "/api/channels/ch0/commands/start", {"recipe": recipe(tmp_path, DISCHARGE)}
         )

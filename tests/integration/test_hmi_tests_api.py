@@ -227,3 +227,99 @@ async def test_a_bad_cell_query_or_an_unknown_one_is_400(client: Client) -> None
     assert status == 400 and "cell is 65 characters long, at most 64" in body["reason"]
     status, body = await client.call("GET", "/tests?channel=ch0")
     assert (status, body["reason"]) == (400, "unknown query channel (expected: cell)")
+
+
+# --- tests compared (issue 33 finding 10) -------------------------------------------------
+async def two_tests_of_one_cell(client: Client, tmp_path: Path, cell: str = "C-1") -> list[str]:
+    ids = []
+    for comment in ("first", "second"):
+        status, body = await client.call(
+            "POST",
+            "/channels/ch0/commands/start",
+            {"recipe": recipe(tmp_path, TWO_CYCLES), "cell_id": cell, "comment": comment},
+        )
+        assert status == 200 and body["accepted"] is True, body
+        await run_scans(client.bench.engine, 5)
+        await run_to_the_end(client)
+        ids.append(client.bench.runners["ch0"].test_id)
+    assert ids[0] != ids[1]
+    return ids
+
+
+async def test_a_tests_cycles_are_voltage_against_charge_per_half(
+    client: Client, tmp_path: Path
+) -> None:
+    first, _ = await two_tests_of_one_cell(client, tmp_path)
+    status, body = await client.call("GET", f"/tests/{first}/curves")
+    assert status == 200, body
+    assert (body["id"], body["cycles"], body["cycles_total"]) == (first, [1, 2], 2)
+    halves = [(c["cycle"], c["half"], c["index"]) for c in body["curves"]]
+    assert halves == [(1, "charge", 1), (1, "discharge", 1), (2, "charge", 1), (2, "discharge", 1)]
+    for c in body["curves"]:
+        assert 2 <= len(c["ah"]) == len(c["v"]) <= body["points_max"]
+        assert c["ah"] == sorted(c["ah"]) and c["ah"][0] < 0.001  # from the half's start
+        # 300 mA for 60 s: 5 mAh each way, as the summary counts it.
+        assert c["ah"][-1] == pytest.approx(0.005, rel=0.05)
+        assert all(0.5 < v < 2.0 for v in c["v"])  # a NiMH cell's volts
+    charge = body["curves"][0]["v"]
+    assert charge[-1] > charge[0]  # a charge raises the voltage
+    status, body = await client.call("GET", f"/tests/{first}/curves?cycles=2")
+    assert status == 200 and {c["cycle"] for c in body["curves"]} == {2}
+
+
+async def test_a_cells_fade_is_its_discharge_capacity_per_cumulative_cycle(
+    client: Client, tmp_path: Path
+) -> None:
+    first, second = await two_tests_of_one_cell(client, tmp_path)
+    status, body = await client.call("GET", "/fade?cell=C-1")
+    assert status == 200, body
+    assert body["cell"] == "C-1"
+    assert [t["id"] for t in body["tests"]] == [first, second]  # oldest first
+    a, b = body["tests"]
+    assert (a["offset"], a["cycle"], a["cumulative_cycle"]) == (0, [1, 2], [1, 2])
+    assert (b["offset"], b["cycle"], b["cumulative_cycle"]) == (2, [1, 2], [3, 4])
+    for t in body["tests"]:
+        assert t["discharge_ah"] == pytest.approx([0.005, 0.005], rel=0.05)
+        assert isinstance(t["started"], float)
+
+
+async def test_curves_and_fade_refuse_what_they_cannot_answer(
+    client: Client, tmp_path: Path
+) -> None:
+    first, _ = await two_tests_of_one_cell(client, tmp_path)
+    status, body = await client.call("GET", "/tests/no-such-test/curves")
+    assert (status, body["reason"]) == (404, "no test 'no-such-test'")
+    status, body = await client.call("GET", "/fade?cell=OTHER")
+    assert status == 404 and "no finished or running test of cell 'OTHER'" in body["reason"]
+    for query, words in (
+        ("cycles=abc", "'abc' is not a cycle number"),
+        ("cycles=0", "'0' is not a cycle number"),
+        ("cycles=" + ",".join(str(n) for n in range(1, 30)), "at most 24 cycles"),
+        ("cycle=1", "unknown query cycle"),
+    ):
+        status, body = await client.call("GET", f"/tests/{first}/curves?{query}")
+        assert status == 400 and words in body["reason"], (query, body)
+    for query in ("", "?cell=", "?cell=" + "x" * 65, "?cell=C-1&channel=ch0"):
+        assert (await client.call("GET", f"/fade{query}"))[0] == 400, query
+    # A BDF file gone (or a link out of the results): 404 with the reason, nothing read.
+    bdf = client.results / first / f"{first}.bdf.csv"
+    outside = tmp_path / "elsewhere.bdf.csv"
+    outside.write_bytes(bdf.read_bytes())
+    bdf.unlink()
+    status, body = await client.call("GET", f"/tests/{first}/curves")
+    assert (status, body["reason"]) == (404, f"test {first!r} has no BDF file")
+    bdf.symlink_to(outside)
+    status, body = await client.call("GET", f"/tests/{first}/curves")
+    assert (status, body["reason"]) == (404, f"test {first!r} has no BDF file")
+
+
+async def test_no_curve_comes_from_outside_the_results_directory(
+    client: Client, tmp_path: Path
+) -> None:
+    test_id = await client.start(tmp_path)
+    await run_to_the_end(client)
+    assert (await client.call("GET", f"/tests/{test_id}/curves"))[0] == 200
+    for path in ("/tests/..%2F..%2Fstate/curves", "/tests/%2E%2E/curves", "/tests/.hidden/curves"):
+        status, body = await client.call("GET", path)
+        assert status in (400, 404), (path, status)
+        assert "curves" not in body and "cycle" not in str(body), body

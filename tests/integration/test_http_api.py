@@ -177,7 +177,7 @@ async def test_finding_4_ack_while_the_estop_is_pressed_answers_409_with_the_rea
     assert status == 409
     assert body["accepted"] is False
     assert body["reason"].startswith(
-        "ch0: cannot reset estop: the cause is still present (e-stop: estop.ok is false"
+        "ch0: cannot reset estop: the cause is still present (Emergency stop pressed (e-stop"
     )
     await press_estop(client, False)
     status, body = await client.put_tag("ch0.ack", True)

@@ -49,7 +49,7 @@ async def test_an_estop_press_is_an_alarm_condition_acknowledged_through_a_and_c
         (pressed,) = conditions(got, "estop")
         assert state(pressed) == (True, False, True)  # active, unacknowledged, retained
         assert pressed.Severity == 900
-        assert pressed.Message.Text == "e-stop: estop.ok is false (circuit open)"
+        assert pressed.Message.Text == "Emergency stop pressed (e-stop circuit open)"
         assert pressed.ActiveState.Text == "Active"
         assert pressed.NodeId == ua.NodeId("/Bench/Alarms/estop", ns)  # its condition object
         condition = c.get_node(pressed.NodeId)

@@ -58,7 +58,7 @@ async def test_a_viewer_is_denied_an_operator_trips_every_channel_and_resets_onc
     assert pressed["status"] == "Good", pressed
     assert str(pressed["outputs"][0]).startswith("software e-stop pressed by opcua:alice")
     await rig.scans(3)
-    assert bench.alarms["estop"].message == "e-stop: software e-stop pressed by opcua:alice"
+    assert bench.alarms["estop"].message == "Software e-stop pressed by opcua:alice"
     for ch in channels:
         assert db[f"{ch}.state"].value == "faulted", ch
         assert db[f"{ch}.current_cmd"].value == 0.0

@@ -129,7 +129,7 @@ def test_an_interlock_trips_after_its_on_delay_and_clears_past_its_deadband(
     assert not il.alarm.active
     il.evaluate(clock.now(), 0.1)
     clock.advance(0.1)
-    assert il.alarm.active and il.alarm.message == "pack hot: pack.t 51 degC > 50"
+    assert il.alarm.active and il.alarm.message == "pack hot: pack.t 51 °C (limit > 50)"
     assert il.alarm.affects == ("ch4",)
     assert [a.id for a in alarms.trips("ch4")] == ["interlock.hot"]
     assert alarms.trips("ch0") == []  # not one of its channels
@@ -146,7 +146,7 @@ def test_an_interlock_on_a_value_that_is_not_good_trips_fail_safe(alarms: AlarmM
     il = interlock(db, alarms, above=50)
     db.update(db["pack.t"], 20.0, Quality.BAD, Reason.COMM_FAILURE)
     il.evaluate(0.0, 0.1)
-    assert il.alarm.active and "BAD (comm failure)" in il.alarm.message
+    assert il.alarm.active and "pack.t unknown (bad: comm failure)" in il.alarm.message
 
 
 def test_a_boolean_interlock_trips_on_its_value_and_can_abort(alarms: AlarmManager) -> None:

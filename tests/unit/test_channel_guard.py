@@ -186,7 +186,7 @@ def test_a_reset_is_refused_while_the_permissive_is_still_false() -> None:
     r.scan(1)
     r.set("door.closed", False)
     r.scan(1)
-    assert "permissive door.closed is false" in str(r.ch.fault.value)
+    assert "Permissive lost: door.closed" in str(r.ch.fault.value)
     with pytest.raises(OperatorError, match="cause is still present"):
         r.guard.reset("operator")
     r.db.write("ch0.ack", True)  # the tag way: acknowledged, not reset
@@ -217,7 +217,7 @@ def test_a_contactor_that_does_not_follow_its_coil_trips_after_the_discrepancy_t
     r.scan(4)
     assert r.ch.fault.value == ""
     r.scan(2)
-    assert "contactor open (k.closed) while commanded closed" in str(r.ch.fault.value)
+    assert "Contactor open while commanded closed" in str(r.ch.fault.value)
     assert r.value("k.cmd") is False and r.ch.current_cmd.value == 0.0
 
 

@@ -156,7 +156,7 @@ async def test_start_is_refused_by_a_trip_naming_it_and_does_not_load_either(
     assert refused(
         res,
         REFUSED,
-        "ch0: start refused: tripped by estop (e-stop: estop.ok is false (circuit open)):"
+        "ch0: start refused: tripped by estop (Emergency stop pressed (e-stop circuit open)):"
         " its cause is still present",
     )
     assert bench.runners["ch0"].program is None
@@ -369,8 +369,8 @@ async def test_acknowledge_while_the_estop_is_pressed_is_refused_with_the_reason
     assert refused(
         res,
         REFUSED,
-        "ch0: cannot reset estop: the cause is still present (e-stop: estop.ok is false (circuit"
-        " open)); acknowledged: reset once the cause is gone",
+        "ch0: cannot reset estop: the cause is still present (Emergency stop pressed (e-stop"
+        " circuit open)); acknowledged: reset once the cause is gone",
     )
     assert bench.alarms is not None and bench.alarms["estop"].acked_by == "operator"
 

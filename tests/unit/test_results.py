@@ -193,6 +193,14 @@ def test_the_duration_is_the_test_time_at_the_end_not_the_last_records(tmp_path:
         (0.01, 3.96, True, "cycle 1 has no charge"),  # an offset, not a half-cycle
         (0.01, 3.96, False, "cycle 1 did not finish (aborted: abort by operator)"),
         (1.0, 0.95, False, "cycle 1 did not finish (aborted: abort by operator)"),
+        # a test that starts at 50 % charge: its first charge is a top-up (issue 32's pack)
+        (
+            1.0,
+            2.047,
+            True,
+            "cycle 1 discharged 2.05 times what it charged: it began partly charged,"
+            " so the ratio is no efficiency",
+        ),
     ],
 )
 def test_a_cycle_has_an_efficiency_only_with_both_a_charge_and_a_discharge(

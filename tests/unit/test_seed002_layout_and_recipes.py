@@ -20,7 +20,7 @@ from typing import Final
 
 import pytest
 
-from supervisor.app.dryrun import dry_run
+from supervisor.app.dryrun import dry_run, format_report
 from supervisor.chains.states import State
 from supervisor.cli.main import check_files, main
 from supervisor.config.models import LinearScaling, SpanScaling
@@ -110,6 +110,11 @@ async def test_the_capacity_test_of_the_4s_10_ah_pack_completes_on_ch4_with_its_
     assert steps == ["charge", "rest_full", "discharge", "rest_empty", "done"]
     (cycle,) = res.summary["cycles"]
     assert cycle["discharge_capacity_ah"] == pytest.approx(PACK_CAPACITY_AH, rel=CAPACITY_TOLERANCE)
+    # The pack starts at 50 % charge: the first charge is a top-up, so its cycle gives back
+    # twice what it took — no efficiency of the cell, and the report says why instead.
+    assert cycle["coulombic_efficiency"] is None
+    (line,) = [s for s in format_report(res) if s.startswith("  cycle 1:")]
+    assert "coulombic efficiency" not in line and "it began partly charged" in line
 
 
 async def test_the_seed_002_profile_runs_on_ch4_within_its_windows(tmp_path: Path) -> None:

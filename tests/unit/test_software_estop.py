@@ -88,10 +88,10 @@ async def test_a_press_trips_every_channel_like_the_button_and_aborts_their_reci
     alarm = bench.alarms["estop"]
     # The trip is there at once (no scan needed), the hardware button's own alarm.
     assert alarm.state is AlarmState.ACTIVE_UNACKED and alarm.tripped
-    assert alarm.message == "e-stop: software e-stop pressed by alice"
+    assert alarm.message == "Software e-stop pressed by alice"
     await run_scans(bench.engine, 5)
     assert all(safe(bench, ch) for ch in CHANNELS)
-    assert all("software e-stop pressed by alice" in str(bench.db[f"{ch}.fault"].value)
+    assert all("Software e-stop pressed by alice" in str(bench.db[f"{ch}.fault"].value)
                for ch in CHANNELS)  # fmt: skip
     assert bench.runners["ch0"].state is State.ABORTED  # the e-stop aborts, not holds
     # The hardware sense is untouched: it is the software button that holds the bench.
@@ -140,7 +140,7 @@ async def test_reset_before_acknowledge_is_refused_with_the_reason(bench: Bench)
     assert (res.accepted, res.kind) == (False, ResultKind.REFUSED)
     assert res.reason == (
         "e-stop reset refused: acknowledge the e-stop first (alarm estop is unacknowledged:"
-        " e-stop: software e-stop pressed by alice)"
+        " Software e-stop pressed by alice)"
     )
     await run_scans(bench.engine, 3)
     assert bench.alarms["estop"].state is AlarmState.ACTIVE_UNACKED
@@ -183,19 +183,19 @@ async def test_reset_is_refused_while_the_hardware_button_is_still_pressed(bench
     bench.sim.press_estop(True)
     await run_scans(bench.engine, 10)  # the ADAM polls the sense
     assert bench.alarms["estop"].message == (
-        "e-stop: estop.ok is false (circuit open); software e-stop pressed by alice"
+        "Emergency stop pressed (e-stop circuit open), and the software e-stop by alice"
     )
     assert acknowledge_estop(bench).accepted
     res = estop_reset(bench)
     assert (res.accepted, res.kind) == (False, ResultKind.REFUSED)
     assert res.reason == (
-        "e-stop reset refused: the hardware e-stop is still pressed (estop.ok is false):"
+        "e-stop reset refused: the hardware e-stop is still pressed (e-stop circuit open):"
         " release the button first"
     )
     assert bench.alarms["estop"].tripped
     bench.sim.press_estop(False)
     await run_scans(bench.engine, 10)
-    assert bench.alarms["estop"].message == "e-stop: software e-stop pressed by alice"
+    assert bench.alarms["estop"].message == "Software e-stop pressed by alice"
     assert estop_reset(bench).accepted
     assert bench.alarms["estop"].state is AlarmState.NORMAL
 

@@ -42,7 +42,7 @@ function activeRow(a) {
     <td>${a.first_out ? `<b class="first-out">${tx("alarms.firstOut")}</b> ` : ""}<span class="alarm-id">${idHtml(a.id)}</span>
       <div class="muted">${esc(a.group || t("alarms.bench"))}</div></td>
     <td class="alarm-state">${esc(tValue("alarmState", a.state))}${shelved}<div class="muted">${tx("alarms.since", { time: fmtTime(a.activated_time) })}</div>${acked}</td>
-    <td class="wrap">${esc(alarmText(a))}</td>
+    <td class="wrap">${esc(alarmText(a))}${a.detail ? ` <small class="muted" translate="no">(${esc(a.detail)})</small>` : ""}</td>
     <td class="actions"><div class="alarm-actions">
       <button type="button" class="small" data-act="acknowledge">${tx("alarms.act.acknowledge")}</button>
       <button type="button" class="small" data-act="reset">${tx("alarms.act.reset")}</button>

@@ -4,7 +4,7 @@
 // its colour, axis and band, pens to pick; drag to zoom, buttons to pan) and the
 // command bar (commandbar.js: buttons that follow the state, confirmations).
 import { get } from "../api.js";
-import { bindTags, esc, $, $$ } from "../dom.js";
+import { bindTags, esc, unitLabel, $, $$ } from "../dom.js";
 import { t as tr, tValue } from "../i18n.js";
 import { PENS, holdJoin, trendChart } from "../chart.js";
 import { paintTile } from "./overview.js";
@@ -155,7 +155,7 @@ export async function render({ root, app, params }) {
   let dirty = false;
   // The units: the live snapshot's, or (a screen opened before the snapshot came) the
   // historian's answer's; the chart is made at the first answer, its pens named with them.
-  const unitOf = (tag, answer) => app.live.tags.get(tag)?.unit || (answer?.ok && answer.data.unit) || "";
+  const unitOf = (tag, answer) => unitLabel(app.live.tags.get(tag)?.unit || (answer?.ok && answer.data.unit) || "");
   const pensOf = (answers) => [
     { label: `${tr("quantity.voltage")} ${unitOf(t.voltage, answers[0])}`.trim(), scale: "V", unit: unitOf(t.voltage, answers[0]) || "V" },
     { label: `${tr("quantity.current")} ${unitOf(t.current, answers[1])}`.trim(), scale: "A", unit: unitOf(t.current, answers[1]) || "A" },
@@ -164,7 +164,7 @@ export async function render({ root, app, params }) {
       scale: "T",
       unit: unitOf(t.temperature, answers[2]) || "°C",
     },
-    ...extra.map((s) => ({ label: `${tValue("mimic.row", s.label)} ${s.unit || ""}`.trim(), scale: s.scale, unit: `${s.scale} ${s.unit || ""}`.trim() })),
+    ...extra.map((s) => ({ label: `${tValue("mimic.row", s.label)} ${unitLabel(s.unit)}`.trim(), scale: s.scale, unit: `${s.scale} ${unitLabel(s.unit)}`.trim() })),
   ];
   let seriesLabels = [];
   let trend = null;

@@ -57,6 +57,9 @@ export function channelTile(ch) {
   </a>`;
 }
 
+/** The chain states in which a test is under way and its ETA counts down. */
+const RUNNING = /^(Running|Resuming)$/;
+
 /** Repaint what is not a single tag: what the channel does, the progress bar, ETA and
  * the alarm colour. */
 export function paintTile(el, ch, live) {
@@ -71,10 +74,13 @@ export function paintTile(el, ch, live) {
   const bar = $(".bar", el);
   $(".fill", el).style.width = `${pct}%`;
   bar.setAttribute("aria-valuenow", String(Math.round(pct)));
-  $(".eta-text", el).textContent = fmtDuration(live.value(t.eta));
+  const state = String(live.value(t.state) || "");
+  // The time left means something only while the chain runs: the tag keeps its last
+  // figure after an Abort, a Stop or a Hold (the chain stops updating it), which would
+  // read as a test still under way.
+  $(".eta-text", el).textContent = RUNNING.test(state) ? fmtDuration(live.value(t.eta)) : "—";
   const alarms = live.alarms.filter((a) => a.group === ch.name && a.state !== "normal" && !a.shelved);
   const fault = live.value(t.fault);
-  const state = String(live.value(t.state) || "");
   const abnormal = alarms.length > 0 || (typeof fault === "string" && fault !== "");
   el.classList.toggle("abn", abnormal);
   el.classList.toggle("warn", !abnormal && /^(Held|Holding|Aborted|Stopped)$/.test(state));
@@ -129,7 +135,7 @@ function paintEstopTrip(root, live) {
   const el = $("#estop-trip", root);
   if (!el) return;
   const a = live.alarms.find((x) => x.id === "estop" && x.state !== "normal");
-  el.textContent = a ? `${tValue("alarmState", a.state)}: ${alarmText(a).replace(/^e-stop: /, "")}` : t("value.none");
+  el.textContent = a ? `${tValue("alarmState", a.state)}: ${alarmText(a)}` : t("value.none");
   el.classList.toggle("abn", Boolean(a));
 }
 

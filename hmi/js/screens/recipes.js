@@ -38,6 +38,13 @@ export async function render({ root, app, params }) {
         </div>
         <p id="recipe-result" class="result" role="status" aria-live="polite" hidden></p>
       </section>
+      <section class="panel preview" aria-label="${tx("recipes.dryRunPreview")}" id="preview" hidden>
+        <h2>${tx("recipes.dryRun")}</h2>
+        <p id="dry-summary"></p>
+        <div id="dry-timeline" class="plot"></div>
+        <div id="dry-cycles" class="plot"></div>
+        <div id="dry-trace" class="plot"></div>
+      </section>
       <section class="panel preview" aria-label="${tx("profile.title")}" id="profile-panel">
         <h2>${tx("profile.title")}</h2>
         <div class="editor-bar">
@@ -57,13 +64,6 @@ export async function render({ root, app, params }) {
         </div>
         <p id="profile-result" class="result" role="status" aria-live="polite" hidden></p>
         <div id="profile-dry" class="plot"></div>
-      </section>
-      <section class="panel preview" aria-label="${tx("recipes.dryRunPreview")}" id="preview" hidden>
-        <h2>${tx("recipes.dryRun")}</h2>
-        <p id="dry-summary"></p>
-        <div id="dry-timeline" class="plot"></div>
-        <div id="dry-cycles" class="plot"></div>
-        <div id="dry-trace" class="plot"></div>
       </section>
     </div>`;
   const text = $("#recipe-text", root);
@@ -159,14 +159,19 @@ export async function render({ root, app, params }) {
     }
     showErrors([]);
     const d = answer.data;
-    out.hidden = true;
-    $("#preview", root).hidden = false;
-    $("#dry-summary", root).textContent = t("recipes.drySummary", {
+    const summary = t("recipes.drySummary", {
       duration: fmtDuration(d.duration_s),
       end: d.end_reason || "—",
       n: (d.cycles || []).length,
       count: (d.cycles || []).length,
     });
+    // The status line stays (it said "dry run…": it now says how it went), and the
+    // preview, right under the editor, is brought into view (issue 33, finding 6: it
+    // vanished and the result sat below the fold).
+    showResult(out, { ok: true, data: { reason: t("recipes.dryDone", { summary }) } });
+    const preview = $("#preview", root);
+    preview.hidden = false;
+    $("#dry-summary", root).textContent = summary;
     while (plots.length) {
       const pl = plots.pop();
       pl.stop();
@@ -204,6 +209,7 @@ export async function render({ root, app, params }) {
         }),
       );
     }
+    out.scrollIntoView({ block: "start" });
   };
 
   const save = async () => {
@@ -393,6 +399,7 @@ function profilePanel(root, app) {
         }),
       );
     }
+    out.scrollIntoView({ block: "start" });
   };
 
   const load = async () => {

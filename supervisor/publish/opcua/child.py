@@ -75,7 +75,7 @@ class MirrorFeed(OpcUaFeed):
             pending = self._pending
             for u in updates:
                 if u.tag_index in pending:
-                    self.dropped += 1
+                    self.replaced += 1
                 pending[u.tag_index] = u
         for ev in events:
             self._events.append(ev)  # type: ignore[arg-type]  # BenchEvent | AlarmView

@@ -5,11 +5,12 @@ copy of its changes (``publish/changes.py``, made once a scan for every publishe
 what it kept over under a lock held for microseconds, wakes the server and returns; the
 server's side makes them into updates (``take``), one per tag at its latest value: a tag
 that changes again before the server wrote it replaces its pending update, and the
-replaced one counts as dropped (``opcua.dropped``). So the queue is bounded
+replaced one is counted (``opcua.replaced``: by design, nothing is lost — the value it
+carried was superseded). So the queue is bounded
 by the number of tags whatever happens to the server, and the latest value always gets
 through — a client never ends on a value older than the tag's. Events are not conflated:
-they wait in a bounded queue (``EVENT_QUEUE``), and one that does not fit is dropped and
-counted too.
+they wait in a bounded queue (``EVENT_QUEUE``), and one that does not fit is lost and
+counted as dropped (``opcua.dropped``: abnormal, the Diagnostics screen shows it red).
 
 The server side (another thread or the same loop, docs/adr/0014-opcua-server.md) calls
 ``take()`` / ``take_events()`` when woken.
@@ -104,7 +105,8 @@ class OpcUaFeed:
         self._queued = 0  # changes in the hand-overs
         self._events: deque[BenchEvent | AlarmView] = deque()
         self._started = False
-        self.dropped = 0
+        self.dropped = 0  # events lost (the queue full): abnormal
+        self.replaced = 0  # updates superseded by a newer value of their tag: by design
         self.clients = 0  # set by the server (an int: read atomically by the scan)
         self.restarts = 0  # set by the server's process supervisor (process.py)
         self.wake: Callable[[], None] | None = None  # set by the server once it serves
@@ -112,7 +114,16 @@ class OpcUaFeed:
         """Hand changes over at most this often (0: every scan); set by the server."""
         self._t0: float | None = None  # the scan time of the first hand-over
         self._k = -1  # the grid point of the last one
-        self._dropped_tag = _declare(db, "opcua.dropped", "int", "Updates and events lost")
+        self._dropped_tag = _declare(
+            db, "opcua.dropped", "int", "Events lost: the server's event queue was full"
+        )
+        self._replaced_tag = _declare(
+            db,
+            "opcua.replaced",
+            "int",
+            "Updates superseded by a newer value before the server wrote them (by design:"
+            " the latest value always gets through)",
+        )
         self._depth_tag = _declare(db, "opcua.queue_depth", "int", "Updates waiting for OPC UA")
         self._clients_tag = _declare(db, "opcua.clients", "int", "OPC UA clients connected")
         self._restarts_tag = _declare(
@@ -147,8 +158,9 @@ class OpcUaFeed:
                 return  # sampled at the server's interval: the changes wait here
             self._k = k
         with self._lock:
-            depth, dropped = self._queued + len(self._events), self.dropped
+            depth, dropped, replaced = self._queued + len(self._events), self.dropped, self.replaced
         db.update(self._dropped_tag, dropped)
+        db.update(self._replaced_tag, replaced)
         db.update(self._depth_tag, depth)
         db.update(self._clients_tag, self.clients)
         db.update(self._restarts_tag, self.restarts)
@@ -213,23 +225,23 @@ class OpcUaFeed:
 
     def take(self) -> list[Update]:
         """The pending updates, oldest first, one per tag at its latest value; a tag
-        handed over again before the server took it counts as dropped once."""
+        handed over again before the server took it counts as replaced once."""
         with self._lock:
             handovers, self._handovers = self._handovers, []
             self._queued = 0
         latest: dict[int, RawChange] = {}
-        dropped = 0
+        replaced = 0
         for batches in handovers:
             mine: dict[int, RawChange] = {}
             for b in batches:
                 for change in b.changes:
                     mine[change[0].index] = change
             if latest:
-                dropped += sum(1 for index in mine if index in latest)
+                replaced += sum(1 for index in mine if index in latest)
             latest.update(mine)
-        if dropped:
+        if replaced:
             with self._lock:
-                self.dropped += dropped
+                self.replaced += replaced
         return [_update(c) for c in latest.values()]
 
     def empty(self) -> bool:

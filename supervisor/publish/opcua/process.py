@@ -82,6 +82,9 @@ class OpcUaProcess:
         self.alarms = alarms
         self.history_file = history_file
         self.throttle = throttle
+        self.on_login: Callable[[str, str, str], None] | None = None
+        """Told each password login's outcome (``failed``/``succeeded``, user, address):
+        the bench's audit trail (``app/opcua.py``)."""
         self.endpoint = settings.endpoint
         self.namespace = layout.uri
         self.hang_s = HANG_S
@@ -217,12 +220,9 @@ class OpcUaProcess:
             self.feed.clients = clients if isinstance(clients, int) else 0
         elif kind == "op" and isinstance(message[2], Request):
             self._track(self._answer(message[1], message[2]))
-        elif kind == "login" and self.throttle is not None:
+        elif kind == "login" and (self.throttle is not None or self.on_login is not None):
             _, outcome, user, address = message
-            if outcome == "failed":
-                self.throttle.failed(str(user), str(address))
-            else:
-                self.throttle.succeeded(str(user), str(address))
+            self._login(str(outcome), str(user), str(address))
         elif kind == "ready":
             self.serving = True
             if not ready.done():
@@ -232,6 +232,15 @@ class OpcUaProcess:
                 ready.set_exception(OSError(int(message[1]), str(message[2])))
         else:
             raise ValueError(f"an unknown message {kind!r}")
+
+    def _login(self, outcome: str, user: str, address: str) -> None:
+        if self.throttle is not None:
+            if outcome == "failed":
+                self.throttle.failed(user, address)
+            else:
+                self.throttle.succeeded(user, address)
+        if self.on_login is not None:
+            self.on_login(outcome, user, address)
 
     async def _answer(self, n: object, req: Request) -> None:
         if self._closing:

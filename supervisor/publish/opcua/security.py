@@ -135,11 +135,17 @@ class PasswordUsers:
     without its password being checked, the right one too, until the delay is over."""
 
     def __init__(
-        self, store: UserStore, anonymous: bool, throttle: LoginThrottle | None = None
+        self,
+        store: UserStore,
+        anonymous: bool,
+        throttle: LoginThrottle | None = None,
+        on_login: Callable[[str, str, str], None] | None = None,
     ) -> None:
         self.store = store
         self.anonymous = anonymous
         self.throttle = throttle
+        self.on_login = on_login
+        """Told each password's outcome (``failed``/``succeeded``, user, address)."""
 
     def get_user(
         self,
@@ -169,9 +175,13 @@ class PasswordUsers:
             if self.throttle is not None:
                 self.throttle.failed(username, address)
             log.warning("OPC UA login refused for user %r from %s", username[:64], address)
+            if self.on_login is not None:
+                self.on_login("failed", username, address)
             return None
         if self.throttle is not None:
             self.throttle.succeeded(username, address)
+        if self.on_login is not None:
+            self.on_login("succeeded", user.name, address)
         return SessionUser(role=UserRole.User, name=user.name, access_role=user.role)
 
 

@@ -113,6 +113,8 @@ class OpcUaServer:
         self.settings = settings
         self.throttle = throttle or LoginThrottle(clock.now)
         """Failed logins, counted with the HMI's (``supervisor.core.logins``)."""
+        self.on_login: Callable[[str, str, str], None] | None = None
+        """Told each password login's outcome (the bench's audit trail; set before start)."""
         self.gate = gate
         """On its own thread: each turn of its event loop waits while a scan runs."""
         self.history = history
@@ -280,7 +282,8 @@ class OpcUaServer:
             logging.getLogger("asyncua").setLevel(logging.WARNING)
         # asyncua's server, but no password in clear and each request run as the session
         # whose token it carries (``sessions.py``).
-        server = BenchServer(user_manager=PasswordUsers(self.users, s.anonymous, self.throttle))
+        users = PasswordUsers(self.users, s.anonymous, self.throttle, self.on_login)
+        server = BenchServer(user_manager=users)
         # Deadbands and TimestampsToReturn on monitored items (monitoring.py), before
         # ``init`` binds the condition methods to the subscription service it finds.
         serve_subscriptions(server.iserver, self.fresh.stamp)
