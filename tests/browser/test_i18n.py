@@ -283,7 +283,7 @@ def test_an_alarm_with_a_code_reads_in_french_with_its_figures(
     cell = "#alarm-table tr[data-alarm='estop'] td.wrap"
     french.wait_for_selector(cell)
     text = french.text_content(cell) or ""
-    assert text.startswith("Arrêt d'urgence enfoncé ("), text
+    assert text.startswith("Arrêt d'urgence enfoncé (circuit ouvert)"), text
     assert estop["message"] not in text  # the English words are not there
     # The tags behind it (the detail) stay as they are, marked as not to translate.
     assert french.get_attribute(f"{cell} small", "translate") == "no"
