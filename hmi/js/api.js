@@ -1,6 +1,8 @@
 // HTTP helpers. Every answer of the supervisor is JSON; a 401 means no (or an expired)
 // session: the page goes to the login screen and comes back to the same place after.
 
+import { t } from "./i18n.js";
+
 const listeners = { unauthorized: [] };
 
 /** Call fn() whenever a request answers 401 (app.js sends the page to the login). */
@@ -22,7 +24,7 @@ export async function api(method, path, body, opts = {}) {
   try {
     res = await fetch(path, init);
   } catch (err) {
-    return { ok: false, status: 0, data: { reason: `supervisor unreachable (${err.message})` } };
+    return { ok: false, status: 0, data: { reason: t("api.unreachable", { error: err.message }) } };
   }
   let data = null;
   const text = await res.text();

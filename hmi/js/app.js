@@ -4,12 +4,14 @@
 // to the same hash).
 import { get, post, onUnauthorized } from "./api.js";
 import { Live } from "./live.js";
-import { $, esc } from "./dom.js";
+import { $, alarmText, esc } from "./dom.js";
 import { Sound } from "./sound.js";
 import { AlarmSound } from "./alarmsound.js";
 import { StaleDisplay } from "./stale.js";
 import { paintSummary } from "./summary.js";
 import { priorityIcon } from "./priority.js";
+import * as i18n from "./i18n.js";
+import { lang, onLangChange, setLang, t, translateStatic } from "./i18n.js";
 import * as login from "./screens/login.js";
 import * as overview from "./screens/overview.js";
 import * as channel from "./screens/channel.js";
@@ -41,6 +43,7 @@ const app = {
   sound: new Sound(),
   alarmSound: null, // the repeating alarm sound and its silence (alarmsound.js)
   stale: new StaleDisplay(),
+  i18n, // the language and its formats (the browser tests read its catalogues)
   goLogin,
 };
 app.alarmSound = new AlarmSound(app.sound);
@@ -132,7 +135,7 @@ function paintHeader() {
   top.hidden = !s;
   if (!s) return;
   $("#bench-name").textContent = app.bench?.bench || "bench";
-  $("#who").textContent = s.login === false ? "login off (operator)" : `${s.user} (${s.role})`;
+  $("#who").textContent = s.login === false ? t("header.loginOff") : `${s.user} (${t(`role.${s.role}`)})`;
   $("#logout").hidden = s.login === false;
   const { path } = parseHash();
   const current = ROUTES.find(([re]) => re.test(path))?.[2];
@@ -150,15 +153,15 @@ function paintChannelNav(name) {
   if (!a) return;
   a.hidden = !name;
   if (!name) return;
-  a.textContent = `Channel ${name}`;
+  a.textContent = t("nav.channel", { ch: name });
   a.href = `#/channel/${encodeURIComponent(name)}`;
 }
 
 function paintLink() {
   const el = $("#link");
-  const labels = { live: "live", polling: "polling", down: "disconnected", connecting: "connecting" };
+  const labels = { live: "link.live", polling: "link.polling", down: "link.down", connecting: "link.connecting" };
   // An open connection that has gone silent is no longer "live" (stale.js).
-  el.textContent = app.stale.silent ? "no data" : labels[app.live.state] || app.live.state;
+  el.textContent = app.stale.silent ? t("link.noData") : labels[app.live.state] ? t(labels[app.live.state]) : app.live.state;
   el.classList.toggle("abn", app.live.state === "down" || app.stale.silent);
 }
 
@@ -184,7 +187,7 @@ function paintAlarmCount() {
   banner.hidden = !first || parseHash().path === "/login";
   if (first) {
     // The alarm's priority by shape and colour here too (ISA-101), not only on its screen.
-    $("#banner-text").innerHTML = `${priorityIcon(first.severity)} <a href="#/alarms">${esc(first.first_out ? "FIRST OUT " : "")}${esc(first.id)}: ${esc(first.message)}</a>${unacked.length > 1 ? ` (+${unacked.length - 1} more)` : ""}`;
+    $("#banner-text").innerHTML = `${priorityIcon(first.severity)} <a href="#/alarms">${esc(first.first_out ? `${t("alarms.firstOut")} ` : "")}${esc(first.id)}: ${esc(alarmText(first))}</a>${unacked.length > 1 ? ` ${esc(t("banner.more", { n: unacked.length - 1, count: unacked.length - 1 }))}` : ""}`;
   }
 }
 
@@ -263,7 +266,7 @@ async function route() {
     return;
   }
   app.screen = screen;
-  app.stale.setTitle(`${root.dataset.title || found[2]} — bench supervisor`);
+  app.stale.setTitle(`${root.dataset.title || found[2]} — ${t("app.title")}`);
 }
 
 $("#logout").addEventListener("click", async () => {
@@ -291,13 +294,13 @@ function paintSounding() {
   $("#sound-blocked").hidden = !blocked;
   const label = $("#sound").closest("label");
   label.classList.toggle("blocked", blocked);
-  label.title = blocked ? "sound blocked by the browser until you click the page" : "alarm and end-of-test sound";
+  label.title = blocked ? t("sound.blockedTitle") : t("sound.title");
 }
 app.alarmSound.onChange = paintSounding;
 app.sound.onChange = paintSounding;
 $("#alarm-silence").addEventListener("click", async () => {
   const answer = await app.alarmSound.silence();
-  if (answer && !answer.ok) $("#alarm-silence").title = answer.data?.reason || "not silenced";
+  if (answer && !answer.ok) $("#alarm-silence").title = answer.data?.reason || t("sound.notSilenced");
 });
 
 // The session expires after hmi.session_timeout_s without a request (the WebSocket's
@@ -321,6 +324,33 @@ function scheduleSessionCheck() {
   }, (s.expires_s + SESSION_SLACK_S) * 1000);
 }
 app.scheduleSessionCheck = scheduleSessionCheck;
+
+// The language (i18n.js): the static page's texts now, and the switch in the header; a
+// change repaints the header and renders the screen again in the new language.
+// The switch is a button naming the other language in that language (never translated:
+// whoever cannot read this one must find theirs), compact for the header's one line.
+const LANGUAGE_NAMES = { en: "English", fr: "Français" };
+const langButton = $("#lang");
+function paintLangSwitch() {
+  const other = lang() === "fr" ? "en" : "fr";
+  langButton.textContent = other.toUpperCase();
+  langButton.lang = other;
+  langButton.dataset.lang = other;
+  langButton.title = LANGUAGE_NAMES[other];
+  langButton.setAttribute("aria-label", `${other.toUpperCase()} ${LANGUAGE_NAMES[other]}`);
+}
+translateStatic();
+paintLangSwitch();
+langButton.addEventListener("click", () => setLang(langButton.dataset.lang));
+onLangChange(() => {
+  paintLangSwitch();
+  translateStatic();
+  const el = $("#summary");
+  if (el) delete el.dataset.key;
+  paintLink();
+  app.stale.paint();
+  route();
+});
 
 window.addEventListener("hashchange", route);
 app.stale.onChange = paintLink;

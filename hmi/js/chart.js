@@ -1,5 +1,7 @@
 // Charts with uPlot (installed from npm by `make hmi`, served at /vendor/uplot/).
 // The minified build, loaded by index.html before the app (window.uPlot).
+import { fmtDateTime, fmtSignificant, t, timeTicks } from "./i18n.js";
+
 export const uPlot = window.uPlot;
 
 // Grey lines for normal data (high-performance HMI); series told apart by dash and weight.
@@ -21,6 +23,8 @@ export function autoResize(chart, el, height) {
   return () => ro.disconnect();
 }
 
+/** A legend's value in the locale's format; none is a dash. */
+const legendValue = (u, v) => (v == null ? "—" : fmtSignificant(v, 6));
 /**
  * An axis as wide as its widest tick label (uPlot's `size` hook, after its axis-autosize
  * example): a fixed 60 px let step names ("charge_cc_cv") run under the axis label
@@ -41,7 +45,8 @@ export function fitAxisSize(u, values, axisIdx) {
 }
 
 /** Tick labels with enough digits for small values (mAh-sized Ah, efficiencies). */
-const ticks = (u, vals) => vals.map((v) => (v === null ? "" : Math.abs(v) >= 100 ? v.toFixed(0) : +v.toPrecision(3)));
+const ticks = (u, vals) =>
+  vals.map((v) => (v === null ? "" : Math.abs(v) >= 100 ? fmtSignificant(Math.round(v), 21) : fmtSignificant(v, 3)));
 
 /**
  * A simple plot of arrays: lines, a stepped line (`stepped`: a timeline of steps) or bars
@@ -73,9 +78,10 @@ export function simplePlot(el, { title, xLabel, yLabel, series, x, ys, height = 
       { label: yLabel ?? series.map((s) => s.label).join(" / "), values: yValues ?? ticks, size: fitAxisSize },
     ],
     series: [
-      { label: xLabel },
+      { label: xLabel, value: legendValue },
       ...series.map((s, i) => ({
         label: s.label,
+        value: legendValue,
         ...SERIES_STYLE[i % SERIES_STYLE.length],
         ...(bars || stepped ? { paths: pathsOf(i) } : {}),
         ...(bars ? { fill: i ? "#b9c2cc" : "#6f7a85", dash: undefined } : {}),
@@ -98,7 +104,7 @@ export function timeAxis(durationS) {
  * A run's timeline ({t_s, step, ...} events, as the dry run and a test's summary give
  * it) as a stepped plot of the step over time, ending at `durationS`.
  */
-export function timelinePlot(el, timeline, durationS, title = "Timeline: step over time") {
+export function timelinePlot(el, timeline, durationS, title = t("plot.timeline")) {
   const tl = (timeline || []).filter((e) => e.step && typeof e.t_s === "number");
   if (!tl.length) return null;
   const stepNames = [];
@@ -108,8 +114,8 @@ export function timelinePlot(el, timeline, durationS, title = "Timeline: step ov
   return simplePlot(el, {
     title,
     xLabel: ax.unit,
-    yLabel: "step",
-    series: [{ label: "step" }],
+    yLabel: t("plot.step"),
+    series: [{ label: t("plot.step") }],
     x: [...tl.map((e) => e.t_s / ax.scale), end / ax.scale],
     ys: [[...tl.map((e) => stepNames.indexOf(e.step)), stepNames.indexOf(tl[tl.length - 1].step)]],
     height: 200,
@@ -241,7 +247,8 @@ export function trendChart(el, { pens, height, hidden = [], onSelect = () => {},
       ...Object.fromEntries(scales.map((k) => [k, { range: (u, min, max) => bandRange(...place(u, k), min, max) }])),
     },
     series: [
-      {},
+      // The time under the cursor as the tables write it (the locale's order, 24 h).
+      { label: t("trend.time"), value: (u, v) => (v == null ? "—" : fmtDateTime(v)) },
       ...pens.map((p, i) => ({
         label: p.label,
         scale: p.scale,
@@ -252,11 +259,12 @@ export function trendChart(el, { pens, height, hidden = [], onSelect = () => {},
         paths: step,
         points: { show: false },
         // In the legend: no value is a dash, not an empty cell.
-        value: (u, v) => (v == null ? "—" : String(+v.toPrecision(6))),
+        value: (u, v) => (v == null ? "—" : fmtSignificant(v, 6)),
       })),
     ],
     axes: [
-      {},
+      // Time ticks in the locale's format and 24 h, as the tables (issue 33, finding 6).
+      { values: timeTicks },
       ...scales.map((k, n) => {
         const first = pens.findIndex((p) => p.scale === k);
         const colour = PENS[first % PENS.length].stroke;
@@ -269,7 +277,7 @@ export function trendChart(el, { pens, height, hidden = [], onSelect = () => {},
           grid: { stroke: "rgba(31, 42, 54, 0.1)", width: 1 },
           ticks: { stroke: colour, width: 1, size: 5 },
           splits: (u, i, min, max) => bandSplits(...place(u, k), min, max, u.bbox.height / devicePixelRatio),
-          values: (u, splits) => splits.map((v) => String(+v.toPrecision(6))),
+          values: (u, splits) => splits.map((v) => fmtSignificant(v, 6)),
           size: 56,
         };
       }),

@@ -1,5 +1,7 @@
 // Small DOM helpers: escaping, value formatting, and the binding of elements to tags
-// (<span data-tag="ch0.voltage" data-fmt="n3">), refreshed on each live delta.
+// (<span data-tag="ch0.voltage" data-fmt="n3">), refreshed on each live delta. Numbers,
+// dates and words in the screens' language (i18n.js).
+import { fmtDateTime, fmtNumber, fmtSignificant, lang, t, tOr, tValue } from "./i18n.js";
 
 export function esc(s) {
   return String(s ?? "")
@@ -23,13 +25,39 @@ export function fmtDuration(s) {
   const m = Math.floor((t % 3600) / 60);
   const sec = t % 60;
   const hms = `${h}:${String(m).padStart(2, "0")}:${String(sec).padStart(2, "0")}`;
-  return d ? `${d} d ${hms}` : hms;
+  return d ? `${t("unit.days", { n: d })} ${hms}` : hms;
 }
 
+/** A date and time (unix seconds) in the locale's order, 24 h (i18n.js). */
 export function fmtTime(unixS) {
   if (!unixS) return "—";
-  const d = new Date(unixS * 1000);
-  return d.toLocaleString(undefined, { hour12: false });
+  return fmtDateTime(unixS);
+}
+
+/** An alarm's text in the screens' language: in English the supervisor's own message (it
+ * writes them in English); in another by its stable `code` and `params` when the
+ * supervisor sends them and the catalogue has the code, else the message as it came. */
+export function alarmText(a) {
+  if (!a) return "";
+  if (!a.code || lang() === "en") return a.message ?? "";
+  return tOr(`alarm.${a.code}`, a.message ?? "", alarmParams(a.params));
+}
+
+/** An alarm's numeric params in the locale's format, as the supervisor's own text writes
+ * them: a measured value in volts or amperes with 3 decimals, in °C with 1, seconds with
+ * 2, a limit or a tolerance as given (up to 6 significant digits). */
+function alarmParams(params) {
+  const out = {};
+  for (const [k, v] of Object.entries(params || {})) {
+    // (a word of a state — "open", "on" — in the language; names and reasons as they are)
+    if (typeof v !== "number") out[k] = typeof v === "string" ? tOr(`alarmWord.${v}`, v) : v ?? "";
+    else if (k.endsWith("_s")) out[k] = fmtNumber(v, 2);
+    else if (/^(limit|tolerance)/.test(k)) out[k] = fmtSignificant(v, 6);
+    else if (k.endsWith("_c")) out[k] = fmtNumber(v, 1);
+    else if (/_(v|a)$/.test(k)) out[k] = fmtNumber(v, 3);
+    else out[k] = fmtSignificant(v, 6);
+  }
+  return out;
 }
 
 /** A number's text without the sign of a value that rounds to zero: "-0.000" (a current
@@ -54,15 +82,17 @@ export function fmtValue(value, fmt, el) {
   if (fmt === "dur") return fmtDuration(value);
   if (fmt === "pct") return Number.isFinite(value) ? `${Math.round(value * 100)} %` : "—";
   if (fmt === "bool" || typeof value === "boolean") {
-    const on = el?.dataset.true ?? "on";
-    const off = el?.dataset.false ?? "off";
+    const on = el?.dataset.true ?? t("value.on");
+    const off = el?.dataset.false ?? t("value.off");
     return value ? on : off;
   }
   if (typeof value === "number" && fmt && fmt.startsWith("n")) {
-    return noNegativeZero(value.toFixed(Number(fmt.slice(1)) || 0));
+    return fmtNumber(value, Number(fmt.slice(1)) || 0);
   }
-  if (typeof value === "number" && !Number.isInteger(value)) return noNegativeZero(value.toFixed(3));
+  if (typeof value === "number" && !Number.isInteger(value)) return fmtNumber(value, 3);
   if (value === "") return el?.dataset.empty ?? "—";
+  // A name the supervisor sends (a state, a mode: data-enum="chain") in the language.
+  if (el?.dataset.enum && typeof value === "string") return tValue(el.dataset.enum, value);
   return String(value);
 }
 
@@ -91,17 +121,17 @@ export function paint(el, tag) {
     delete el.dataset.shown;
     el.textContent = "—";
     el.classList.add("q-bad");
-    el.title = "no such tag on this bench";
+    el.title = t("tag.missing");
     return;
   }
   if (tag.quality === "BAD" && tag.reason === NOT_FITTED) {
     // No sensor on this bench (a Chadèche board has no thermometer): nothing is wrong,
     // so grey "n/a", never the colour of a fault.
     delete el.dataset.shown;
-    el.textContent = "n/a";
+    el.textContent = t("value.na");
     el.classList.remove("q-bad", "q-uncertain", "abn");
     el.classList.add("q-na");
-    el.title = "no sensor fitted on this bench";
+    el.title = t("tag.notFitted");
     el.dataset.version = String(tag.version ?? "");
     return;
   }
@@ -162,6 +192,6 @@ export function showResult(el, answer, okText) {
   el.classList.toggle("accepted", answer.ok);
   let reason = d.reason || d.error || "";
   if (Array.isArray(d.details) && d.details.length) reason += ` — ${d.details.join("; ")}`;
-  if (!reason) reason = answer.ok ? okText || "done" : `HTTP ${answer.status}`;
-  el.textContent = answer.ok ? reason : `Refused (${answer.status}): ${reason}`;
+  if (!reason) reason = answer.ok ? okText || t("result.done") : `HTTP ${answer.status}`;
+  el.textContent = answer.ok ? reason : t("result.refused", { status: answer.status, reason });
 }

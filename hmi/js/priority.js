@@ -3,6 +3,7 @@
 // numbers are the severities the supervisor sends (supervisor/safety/alarms.py Severity,
 // the OPC UA 1–1000 scale); the names are the ones it sends beside them (severity_name).
 import { esc } from "./dom.js";
+import { t } from "./i18n.js";
 
 // Highest first. Shapes: a square, a triangle, a diamond, a circle — four outlines that
 // differ at icon size; colours from the red of an alarm down to a violet, never green
@@ -37,5 +38,5 @@ export function priorityIcon(severity) {
   const p = priorityOf(severity);
   // The triangle's number sits lower: its centre of area is below the box's.
   const y = p.shape === "triangle" ? 15.5 : 14.5;
-  return `<svg class="prio prio-${p.name}" viewBox="0 0 20 20" width="20" height="20" role="img" aria-label="priority ${p.rank} ${esc(p.name)}">${SHAPES[p.shape]}<text x="10" y="${y}" text-anchor="middle" aria-hidden="true">${p.rank}</text></svg>`;
+  return `<svg class="prio prio-${p.name}" viewBox="0 0 20 20" width="20" height="20" role="img" aria-label="${esc(t("priority.aria", { rank: p.rank, name: t(`priority.${p.name}`) }))}">${SHAPES[p.shape]}<text x="10" y="${y}" text-anchor="middle" aria-hidden="true">${p.rank}</text></svg>`;
 }

@@ -6,6 +6,7 @@
 // with STALE (a panel's tab or window list shows it), and hmi.css marks every value
 // (body.stale): hatched and grey, still readable, never in the colour of a live alarm.
 import { $ } from "./dom.js";
+import { fmtClock, t } from "./i18n.js";
 
 const TICK_MS = 1000;
 /** No data for this long on an open connection: stale (over the longest publish period). */
@@ -24,7 +25,7 @@ export function ago(seconds) {
 export class StaleDisplay {
   constructor() {
     this.sinceMs = null; // when the values were last fresh (null: they are fresh)
-    this.why = "";
+    this.why = () => ""; // why the values are stale, in the language of the moment
     this.state = "connecting";
     this.lastFreshMs = Date.now();
     this.silenceS = SILENCE_S; // the browser tests shorten it
@@ -63,10 +64,11 @@ export class StaleDisplay {
       // The connection was good until it closed (the WebSocket sends every change): the
       // values were fresh until now — unless they had already gone silent before.
       if (this.sinceMs === null) this.sinceMs = now;
-      this.why = "no connection to the supervisor, reconnecting";
+      this.why = () => t("stale.down");
     } else if (silent) {
       this.sinceMs = this.lastFreshMs;
-      this.why = `the supervisor has sent nothing for ${ago((now - this.lastFreshMs) / 1000)}`;
+      const silentS = (now - this.lastFreshMs) / 1000;
+      this.why = () => t("stale.silent", { ago: ago(silentS) });
     } else {
       this.sinceMs = null;
     }
@@ -83,18 +85,18 @@ export class StaleDisplay {
   paint() {
     const since = this.sinceMs;
     document.body.classList.toggle("stale", since !== null);
-    document.title = since === null ? this.title : `STALE — ${this.title}`;
+    document.title = since === null ? this.title : `${t("stale.titlePrefix")} — ${this.title}`;
     const el = $("#stale");
     const link = $("#link");
     if (!el || !link) return;
     el.hidden = since === null;
     if (since === null) {
-      link.title = "live data connection";
+      link.title = t("link.title");
       return;
     }
-    const at = new Date(since).toLocaleTimeString(undefined, { hour12: false });
+    const at = fmtClock(new Date(since));
     el.dataset.since = String(since / 1000);
-    el.textContent = `Values stale since ${at} (${ago((Date.now() - since) / 1000)} ago): ${this.why}. Every value shown is the last one received.`;
-    link.title = `no live data since ${at}`;
+    el.textContent = t("stale.banner", { at, ago: ago((Date.now() - since) / 1000), why: this.why() });
+    link.title = t("link.staleSince", { at });
   }
 }

@@ -4,6 +4,7 @@
 // channels and unacknowledged alarms in the alarm colour, held ones in the warning colour.
 import { esc } from "./dom.js";
 import { PRIORITIES, priorityIcon, priorityOf } from "./priority.js";
+import { t } from "./i18n.js";
 
 const HELD = new Set(["Holding", "Held"]);
 const RUNNING = new Set(["Running", "Resuming", "Stopping", "Aborting"]);
@@ -46,16 +47,16 @@ const item = (href, name, value, text, cls = "") =>
 
 /** The summary bar's HTML for the counts. */
 export function summaryHtml(c) {
-  const unacked = c.unacknowledged ? `, ${c.unacknowledged} unack.` : "";
+  const unacked = c.unacknowledged ? `, ${t("summary.unacked", { n: c.unacknowledged })}` : "";
   const parts = [
     // The channels' total: in the counts' tooltips and for the tests, not in the bar's width
     // (the header must stay one line at 1366 px).
     `<span hidden data-count="channels" data-value="${c.channels}"></span>`,
     `<span hidden data-count="unacknowledged" data-value="${c.unacknowledged}"></span>`,
-    item("#/", "running", c.running, `<span class="sym" aria-hidden="true">▶</span> ${c.running} running`),
-    item("#/", "held", c.held, `<span class="sym" aria-hidden="true">❚❚</span> ${c.held} held`, c.held ? "warn" : ""),
-    item("#/", "faulted", c.faulted, `<span class="sym" aria-hidden="true">✖</span> ${c.faulted} faulted`, c.faulted ? "abn" : ""),
-    item("#/alarms", "alarms", c.alarms, `${c.alarms} alarm${c.alarms === 1 ? "" : "s"}${unacked}`, c.unacknowledged ? "abn" : ""),
+    item("#/", "running", c.running, `<span class="sym" aria-hidden="true">▶</span> ${t("summary.running", { n: c.running, count: c.running })}`),
+    item("#/", "held", c.held, `<span class="sym" aria-hidden="true">❚❚</span> ${t("summary.held", { n: c.held, count: c.held })}`, c.held ? "warn" : ""),
+    item("#/", "faulted", c.faulted, `<span class="sym" aria-hidden="true">✖</span> ${t("summary.faulted", { n: c.faulted, count: c.faulted })}`, c.faulted ? "abn" : ""),
+    item("#/alarms", "alarms", c.alarms, `${t("summary.alarms", { n: c.alarms, count: c.alarms })}${unacked}`, c.unacknowledged ? "abn" : ""),
   ];
   // Per priority, only those present: its icon and its count (shape, colour, number).
   for (const p of PRIORITIES) {
@@ -72,9 +73,6 @@ export function paintSummary(el, bench, live) {
   if (el.dataset.key === key) return;
   el.dataset.key = key;
   el.innerHTML = summaryHtml(c);
-  el.title = `${c.channels} channels: ${c.running} running, ${c.held} held, ${c.faulted} faulted, ${c.idle} idle`;
-  el.setAttribute(
-    "aria-label",
-    `Bench summary: ${c.running} running, ${c.held} held, ${c.faulted} faulted of ${c.channels} channels; ${c.alarms} active alarms`,
-  );
+  el.title = t("summary.title", c);
+  el.setAttribute("aria-label", t("summary.aria", c));
 }

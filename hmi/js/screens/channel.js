@@ -5,6 +5,7 @@
 // command bar (commandbar.js: buttons that follow the state, confirmations).
 import { get } from "../api.js";
 import { bindTags, esc, unitLabel, $, $$ } from "../dom.js";
+import { t as tr, tValue } from "../i18n.js";
 import { PENS, holdJoin, trendChart } from "../chart.js";
 import { paintTile } from "./overview.js";
 import { commandBarHtml, mountCommandBar } from "./commandbar.js";
@@ -30,69 +31,70 @@ export async function render({ root, app, params }) {
   const name = decodeURIComponent(params[0]);
   const ch = app.bench.channels.find((c) => c.name === name);
   if (!ch) {
-    root.innerHTML = `<p class="refused">Unknown channel ${esc(name)}. <a href="#/">Overview</a></p>`;
+    root.innerHTML = `<p class="refused">${esc(tr("channel.unknown", { ch: name }))} <a href="#/">${esc(tr("nav.overview"))}</a></p>`;
     return null;
   }
   root.dataset.title = name;
   const t = ch.tags;
   const p = `${name}.`;
   const viewer = app.session?.role === "viewer";
+  const none = esc(tr("value.none"));
   root.innerHTML = `
   <div class="channel-head tile" id="tile-${esc(name)}">
     <h1>${esc(name)} <small class="muted">${esc(ch.description || "")}</small></h1>
     <span class="activity big" id="ch-activity"></span>
-    <span class="chain-state">chain: <span class="state" data-tag="${esc(t.state)}" id="ch-state"></span></span>
-    <span class="muted">recipe <b data-tag="${p}chain.recipe" data-empty="none"></b></span>
-    <span class="muted">test <b data-tag="${p}chain.test_id" data-empty="none"></b></span>
-    <div class="progress"><div class="bar" role="progressbar" aria-label="progress" aria-valuemin="0" aria-valuemax="100"><div class="fill"></div></div>
-      <span class="eta">ETA <span class="eta-text">—</span></span></div>
+    <span class="chain-state">${esc(tr("tile.chain"))} <span class="state" data-tag="${esc(t.state)}" data-enum="chain" id="ch-state"></span></span>
+    <span class="muted">${esc(tr("channel.recipe"))} <b data-tag="${p}chain.recipe" data-empty="${none}"></b></span>
+    <span class="muted">${esc(tr("channel.test"))} <b data-tag="${p}chain.test_id" data-empty="${none}"></b></span>
+    <div class="progress"><div class="bar" role="progressbar" aria-label="${esc(tr("channel.progress"))}" aria-valuemin="0" aria-valuemax="100"><div class="fill"></div></div>
+      <span class="eta">${esc(tr("tile.eta"))} <span class="eta-text">—</span></span></div>
     <div class="tile-alarm" aria-live="polite"></div>
   </div>
   <div class="channel-grid">
-    <section class="panel trend-panel" aria-label="Trend">
+    <section class="panel trend-panel" aria-label="${esc(tr("trend.title"))}">
       <div class="trend-bar">
-        <h2>Trend <small class="muted">drag to zoom</small></h2>
-        <div class="buttons" role="group" aria-label="Trend range">
+        <h2>${esc(tr("trend.title"))} <small class="muted">${esc(tr("trend.dragToZoom"))}</small></h2>
+        <div class="buttons" role="group" aria-label="${esc(tr("trend.range"))}">
           ${SPANS_S.map(([l, s]) => `<button type="button" class="small" data-span="${s}">${l}</button>`).join("")}
-          <button type="button" class="small" id="trend-left" aria-label="pan left">◀</button>
-          <button type="button" class="small" id="trend-right" aria-label="pan right">▶</button>
-          <button type="button" class="small" id="trend-out" aria-label="zoom out">−</button>
-          <button type="button" class="small" id="trend-live" aria-pressed="true">Live</button>
+          <button type="button" class="small" id="trend-left" aria-label="${esc(tr("trend.panLeft"))}">◀</button>
+          <button type="button" class="small" id="trend-right" aria-label="${esc(tr("trend.panRight"))}">▶</button>
+          <button type="button" class="small" id="trend-out" aria-label="${esc(tr("trend.zoomOut"))}">−</button>
+          <button type="button" class="small" id="trend-live" aria-pressed="true">${esc(tr("trend.live"))}</button>
         </div>
-        <fieldset class="pens" id="trend-pens"><legend>Pens</legend></fieldset>
+        <fieldset class="pens" id="trend-pens"><legend>${esc(tr("trend.pens"))}</legend></fieldset>
       </div>
       <div id="trend" class="trend" data-points="0"></div>
     </section>
-    <section class="panel values" aria-label="Live values">
+    <section class="panel values" aria-label="${esc(tr("channel.liveValues"))}">
       <div class="nums">
-        <div><span class="big" data-tag="${esc(t.voltage)}" data-fmt="n3"></span><small>voltage</small></div>
-        <div><span class="big" data-tag="${esc(t.current)}" data-fmt="n3"></span><small>current</small></div>
-        <div><span class="big" data-tag="${esc(t.temperature)}" data-fmt="n1"></span><small>temperature</small></div>
-        <div><span class="big" data-tag="${esc(t.charge)}" data-fmt="n4" id="ch-charge"></span><small>charge</small></div>
+        <div><span class="big" data-tag="${esc(t.voltage)}" data-fmt="n3"></span><small>${esc(tr("quantity.voltage"))}</small></div>
+        <div><span class="big" data-tag="${esc(t.current)}" data-fmt="n3"></span><small>${esc(tr("quantity.current"))}</small></div>
+        <div><span class="big" data-tag="${esc(t.temperature)}" data-fmt="n1"></span><small>${esc(tr("quantity.temperature"))}</small></div>
+        <div><span class="big" data-tag="${esc(t.charge)}" data-fmt="n4" id="ch-charge"></span><small>${esc(tr("quantity.charge"))}</small></div>
       </div>
-      ${value("step", t.step, 'data-empty="none" id="ch-step"')}
-      ${value("cycle", `${p}chain.cycle`)}
-      ${value("step time", `${p}chain.step_time`, 'data-fmt="dur" id="ch-step-time"')}
-      ${value("test time", `${p}chain.test_time`, 'data-fmt="dur"')}
-      ${value("last transition", `${p}chain.last_transition`, 'data-empty="none" id="ch-last-transition" class="wrap"')}
-      ${value("last command", `${p}chain.last_command`, 'data-empty="none" id="ch-last-command" class="wrap"')}
-      ${value("interlock", `${p}chain.interlock`, 'data-empty="none" data-abn="nonempty"')}
-      ${value("trip", `${p}fault`, 'data-empty="none" data-abn="nonempty"')}
-      ${value("cell", `${p}chain.cell_id`, 'data-empty="none" id="ch-cell"')}
-      ${value("power", `${p}power`, 'data-fmt="n3"')}
-      ${value("net charge counter", `${p}charge_ah`, 'data-fmt="n3"')}
-      ${value("charged counter", `${p}charged_ah`, 'data-fmt="n3"')}
-      ${value("discharged counter", `${p}discharged_ah`, 'data-fmt="n3"')}
-      ${value("current command", `${p}current_cmd`, 'data-fmt="n3"')}
-      ${value("clamped by a limit", `${p}clamped`, 'data-true="yes: less than asked flows" data-false="no" data-abn="true" id="ch-clamped"')}
-      ${value("manual setpoint", `${p}manual_current`, 'data-fmt="n3" id="ch-manual-current"')}
-      ${value("output enabled", `${p}enable`, 'data-true="yes" data-false="no"')}
+      ${value(tr("channel.step"), t.step, `data-empty="${none}" id="ch-step"`)}
+      ${value(tr("channel.cycle"), `${p}chain.cycle`)}
+      ${value(tr("channel.stepTime"), `${p}chain.step_time`, 'data-fmt="dur" id="ch-step-time"')}
+      ${value(tr("channel.testTime"), `${p}chain.test_time`, 'data-fmt="dur"')}
+      ${value(tr("channel.lastTransition"), `${p}chain.last_transition`, `data-empty="${none}" id="ch-last-transition" class="wrap"`)}
+      ${value(tr("channel.lastCommand"), `${p}chain.last_command`, `data-empty="${none}" id="ch-last-command" class="wrap"`)}
+      ${value(tr("channel.interlock"), `${p}chain.interlock`, `data-empty="${none}" data-abn="nonempty"`)}
+      ${value(tr("channel.trip"), `${p}fault`, `data-empty="${none}" data-abn="nonempty"`)}
+      ${value(tr("channel.cell"), `${p}chain.cell_id`, `data-empty="${none}" id="ch-cell"`)}
+      ${value(tr("channel.power"), `${p}power`, 'data-fmt="n3"')}
+      ${value(tr("channel.netCharge"), `${p}charge_ah`, 'data-fmt="n3"')}
+      ${value(tr("channel.charged"), `${p}charged_ah`, 'data-fmt="n3"')}
+      ${value(tr("channel.discharged"), `${p}discharged_ah`, 'data-fmt="n3"')}
+      ${value(tr("channel.currentCmd"), `${p}current_cmd`, 'data-fmt="n3"')}
+      ${value(tr("channel.clamped"), `${p}clamped`, `data-true="${esc(tr("channel.clampedYes"))}" data-false="${esc(tr("value.no"))}" data-abn="true" id="ch-clamped"`)}
+      ${value(tr("channel.manualSetpoint"), `${p}manual_current`, 'data-fmt="n3" id="ch-manual-current"')}
+      ${value(tr("channel.outputEnabled"), `${p}enable`, `data-true="${esc(tr("value.yes"))}" data-false="${esc(tr("value.no"))}"`)}
     </section>
-    <section class="panel commands" aria-label="Commands">
+    <section class="panel commands" aria-label="${esc(tr("commands.title"))}">
       ${commandBarHtml(viewer)}
     </section>
-    <section class="panel chain-panel" aria-label="Step chain">
-      <h2>Step chain</h2>
+    <section class="panel chain-panel" aria-label="${esc(tr("channel.stepChain"))}">
+      <h2>${esc(tr("channel.stepChain"))}</h2>
       <div id="chain" class="chain-wrap"><p class="muted">…</p></div>
     </section>
   </div>`;
@@ -122,11 +124,11 @@ export async function render({ root, app, params }) {
     const answer = await get(`/api/channels/${encodeURIComponent(name)}/program`);
     if (!answer.ok) {
       program = null;
-      chainEl.innerHTML = `<p class="muted" id="chain-none">${esc(answer.data.reason || answer.data.error || "no recipe loaded")}</p>`;
+      chainEl.innerHTML = `<p class="muted" id="chain-none">${esc(answer.data.reason || answer.data.error || tr("channel.noRecipe"))}</p>`;
       return;
     }
     program = answer.data;
-    chainEl.innerHTML = `<p class="muted">${esc(program.recipe || "")}</p><ol class="chain">${(program.steps || [])
+    chainEl.innerHTML = `<p class="muted">${esc(program.recipe || "")}</p><ol class="chain" translate="no">${(program.steps || [])
       .map(
         (s) => `<li data-step="${esc(s.name)}" data-index="${esc(s.index)}">
           <b>${esc(s.name)}</b> <span class="muted">${esc(s.kind || "")}</span>
@@ -155,14 +157,14 @@ export async function render({ root, app, params }) {
   // historian's answer's; the chart is made at the first answer, its pens named with them.
   const unitOf = (tag, answer) => unitLabel(app.live.tags.get(tag)?.unit || (answer?.ok && answer.data.unit) || "");
   const pensOf = (answers) => [
-    { label: `voltage ${unitOf(t.voltage, answers[0])}`.trim(), scale: "V", unit: unitOf(t.voltage, answers[0]) || "V" },
-    { label: `current ${unitOf(t.current, answers[1])}`.trim(), scale: "A", unit: unitOf(t.current, answers[1]) || "A" },
+    { label: `${tr("quantity.voltage")} ${unitOf(t.voltage, answers[0])}`.trim(), scale: "V", unit: unitOf(t.voltage, answers[0]) || "V" },
+    { label: `${tr("quantity.current")} ${unitOf(t.current, answers[1])}`.trim(), scale: "A", unit: unitOf(t.current, answers[1]) || "A" },
     {
-      label: `temperature ${unitOf(t.temperature, answers[2])}`.trim(),
+      label: `${tr("quantity.temperature")} ${unitOf(t.temperature, answers[2])}`.trim(),
       scale: "T",
       unit: unitOf(t.temperature, answers[2]) || "°C",
     },
-    ...extra.map((s) => ({ label: `${s.label} ${unitLabel(s.unit)}`.trim(), scale: s.scale, unit: `${s.scale} ${unitLabel(s.unit)}`.trim() })),
+    ...extra.map((s) => ({ label: `${tValue("mimic.row", s.label)} ${unitLabel(s.unit)}`.trim(), scale: s.scale, unit: `${s.scale} ${unitLabel(s.unit)}`.trim() })),
   ];
   let seriesLabels = [];
   let trend = null;
@@ -322,6 +324,7 @@ export async function render({ root, app, params }) {
 
   return {
     trendPoints: () => data[0].length,
+    trendChart: () => trend?.chart, // (the browser tests read its time axis)
     update(change) {
       bar.update(change);
       if (change.kind === "tags") {

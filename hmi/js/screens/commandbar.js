@@ -8,77 +8,60 @@
 // first in a dialog naming the channel and the test (docs/adr/0039-command-bar.md).
 import { api, get, post, put } from "../api.js";
 import { esc, showResult, $, $$ } from "../dom.js";
+import { t as tr, tValue } from "../i18n.js";
 
-export const VERBS = [
-  ["start", "Start"],
-  ["hold", "Hold"],
-  ["resume", "Resume"],
-  ["advance", "Advance"],
-  ["stop", "Stop"],
-  ["abort", "Abort"],
-  ["reset", "Reset"],
-  ["acknowledge", "Acknowledge"],
-];
+// The chain's commands, each labelled by its catalogue key verb.NAME (i18n.js).
+export const VERBS = ["start", "hold", "resume", "advance", "stop", "abort", "reset", "acknowledge"].map((v) => [v, `verb.${v}`]);
 
-/** What each confirmed command does, for its dialog (channel, test, state filled in). */
+/** What each confirmed command does, for its dialog (channel, test, state filled in):
+ * its title verb.NAME and its text confirm.NAME in the catalogue. */
 const CONFIRM = {
-  stop: {
-    title: "Stop",
-    text: "The test ends in an orderly way (the current stops); it cannot be resumed afterwards.",
-  },
-  abort: {
-    title: "Abort",
-    text: "The test ends now (the current stops at once); it cannot be resumed afterwards.",
-  },
-  reset: {
-    title: "Reset",
-    text: "The finished test is closed: the channel goes back to manual, enable off, 0 A; the next start is a new test.",
-  },
-  force: {
-    title: "Force",
-    text: "The tag keeps the forced value, whatever the process writes, until it is unforced.",
-  },
+  stop: { title: "verb.stop", text: "confirm.stop" },
+  abort: { title: "verb.abort", text: "confirm.abort" },
+  reset: { title: "verb.reset", text: "confirm.reset" },
+  force: { title: "verb.force", text: "confirm.force" },
 };
 
 /** The bar's HTML (the Commands panel's content). */
 export function commandBarHtml(viewer) {
-  return `<h2>Commands</h2>
-      ${viewer ? '<p class="muted">You are logged in as a viewer: the supervisor refuses commands (the reason is shown).</p>' : ""}
+  const tx = (key) => esc(tr(key));
+  return `<h2>${tx("commands.title")}</h2>
+      ${viewer ? `<p class="muted">${tx("commands.viewer")}</p>` : ""}
       <form id="load-form" class="load">
-        <label for="load-recipe">Recipe</label>
+        <label for="load-recipe">${tx("commands.recipe")}</label>
         <input id="load-recipe" list="recipe-list" placeholder="recipes/capacity-test.yaml" required>
         <datalist id="recipe-list"></datalist>
-        <label for="load-params">Parameters <small class="muted">(name = value, one a line)</small></label>
+        <label for="load-params">${tx("commands.parameters")} <small class="muted">${tx("commands.parametersHint")}</small></label>
         <textarea id="load-params" rows="3" spellcheck="false"></textarea>
-        <label for="load-cell">Cell id <small class="muted">(up to 64 of A–Z a–z 0–9 space . _ : / + -; sent with Load and Start)</small></label>
+        <label for="load-cell">${tx("commands.cell")} <small class="muted">${tx("commands.cellHint")}</small></label>
         <input id="load-cell" maxlength="64" pattern="[A-Za-z0-9 ._:/+\\-]*" autocomplete="off" spellcheck="false">
-        <label for="load-comment">Comment <small class="muted">(up to 500 characters)</small></label>
+        <label for="load-comment">${tx("commands.comment")} <small class="muted">${tx("commands.commentHint")}</small></label>
         <textarea id="load-comment" rows="2" maxlength="500"></textarea>
-        <button type="submit" id="cmd-load" data-bar="load">Load recipe</button>
+        <button type="submit" id="cmd-load" data-bar="load">${tx("commands.load")}</button>
       </form>
-      <div class="buttons" role="group" aria-label="Chain commands">
-        ${VERBS.map(([v, l]) => `<button type="button" data-verb="${v}" data-bar="${v}" id="cmd-${v}">${l}</button>`).join("")}
+      <div class="buttons" role="group" aria-label="${tx("commands.chain")}">
+        ${VERBS.map(([v, l]) => `<button type="button" data-verb="${v}" data-bar="${v}" id="cmd-${v}">${tx(l)}</button>`).join("")}
       </div>
-      <div class="buttons" role="group" aria-label="Mode">
-        <button type="button" id="cmd-auto" data-mode="auto" data-bar="mode_auto">Auto</button>
-        <button type="button" id="cmd-manual" data-mode="manual" data-bar="mode_manual">Manual</button>
+      <div class="buttons" role="group" aria-label="${tx("commands.mode")}">
+        <button type="button" id="cmd-auto" data-mode="auto" data-bar="mode_auto">${tx("commands.auto")}</button>
+        <button type="button" id="cmd-manual" data-mode="manual" data-bar="mode_manual">${tx("commands.manual")}</button>
       </div>
       <form id="manual-form" class="manual">
-        <label for="manual-current">Manual current (A)</label>
+        <label for="manual-current">${tx("commands.manualCurrent")}</label>
         <input id="manual-current" type="number" step="0.001" required>
-        <button type="submit" id="cmd-manual-current" data-bar="manual_current">Set</button>
-        <button type="button" id="cmd-enable" data-enable="true" data-bar="enable_on">Enable</button>
-        <button type="button" id="cmd-disable" data-enable="false" data-bar="enable_off">Disable</button>
+        <button type="submit" id="cmd-manual-current" data-bar="manual_current">${tx("commands.set")}</button>
+        <button type="button" id="cmd-enable" data-enable="true" data-bar="enable_on">${tx("commands.enable")}</button>
+        <button type="button" id="cmd-disable" data-enable="false" data-bar="enable_off">${tx("commands.disable")}</button>
       </form>
       <form id="force-form" class="force" hidden>
-        <label for="force-tag">Force tag <small class="muted">(engineers; never a safety tag)</small></label>
+        <label for="force-tag">${tx("commands.forceTag")} <small class="muted">${tx("commands.forceHint")}</small></label>
         <input id="force-tag" list="force-tags" required autocomplete="off" spellcheck="false">
         <datalist id="force-tags"></datalist>
-        <label for="force-value">Value</label>
+        <label for="force-value">${tx("commands.value")}</label>
         <input id="force-value" required autocomplete="off" spellcheck="false">
         <span class="buttons">
-          <button type="submit" id="cmd-force" data-bar="force">Force</button>
-          <button type="button" id="cmd-unforce" data-bar="force">Unforce</button>
+          <button type="submit" id="cmd-force" data-bar="force">${tx("verb.force")}</button>
+          <button type="button" id="cmd-unforce" data-bar="force">${tx("verb.unforce")}</button>
         </span>
       </form>
       <p id="cmd-result" class="result" role="status" aria-live="polite" hidden></p>
@@ -88,7 +71,7 @@ export function commandBarHtml(viewer) {
         <p id="cmd-confirm-text"></p>
         <div class="buttons">
           <button type="button" id="cmd-confirm-yes"></button>
-          <button type="button" id="cmd-confirm-no" autofocus>Cancel</button>
+          <button type="button" id="cmd-confirm-no" autofocus>${tx("common.cancel")}</button>
         </div>
       </dialog>`;
 }
@@ -102,7 +85,7 @@ export function parseParameters(text) {
     if (!s || s.startsWith("#")) return;
     const m = s.match(/^([A-Za-z_][\w.]*)\s*[=:]\s*(.+)$/);
     if (!m) {
-      errors.push(`parameters line ${i + 1}: expected name = value, got ${JSON.stringify(s)}`);
+      errors.push(tr("commands.parameterLine", { line: i + 1, got: JSON.stringify(s) }));
       return;
     }
     const raw = m[2].trim();
@@ -194,14 +177,15 @@ export function mountCommandBar({ root, app, name, ch, onLoaded }) {
     const c = CONFIRM[key];
     // The live values (the freshest), else what the supervisor said with its answer.
     const live = (tag, known) => (tag && app.live.value(tag) !== undefined ? app.live.value(tag) : known);
-    const test = live(t.test_id, info.test_id) || "none";
-    const recipe = live(t.recipe, info.recipe) || "none";
-    const state = live(t.state, info.state) || "unknown";
-    $("#cmd-confirm-title", root).textContent = `${c.title} on ${name}: test ${test}?`;
+    const test = live(t.test_id, info.test_id) || tr("value.none");
+    const recipe = live(t.recipe, info.recipe) || tr("value.none");
+    const state = tValue("chain", live(t.state, info.state)) || tr("value.unknown");
+    const title = tr(c.title);
+    $("#cmd-confirm-title", root).textContent = tr("confirm.title", { verb: title, ch: name, test });
     $("#cmd-confirm-what", root).textContent =
-      `${what ? `${what} — ` : ""}channel ${name}, test ${test} (recipe ${recipe}), state ${state}.`;
-    $("#cmd-confirm-text", root).textContent = c.text;
-    $("#cmd-confirm-yes", root).textContent = `${c.title} ${name}`;
+      `${what ? `${what} — ` : ""}${tr("confirm.what", { ch: name, test, recipe, state })}`;
+    $("#cmd-confirm-text", root).textContent = tr(c.text);
+    $("#cmd-confirm-yes", root).textContent = tr("confirm.yes", { verb: title, ch: name });
     onYes = action;
     dialog.showModal();
   };
@@ -217,7 +201,7 @@ export function mountCommandBar({ root, app, name, ch, onLoaded }) {
 
   // --- the commands ----------------------------------------------------------------------
   const command = async (verb, args = {}) => {
-    busy(`${verb}…`);
+    busy(`${tr(`verb.${verb}`)}…`);
     const answer = await post(`${base}/commands/${verb}`, args);
     showResult(out, answer);
     ask();
@@ -269,8 +253,8 @@ export function mountCommandBar({ root, app, name, ch, onLoaded }) {
     if (refusedAhead($("#cmd-force", root))) return;
     const tag = $("#force-tag", root).value.trim();
     const value = $("#force-value", root).value;
-    confirmThen("force", `force ${tag} := ${value}`, async () => {
-      busy("force…");
+    confirmThen("force", tr("confirm.forceWhat", { tag, value }), async () => {
+      busy(`${tr("verb.force")}…`);
       showResult(out, await put(`/api/tags/${encodeURIComponent(tag)}/force`, { value }));
       ask();
     });
@@ -278,7 +262,7 @@ export function mountCommandBar({ root, app, name, ch, onLoaded }) {
   $("#cmd-unforce", root).addEventListener("click", async () => {
     if (refusedAhead($("#cmd-unforce", root))) return;
     const tag = $("#force-tag", root).value.trim();
-    busy("unforce…");
+    busy(`${tr("verb.unforce")}…`);
     showResult(out, await api("DELETE", `/api/tags/${encodeURIComponent(tag)}/force`, {}));
     ask();
   });
@@ -294,13 +278,13 @@ export function mountCommandBar({ root, app, name, ch, onLoaded }) {
       showResult(out, { ok: false, status: 400, data: { reason: errors.join("; ") } });
       return;
     }
-    busy("loading…");
+    busy(tr("commands.loading"));
     const answer = await put(`${base}/recipe`, {
       file: recipeInput.value.trim(),
       parameters,
       ...metadata(),
     });
-    showResult(out, answer, "recipe loaded");
+    showResult(out, answer, tr("commands.loaded"));
     ask();
     if (answer.ok && onLoaded) onLoaded();
   });

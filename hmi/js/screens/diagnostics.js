@@ -3,6 +3,7 @@
 // historian.*) stay on screen either way.
 import { get } from "../api.js";
 import { bindTags, esc, $ } from "../dom.js";
+import { fmtSignificant, t } from "../i18n.js";
 
 const isObj = (v) => v && typeof v === "object" && !Array.isArray(v);
 
@@ -12,8 +13,8 @@ const isTagValue = (v) => isObj(v) && "value" in v;
 function fmt(v) {
   if (v === null || v === undefined) return "—";
   if (isTagValue(v)) return fmt(v.value);
-  if (typeof v === "number") return Number.isInteger(v) ? String(v) : v.toPrecision(4);
-  if (typeof v === "boolean") return v ? "yes" : "no";
+  if (typeof v === "number") return Number.isInteger(v) ? String(v) : fmtSignificant(v, 4);
+  if (typeof v === "boolean") return v ? t("value.yes") : t("value.no");
   if (Array.isArray(v)) return v.map(fmt).join(", ");
   if (isObj(v)) return Object.entries(v).map(([k, x]) => `${k} ${fmt(x)}`).join(", ");
   return String(v);
@@ -30,36 +31,38 @@ function cell(v) {
 }
 
 function table(id, rows, abnormal = () => false) {
-  if (!rows || !rows.length) return '<p class="muted">none</p>';
+  if (!rows || !rows.length) return `<p class="muted">${esc(t("value.none"))}</p>`;
   const cols = Array.from(new Set(rows.flatMap((r) => Object.keys(r))));
-  return `<table class="grid" id="${id}"><thead><tr>${cols.map((c) => `<th>${esc(c)}</th>`).join("")}</tr></thead><tbody>
+  // (translate="no": the supervisor's own field names, not the screen's words)
+  return `<table class="grid" id="${id}" translate="no"><thead><tr>${cols.map((c) => `<th>${esc(c)}</th>`).join("")}</tr></thead><tbody>
     ${rows.map((r) => `<tr class="${abnormal(r) ? "abn" : ""}">${cols.map((c) => `<td>${cell(r[c])}</td>`).join("")}</tr>`).join("")}</tbody></table>`;
 }
 
 function kvTable(id, obj) {
-  if (!isObj(obj)) return '<p class="muted">none</p>';
-  return `<table class="grid kvt" id="${id}"><tbody>${Object.entries(obj)
+  if (!isObj(obj)) return `<p class="muted">${esc(t("value.none"))}</p>`;
+  return `<table class="grid kvt" id="${id}" translate="no"><tbody>${Object.entries(obj)
     .map(([k, v]) => `<tr><th>${esc(k)}</th><td>${cell(v)}</td></tr>`)
     .join("")}</tbody></table>`;
 }
 
 export async function render({ root, app }) {
-  root.dataset.title = "Diagnostics";
+  root.dataset.title = t("nav.diagnostics");
+  const tx = (key) => esc(t(key));
   const names = Array.from(app.tagNames.size ? app.tagNames : app.live.tags.keys());
   const liveRows = (prefixes) =>
     names
       .filter((n) => prefixes.some((pre) => n.startsWith(pre)))
-      .map((n) => `<tr><th>${esc(n)}</th><td data-tag="${esc(n)}"${n.endsWith(".connected") ? ' data-true="yes" data-false="NO" data-abn="false"' : ""}${/(errors|failures|dropped|overruns|stalls)$/.test(n) ? ' data-abn="nonzero"' : ""}></td></tr>`)
+      .map((n) => `<tr><th>${esc(n)}</th><td data-tag="${esc(n)}"${n.endsWith(".connected") ? ` data-true="${tx("value.yes")}" data-false="${tx("value.NO")}" data-abn="false"` : ""}${/(errors|failures|dropped|overruns|stalls)$/.test(n) ? ' data-abn="nonzero"' : ""}></td></tr>`)
       .join("");
   root.innerHTML = `
-    <h1>Diagnostics</h1>
+    <h1>${tx("nav.diagnostics")}</h1>
     <div class="diag-grid">
-      <section class="panel wide"><h2>Devices</h2><div id="diag-devices"><p class="muted">…</p></div></section>
-      <section class="panel"><h2>Scan</h2><div id="diag-scan"></div></section>
-      <section class="panel wide"><h2>Publishers</h2><div id="diag-publishers"></div></section>
-      <section class="panel"><h2>Spool</h2><div id="diag-spool"></div></section>
-      <section class="panel"><h2>Live counters</h2>
-        <table class="grid kvt" id="diag-live"><tbody>${liveRows(["scan.", "historian.", "hmi.", "influx.", "opcua.", "retain."])}${app.bench.devices
+      <section class="panel wide"><h2>${tx("diag.devices")}</h2><div id="diag-devices"><p class="muted">…</p></div></section>
+      <section class="panel"><h2>${tx("diag.scan")}</h2><div id="diag-scan"></div></section>
+      <section class="panel wide"><h2>${tx("diag.publishers")}</h2><div id="diag-publishers"></div></section>
+      <section class="panel"><h2>${tx("diag.spool")}</h2><div id="diag-spool"></div></section>
+      <section class="panel"><h2>${tx("diag.live")}</h2>
+        <table class="grid kvt" id="diag-live" translate="no"><tbody>${liveRows(["scan.", "historian.", "hmi.", "influx.", "opcua.", "retain."])}${app.bench.devices
           .map((d) => liveRows([`${d.name}.connected`, `${d.name}.comm_failures`]))
           .join("")}</tbody></table></section>
     </div>`;
@@ -67,7 +70,7 @@ export async function render({ root, app }) {
   const load = async () => {
     const answer = await get("/api/diagnostics");
     if (!answer.ok) {
-      $("#diag-devices", root).innerHTML = `<p class="muted">${esc(answer.data.reason || answer.data.error || `not available (HTTP ${answer.status})`)}</p>`;
+      $("#diag-devices", root).innerHTML = `<p class="muted">${esc(answer.data.reason || answer.data.error || t("diag.unavailable", { status: answer.status }))}</p>`;
       return;
     }
     const d = answer.data;

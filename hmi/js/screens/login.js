@@ -1,22 +1,24 @@
 // Login: the same users and roles as OPC UA. After it, back to the page the operator was
 // on (the `next` hash), so an expired session loses no place.
 import { post, reasonOf } from "../api.js";
-import { $ } from "../dom.js";
+import { $, esc } from "../dom.js";
+import { t } from "../i18n.js";
 
 export async function render({ root, app, query }) {
-  root.dataset.title = "Log in";
+  root.dataset.title = t("login.title");
+  const tx = (key) => esc(t(key));
   const next = query.get("next") || "#/";
   root.innerHTML = `
     <form class="login panel" id="login-form" autocomplete="on">
-      <h1>Bench supervisor</h1>
-      <p class="muted">${query.get("expired") ? "Your session has ended. Log in to go back to the page you were on." : "Log in to operate the bench."}</p>
-      <label for="login-user">User</label>
+      <h1>${tx("app.name")}</h1>
+      <p class="muted">${query.get("expired") ? tx("login.expired") : tx("login.intro")}</p>
+      <label for="login-user">${tx("login.user")}</label>
       <input id="login-user" name="user" autocomplete="username" required autofocus>
-      <label for="login-password">Password</label>
+      <label for="login-password">${tx("login.password")}</label>
       <input id="login-password" name="password" type="password" autocomplete="current-password" required>
-      <button type="submit" class="primary" id="login-submit">Log in</button>
+      <button type="submit" class="primary" id="login-submit">${tx("login.submit")}</button>
       <p id="login-result" class="result" role="status" hidden></p>
-      ${app.anonymousRead ? '<button type="button" id="login-anonymous">Continue without logging in (view only)</button>' : ""}
+      ${app.anonymousRead ? `<button type="button" id="login-anonymous">${tx("login.anonymous")}</button>` : ""}
     </form>`;
   const anonymous = $("#login-anonymous", root);
   if (anonymous)
@@ -38,7 +40,7 @@ export async function render({ root, app, query }) {
     if (!answer.ok) {
       out.hidden = false;
       out.classList.add("refused");
-      out.textContent = `Refused: ${reasonOf(answer)}`;
+      out.textContent = t("login.refused", { reason: reasonOf(answer) });
       form.password.select();
       return;
     }

@@ -2,8 +2,15 @@
 // Every tag it shows is named by /api/bench (supervisor/hmi/layout.py): no device names here.
 // High-performance HMI: grey when normal; colour only for what is abnormal.
 import { post } from "../api.js";
-import { bindTags, esc, fmtDuration, showResult, $, $$ } from "../dom.js";
+import { alarmText, bindTags, esc, fmtDuration, showResult, $, $$ } from "../dom.js";
+import { fmtNumber, t, tValue } from "../i18n.js";
 import { priorityIcon } from "../priority.js";
+
+const tr = t; // (channelTile's own `t` is the channel's tags)
+const onOff = () => `data-true="${esc(t("value.on"))}" data-false="${esc(t("value.off"))}"`;
+/** A device line's label from /api/bench ("voltage", "link"...) in the language, where the
+ * catalogue has it (mimic.row.LABEL), else as the supervisor names it. */
+const tOrLabel = (label) => tValue("mimic.row", label);
 
 /** The tag of a mimic element: /api/bench gives a tag name or {tag: name, ...}. */
 const mimicTag = (m) => (m && typeof m === "object" ? m.tag : m) || null;
@@ -23,10 +30,10 @@ const row = (label, tag, attrs = "") =>
  * same for `supervisor ctl status`). The step chain's state is shown beside it, never
  * in its place: a channel driven in Manual is charging while its chain is Idle. */
 export function activityLabel(state, currentCmd, mode) {
-  let text = state === null || state === undefined || state === "" ? "—" : String(state);
-  if ((text === "charging" || text === "discharging") && typeof currentCmd === "number")
-    text += ` ${Math.abs(currentCmd).toFixed(3)} A`;
-  if (mode !== null && mode !== undefined && mode !== "") text += `, ${mode}`;
+  let text = state === null || state === undefined || state === "" ? "—" : tValue("chState", String(state));
+  if ((state === "charging" || state === "discharging") && typeof currentCmd === "number")
+    text += ` ${fmtNumber(Math.abs(currentCmd), 3)} A`;
+  if (mode !== null && mode !== undefined && mode !== "") text += `, ${tValue("mode", mode)}`;
   return text;
 }
 
@@ -35,17 +42,17 @@ export function channelTile(ch) {
   return `<a class="tile" href="#/channel/${esc(ch.name)}" id="tile-${esc(ch.name)}" data-channel="${esc(ch.name)}">
     <div class="tile-head"><span class="tile-name">${esc(ch.name)}</span>
       <span class="activity"></span>
-      <span class="chain-state">chain: <span class="state" data-tag="${esc(t.state)}"></span></span></div>
+      <span class="chain-state">${esc(tr("tile.chain"))} <span class="state" data-tag="${esc(t.state)}" data-enum="chain"></span></span></div>
     <div class="tile-desc muted">${esc(ch.description || "")}</div>
-    <div class="step">step <span data-tag="${esc(t.step)}" data-empty="none"></span></div>
+    <div class="step">${esc(tr("tile.step"))} <span data-tag="${esc(t.step)}" data-empty="${esc(tr("value.none"))}"></span></div>
     <div class="nums">
-      <div><span class="big" data-tag="${esc(t.voltage)}" data-fmt="n3"></span><small>voltage</small></div>
-      <div><span class="big" data-tag="${esc(t.current)}" data-fmt="n3"></span><small>current</small></div>
-      <div><span class="big" data-tag="${esc(t.temperature)}" data-fmt="n1"></span><small>temperature</small></div>
-      <div><span class="big" data-tag="${esc(t.charge)}" data-fmt="n4"></span><small>charge</small></div>
+      <div><span class="big" data-tag="${esc(t.voltage)}" data-fmt="n3"></span><small>${esc(tr("quantity.voltage"))}</small></div>
+      <div><span class="big" data-tag="${esc(t.current)}" data-fmt="n3"></span><small>${esc(tr("quantity.current"))}</small></div>
+      <div><span class="big" data-tag="${esc(t.temperature)}" data-fmt="n1"></span><small>${esc(tr("quantity.temperature"))}</small></div>
+      <div><span class="big" data-tag="${esc(t.charge)}" data-fmt="n4"></span><small>${esc(tr("quantity.charge"))}</small></div>
     </div>
-    <div class="progress"><div class="bar" role="progressbar" aria-label="${esc(ch.name)} progress" aria-valuemin="0" aria-valuemax="100"><div class="fill"></div></div>
-      <span class="eta">ETA <span class="eta-text">—</span></span></div>
+    <div class="progress"><div class="bar" role="progressbar" aria-label="${esc(tr("tile.progressOf", { ch: ch.name }))}" aria-valuemin="0" aria-valuemax="100"><div class="fill"></div></div>
+      <span class="eta">${esc(tr("tile.eta"))} <span class="eta-text">—</span></span></div>
     <div class="tile-alarm" aria-live="polite"></div>
   </a>`;
 }
@@ -85,19 +92,19 @@ export function paintTile(el, ch, live) {
  * (paintTile runs at every tag change). */
 function paintTileAlarm(el, alarms, fault) {
   const top = alarms.slice().sort((x, y) => (y.severity || 0) - (x.severity || 0))[0];
-  const html = top ? `${priorityIcon(top.severity)} ${esc(top.message)}` : esc(fault || "");
+  const html = top ? `${priorityIcon(top.severity)} ${esc(alarmText(top))}` : esc(fault || "");
   if (el.dataset.html === html) return;
   el.dataset.html = html;
   el.innerHTML = html;
 }
 
-const LINK_ATTRS = 'data-true="ok" data-false="LOST" data-abn="false"';
+const linkAttrs = () => `data-true="${esc(t("value.linkOk"))}" data-false="${esc(t("value.linkLost"))}" data-abn="false"`;
 
 /** The lines of a device's mimic box, as /api/bench describes them (its kind's "shows":
  * label, tag, format): the screen knows no device name and no kind. */
 function shownRows(device) {
   return (device?.shows || []).map((s) =>
-    row(s.label, s.tag, s.format === "link" ? LINK_ATTRS : `data-fmt="${esc(s.format)}"`),
+    row(tOrLabel(s.label), s.tag, s.format === "link" ? linkAttrs() : `data-fmt="${esc(s.format)}"`),
   );
 }
 
@@ -106,21 +113,19 @@ function shownRows(device) {
  * "Reset e-stop" is an ordinary button: the server refuses it, with the reason, until the
  * e-stop alarm is acknowledged (Alarms screen) and while the button is pressed. */
 function estopControls() {
-  return `<div class="kv"><span>trip</span><b id="estop-trip">none</b></div>
+  return `<div class="kv"><span>${esc(t("estop.trip"))}</span><b id="estop-trip">${esc(t("value.none"))}</b></div>
     <div class="estop-controls">
-      <button type="button" class="estop" id="estop-press" aria-haspopup="dialog">E-STOP all channels</button>
-      <button type="button" class="small" id="estop-reset">Reset e-stop</button>
+      <button type="button" class="estop" id="estop-press" aria-haspopup="dialog">${esc(t("estop.press"))}</button>
+      <button type="button" class="small" id="estop-reset">${esc(t("estop.reset"))}</button>
     </div>`;
 }
 
-const ESTOP_DIALOG = `<dialog id="estop-confirm" aria-labelledby="estop-confirm-title">
-    <h2 id="estop-confirm-title">Software e-stop: stop every channel?</h2>
-    <p>Every channel trips as by the e-stop button: recipes aborted, no current, supply
-      output off, contactor open. Starting again needs the e-stop alarm acknowledged, then
-      <b>Reset e-stop</b>, then each channel reset.</p>
+const estopDialog = () => `<dialog id="estop-confirm" aria-labelledby="estop-confirm-title">
+    <h2 id="estop-confirm-title">${esc(t("estop.confirmTitle"))}</h2>
+    <p>${esc(t("estop.confirmText1"))} <b>${esc(t("estop.reset"))}</b>${esc(t("estop.confirmText2"))}</p>
     <div class="buttons">
-      <button type="button" class="estop" id="estop-confirm-yes">E-STOP all channels</button>
-      <button type="button" id="estop-confirm-no" autofocus>Cancel</button>
+      <button type="button" class="estop" id="estop-confirm-yes">${esc(t("estop.press"))}</button>
+      <button type="button" id="estop-confirm-no" autofocus>${esc(t("common.cancel"))}</button>
     </div>
   </dialog>`;
 
@@ -130,7 +135,7 @@ function paintEstopTrip(root, live) {
   const el = $("#estop-trip", root);
   if (!el) return;
   const a = live.alarms.find((x) => x.id === "estop" && x.state !== "normal");
-  el.textContent = a ? `${a.state}: ${a.message}` : "none";
+  el.textContent = a ? `${tValue("alarmState", a.state)}: ${alarmText(a)}` : t("value.none");
   el.classList.toggle("abn", Boolean(a));
 }
 
@@ -145,18 +150,18 @@ function bindEstop(root) {
   $("#estop-confirm-yes", root).addEventListener("click", async () => {
     dialog.close();
     out.hidden = false;
-    out.textContent = "e-stop…";
-    showResult(out, await post("/api/estop"), "e-stop pressed");
+    out.textContent = t("estop.pressing");
+    showResult(out, await post("/api/estop"), t("estop.pressed"));
   });
   $("#estop-reset", root).addEventListener("click", async () => {
     out.hidden = false;
-    out.textContent = "reset…";
-    showResult(out, await post("/api/estop/reset"), "e-stop reset");
+    out.textContent = t("estop.resetting");
+    showResult(out, await post("/api/estop/reset"), t("estop.wasReset"));
   });
 }
 
 export async function render({ root, app }) {
-  root.dataset.title = "Overview";
+  root.dataset.title = t("nav.overview");
   const b = app.bench;
   const m = b.mimic;
   const estop = mimicTag(m.estop);
@@ -167,36 +172,36 @@ export async function render({ root, app }) {
   const mimic = [];
   if (estop)
     mimic.push(
-      mimicBox("estop", "E-stop", [
-        row("circuit", estop, 'data-true="closed" data-false="PRESSED" data-abn="false" class="big"'),
+      mimicBox("estop", t("mimic.estop"), [
+        row(t("mimic.circuit"), estop, `data-true="${esc(t("value.closed"))}" data-false="${esc(t("value.pressed"))}" data-abn="false" class="big"`),
         estopControls(),
       ]),
     );
   if (supply)
     mimic.push(
-      mimicBox("supply", "Supply", [
-        row("output", supply, 'data-true="on" data-false="off"'),
+      mimicBox("supply", t("mimic.supply"), [
+        row(t("mimic.output"), supply, onOff()),
         ...shownRows(device(m.supply_device)),
       ]),
     );
   if (contactor)
     mimic.push(
-      mimicBox("contactor", "Contactor", [
-        row("contacts", contactor, 'data-true="closed" data-false="open" class="big"'),
-        row("coil", mimicTag(m.coil), 'data-true="on" data-false="off"'),
+      mimicBox("contactor", t("mimic.contactor"), [
+        row(t("mimic.contacts"), contactor, `data-true="${esc(t("value.closed"))}" data-false="${esc(t("value.open"))}" class="big"`),
+        row(t("mimic.coil"), mimicTag(m.coil), onOff()),
       ]),
     );
   if (bms) {
     // The BMS device's lines (its link first); without them (an older supervisor's answer)
     // the one tag the mimic names: its link, or on the oldest its pack voltage.
     const rows = shownRows(device(m.bms_device));
-    const only = bms.endsWith(".connected") ? row("link", bms, LINK_ATTRS) : row("pack", bms, 'data-fmt="n2"');
-    mimic.push(mimicBox("bms", "BMS", rows.length ? rows : [only]));
+    const only = bms.endsWith(".connected") ? row(t("mimic.link"), bms, linkAttrs()) : row(t("mimic.pack"), bms, 'data-fmt="n2"');
+    mimic.push(mimicBox("bms", t("mimic.bms"), rows.length ? rows : [only]));
   }
   root.innerHTML = `
-    <h1 class="sr-only">Overview</h1>
-    ${mimic.length ? `<div class="mimic" aria-label="Bench mimic">${mimic.join('<span class="wire" aria-hidden="true"></span>')}</div>` : ""}
-    ${estop ? `<p id="estop-result" class="result" role="status" aria-live="polite" hidden></p>${ESTOP_DIALOG}` : ""}
+    <h1 class="sr-only">${esc(t("nav.overview"))}</h1>
+    ${mimic.length ? `<div class="mimic" aria-label="${esc(t("mimic.label"))}">${mimic.join('<span class="wire" aria-hidden="true"></span>')}</div>` : ""}
+    ${estop ? `<p id="estop-result" class="result" role="status" aria-live="polite" hidden></p>${estopDialog()}` : ""}
     <div class="tiles">${b.channels.map(channelTile).join("")}</div>`;
   bindEstop(root);
   const refresh = bindTags(root, app.live);

@@ -7,57 +7,60 @@
 import { get, post, put, reasonOf } from "../api.js";
 import { esc, fmtDuration, fmtTime, showResult, $ } from "../dom.js";
 import { simplePlot, timeAxis, timelinePlot } from "../chart.js";
+import { fmtNumber, t } from "../i18n.js";
+
+const tx = (key, params) => esc(t(key, params));
 
 export async function render({ root, app, params }) {
-  root.dataset.title = "Recipes";
+  root.dataset.title = t("nav.recipes");
   const current = params[0] ? decodeURIComponent(params[0]) : "";
   root.innerHTML = `
-    <h1>Recipes</h1>
+    <h1>${tx("nav.recipes")}</h1>
     <div class="recipes-grid">
-      <section class="panel" aria-label="Recipe list"><h2>List</h2><div id="recipe-list"><p class="muted">…</p></div>
-        <button type="button" id="recipe-new">New recipe</button></section>
-      <section class="panel editor-panel" aria-label="Editor">
+      <section class="panel" aria-label="${tx("recipes.listLabel")}"><h2>${tx("recipes.list")}</h2><div id="recipe-list"><p class="muted">…</p></div>
+        <button type="button" id="recipe-new">${tx("recipes.new")}</button></section>
+      <section class="panel editor-panel" aria-label="${tx("recipes.editor")}">
         <div class="editor-bar">
-          <label for="recipe-name">Name</label><input id="recipe-name" value="${esc(current)}" placeholder="my-recipe" required>
-          <label class="file">Upload YAML <input type="file" id="recipe-file" accept=".yaml,.yml,text/yaml"></label>
+          <label for="recipe-name">${tx("recipes.name")}</label><input id="recipe-name" value="${esc(current)}" placeholder="${tx("recipes.namePlaceholder")}" required>
+          <label class="file">${tx("recipes.uploadYaml")} <input type="file" id="recipe-file" accept=".yaml,.yml,text/yaml"></label>
         </div>
         <div class="editor" id="editor">
           <pre class="gutter" id="gutter" aria-hidden="true"></pre>
-          <textarea id="recipe-text" spellcheck="false" wrap="off" aria-label="Recipe YAML" aria-describedby="recipe-errors"></textarea>
+          <textarea id="recipe-text" spellcheck="false" wrap="off" aria-label="${tx("recipes.yaml")}" aria-describedby="recipe-errors"></textarea>
         </div>
         <ul id="recipe-errors" class="errors" aria-live="polite"></ul>
         <div class="buttons">
-          <button type="button" id="recipe-validate">Validate</button>
-          <label for="dry-params">Parameters</label><input id="dry-params" placeholder="name=value, …" size="24">
-          <button type="button" id="recipe-dryrun">Dry run</button>
-          <button type="button" id="recipe-save" class="primary">Save</button>
-          <label><input type="checkbox" id="recipe-overwrite"> overwrite</label>
+          <button type="button" id="recipe-validate">${tx("recipes.validate")}</button>
+          <label for="dry-params">${tx("commands.parameters")}</label><input id="dry-params" placeholder="${tx("recipes.paramsPlaceholder")}" size="24">
+          <button type="button" id="recipe-dryrun">${tx("recipes.dryRun")}</button>
+          <button type="button" id="recipe-save" class="primary">${tx("recipes.save")}</button>
+          <label><input type="checkbox" id="recipe-overwrite"> ${tx("recipes.overwrite")}</label>
         </div>
         <p id="recipe-result" class="result" role="status" aria-live="polite" hidden></p>
       </section>
-      <section class="panel preview" aria-label="Dry run preview" id="preview" hidden>
-        <h2>Dry run</h2>
+      <section class="panel preview" aria-label="${tx("recipes.dryRunPreview")}" id="preview" hidden>
+        <h2>${tx("recipes.dryRun")}</h2>
         <p id="dry-summary"></p>
         <div id="dry-timeline" class="plot"></div>
         <div id="dry-cycles" class="plot"></div>
         <div id="dry-trace" class="plot"></div>
       </section>
-      <section class="panel preview" aria-label="Load profile" id="profile-panel">
-        <h2>Load profile</h2>
+      <section class="panel preview" aria-label="${tx("profile.title")}" id="profile-panel">
+        <h2>${tx("profile.title")}</h2>
         <div class="editor-bar">
-          <label class="file">Upload CSV <input type="file" id="profile-file" accept=".csv,.txt,text/csv"></label>
-          <label for="profile-pick">or from the folder</label><select id="profile-pick"><option value="">—</option></select>
-          <label for="profile-channel">Channel</label><select id="profile-channel"></select>
+          <label class="file">${tx("profile.uploadCsv")} <input type="file" id="profile-file" accept=".csv,.txt,text/csv"></label>
+          <label for="profile-pick">${tx("profile.fromFolder")}</label><select id="profile-pick"><option value="">—</option></select>
+          <label for="profile-channel">${tx("profile.channel")}</label><select id="profile-channel"></select>
         </div>
-        <p id="profile-summary" class="muted">No profile loaded.</p>
+        <p id="profile-summary" class="muted">${tx("profile.none")}</p>
         <ul id="profile-errors" class="errors" aria-live="polite"></ul>
         <ul id="profile-notices" aria-live="polite"></ul>
         <div id="profile-chart" class="plot"></div>
         <div id="profile-table-wrap"></div>
         <div class="buttons">
-          <button type="button" id="profile-dryrun" disabled>Dry run</button>
-          <button type="button" id="profile-load" disabled>Load onto channel</button>
-          <button type="button" id="profile-start" class="primary" disabled>Start</button>
+          <button type="button" id="profile-dryrun" disabled>${tx("recipes.dryRun")}</button>
+          <button type="button" id="profile-load" disabled>${tx("profile.load")}</button>
+          <button type="button" id="profile-start" class="primary" disabled>${tx("verb.start")}</button>
         </div>
         <p id="profile-result" class="result" role="status" aria-live="polite" hidden></p>
         <div id="profile-dry" class="plot"></div>
@@ -105,7 +108,7 @@ export async function render({ root, app, params }) {
     errorsEl.innerHTML = errors
       .map(
         (e) =>
-          `<li class="refused">${e.line ? `<a href="#" data-line="${e.line}">line ${e.line}${e.column ? `:${e.column}` : ""}</a>: ` : ""}${esc(e.message)}</li>`,
+          `<li class="refused">${e.line ? `<a href="#" data-line="${e.line}">${tx("recipes.line", { line: e.line })}${e.column ? `:${e.column}` : ""}</a>: ` : ""}${esc(e.message)}</li>`,
       )
       .join("");
     paintGutter();
@@ -126,10 +129,10 @@ export async function render({ root, app, params }) {
     if (answer.ok && answer.data.ok !== false) {
       showErrors([]);
       const prm = (answer.data.parameters || []).map((x) => (typeof x === "string" ? x : x.name)).join(", ");
-      showResult(out, { ok: true, data: { reason: `valid: ${answer.data.steps ?? "?"} steps${prm ? `, parameters ${prm}` : ""}` } });
+      showResult(out, { ok: true, data: { reason: `${t("recipes.valid", { steps: answer.data.steps ?? "?" })}${prm ? t("recipes.validParams", { names: prm }) : ""}` } });
     } else {
       showErrors(errorsOf(answer));
-      showResult(out, { ok: false, status: answer.status, data: { reason: `${errorsOf(answer).length} error(s), see their lines` } });
+      showResult(out, { ok: false, status: answer.status, data: { reason: t("recipes.errors", { n: errorsOf(answer).length, count: errorsOf(answer).length }) } });
     }
     return answer;
   };
@@ -147,7 +150,7 @@ export async function render({ root, app, params }) {
   };
 
   const dryRun = async () => {
-    showResult(out, { ok: true, data: { reason: "dry run…" } });
+    showResult(out, { ok: true, data: { reason: t("recipes.dryRunning") } });
     const answer = await post("/api/recipes/dryrun", { text: text.value, parameters: parseDryParams() });
     if (!answer.ok || answer.data.ok === false) {
       showErrors(errorsOf(answer));
@@ -156,11 +159,16 @@ export async function render({ root, app, params }) {
     }
     showErrors([]);
     const d = answer.data;
-    const summary = `predicted duration ${fmtDuration(d.duration_s)}, end: ${d.end_reason || "—"}, ${(d.cycles || []).length} cycle(s)`;
+    const summary = t("recipes.drySummary", {
+      duration: fmtDuration(d.duration_s),
+      end: d.end_reason || "—",
+      n: (d.cycles || []).length,
+      count: (d.cycles || []).length,
+    });
     // The status line stays (it said "dry run…": it now says how it went), and the
     // preview, right under the editor, is brought into view (issue 33, finding 6: it
     // vanished and the result sat below the fold).
-    showResult(out, { ok: true, data: { reason: `Dry run done: ${summary} (preview below)` } });
+    showResult(out, { ok: true, data: { reason: t("recipes.dryDone", { summary }) } });
     const preview = $("#preview", root);
     preview.hidden = false;
     $("#dry-summary", root).textContent = summary;
@@ -179,10 +187,10 @@ export async function render({ root, app, params }) {
       const unit = big ? "Ah" : "mAh";
       plots.push(
         simplePlot($("#dry-cycles", root), {
-          title: `Predicted capacity per cycle (${unit})`,
-          xLabel: "cycle",
+          title: t("recipes.predictedCapacity", { unit }),
+          xLabel: t("plot.cycle"),
           yLabel: unit,
-          series: [{ label: `charge ${unit}` }, { label: `discharge ${unit}` }],
+          series: [{ label: `${t("quantity.charge")} ${unit}` }, { label: `${t("quantity.discharge")} ${unit}` }],
           x: cycles.map((c) => c.cycle),
           ys: [cycles.map((c) => (c.charge_ah ?? 0) * k), cycles.map((c) => (c.discharge_ah ?? 0) * k)],
           bars: true,
@@ -193,7 +201,7 @@ export async function render({ root, app, params }) {
     if (tr && tr.t_s && tr.t_s.length) {
       plots.push(
         simplePlot($("#dry-trace", root), {
-          title: "Predicted voltage and current",
+          title: t("recipes.predictedVI"),
           xLabel: ax.unit,
           series: [{ label: "V" }, { label: "A" }],
           x: tr.t_s.map((s) => s / ax.scale),
@@ -207,7 +215,7 @@ export async function render({ root, app, params }) {
   const save = async () => {
     const name = nameInput.value.trim();
     if (!name) {
-      showResult(out, { ok: false, status: 400, data: { reason: "give the recipe a name" } });
+      showResult(out, { ok: false, status: 400, data: { reason: t("recipes.needName") } });
       nameInput.focus();
       return;
     }
@@ -217,11 +225,11 @@ export async function render({ root, app, params }) {
     });
     if (answer.status === 422) {
       showErrors(errorsOf(answer));
-      showResult(out, { ok: false, status: 422, data: { reason: "not saved: fix the errors at their lines" } });
+      showResult(out, { ok: false, status: 422, data: { reason: t("recipes.notSaved") } });
       return;
     }
     showErrors([]);
-    showResult(out, answer, `saved ${name}`);
+    showResult(out, answer, t("recipes.saved", { name }));
     if (answer.ok) loadList();
   };
 
@@ -277,6 +285,7 @@ export async function render({ root, app, params }) {
   };
 }
 
+// (symbols and SI units: the same in both languages)
 const PROFILE_FIELDS = [
   ["t_s", "t (s)"],
   ["current_a", "I (A)"],
@@ -287,6 +296,9 @@ const PROFILE_FIELDS = [
   ["t_min", "T min"],
   ["t_max", "T max"],
 ];
+
+/** A profile's number in the locale's format, its digits as given (up to 6 significant). */
+const fmtPlain = (v) => (Number.isInteger(v) ? String(v) : fmtNumber(v, Math.min(6, Math.max(0, (String(v).split(".")[1] || "").length))));
 
 /** A file's bytes as base64: the server finds its encoding (UTF-8 or CP1252) as from a file. */
 async function base64Of(file) {
@@ -322,10 +334,10 @@ function profilePanel(root, app) {
 
   const showTable = (rows, total) => {
     const used = PROFILE_FIELDS.filter(([k]) => rows.some((r) => r[k] !== null && r[k] !== undefined));
-    const more = total > rows.length ? `<caption>first ${rows.length} of ${total} rows</caption>` : "";
+    const more = total > rows.length ? `<caption>${tx("profile.firstRows", { n: rows.length, total })}</caption>` : "";
     el("profile-table-wrap").innerHTML = `<table class="grid" id="profile-table">${more}
       <thead><tr>${used.map(([, h]) => `<th>${esc(h)}</th>`).join("")}</tr></thead>
-      <tbody>${rows.map((r) => `<tr>${used.map(([k]) => `<td>${r[k] ?? ""}</td>`).join("")}</tr>`).join("")}</tbody></table>`;
+      <tbody>${rows.map((r) => `<tr>${used.map(([k]) => `<td>${typeof r[k] === "number" ? fmtPlain(r[k]) : esc(r[k] ?? "")}</td>`).join("")}</tr>`).join("")}</tbody></table>`;
   };
 
   const preview = async () => {
@@ -336,22 +348,22 @@ function profilePanel(root, app) {
     el("profile-table-wrap").innerHTML = "";
     el("profile-notices").innerHTML = "";
     el("profile-errors").innerHTML = "";
-    el("profile-summary").textContent = "reading…";
+    el("profile-summary").textContent = t("profile.reading");
     const answer = await post("/api/profiles/preview", { ...source, channel: channel() || undefined });
     if (!answer.ok) {
       const errors = Array.isArray(answer.data.errors) ? answer.data.errors : [{ text: reasonOf(answer) }];
       el("profile-errors").innerHTML = errors.map((e) => `<li class="refused">${esc(e.text || e.message)}</li>`).join("");
-      el("profile-summary").textContent = "Profile refused: nothing can be loaded until it is fixed.";
+      el("profile-summary").textContent = t("profile.refused");
       return;
     }
     made = answer.data;
-    el("profile-summary").textContent = `${made.rows} rows, ${fmtDuration(made.duration_s)} — recipe ${made.recipe}`;
+    el("profile-summary").textContent = t("profile.summary", { rows: made.rows, duration: fmtDuration(made.duration_s), recipe: made.recipe });
     el("profile-notices").innerHTML = made.notices.map((n) => `<li class="notice">${esc(n)}</li>`).join("");
     showTable(made.table, made.rows);
     const ax = timeAxis(made.duration_s || 0);
     plots.push(
       simplePlot(el("profile-chart"), {
-        title: "Profile: current (A, + charges)",
+        title: t("profile.chartTitle"),
         xLabel: ax.unit,
         series: [{ label: "A" }],
         x: made.chart.t_s.map((t) => t / ax.scale),
@@ -364,21 +376,22 @@ function profilePanel(root, app) {
 
   const dryRun = async () => {
     if (!made) return;
-    showResult(out, { ok: true, data: { reason: "dry run…" } });
+    showResult(out, { ok: true, data: { reason: t("recipes.dryRunning") } });
     const answer = await post("/api/recipes/dryrun", { text: made.text, name: made.recipe, channel: channel() });
     if (!answer.ok || answer.data.ok === false) {
       showResult(out, { ...answer, ok: false });
       return;
     }
     const d = answer.data;
-    showResult(out, { ok: true, data: { reason: `dry run on ${channel()}: ${fmtDuration(d.duration_s)}, ${d.finished ? "completes" : "does not complete"}: ${d.end_reason || "—"}` } });
+    const outcome = d.finished ? t("profile.completes") : t("profile.doesNotComplete");
+    showResult(out, { ok: true, data: { reason: t("profile.dryResult", { ch: channel(), duration: fmtDuration(d.duration_s), outcome, end: d.end_reason || "—" }) } });
     out.dataset.dryrun = d.finished ? "finished" : "unfinished";
     const tr = d.trace;
     if (tr && tr.t_s && tr.t_s.length) {
       const ax = timeAxis(d.duration_s || 0);
       plots.push(
         simplePlot(el("profile-dry"), {
-          title: "Dry run: predicted voltage and current",
+          title: t("profile.dryTitle"),
           xLabel: ax.unit,
           series: [{ label: "V" }, { label: "A" }],
           x: tr.t_s.map((s) => s / ax.scale),
@@ -391,20 +404,20 @@ function profilePanel(root, app) {
 
   const load = async () => {
     if (!source) return;
-    showResult(out, { ok: true, data: { reason: `loading onto ${channel()}…` } });
+    showResult(out, { ok: true, data: { reason: t("profile.loading", { ch: channel() }) } });
     const answer = await post("/api/profiles/load", { ...source, channel: channel() });
-    showResult(out, answer, `${made?.recipe || "profile"} loaded on ${channel()}`);
+    showResult(out, answer, t("profile.loaded", { recipe: made?.recipe || t("profile.profile"), ch: channel() }));
     delete out.dataset.dryrun;
     buttons[2].disabled = !answer.ok;
   };
 
   const start = async () => {
     const ch = channel();
-    showResult(out, { ok: true, data: { reason: `starting ${ch}…` } });
+    showResult(out, { ok: true, data: { reason: t("profile.starting", { ch }) } });
     const answer = await post(`/api/channels/${encodeURIComponent(ch)}/commands/start`, {});
-    showResult(out, answer, `${ch} started`);
+    showResult(out, answer, t("profile.started", { ch }));
     if (answer.ok) {
-      out.insertAdjacentHTML("beforeend", ` <a href="#/channel/${encodeURIComponent(ch)}" id="profile-goto">see ${esc(ch)}</a>`);
+      out.insertAdjacentHTML("beforeend", ` <a href="#/channel/${encodeURIComponent(ch)}" id="profile-goto">${tx("profile.see", { ch })}</a>`);
     }
   };
 
