@@ -219,3 +219,25 @@ def test_an_alarm_says_what_happened_in_words_with_the_tag_as_its_detail(
             "every channel reset",
             lambda: all(not bench.tag(f"ch{k}.fault") for k in range(5)),
         )
+
+
+def test_a_diagnostics_answer_that_arrives_after_the_screen_was_left_is_dropped(
+    as_operator: Any, bench: Supervisor
+) -> None:
+    """The Diagnostics screen asks every 2 s; an answer late enough to land on the next
+    screen found its tables gone and raised "Cannot set properties of null" (seen under
+    load). The ``page`` fixture fails the test on any error the page raises."""
+    page = as_operator
+    held: list[Any] = []
+    page.route("**/api/diagnostics", lambda route: held.append(route))
+    with page.expect_request("**/api/diagnostics"):
+        page.goto(f"{bench.base}/#/diagnostics")
+    page.goto(f"{bench.base}/#/alarms")
+    page.wait_for_selector("#alarm-active")
+    with page.expect_event("requestfinished", lambda r: "/api/diagnostics" in r.url):
+        held[0].continue_()
+    # The answer's continuation runs as soon as its body is read: a task queued after it
+    # runs after it (and the fixture then sees whatever it raised).
+    page.evaluate("() => new Promise((r) => setTimeout(r, 50))")
+    assert page.evaluate("() => location.hash") == "#/alarms"
+    assert page.locator("#diag-devices").count() == 0

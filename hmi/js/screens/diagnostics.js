@@ -67,8 +67,14 @@ export async function render({ root, app }) {
           .join("")}</tbody></table></section>
     </div>`;
   const refresh = bindTags(root, app.live);
+  // An answer that arrives after the operator left the screen has nothing to fill (its
+  // elements are gone): dropped, not written into null. Left before the first answer,
+  // the screen was never handed to the router (render still awaited it): no destroy
+  // came, so the tables' presence is the test.
+  let left = false;
   const load = async () => {
     const answer = await get("/api/diagnostics");
+    if (left || !$("#diag-devices", root)) return;
     if (!answer.ok) {
       $("#diag-devices", root).innerHTML = `<p class="muted">${esc(answer.data.reason || answer.data.error || t("diag.unavailable", { status: answer.status }))}</p>`;
       return;
@@ -86,6 +92,7 @@ export async function render({ root, app }) {
       if (change.kind === "tags") refresh(change.names);
     },
     destroy() {
+      left = true;
       clearInterval(timer);
     },
   };
