@@ -200,7 +200,7 @@ export async function render({ root, app }) {
   }
   root.innerHTML = `
     <h1 class="sr-only">${esc(t("nav.overview"))}</h1>
-    ${mimic.length ? `<div class="mimic" aria-label="${esc(t("mimic.label"))}">${mimic.join('<span class="wire" aria-hidden="true"></span>')}</div>` : ""}
+    ${mimic.length ? `<div class="mimic" aria-label="${esc(t("mimic.label"))}"><h2 class="sr-only">${esc(t("mimic.label"))}</h2>${mimic.join('<span class="wire" aria-hidden="true"></span>')}</div>` : ""}
     ${estop ? `<p id="estop-result" class="result" role="status" aria-live="polite" hidden></p>${estopDialog()}` : ""}
     <div class="tiles">${b.channels.map(channelTile).join("")}</div>`;
   bindEstop(root);
