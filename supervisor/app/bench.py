@@ -50,6 +50,7 @@ from supervisor.publish.provenance import Provenance, TestMetadata
 from supervisor.publish.results import TIMELINE_KINDS, ResultCollector, SummaryWriter
 from supervisor.publish.rows import RowWriter
 from supervisor.safety import AlarmManager, SafetyPhase, build_safety
+from supervisor.safety.kpi import AlarmKpi
 from supervisor.scan import (
     InputBinding,
     LogicPhase,
@@ -642,6 +643,7 @@ def build_bench(
         runners[c.name].samplers.append(displays[c.name])
     alarms = AlarmManager(clock)
     safety = build_safety(cfg, db, alarms)
+    kpi = AlarmKpi(alarms, db)  # the alarms.* tags (ISA-18.2 figures), once a second
     # The historian (attach_historian) and the InfluxDB writer store the same changes by
     # the same rule: one feed, filtered once per scan.
     changes = SharedChanges(db, clock)
@@ -661,7 +663,7 @@ def build_bench(
         inputs=inputs,
         outputs=outputs,
         phases=phases.ordered(),
-        publishers=[*(publishers or []), *([influx] if influx is not None else [])],
+        publishers=[*(publishers or []), kpi, *([influx] if influx is not None else [])],
     )
     if cfg.scan.realtime_priority is not None:
         engine.realtime = RealtimePriority(cfg.scan.realtime_priority)
