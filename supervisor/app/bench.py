@@ -539,6 +539,15 @@ def _scaling(m: TagMapping) -> Scaling | None:
     return Scaling(a, b)
 
 
+def _scan_publishers(
+    given: list[Publisher] | None, alarms: AlarmManager, db: TagDB, influx: Publisher | None
+) -> list[Publisher]:
+    """The scan's publishers: the caller's, the alarm KPIs (the ``alarms.*`` tags, ISA-18.2
+    figures refreshed once a second: before InfluxDB, which then sends them the same scan),
+    InfluxDB's writer."""
+    return [*(given or []), AlarmKpi(alarms, db), *([influx] if influx is not None else [])]
+
+
 def build_bench(
     cfg: BenchConfig,
     clock: Clock,
@@ -643,7 +652,6 @@ def build_bench(
         runners[c.name].samplers.append(displays[c.name])
     alarms = AlarmManager(clock)
     safety = build_safety(cfg, db, alarms)
-    kpi = AlarmKpi(alarms, db)  # the alarms.* tags (ISA-18.2 figures), once a second
     # The historian (attach_historian) and the InfluxDB writer store the same changes by
     # the same rule: one feed, filtered once per scan.
     changes = SharedChanges(db, clock)
@@ -663,7 +671,7 @@ def build_bench(
         inputs=inputs,
         outputs=outputs,
         phases=phases.ordered(),
-        publishers=[*(publishers or []), kpi, *([influx] if influx is not None else [])],
+        publishers=_scan_publishers(publishers, alarms, db, influx),
     )
     if cfg.scan.realtime_priority is not None:
         engine.realtime = RealtimePriority(cfg.scan.realtime_priority)

@@ -43,12 +43,13 @@ def build_screens(
     screens.access.audit = bench.audit
     add_audit_routes(api.app, audit_path(bench.cfg.state_dir))
     # The alarm journal: the historian's alarm events when it records (ADR 0048).
-    add_journal_routes(
-        api.app,
-        bench.alarms,
-        lambda: bench.historian.query if bench.historian is not None else None,
-        lambda group: group if group in bench.runners else "",
-    )
+    if bench.alarms is not None:
+        add_journal_routes(
+            api.app,
+            bench.alarms,
+            lambda: bench.historian.query if bench.historian is not None else None,
+            lambda group: group if group in bench.runners else "",
+        )
     bench.engine.publishers.append(screens.live)
     events = EventFeed()
     events.sinks.append(screens.live)
