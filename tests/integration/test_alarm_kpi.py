@@ -77,29 +77,62 @@ async def opcua_value(rig: Rig, tag: str) -> Any:
         return await c.get_node(ua.NodeId(tag, ns)).read_value()
 
 
-async def test_the_kpis_after_the_script_match_the_hand_count_in_the_tags_and_over_opcua(
+async def until(rig: Rig, t: float) -> None:
+    """Scan until the bench's clock reads ``t``."""
+    await seconds(rig, t - rig.bench.clock.now())
+
+
+async def test_a_scripted_hour_gives_the_hand_count_in_the_tags_and_over_opcua(
     rig: Rig,
 ) -> None:
+    """The hour (t on the bench's clock; t = 0 is 00:00 of the wall clock, a fixed
+    interval's start): room.temp.H active from the start (the simulated room, 25 degC, is
+    above its 20 degC limit); the door chatters at t = 300 (4 activations in 40 s); 15
+    alarms from t = 1800, 8 s apart; all cleared at t = 2000; then quiet until t = 3600,
+    and a day more for the stale alarm."""
     bench, db = rig.bench, rig.bench.db
-    # The bench's own: the simulated room (25 degC) is above room.temp's high limit.
-    before = activations(bench)
-    assert before == 1 and bench.alarms["room.temp.H"].active
-    await script(rig)
-    # 4 door + 15 flood activations since; the flood began at the 11th (10 more than 10).
-    assert db["alarms.per_day"].value == before + 4 + 15
+    assert activations(bench) == 1 and bench.alarms["room.temp.H"].active
+    door: Alarm = bench.alarms["di.door"]
+    await until(rig, 300.0)
+    for _ in range(4):
+        bench.alarms.set(door, True, "door open")
+        await seconds(rig, 5)
+        bench.alarms.set(door, False)
+        await seconds(rig, 5)
+    await until(rig, 1800.0)
+    for i in FLOOD:
+        bench.alarms.set(bench.alarms[i], True, f"{i} tripped")
+        await seconds(rig, 8)
+    await until(rig, 2000.0)
+    for i in FLOOD:
+        bench.alarms.set(bench.alarms[i], False)
+    await until(rig, 2100.0)
+    await rig.settled()
+    # [00:30, 00:40): the 15; [00:20, 00:30): none. In flood since the 11th (t = 1880).
+    assert (db["alarms.per_10min"].value, db["alarms.per_10min_last"].value) == (15, 0)
     assert db["alarms.in_flood"].value is True
+    assert await opcua_value(rig, "alarms.per_10min") == 15
+    await until(rig, 3600.0)
+    await seconds(rig, 1.1)  # one refresh past the hour
+    await rig.settled()
+    # 1 (room) + 4 (door) + 15 (burst) = 20 activations. The flood: from the 11th
+    # (t = 1880) until the 5th (t = 1832) leaves the window, 2432: 552 s, 0.6 % of a day.
+    assert db["alarms.per_day"].value == 20
+    assert db["alarms.in_flood"].value is False
+    assert db["alarms.flood_s"].value == pytest.approx(552.0)
+    assert db["alarms.flood_pct"].value == pytest.approx(0.6)
     assert db["alarms.chattering"].value == 1
     assert db["alarms.chattering_ids"].value == "di.door"
-    assert db["alarms.priority.critical"].value >= 1
-    assert db["alarms.priority.high"].value >= 14
-    top = json.loads(str(db["alarms.top"].value))
-    assert top[0] == {"id": "di.door", "count": 4}
     assert db["alarms.stale"].value == 0
-    assert await opcua_value(rig, "alarms.per_day") == before + 19
+    room = bench.alarms["room.temp.H"].severity.name.lower()
+    by_hand = {"low": 0, "medium": 4, "high": 14, "critical": 1}
+    by_hand[room] += 1
+    assert {p: db[f"alarms.priority.{p}"].value for p in by_hand} == by_hand
+    top = json.loads(str(db["alarms.top"].value))
+    assert top[0] == {"id": "di.door", "count": 4} and len(top) == 10
+    assert await opcua_value(rig, "alarms.per_day") == 20
+    assert await opcua_value(rig, "alarms.flood_s") == pytest.approx(552.0)
     assert await opcua_value(rig, "alarms.chattering") == 1
-    # The 10-minute figures: every activation so far is in the first interval.
-    assert db["alarms.per_10min"].value == before + 19
-    assert await opcua_value(rig, "alarms.per_10min") == before + 19
 
 
 async def test_an_alarm_active_past_24_hours_is_counted_stale(rig: Rig) -> None:
