@@ -8,6 +8,9 @@ import json
 import pytest
 
 from supervisor.core.clock import VirtualClock
+from supervisor.core.quality import Quality
+from supervisor.publish.changes import Sample
+from supervisor.publish.influx.lineproto import LineEncoder
 from supervisor.safety import Alarm, AlarmManager, Severity
 from supervisor.safety.kpi import AlarmKpi
 from supervisor.tags import TagDB
@@ -187,3 +190,11 @@ def test_the_tags_carry_the_figures_refreshed_at_most_once_a_second() -> None:
     kpi.on_scan(db, hour.clock.now())
     assert db["alarms.per_day"].value == 21
     assert db["alarms.per_10min"].value == 1
+
+
+def test_influxdb_gets_the_figures_as_diagnostics_of_source_alarms() -> None:
+    lines = LineEncoder("sim", ["ch0"], {"alarms.per_day": "int"}.get).encode(
+        [Sample("alarms.per_day", 20, Quality.GOOD, 3600.0, 1_767_229_200.0)]
+    )
+    text = "\n".join(line for group in lines.values() for line in group)
+    assert text.startswith("diagnostics,bench=sim,source=alarms per_day=20.0 ")
