@@ -50,6 +50,7 @@ from supervisor.publish.provenance import Provenance, TestMetadata
 from supervisor.publish.results import TIMELINE_KINDS, ResultCollector, SummaryWriter
 from supervisor.publish.rows import RowWriter
 from supervisor.safety import AlarmManager, SafetyPhase, build_safety
+from supervisor.safety.kpi import AlarmKpi
 from supervisor.scan import (
     InputBinding,
     LogicPhase,
@@ -538,6 +539,15 @@ def _scaling(m: TagMapping) -> Scaling | None:
     return Scaling(a, b)
 
 
+def _scan_publishers(
+    given: list[Publisher] | None, alarms: AlarmManager, db: TagDB, influx: Publisher | None
+) -> list[Publisher]:
+    """The scan's publishers: the caller's, the alarm KPIs (the ``alarms.*`` tags, ISA-18.2
+    figures refreshed once a second: before InfluxDB, which then sends them the same scan),
+    InfluxDB's writer."""
+    return [*(given or []), AlarmKpi(alarms, db), *([influx] if influx is not None else [])]
+
+
 def build_bench(
     cfg: BenchConfig,
     clock: Clock,
@@ -661,7 +671,7 @@ def build_bench(
         inputs=inputs,
         outputs=outputs,
         phases=phases.ordered(),
-        publishers=[*(publishers or []), *([influx] if influx is not None else [])],
+        publishers=_scan_publishers(publishers, alarms, db, influx),
     )
     if cfg.scan.realtime_priority is not None:
         engine.realtime = RealtimePriority(cfg.scan.realtime_priority)

@@ -14,6 +14,7 @@ from supervisor.config.models import HmiConfig
 from supervisor.config.users import UserStore
 from supervisor.hmi import HttpApi
 from supervisor.hmi.audit_api import add_audit_routes
+from supervisor.hmi.journal_api import add_journal_routes
 from supervisor.hmi.live import QUEUE_SIZE
 from supervisor.hmi.screens import DEFAULT_ROOT, Screens, install_screens
 from supervisor.publish.opcua import OpcUaSettings
@@ -41,6 +42,14 @@ def build_screens(
     # writes it: a bench built without its log still shows what the file holds).
     screens.access.audit = bench.audit
     add_audit_routes(api.app, audit_path(bench.cfg.state_dir))
+    # The alarm journal: the historian's alarm events when it records (ADR 0048).
+    if bench.alarms is not None:
+        add_journal_routes(
+            api.app,
+            bench.alarms,
+            lambda: bench.historian.query if bench.historian is not None else None,
+            lambda group: group if group in bench.runners else "",
+        )
     bench.engine.publishers.append(screens.live)
     events = EventFeed()
     events.sinks.append(screens.live)

@@ -10,8 +10,8 @@ the dashboards query it):
   (``ch0.chain.state`` → ``chain_state``);
 - ``device``: tags ``bench``, ``device`` (the tag name before its first dot); fields the same
   way (``pack.voltage`` → device ``pack``, field ``voltage``);
-- ``diagnostics``: tags ``bench``, ``source`` (``scan``, ``influx``, ``historian``): the tags
-  under those prefixes, not ``device``;
+- ``diagnostics``: tags ``bench``, ``source`` (``scan``, ``influx``, ``historian``,
+  ``alarms``): the tags under those prefixes, not ``device``;
 - ``event``: tags ``bench``, ``channel``, ``kind``, ``recipe``, ``test_id``; fields ``text``,
   ``source``, ``actor`` (strings) and ``severity`` (float): what Grafana annotates.
 
@@ -71,7 +71,7 @@ DIAGNOSTICS = "diagnostics"
 EVENT = "event"
 MEASUREMENTS = (CHANNEL, DEVICE, DIAGNOSTICS, EVENT)
 
-DIAGNOSTIC_SOURCES = frozenset({"scan", "influx", "historian"})
+DIAGNOSTIC_SOURCES = frozenset({"scan", "influx", "historian", "alarms"})
 """Tag-name prefixes that describe the supervisor itself: ``diagnostics``, not ``device``."""
 
 RECENT_PER_SERIES = 256

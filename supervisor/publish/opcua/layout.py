@@ -74,7 +74,7 @@ MACHINE_VARIABLES: Final[tuple[tuple[str, str, Kind], ...]] = (
 """A channel's StateMachine: (tag suffix, browse name, kind) of CurrentState and its Number."""
 
 DEVICE_NAMES: Final[dict[str, str]] = {"connected": "Connected", "comm_failures": "CommFailures"}
-DIAGNOSTIC_PREFIXES: Final = ("scan.", "opcua.", "retain.")
+DIAGNOSTIC_PREFIXES: Final = ("scan.", "opcua.", "retain.", "alarms.")
 
 
 def namespace_uri(bench: str) -> str:
