@@ -119,6 +119,14 @@ class AlarmKpi:
     _interval_last_n: int = 0
     _next_t: float = -math.inf
     _tags: dict[str, Tag] = field(default_factory=dict)
+    only_on_change: bool = True
+    """Skip a refresh when no alarm event came and no figure can have moved with time since
+    the last one (``_quiet_until``): a bench without alarms computes its figures once per
+    10-minute interval, not every second (a dry run scans 50,000 virtual seconds a second,
+    and the figures every second halved its speed). False: every ``period_s`` (the plain
+    path, which ``tests/unit/test_alarm_kpi.py`` proves this one equal to)."""
+    _dirty: bool = True
+    _quiet_until: float = -math.inf
 
     def __post_init__(self) -> None:
         self.alarms.listeners.append(self.on_alarm)
@@ -132,6 +140,7 @@ class AlarmKpi:
 
     # --- the listener (cheap: appends and counts) -------------------------------------
     def on_alarm(self, ev: AlarmEvent) -> None:
+        self._dirty = True  # any transition: a clear or a shelve moves the stale count
         if ev.transition is not Transition.ACTIVATED:
             return
         alarm = self.alarms[ev.alarm_id]
@@ -232,6 +241,31 @@ class AlarmKpi:
             dropped=self.dropped,
         )
 
+    def _next_move(self, now: float) -> float:
+        """The earliest time at which a figure can change with time alone (no alarm event):
+        the next 10-minute boundary, an activation, a chatter or a flood leaving the 24 h
+        window, an active alarm turning stale or its shelve ending; ``now`` while a flood's
+        share is moving (in flood, or the window's edge inside a past flood). A moment a
+        little early only costs a refresh that finds the same figures."""
+        early = 1e-3  # clock arithmetic's rounding: never a tick late
+        wall = self.alarms.clock.to_wall(now)
+        moves = [now + (math.floor(wall / INTERVAL_S) + 1) * INTERVAL_S - wall - early]
+        if self._day:
+            moves.append(self._day[0].t + DAY_S - early)
+        if self._chattered:
+            moves.append(min(self._chattered.values()) + DAY_S - early)
+        horizon = now - DAY_S
+        for start, end in self._floods:
+            if end > now or horizon > start:
+                return now
+            moves.append(start + DAY_S - early)
+        for a in self.alarms:
+            if a.shelved_until is not None and now < a.shelved_until:
+                moves.append(a.shelved_until - early)
+            if a.active and a.activated_t is not None and now - a.activated_t <= STALE_S:
+                moves.append(a.activated_t + STALE_S - early)
+        return min(moves)
+
     def _stale(self, now: float) -> int:
         return sum(
             1
@@ -248,7 +282,11 @@ class AlarmKpi:
         if t < self._next_t or not self._tags:
             return
         self._next_t = t + self.period_s
+        if self.only_on_change and not self._dirty and t < self._quiet_until:
+            return
         f = self.figures(t)
+        self._dirty = False
+        self._quiet_until = self._next_move(t)
         values: dict[str, bool | int | float | str] = {
             "alarms.per_10min": f.per_10min,
             "alarms.per_10min_last": f.per_10min_last,

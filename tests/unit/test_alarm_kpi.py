@@ -4,8 +4,12 @@ hour of alarms on the virtual clock, each figure compared with a count made by h
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
+from typing import Any
 
 import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 
 from supervisor.core.clock import VirtualClock
 from supervisor.core.quality import Quality
@@ -198,3 +202,115 @@ def test_influxdb_gets_the_figures_as_diagnostics_of_source_alarms() -> None:
     )
     text = "\n".join(line for group in lines.values() for line in group)
     assert text.startswith("diagnostics,bench=sim,source=alarms per_day=20.0 ")
+
+
+# --- the quiet refresh skipped: proven equal to a refresh every period -----------------------
+_IDS = ("a", "b", "c", "d")
+_ACTIONS = st.one_of(
+    st.tuples(st.just("raise"), st.sampled_from(_IDS)),
+    st.tuples(st.just("clear"), st.sampled_from(_IDS)),
+    st.tuples(st.just("shelve"), st.sampled_from(_IDS), st.sampled_from((30.0, 900.0, 90_000.0))),
+    st.tuples(st.just("unshelve"), st.sampled_from(_IDS)),
+    st.tuples(st.just("burst"), st.integers(min_value=11, max_value=14)),
+    # a pause: a few periods, past a 10-minute boundary, past a chatter's or a flood's day,
+    # past the 24 h that make an alarm stale
+    st.tuples(st.just("wait"), st.sampled_from((0.4, 3.0, 61.0, 250.0, 650.0, 7_200.0, 86_500.0))),
+)
+_DAY_LATER = ("wait", 86_500.0)
+_OFF_THE_GRID = ("wait", 250.0)
+_ALMOST_A_DAY = ("wait", 86_000.0)  # what happens next is off the 10-minute boundaries
+
+
+@settings(max_examples=60, deadline=None)
+@given(script=st.lists(_ACTIONS, min_size=1, max_size=40), max_kept=st.sampled_from((5, 100_000)))
+# Each moment a figure moves with time alone, once for sure (random scripts find them too):
+# an activation leaving the day's window; an alarm turning stale that was never counted
+# (shelved when it came); a shelve ending on an alarm stale for a day; with the memory
+# capped (``max_kept``: the activations dropped), a flood's and a chatter's day ending.
+@example(script=[_OFF_THE_GRID, ("raise", "a"), ("clear", "a"), _DAY_LATER], max_kept=100_000)
+@example(
+    script=[_OFF_THE_GRID, ("shelve", "a", 30.0), ("raise", "a"), ("wait", 61.0), _DAY_LATER],
+    max_kept=100_000,
+)
+@example(
+    script=[_OFF_THE_GRID, ("raise", "a"), ("shelve", "a", 90_000.0), _DAY_LATER, _DAY_LATER],
+    max_kept=100_000,
+)
+# (the day's end watched second by second: ``_ALMOST_A_DAY`` then two 650 s pauses)
+@example(
+    script=[_OFF_THE_GRID, ("burst", 12), _ALMOST_A_DAY, ("wait", 650.0), ("wait", 650.0)],
+    max_kept=1,
+)
+@example(
+    script=[
+        _OFF_THE_GRID,
+        *[("raise", "a"), ("clear", "a")] * 3,
+        ("burst", 11),
+        _ALMOST_A_DAY,
+        ("wait", 650.0),
+        ("wait", 650.0),
+    ],
+    max_kept=5,
+)
+def test_a_kpi_that_skips_quiet_refreshes_publishes_what_refreshing_every_period_does(
+    script: list[tuple[Any, ...]], max_kept: int
+) -> None:
+    """Every kind of alarm event (activation, clear, shelve with its expiry, unshelve, a
+    flood) and every kind of pause (within a period, past a 10-minute boundary, past the
+    24 h of the day figures and of staleness): at every scan, the ``alarms.*`` tags of the
+    KPI that skips quiet refreshes equal those of one that refreshes every period."""
+    clock = VirtualClock()
+    alarms = AlarmManager(clock)
+    fast_db, plain_db = TagDB(), TagDB()
+    fast = AlarmKpi(alarms, fast_db, max_kept=max_kept)
+    plain = AlarmKpi(alarms, plain_db, max_kept=max_kept, only_on_change=False)
+    declared = {
+        i: alarms.declare(i, severity=list(Severity)[k % len(Severity)]) for k, i in enumerate(_IDS)
+    }
+    flood = [alarms.declare(f"f{k}", severity=Severity.HIGH) for k in range(14)]
+    names = [n for n in fast_db.names() if n.startswith("alarms.")]
+    assert names
+
+    def scan_for(seconds: float) -> None:
+        end = clock.now() + seconds
+        while True:
+            for kpi, db in ((fast, fast_db), (plain, plain_db)):
+                kpi.on_scan(db, clock.now())
+            assert {n: fast_db[n].value for n in names} == {n: plain_db[n].value for n in names}
+            step = min(0.5, end - clock.now())
+            if step <= 0:
+                return
+            # Long pauses in big steps (a day of half-seconds is too many), the end exact.
+            clock.advance(step if seconds < 700 else min(end - clock.now(), 97.3))
+
+    for action in script:
+        _play(action, alarms, declared, flood, scan_for)
+        scan_for(0.5)
+
+
+def _play(
+    action: tuple[Any, ...],
+    alarms: AlarmManager,
+    declared: dict[str, Alarm],
+    flood: list[Alarm],
+    scan_for: Callable[[float], None],
+) -> None:
+    """One step of the equivalence test's script (``_ACTIONS``)."""
+    kind = action[0]
+    if kind == "raise":
+        alarms.set(declared[action[1]], True, "on")
+    elif kind == "clear":
+        alarms.set(declared[action[1]], False, "off")
+    elif kind == "shelve":
+        alarms.shelve(action[1], action[2], "hmi:test")
+    elif kind == "unshelve":
+        if declared[action[1]].shelved_until is not None:
+            alarms.unshelve(action[1], "hmi:test")
+    elif kind == "burst":
+        for alarm in flood[: action[1]]:
+            alarms.set(alarm, True, "on")
+            scan_for(3.0)
+        for alarm in flood:
+            alarms.set(alarm, False, "off")
+    else:
+        scan_for(action[1])
