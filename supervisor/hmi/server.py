@@ -131,6 +131,8 @@ def alarm_event_json(ev: AlarmEvent) -> dict[str, Any]:
         "severity": int(ev.severity),
         "message": ev.message,
         "actor": ev.actor,
+        "code": ev.code,
+        "params": dict(ev.params),
     }
 
 

@@ -145,6 +145,10 @@ class AlarmEvent:
     severity: Severity
     message: str
     actor: str = ""
+    # The message's kind and figures (``AlarmText``) for an activation or a clear: what a
+    # screen needs to say the journal's entry in its language ("" and {}: free text).
+    code: str = ""
+    params: Mapping[str, object] = field(default_factory=dict)
 
 
 @dataclass
@@ -223,9 +227,9 @@ class AlarmManager:
                     a.tripped and a is not alarm and a.group == alarm.group
                     for a in self._alarms.values()
                 )
-            self._event(alarm, Transition.ACTIVATED, alarm.message)
+            self._event(alarm, Transition.ACTIVATED, alarm.message, coded=True)
         else:
-            self._event(alarm, Transition.CLEARED, alarm.message)
+            self._event(alarm, Transition.CLEARED, alarm.message, coded=True)
 
     # --- people -----------------------------------------------------------------------
     def acknowledge(self, alarm_id: str, actor: str) -> Alarm:
@@ -355,7 +359,15 @@ class AlarmManager:
             if a.group == channel or (a.group == "" and (a.affects is None or channel in a.affects))
         ]
 
-    def _event(self, alarm: Alarm, transition: Transition, message: str, actor: str = "") -> None:
+    def _event(
+        self,
+        alarm: Alarm,
+        transition: Transition,
+        message: str,
+        actor: str = "",
+        coded: bool = False,
+    ) -> None:
+        """``coded``: the message is the alarm's own (its ``code`` and ``params`` go along)."""
         now = self.clock.now()
         ev = AlarmEvent(
             now,
@@ -367,6 +379,8 @@ class AlarmManager:
             alarm.severity,
             message,
             actor,
+            alarm.code if coded else "",
+            dict(alarm.params) if coded and alarm.code else {},
         )
         self.history.append(ev)
         by = f" by {actor}" if actor else ""

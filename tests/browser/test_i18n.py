@@ -287,3 +287,13 @@ def test_an_alarm_with_a_code_reads_in_french_with_its_figures(
     assert estop["message"] not in text  # the English words are not there
     # The tags behind it (the detail) stay as they are, marked as not to translate.
     assert french.get_attribute(f"{cell} small", "translate") == "no"
+    # The journal's entry of that activation carries the same code: French too.
+    (activated,) = [
+        e for e in body["history"] if e["alarm"] == "estop" and e["transition"] == "activated"
+    ][-1:]
+    assert activated["code"] == "estop.pressed", activated
+    row = "#alarm-history-table tbody tr"
+    french.wait_for_selector(row)
+    journal = french.locator(row, has_text="estop").filter(has_text="Arrêt d'urgence enfoncé")
+    assert journal.count() >= 1, french.text_content("#alarm-history-table")
+    assert estop["message"] not in (french.text_content("#alarm-history-table") or "")

@@ -165,7 +165,7 @@ async def test_http_press_makes_the_charging_pack_safe_and_reset_needs_the_ackno
         # What the answer says is true of the hardware: no current, supply off, contactor open.
         await wait_until(lambda: pack_safe(plant), "the pack disconnected and the supply off")
         assert db["ch4.current_cmd"].value == 0.0 and db["contactor.cmd"].value is False
-        assert "software e-stop pressed by hmi:otto" in str(db["ch4.fault"].value)
+        assert "Software e-stop pressed by hmi:otto" in str(db["ch4.fault"].value)
         assert db["estop.ok"].value is True  # the hardware button was never pressed
 
         # Reset before the acknowledgement: refused, with the reason, and nothing moves.

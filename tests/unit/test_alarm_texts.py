@@ -8,7 +8,7 @@ from __future__ import annotations
 from supervisor.config.models import EstopConfig
 from supervisor.core.clock import VirtualClock
 from supervisor.core.quality import Quality, Reason
-from supervisor.hmi.server import alarm_json
+from supervisor.hmi.server import alarm_event_json, alarm_json
 from supervisor.safety import AlarmManager
 from supervisor.safety.alarms import AlarmText
 from supervisor.safety.interlocks import Estop
@@ -63,3 +63,21 @@ def test_an_alarm_keeps_a_plain_text_for_events_logs_and_files() -> None:
     b = alarms.declare("y")
     alarms.set(b, True, "plain")
     assert alarm_json(b, clock)["code"] == "" and alarm_json(b, clock)["params"] == {}
+
+
+def test_the_journal_s_activation_and_clear_carry_the_code_for_the_screens_language() -> None:
+    """The Alarms screen's history says an entry in French from its code, as the active
+    list does (issue 33 finding 9); an acknowledgement's text is no alarm message: none."""
+    clock = VirtualClock()
+    alarms = AlarmManager(clock)
+    a = alarms.declare("x")
+    alarms.set(a, True, AlarmText("Something in words", "x.kind", {"n": 1}, "x.tag is false"))
+    alarms.acknowledge("x", "hmi:otto")
+    alarms.set(a, False)
+    journal = [alarm_event_json(e) for e in alarms.history]
+    assert [(e["transition"], e["code"], e["params"]) for e in journal] == [
+        ("activated", "x.kind", {"n": 1}),
+        ("acknowledged", "", {}),
+        ("cleared", "x.kind", {"n": 1}),
+    ]
+    assert all(type(e["message"]) is str for e in journal)
