@@ -34,16 +34,12 @@ def password(user: str) -> str:
     return user[::-1] + "-pw"
 
 
-@dataclass
-class Hmi:
-    bench: Bench
-    api: HttpApi
-    screens: Screens
-    sessions: list[aiohttp.ClientSession] = field(default_factory=list)
+class HttpCalls:
+    """Cookie-keeping HTTP clients of one HMI (``base``), each a browser's session: a
+    subclass gives ``base`` and ``sessions``."""
 
-    @property
-    def base(self) -> str:
-        return f"http://127.0.0.1:{self.api.port}"
+    base: str
+    sessions: list[aiohttp.ClientSession]
 
     async def client(self) -> aiohttp.ClientSession:
         # unsafe=True: aiohttp keeps no cookie of an IP host otherwise (browsers do).
@@ -57,6 +53,18 @@ class Hmi:
         kw: dict[str, Any] = {"headers": JSON} if body is None else {"json": body}
         async with s.request(method, self.base + path, **kw) as resp:
             return resp.status, await resp.json()
+
+
+@dataclass
+class Hmi(HttpCalls):
+    bench: Bench
+    api: HttpApi
+    screens: Screens
+    sessions: list[aiohttp.ClientSession] = field(default_factory=list)
+
+    @property
+    def base(self) -> str:  # type: ignore[override]  # the API's port, known once started
+        return f"http://127.0.0.1:{self.api.port}"
 
     async def login(self, user: str) -> aiohttp.ClientSession:
         s = await self.client()

@@ -18,7 +18,7 @@ import pytest
 import yaml
 from commandrig import DISCHARGE
 from commandrig import io_map as command_map
-from hmirig import JSON, USERS, password
+from hmirig import USERS, HttpCalls, password
 
 from supervisor.app.service import Supervisor, build_supervisor
 from supervisor.audit import AUDIT_NAME, read_entries, sha256_text
@@ -65,25 +65,13 @@ async def supervisor(io_map: Path) -> AsyncIterator[Supervisor]:
         sup.release()
 
 
-class Client:
+class Client(HttpCalls):
     def __init__(self, sup: Supervisor) -> None:
         self.base = f"http://127.0.0.1:{sup.api.port}"
-        self.sessions: list[aiohttp.ClientSession] = []
-
-    async def session(self) -> aiohttp.ClientSession:
-        s = aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True))
-        self.sessions.append(s)
-        return s
-
-    async def call(
-        self, s: aiohttp.ClientSession, method: str, path: str, body: Any = None
-    ) -> tuple[int, Any]:
-        kw: dict[str, Any] = {"headers": JSON} if body is None else {"json": body}
-        async with s.request(method, self.base + path, **kw) as resp:
-            return resp.status, await resp.json()
+        self.sessions = []
 
     async def login(self, user: str, pw: str | None = None) -> tuple[aiohttp.ClientSession, int]:
-        s = await self.session()
+        s = await self.client()
         status, _ = await self.call(
             s, "POST", "/api/login", {"user": user, "password": pw or password(user)}
         )
