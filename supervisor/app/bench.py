@@ -16,6 +16,7 @@ from supervisor.app.history import attach_historian
 from supervisor.app.influx import build_influx
 from supervisor.app.retained import RecipeSource, Retention
 from supervisor.app.simulation import SimulatedBench, build_simulation
+from supervisor.app.sparkplug import build_sparkplug, keep_bd_seq
 from supervisor.audit import AuditLog
 from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target
 from supervisor.chains.engine import ChainRunner
@@ -49,6 +50,7 @@ from supervisor.publish.influx import InfluxWriter
 from supervisor.publish.provenance import Provenance, TestMetadata
 from supervisor.publish.results import TIMELINE_KINDS, ResultCollector, SummaryWriter
 from supervisor.publish.rows import RowWriter
+from supervisor.publish.sparkplug import SparkplugPublisher
 from supervisor.safety import AlarmManager, SafetyPhase, build_safety
 from supervisor.safety.kpi import AlarmKpi
 from supervisor.scan import (
@@ -95,6 +97,8 @@ class Bench:
     historian: Historian | None = None
     influx: InfluxWriter | None = None
     """The InfluxDB writer, when the I/O map has an ``influxdb:`` section."""
+    sparkplug: SparkplugPublisher | None = None
+    """The Sparkplug B edge node, when the I/O map has a ``sparkplug:`` section."""
     events: EventFeed = field(default_factory=EventFeed)
     """Chain steps, alarms and operator commands for the publishers that record events."""
     _started: bool = False
@@ -438,6 +442,11 @@ class Bench:
         if self.influx is not None and not self._started:
             # Opening the spool checks the file (off the loop: it may be large).
             await asyncio.to_thread(self.influx.start)
+        if self.sparkplug is not None and not self._started:
+            # Its bdSeq in the retained state (``retain`` came first), on disk before the
+            # CONNECT that carries it: off the loop.
+            keep_bd_seq(self.sparkplug, self.retention.store if self.retention else None)
+            await asyncio.to_thread(self.sparkplug.start)
         self._started = True
 
     async def run(self, stop: asyncio.Event) -> None:
@@ -489,6 +498,10 @@ class Bench:
             await asyncio.to_thread(self.summaries.stop)
         if self.historian is not None:
             await self.historian.stop()  # everything queued written: a clean stop loses none
+        if self.sparkplug is not None:
+            # What is queued, then the NDEATH and a clean disconnect (before the retained
+            # state closes: a reconnection in between would save its bdSeq there).
+            await asyncio.to_thread(self.sparkplug.close)
         if self.retention is not None:
             # Waits for the writer thread (the last save on disk): not on the event loop.
             await asyncio.to_thread(self.retention.close)
@@ -656,6 +669,7 @@ def build_bench(
     # the same rule: one feed, filtered once per scan.
     changes = SharedChanges(db, clock)
     influx = build_influx(cfg, db, clock, alarms, changes)
+    sparkplug = build_sparkplug(cfg, db, clock, changes)
     phases = ScanPhases(
         derived=[LogicPhase(f"derive:{n}", ch.derive) for n, ch in channels.items()],
         safety=[LogicPhase("safety", safety.run)],
@@ -671,7 +685,10 @@ def build_bench(
         inputs=inputs,
         outputs=outputs,
         phases=phases.ordered(),
-        publishers=_scan_publishers(publishers, alarms, db, influx),
+        publishers=[
+            *_scan_publishers(publishers, alarms, db, influx),
+            *([sparkplug] if sparkplug is not None else []),
+        ],
     )
     if cfg.scan.realtime_priority is not None:
         engine.realtime = RealtimePriority(cfg.scan.realtime_priority)
@@ -688,6 +705,7 @@ def build_bench(
         alarms=alarms,
         displays=displays,
         influx=influx,
+        sparkplug=sparkplug,
         record_columns={n: tuple(r.label for r in cols) for n, cols in recorded.items()},
     )
     bench.changes = changes

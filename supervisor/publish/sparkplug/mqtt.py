@@ -10,6 +10,7 @@ Its callbacks run on paho's thread: the publisher only sets flags from them.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 from collections.abc import Callable
@@ -133,10 +134,9 @@ class PahoTransport:
         if last is not None and client.is_connected():
             info = client.publish(last.topic, last.payload, qos=last.qos)
             if info.rc == paho.MQTT_ERR_SUCCESS:
-                try:
+                # RuntimeError/ValueError: the connection went meanwhile.
+                with contextlib.suppress(RuntimeError, ValueError):
                     info.wait_for_publish(timeout=2.0)
-                except (RuntimeError, ValueError):  # the connection went meanwhile
-                    pass
         client.disconnect()  # a clean DISCONNECT: the broker drops the will
         client.loop_stop()
 

@@ -85,7 +85,14 @@ _PKG = "org.eclipse.tahu.protobuf"
 
 
 def _field(
-    msg: Any, name: str, number: int, ftype: int, *, label: int = _OPT, ref: str = "", oneof: int = -1
+    msg: Any,
+    name: str,
+    number: int,
+    ftype: int,
+    *,
+    label: int = _OPT,
+    ref: str = "",
+    oneof: int = -1,
 ) -> None:
     f = msg.field.add(name=name, number=number, type=ftype, label=label)
     if ref:

@@ -373,4 +373,3 @@ class SparkplugPublisher:
                 with self._cond:
                     self._need_birth = self._connected  # a gap: the next round is a birth
                 return
-
