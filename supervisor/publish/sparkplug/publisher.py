@@ -186,28 +186,33 @@ class SparkplugPublisher:
         )
 
     # --- lifecycle --------------------------------------------------------------------
-    def start(self) -> None:
+    def start(self, *, threaded: bool = True) -> None:
         """Take the next bdSeq (kept before connecting), connect in the background and
-        start the edge node's thread. Never raises for a broker that is away."""
-        if self._thread is not None:
+        start the edge node's thread. Never raises for a broker that is away.
+        ``threaded=False``: no thread, the caller runs each round (``drain``)."""
+        if self.transport is not None:
             return
         self._next_bd_seq()
         self._stopping = False
-        self._thread = threading.Thread(target=self._thread_main, name="sparkplug", daemon=True)
-        self._thread.start()
+        if threaded:
+            self._thread = threading.Thread(target=self._thread_main, name="sparkplug", daemon=True)
+            self._thread.start()
         self.transport = self._make_transport()
         self.transport.start(self._will(), self.session.ncmd_topic, self)
 
     def close(self, timeout_s: float = 5.0) -> None:
         """Send what is queued, publish the NDEATH (a clean stop) and disconnect."""
-        thread = self._thread
-        if thread is None:
+        if self.transport is None:
             return
         with self._cond:
             self._stopping = True
             self._cond.notify_all()
-        thread.join(timeout_s)
-        self._thread = None
+        thread = self._thread
+        if thread is not None:
+            thread.join(timeout_s)
+            self._thread = None
+        else:
+            self.drain()
         if self.transport is not None:
             self.transport.stop(self._will())
             self.transport = None
@@ -319,13 +324,19 @@ class SparkplugPublisher:
                     self._idle = True
                     self._cond.wait()
                 self._idle = False
-                batches = list(self._queue)
-                self._queue.clear()
-                self._queued = 0
                 stopping = self._stopping
-            self.step(batches)
+            self.drain()
             if stopping:
                 return
+
+    def drain(self) -> None:
+        """One round with what is queued now (the edge node's thread; a test or a tool
+        without the thread calls it itself)."""
+        with self._cond:
+            batches = list(self._queue)
+            self._queue.clear()
+            self._queued = 0
+        self.step(batches)
 
     def step(self, batches: Sequence[ChangeBatch]) -> None:
         """One round: the batches into the metrics, then the births or the data."""
@@ -349,6 +360,7 @@ class SparkplugPublisher:
 
     def _apply(self, batches: Sequence[ChangeBatch]) -> list[tuple[str, Metric]]:
         metrics = self.metrics
+        place = self.session.layout.place
         out: list[tuple[str, Metric]] = []
         for b in batches:
             if b.first:
@@ -357,6 +369,8 @@ class SparkplugPublisher:
             offset = b.wall_offset
             for tag, value, quality, _, t, server_t in b.changes:
                 spec = tag.spec
+                if place(spec.name) is None:
+                    continue  # not published (the edge node's own status)
                 wall_ms = round(((t or server_t) + offset) * 1000)
                 m = Metric(spec.dtype, spec.unit, value, quality, wall_ms)
                 metrics[spec.name] = m
