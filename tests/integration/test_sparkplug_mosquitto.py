@@ -21,6 +21,9 @@ import pytest
 import yaml
 from mqttrig import Mosquitto, Received, SparkplugConsumer
 
+from supervisor.core.clock import RealClock
+from supervisor.publish.sparkplug import MemoryBdSeq, SparkplugPublisher, SparkplugSettings
+from supervisor.tags import TagDB, TagSpec
 from supervisor.testing import free_tcp_port
 
 pytestmark = pytest.mark.integration
@@ -183,3 +186,48 @@ def test_birth_data_rebirth_and_death_on_sigkill_seen_by_an_independent_consumer
     # A clean stop publishes its own NDEATH (and disconnects: no will).
     consumer.wait_for(lambda ms: len([m for m in ms if m.verb == "NDEATH"]) == 2, "clean NDEATH")
     assert rc == 0
+
+
+@pytest.mark.timeout(120)
+def test_a_broker_restart_is_a_new_session_with_the_next_bdseq(
+    tmp_path: Path, broker: Mosquitto
+) -> None:
+    """The broker goes away and comes back on the same port: paho reconnects by itself, the
+    next CONNECT's will carries the next bdSeq and the births follow; nothing is sent in
+    between (store-and-forward is the next step: docs/sparkplug.md)."""
+    db = TagDB()
+    voltage = db.add(TagSpec("ch1.voltage", "float", unit="V"))
+    db.update(voltage, 3.7)
+    pub = SparkplugPublisher(
+        db,
+        RealClock(),
+        SparkplugSettings("127.0.0.1", broker.port, GROUP, "node1", keepalive_s=KEEPALIVE_S),
+        channels=["ch1"],
+        devices=[],
+        bd_seq=MemoryBdSeq(last=254),
+    )
+    consumer = SparkplugConsumer(broker.port, GROUP)
+    pub.start()
+    try:
+        consumer.wait_for(lambda ms: any(m.verb == "DBIRTH" for m in ms), "births")
+        assert bd_seq(consumer.of("NBIRTH")[0]) == 255
+        db.update(voltage, 3.8)
+        pub.on_scan(db, 0.0)
+        consumer.wait_for(lambda ms: any(m.verb == "DDATA" for m in ms), "DDATA")
+        assert consumer.of("DDATA")[0].metrics()["voltage"].value == 3.8
+        consumer.close()
+
+        broker.stop()
+        db.update(voltage, 3.9)
+        pub.on_scan(db, 0.1)  # returns at once, broker or not
+        broker.start()
+        consumer = SparkplugConsumer(broker.port, GROUP)
+        # The node may have reconnected before this subscription: a host application that
+        # joins late asks for the births (the same session's, the same bdSeq).
+        consumer.rebirth("node1")
+        consumer.wait_for(lambda ms: any(m.verb == "DBIRTH" for m in ms), "births", LIMIT_S)
+        assert {bd_seq(m) for m in consumer.of("NBIRTH")} == {0}  # 255 is followed by 0
+        assert consumer.of("DBIRTH", "ch1")[0].metrics()["voltage"].value == 3.9
+    finally:
+        pub.close()
+        consumer.close()

@@ -351,3 +351,15 @@ def test_the_scan_never_waits_for_a_stuck_connection() -> None:
         "the latest voltage",
     )
     rig.pub.close()
+
+
+def test_scans_before_the_start_are_not_kept_the_births_carry_the_values_at_the_start() -> None:
+    rig = Rig()
+    for i in range(3):  # a bench scanning before its edge node starts: nothing piles up
+        rig.set("scan.count", 100 + i)
+        rig.scan()
+    assert rig.pub._queued == 0
+    births = rig.start()
+    node = {m.name: m.value for m in decoded(births[0]).metrics}
+    assert node["scan.count"] == 1  # as set at the start, not a value of before
+    assert [m.topic.split("/")[2] for m in births] == ["NBIRTH", "DBIRTH", "DBIRTH", "DBIRTH"]

@@ -148,6 +148,7 @@ class SparkplugPublisher:
         transport: Callable[[], Transport] | None = None,
     ) -> None:
         self.settings = settings
+        self.db = db
         self.clock = clock
         self.source: ChangeSource = changes if changes is not None else ChangeSnapshots(db, clock)
         self.bd_seq_store: BdSeqStore = bd_seq or MemoryBdSeq()
@@ -194,6 +195,7 @@ class SparkplugPublisher:
             return
         self._next_bd_seq()
         self._stopping = False
+        self._queue_every_tag()
         if threaded:
             self._thread = threading.Thread(target=self._thread_main, name="sparkplug", daemon=True)
             self._thread.start()
@@ -217,6 +219,17 @@ class SparkplugPublisher:
             self.transport.stop(self._will())
             self.transport = None
         self._connected = False
+
+    def _queue_every_tag(self) -> None:
+        """Every tag as it is now, as the first batch: what the births carry, whatever
+        scans ran before the start (their batches were not kept)."""
+        clock = self.clock
+        every = [(t, t.value, t.quality, t.reason, t.source_t, t.server_t) for t in self.db]
+        batch = ChangeBatch(every, clock.now(), clock.to_wall(0.0), True)
+        with self._cond:
+            self._queue.clear()
+            self._queue.append(batch)
+            self._queued = len(every)
 
     def _next_bd_seq(self) -> None:
         last = self.bd_seq_store.load()
@@ -262,7 +275,10 @@ class SparkplugPublisher:
     # --- the scan's side --------------------------------------------------------------
     def on_scan(self, db: TagDB, t: float) -> None:
         """At scan end: this scan's changes to the queue; the status tags."""
-        for batch in self.source.batches():
+        batches = self.source.batches()  # taken in any case: a shared feed keeps them else
+        if self.transport is None:
+            return  # not started (or stopped): ``start`` queues every tag
+        for batch in batches:
             if not batch.changes and not batch.first:
                 continue
             with self._cond:
