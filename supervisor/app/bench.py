@@ -32,7 +32,7 @@ from supervisor.commands import (
 from supervisor.commands.force import bench_safety_tags
 from supervisor.commands.recipes import RecipeFolders
 from supervisor.config.bench import record_columns
-from supervisor.config.models import BenchConfig, LinearScaling, TagMapping
+from supervisor.config.models import BenchConfig, LinearScaling, RecordColumn, TagMapping
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver, DType
 from supervisor.core.errors import OperatorError
@@ -498,17 +498,7 @@ class Bench:
             await asyncio.to_thread(self.summaries.stop)
         if self.historian is not None:
             await self.historian.stop()  # everything queued written: a clean stop loses none
-        if self.sparkplug is not None:
-            # What is queued, then the NDEATH and a clean disconnect (before the retained
-            # state closes: a reconnection in between would save its bdSeq there).
-            await asyncio.to_thread(self.sparkplug.close)
-        if self.retention is not None:
-            # Waits for the writer thread (the last save on disk): not on the event loop.
-            await asyncio.to_thread(self.retention.close)
-            self.retention = None
-        if self.influx is not None:
-            # Spools what is queued, sends for at most influxdb.stop_flush_s, keeps the rest.
-            await asyncio.to_thread(self.influx.close)
+        await self._close_stores()
         if self.sim is not None:
             await self.sim.stop()
         self._started = False
@@ -521,6 +511,21 @@ class Bench:
         else:
             log.info("bench %s: all outputs safe", self.cfg.bench)
         return unconfirmed
+
+    async def _close_stores(self) -> None:
+        """The Sparkplug edge node, the retained state and InfluxDB's writer, closed off the
+        event loop (each waits for its thread)."""
+        if self.sparkplug is not None:
+            # What is queued, then the NDEATH and a clean disconnect (before the retained
+            # state closes: a reconnection in between would save its bdSeq there).
+            await asyncio.to_thread(self.sparkplug.close)
+        if self.retention is not None:
+            # Waits for the writer thread (the last save on disk): not on the event loop.
+            await asyncio.to_thread(self.retention.close)
+            self.retention = None
+        if self.influx is not None:
+            # Spools what is queued, sends for at most influxdb.stop_flush_s, keeps the rest.
+            await asyncio.to_thread(self.influx.close)
 
 
 def _tag_spec(m: TagMapping, dtype: DType) -> TagSpec:
@@ -553,12 +558,30 @@ def _scaling(m: TagMapping) -> Scaling | None:
 
 
 def _scan_publishers(
-    given: list[Publisher] | None, alarms: AlarmManager, db: TagDB, influx: Publisher | None
+    given: list[Publisher] | None, alarms: AlarmManager, db: TagDB, *more: Publisher | None
 ) -> list[Publisher]:
     """The scan's publishers: the caller's, the alarm KPIs (the ``alarms.*`` tags, ISA-18.2
-    figures refreshed once a second: before InfluxDB, which then sends them the same scan),
-    InfluxDB's writer."""
-    return [*(given or []), AlarmKpi(alarms, db), *([influx] if influx is not None else [])]
+    figures refreshed once a second: before InfluxDB and Sparkplug, which then send them the
+    same scan), then ``more`` that are configured (InfluxDB's writer, the Sparkplug edge
+    node)."""
+    return [*(given or []), AlarmKpi(alarms, db), *(p for p in more if p is not None)]
+
+
+def _chain_runners(
+    db: TagDB, clock: Clock, channels: dict[str, Channel], recorded: dict[str, list[RecordColumn]]
+) -> dict[str, ChainRunner]:
+    """One chain runner per channel: it sees its channel through the channel's tags only
+    (chains/port.py)."""
+    return {
+        name: ChainRunner(
+            ChannelPort.from_tags(
+                db, name, Mode.AUTO.value, Mode.MANUAL.value, tuple(r.tag for r in recorded[name])
+            ),
+            db,
+            clock,
+        )
+        for name in channels
+    }
 
 
 def build_bench(
@@ -649,16 +672,7 @@ def build_bench(
 
     # The chain sees its channel through the channel's tags only (chains/port.py).
     recorded = {c.name: record_columns(cfg, c) for c in cfg.channels}
-    runners = {
-        name: ChainRunner(
-            ChannelPort.from_tags(
-                db, name, Mode.AUTO.value, Mode.MANUAL.value, tuple(r.tag for r in recorded[name])
-            ),
-            db,
-            clock,
-        )
-        for name in channels
-    }
+    runners = _chain_runners(db, clock, channels, recorded)
     displays: dict[str, ChadecheDisplay] = {}
     for c in cfg.channels:
         displays[c.name] = ChadecheDisplay(c.name, dba=c.source.board or 0)
@@ -685,10 +699,7 @@ def build_bench(
         inputs=inputs,
         outputs=outputs,
         phases=phases.ordered(),
-        publishers=[
-            *_scan_publishers(publishers, alarms, db, influx),
-            *([sparkplug] if sparkplug is not None else []),
-        ],
+        publishers=_scan_publishers(publishers, alarms, db, influx, sparkplug),
     )
     if cfg.scan.realtime_priority is not None:
         engine.realtime = RealtimePriority(cfg.scan.realtime_priority)
