@@ -231,3 +231,35 @@ def test_a_broker_restart_is_a_new_session_with_the_next_bdseq(
     finally:
         pub.close()
         consumer.close()
+
+
+@pytest.mark.timeout(120)
+def test_a_broker_down_at_the_start_is_waited_for_in_the_background(tmp_path: Path) -> None:
+    """The bench starts while the broker is down: the start returns, the scan's side only
+    queues, and once the broker is up the births come with the values of then."""
+    broker = Mosquitto(tmp_path / "mosquitto")  # not started yet
+    db = TagDB()
+    voltage = db.add(TagSpec("ch1.voltage", "float", unit="V"))
+    db.update(voltage, 3.7)
+    pub = SparkplugPublisher(
+        db,
+        RealClock(),
+        SparkplugSettings("127.0.0.1", broker.port, GROUP, "node2", keepalive_s=KEEPALIVE_S),
+        channels=["ch1"],
+        devices=[],
+    )
+    pub.start()
+    consumer: SparkplugConsumer | None = None
+    try:
+        db.update(voltage, 3.8)
+        pub.on_scan(db, 0.0)
+        broker.start()
+        consumer = SparkplugConsumer(broker.port, GROUP)
+        consumer.rebirth("node2")  # in case the node connected before this subscription
+        consumer.wait_for(lambda ms: any(m.verb == "DBIRTH" for m in ms), "births", LIMIT_S)
+        assert consumer.of("DBIRTH", "ch1")[0].metrics()["voltage"].value == 3.8
+    finally:
+        pub.close()
+        if consumer is not None:
+            consumer.close()
+        broker.stop()
