@@ -363,3 +363,17 @@ def test_scans_before_the_start_are_not_kept_the_births_carry_the_values_at_the_
     node = {m.name: m.value for m in decoded(births[0]).metrics}
     assert node["scan.count"] == 1  # as set at the start, not a value of before
     assert [m.topic.split("/")[2] for m in births] == ["NBIRTH", "DBIRTH", "DBIRTH", "DBIRTH"]
+
+
+def test_while_connecting_the_starts_snapshot_is_kept_not_counted_as_dropped() -> None:
+    rig = Rig()
+    rig.set("ch1.voltage", 3.7)
+    rig.pub.start(threaded=False)  # not connected yet
+    assert rig.scan() == []
+    assert rig.pub.dropped == 0
+    rig.set("ch1.voltage", 3.75)
+    assert rig.scan() == []
+    assert rig.pub.dropped == 1  # a change while offline
+    rig.pub.connected()
+    births = rig.scan()
+    assert {m.name: m.value for m in decoded(births[1]).metrics}["voltage"] == 3.75

@@ -360,7 +360,11 @@ class SparkplugPublisher:
         with self._cond:
             connected, birth = self._connected, self._need_birth
         if not connected:
-            self.dropped += len(changes)
+            # A first batch is every tag (what the next births carry), not changes lost.
+            place = self.session.layout.place
+            self.dropped += sum(
+                place(c[0].spec.name) is not None for b in batches if not b.first for c in b.changes
+            )
             return
         if not self._primed:
             return  # no first batch yet: a birth would announce nothing
