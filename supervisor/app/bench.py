@@ -130,6 +130,8 @@ class Bench:
             self.summaries.gate = self.rows.gate = self.gate
             if self.influx is not None:
                 self.influx.writer.gate = self.gate
+            if self.sparkplug is not None:
+                self.sparkplug.gate = self.gate
         self.commands = CommandPath(
             self.db,
             self.clock,

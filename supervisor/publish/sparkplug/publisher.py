@@ -32,6 +32,7 @@ from typing import Protocol
 from google.protobuf.message import DecodeError
 
 from supervisor.core.clock import Clock
+from supervisor.core.gate import ScanGate
 from supervisor.core.threads import run_restarting
 from supervisor.publish.changes import ChangeBatch, ChangeSnapshots, ChangeSource, RawChange
 from supervisor.publish.retain import RetainStore
@@ -176,6 +177,8 @@ class SparkplugPublisher:
             tag = self._tags[spec.name] = db.get(spec.name) or db.add(spec)
             db.update(tag, initial[spec.dtype])
         self._status_t = float("-inf")
+        self.gate: ScanGate | None = None
+        """Encode only while the scan is not running (``core/gate.py``; set by the bench)."""
 
     def _paho(self) -> Transport:
         s = self.settings
@@ -352,6 +355,8 @@ class SparkplugPublisher:
             batches = list(self._queue)
             self._queue.clear()
             self._queued = 0
+        if self.gate is not None:
+            self.gate.wait()  # the scan first: encoding takes the interpreter lock
         self.step(batches)
 
     def step(self, batches: Sequence[ChangeBatch]) -> None:
