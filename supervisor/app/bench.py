@@ -9,7 +9,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from supervisor.app.events import EventFeed
 from supervisor.app.history import attach_historian
@@ -50,7 +50,6 @@ from supervisor.publish.influx import InfluxWriter
 from supervisor.publish.provenance import Provenance, TestMetadata
 from supervisor.publish.results import TIMELINE_KINDS, ResultCollector, SummaryWriter
 from supervisor.publish.rows import RowWriter
-from supervisor.publish.sparkplug import SparkplugPublisher
 from supervisor.safety import AlarmManager, SafetyPhase, build_safety
 from supervisor.safety.kpi import AlarmKpi
 from supervisor.scan import (
@@ -63,6 +62,9 @@ from supervisor.scan import (
 )
 from supervisor.sim.battery import BatteryModel
 from supervisor.tags import AlarmLimits, HistorySettings, Scaling, TagDB, TagSpec
+
+if TYPE_CHECKING:  # imported by app/sparkplug.py for a bench that has the section only
+    from supervisor.publish.sparkplug import SparkplugPublisher
 
 log = logging.getLogger(__name__)
 

@@ -3,17 +3,17 @@ publisher (``supervisor.publish.sparkplug``); its bdSeq in the bench's retained 
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from supervisor.config.models import BenchConfig
 from supervisor.core.clock import Clock
 from supervisor.publish.changes import SharedChanges
 from supervisor.publish.retain import RetainStore
-from supervisor.publish.sparkplug import (
-    MemoryBdSeq,
-    RetainedBdSeq,
-    SparkplugPublisher,
-    SparkplugSettings,
-)
 from supervisor.tags import TagDB
+
+if TYPE_CHECKING:  # imported when a bench has the section: paho-mqtt and protobuf cost
+    # about 0.1 s of every command's start-up (``supervisor check``) otherwise.
+    from supervisor.publish.sparkplug import SparkplugPublisher
 
 __all__ = ["build_sparkplug", "keep_bd_seq"]
 
@@ -25,6 +25,8 @@ def build_sparkplug(
     sp = cfg.sparkplug
     if sp is None:
         return None
+    from supervisor.publish.sparkplug import SparkplugPublisher, SparkplugSettings
+
     settings = SparkplugSettings(
         host=sp.host,
         port=sp.port,
@@ -45,4 +47,6 @@ def build_sparkplug(
 def keep_bd_seq(publisher: SparkplugPublisher, store: RetainStore | None) -> None:
     """Keep the bdSeq in ``store`` (the bench's retained state), or in memory without one
     (a bench built without retained state: each start begins at 0 again)."""
+    from supervisor.publish.sparkplug import MemoryBdSeq, RetainedBdSeq
+
     publisher.bd_seq_store = RetainedBdSeq(store) if store is not None else MemoryBdSeq()
