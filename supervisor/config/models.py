@@ -1023,7 +1023,7 @@ class SparkplugConfig(Strict):
         ge=5,
         le=3600,
         description="MQTT keep-alive: a bench that stops answering is declared dead"
-        " (its NDEATH published by the broker) within 1.5 times this.",
+        " (its NDEATH published by the broker) about 1.5 times this after its last packet.",
     )
 
     @field_validator("broker")

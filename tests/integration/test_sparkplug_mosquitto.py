@@ -8,6 +8,7 @@ of its births; the next run's births carry the next bdSeq (kept in the retained 
 from __future__ import annotations
 
 import itertools
+import logging
 import os
 import signal
 import subprocess
@@ -27,6 +28,7 @@ from supervisor.tags import TagDB, TagSpec
 from supervisor.testing import free_tcp_port
 
 pytestmark = pytest.mark.integration
+log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[2]
 GROUP = "Lab"
 KEEPALIVE_S = 5
@@ -263,3 +265,34 @@ def test_a_broker_down_at_the_start_is_waited_for_in_the_background(tmp_path: Pa
         if consumer is not None:
             consumer.close()
         broker.stop()
+
+
+@pytest.mark.timeout(300)
+def test_a_silent_bench_is_declared_dead_by_the_keepalive(
+    tmp_path: Path, broker: Mosquitto, consumer: SparkplugConsumer
+) -> None:
+    """SIGSTOP: the connection stays open but the bench says nothing; the broker publishes
+    its will once 1.5 keep-alives pass without a packet (MQTT 3.1.1, 3.1.2.10). Let go
+    again, the bench reconnects by itself: a new session, the next bdSeq."""
+    sup = Supervisor(sim_map(tmp_path, broker), tmp_path / "supervisor.log")
+    try:
+        consumer.wait_for(births_done("sim"), "births", LIMIT_S)
+        first_bd = bd_seq(consumer.of("NBIRTH")[0])
+        os.kill(sup.proc.pid, signal.SIGSTOP)
+        stopped_at = time.monotonic()
+        try:
+            consumer.wait_for(lambda ms: any(m.verb == "NDEATH" for m in ms), "NDEATH", LIMIT_S)
+        finally:
+            os.kill(sup.proc.pid, signal.SIGCONT)
+        (death,) = consumer.of("NDEATH")
+        assert bd_seq(death) == first_bd
+        # The broker's own clock decides: MQTT says 1.5 keep-alives after the last packet;
+        # Mosquitto 2.0 checks at its own pace (1.5-2.2 keep-alives seen here). A bound
+        # for a loaded machine, the figure logged.
+        silent_s = death.at - stopped_at
+        log.info("NDEATH %.1f s after SIGSTOP (keep-alive %d s)", silent_s, KEEPALIVE_S)
+        assert silent_s <= 3 * KEEPALIVE_S
+        consumer.wait_for(lambda ms: len([m for m in ms if m.verb == "NBIRTH"]) == 2, "rebirth")
+        assert bd_seq(consumer.of("NBIRTH")[-1]) == (first_bd + 1) % 256
+    finally:
+        assert sup.stop() == 0
