@@ -31,6 +31,9 @@ CHROMIUM    := /usr/bin/chromium
 # The instruction counter of `supervisor bench pi-budget` (valgrind's callgrind): Debian's
 # valgrind.
 VALGRIND    := /usr/bin/valgrind
+# The MQTT broker the Sparkplug B tests start on loopback (tests/mqttrig.py): Debian's
+# mosquitto, never a service of the machine (each test starts its own on a free port).
+MOSQUITTO   := /usr/sbin/mosquitto
 SUDO        := $(if $(filter 0,$(shell id -u)),,sudo)
 
 .PHONY: run demo-users test lint typecheck unit bench mutation schema check clean influxd node_modules hmi axe chromium valgrind
@@ -73,6 +76,15 @@ $(VALGRIND):
 	$(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y valgrind \
 	  || { $(SUDO) apt-get update && $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y valgrind; } \
 	  || { echo "install the Debian package valgrind (apt-get install valgrind) for bench pi-budget"; exit 2; }
+
+.PHONY: mosquitto
+mosquitto: $(MOSQUITTO)
+
+$(MOSQUITTO):
+	@echo "installing Debian's mosquitto for the Sparkplug B tests"
+	$(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y mosquitto \
+	  || { $(SUDO) apt-get update && $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y mosquitto; } \
+	  || { echo "install the Debian package mosquitto (apt-get install mosquitto) for the Sparkplug tests"; exit 2; }
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "Python 3.11+ is required")'
@@ -122,7 +134,7 @@ TEST_JOBS ?= 2
 PYTEST    := $(BIN)/pytest -q -n $(TEST_JOBS) --dist loadfile
 WALL      := tests/integration tests/interop tests/security tests/browser
 
-unit: $(STAMP) $(INFLUXD) $(NODE_STAMP) $(HMI_STAMP) $(AXE_STAMP) $(CHROMIUM) $(VALGRIND)
+unit: $(STAMP) $(INFLUXD) $(NODE_STAMP) $(HMI_STAMP) $(AXE_STAMP) $(CHROMIUM) $(VALGRIND) $(MOSQUITTO)
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(PYTEST) tests/unit
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(PYTEST) -m "not quiet" $(WALL)
 	SUPERVISOR_INFLUXD=$(INFLUXD) $(BIN)/pytest -q -m quiet $(WALL)

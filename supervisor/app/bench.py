@@ -9,13 +9,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from supervisor.app.events import EventFeed
 from supervisor.app.history import attach_historian
 from supervisor.app.influx import build_influx
 from supervisor.app.retained import RecipeSource, Retention
 from supervisor.app.simulation import SimulatedBench, build_simulation
+from supervisor.app.sparkplug import build_sparkplug, keep_bd_seq
 from supervisor.audit import AuditLog
 from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target
 from supervisor.chains.engine import ChainRunner
@@ -31,7 +32,7 @@ from supervisor.commands import (
 from supervisor.commands.force import bench_safety_tags
 from supervisor.commands.recipes import RecipeFolders
 from supervisor.config.bench import record_columns
-from supervisor.config.models import BenchConfig, LinearScaling, TagMapping
+from supervisor.config.models import BenchConfig, LinearScaling, RecordColumn, TagMapping
 from supervisor.core.clock import Clock
 from supervisor.core.driver import Driver, DType
 from supervisor.core.errors import OperatorError
@@ -61,6 +62,9 @@ from supervisor.scan import (
 )
 from supervisor.sim.battery import BatteryModel
 from supervisor.tags import AlarmLimits, HistorySettings, Scaling, TagDB, TagSpec
+
+if TYPE_CHECKING:  # imported by app/sparkplug.py for a bench that has the section only
+    from supervisor.publish.sparkplug import SparkplugPublisher
 
 log = logging.getLogger(__name__)
 
@@ -95,6 +99,8 @@ class Bench:
     historian: Historian | None = None
     influx: InfluxWriter | None = None
     """The InfluxDB writer, when the I/O map has an ``influxdb:`` section."""
+    sparkplug: SparkplugPublisher | None = None
+    """The Sparkplug B edge node, when the I/O map has a ``sparkplug:`` section."""
     events: EventFeed = field(default_factory=EventFeed)
     """Chain steps, alarms and operator commands for the publishers that record events."""
     _started: bool = False
@@ -126,6 +132,8 @@ class Bench:
             self.summaries.gate = self.rows.gate = self.gate
             if self.influx is not None:
                 self.influx.writer.gate = self.gate
+            if self.sparkplug is not None:
+                self.sparkplug.gate = self.gate
         self.commands = CommandPath(
             self.db,
             self.clock,
@@ -438,6 +446,11 @@ class Bench:
         if self.influx is not None and not self._started:
             # Opening the spool checks the file (off the loop: it may be large).
             await asyncio.to_thread(self.influx.start)
+        if self.sparkplug is not None and not self._started:
+            # Its bdSeq in the retained state (``retain`` came first), on disk before the
+            # CONNECT that carries it: off the loop.
+            keep_bd_seq(self.sparkplug, self.retention.store if self.retention else None)
+            await asyncio.to_thread(self.sparkplug.start)
         self._started = True
 
     async def run(self, stop: asyncio.Event) -> None:
@@ -489,13 +502,7 @@ class Bench:
             await asyncio.to_thread(self.summaries.stop)
         if self.historian is not None:
             await self.historian.stop()  # everything queued written: a clean stop loses none
-        if self.retention is not None:
-            # Waits for the writer thread (the last save on disk): not on the event loop.
-            await asyncio.to_thread(self.retention.close)
-            self.retention = None
-        if self.influx is not None:
-            # Spools what is queued, sends for at most influxdb.stop_flush_s, keeps the rest.
-            await asyncio.to_thread(self.influx.close)
+        await self._close_stores()
         if self.sim is not None:
             await self.sim.stop()
         self._started = False
@@ -508,6 +515,21 @@ class Bench:
         else:
             log.info("bench %s: all outputs safe", self.cfg.bench)
         return unconfirmed
+
+    async def _close_stores(self) -> None:
+        """The Sparkplug edge node, the retained state and InfluxDB's writer, closed off the
+        event loop (each waits for its thread)."""
+        if self.sparkplug is not None:
+            # What is queued, then the NDEATH and a clean disconnect (before the retained
+            # state closes: a reconnection in between would save its bdSeq there).
+            await asyncio.to_thread(self.sparkplug.close)
+        if self.retention is not None:
+            # Waits for the writer thread (the last save on disk): not on the event loop.
+            await asyncio.to_thread(self.retention.close)
+            self.retention = None
+        if self.influx is not None:
+            # Spools what is queued, sends for at most influxdb.stop_flush_s, keeps the rest.
+            await asyncio.to_thread(self.influx.close)
 
 
 def _tag_spec(m: TagMapping, dtype: DType) -> TagSpec:
@@ -540,12 +562,30 @@ def _scaling(m: TagMapping) -> Scaling | None:
 
 
 def _scan_publishers(
-    given: list[Publisher] | None, alarms: AlarmManager, db: TagDB, influx: Publisher | None
+    given: list[Publisher] | None, alarms: AlarmManager, db: TagDB, *more: Publisher | None
 ) -> list[Publisher]:
     """The scan's publishers: the caller's, the alarm KPIs (the ``alarms.*`` tags, ISA-18.2
-    figures refreshed once a second: before InfluxDB, which then sends them the same scan),
-    InfluxDB's writer."""
-    return [*(given or []), AlarmKpi(alarms, db), *([influx] if influx is not None else [])]
+    figures refreshed once a second: before InfluxDB and Sparkplug, which then send them the
+    same scan), then ``more`` that are configured (InfluxDB's writer, the Sparkplug edge
+    node)."""
+    return [*(given or []), AlarmKpi(alarms, db), *(p for p in more if p is not None)]
+
+
+def _chain_runners(
+    db: TagDB, clock: Clock, channels: dict[str, Channel], recorded: dict[str, list[RecordColumn]]
+) -> dict[str, ChainRunner]:
+    """One chain runner per channel: it sees its channel through the channel's tags only
+    (chains/port.py)."""
+    return {
+        name: ChainRunner(
+            ChannelPort.from_tags(
+                db, name, Mode.AUTO.value, Mode.MANUAL.value, tuple(r.tag for r in recorded[name])
+            ),
+            db,
+            clock,
+        )
+        for name in channels
+    }
 
 
 def build_bench(
@@ -636,16 +676,7 @@ def build_bench(
 
     # The chain sees its channel through the channel's tags only (chains/port.py).
     recorded = {c.name: record_columns(cfg, c) for c in cfg.channels}
-    runners = {
-        name: ChainRunner(
-            ChannelPort.from_tags(
-                db, name, Mode.AUTO.value, Mode.MANUAL.value, tuple(r.tag for r in recorded[name])
-            ),
-            db,
-            clock,
-        )
-        for name in channels
-    }
+    runners = _chain_runners(db, clock, channels, recorded)
     displays: dict[str, ChadecheDisplay] = {}
     for c in cfg.channels:
         displays[c.name] = ChadecheDisplay(c.name, dba=c.source.board or 0)
@@ -656,6 +687,7 @@ def build_bench(
     # the same rule: one feed, filtered once per scan.
     changes = SharedChanges(db, clock)
     influx = build_influx(cfg, db, clock, alarms, changes)
+    sparkplug = build_sparkplug(cfg, db, clock, changes)
     phases = ScanPhases(
         derived=[LogicPhase(f"derive:{n}", ch.derive) for n, ch in channels.items()],
         safety=[LogicPhase("safety", safety.run)],
@@ -671,7 +703,7 @@ def build_bench(
         inputs=inputs,
         outputs=outputs,
         phases=phases.ordered(),
-        publishers=_scan_publishers(publishers, alarms, db, influx),
+        publishers=_scan_publishers(publishers, alarms, db, influx, sparkplug),
     )
     if cfg.scan.realtime_priority is not None:
         engine.realtime = RealtimePriority(cfg.scan.realtime_priority)
@@ -688,6 +720,7 @@ def build_bench(
         alarms=alarms,
         displays=displays,
         influx=influx,
+        sparkplug=sparkplug,
         record_columns={n: tuple(r.label for r in cols) for n, cols in recorded.items()},
     )
     bench.changes = changes

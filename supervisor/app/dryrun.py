@@ -243,7 +243,15 @@ MAP_WARMUP_S: Final = 5.0
 """Scanned before a dry run on an I/O map starts its recipe: every device connected and
 every slow input in (the BMS sends its pack voltage once a second), as an operator starts
 a test on a bench that has been up a while."""
-MAP_SERVICES: Final = ("hmi", "opcua", "modbus_server", "influxdb", "identification", "recipes")
+MAP_SERVICES: Final = (
+    "hmi",
+    "opcua",
+    "modbus_server",
+    "influxdb",
+    "sparkplug",
+    "identification",
+    "recipes",
+)
 """What a dry run on an I/O map leaves out: it serves nothing and publishes nothing."""
 
 

@@ -25,7 +25,7 @@ from supervisor.core.driver import PointInfo
 from supervisor.core.errors import ConfigError, ConfigErrors
 
 DEVICE_STATUS_SUFFIXES = ("connected", "comm_failures")
-RESERVED_PREFIXES = ("scan.", "bench.", "influx.")
+RESERVED_PREFIXES = ("scan.", "bench.", "influx.", "sparkplug.")
 
 
 CHANNEL_RECORDABLE = {"fault": "Fault", "first_out": "First Out", "clamped": "Clamped"}

@@ -997,6 +997,58 @@ def _read_token_file(path: str) -> str:
     return text
 
 
+SPARKPLUG_ID_PATTERN: Final = r"^[^/+#\s]+$"
+"""A Sparkplug group or edge node id: one topic level, no MQTT wildcard (chapter 4)."""
+
+
+class SparkplugConfig(Strict):
+    """Publish the bench as a Sparkplug B edge node over MQTT (docs/sparkplug.md): NBIRTH
+    with the bench-level tags, one device per channel and per device (DBIRTH, DDATA), the
+    NDEATH as the MQTT will with a bdSeq kept in the retained state."""
+
+    broker: str = Field(description="MQTT broker, mqtt://HOST:PORT (port 1883 when left out).")
+    group: str = Field(
+        pattern=SPARKPLUG_ID_PATTERN,
+        max_length=128,
+        description="Sparkplug group id (a topic level: no '/', '+', '#' or spaces).",
+    )
+    edge_node: str | None = Field(
+        None,
+        pattern=SPARKPLUG_ID_PATTERN,
+        max_length=128,
+        description="Sparkplug edge node id; default: the bench name.",
+    )
+    keepalive_s: int = Field(
+        30,
+        ge=5,
+        le=3600,
+        description="MQTT keep-alive: a bench that stops answering is declared dead"
+        " (its NDEATH published by the broker) about 1.5 times this after its last packet.",
+    )
+
+    @field_validator("broker")
+    @classmethod
+    def _mqtt_url(cls, v: str) -> str:
+        parts = urllib.parse.urlsplit(v)
+        try:
+            parts.port  # noqa: B018 - raises ValueError for a port that is not a number
+        except ValueError:
+            raise ValueError("the port must be a number from 1 to 65535") from None
+        if parts.scheme != "mqtt" or not parts.hostname:
+            raise ValueError("expected mqtt://host:port (TLS and credentials come later)")
+        if parts.path not in ("", "/") or parts.query or parts.fragment or parts.username:
+            raise ValueError("expected mqtt://host:port, nothing after the port")
+        return v
+
+    @property
+    def host(self) -> str:
+        return urllib.parse.urlsplit(self.broker).hostname or ""
+
+    @property
+    def port(self) -> int:
+        return urllib.parse.urlsplit(self.broker).port or 1883
+
+
 class RecipeFoldersConfig(Strict):
     """Where the bench's clients (HTTP, OPC UA, the screens' recipe editor) find recipes,
     and the only folders they may load them from (docs/adr/0026-threat-model.md)."""
@@ -1064,6 +1116,9 @@ class BenchConfig(Strict):
     simulation: SimulationConfig | None = None
     influxdb: InfluxConfig | None = Field(
         None, description="Publish into InfluxDB (store and forward); null: the embedded historian."
+    )
+    sparkplug: SparkplugConfig | None = Field(
+        None, description="Publish as a Sparkplug B edge node over MQTT (off when absent)."
     )
 
     device_kinds: ClassVar[tuple[type[DeviceConfig], ...]] = ()

@@ -27,6 +27,8 @@ SERVER_PACKAGES = (
     "can",  # python-can (the BMS over socketcand)
     "cantools",  # the BMS's DBC file
     "influxdb_client",
+    "paho",  # paho-mqtt (the Sparkplug B edge node)
+    "google",  # protobuf (Sparkplug B payloads)
     "hypothesis",  # a test library: never at run time
 )
 """Top-level packages no command that serves nothing may import."""

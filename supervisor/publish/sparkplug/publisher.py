@@ -1,0 +1,414 @@
+"""The Sparkplug B edge node as the bench sees it: a scan publisher (docs/sparkplug.md).
+
+Two threads of control besides the network's, so that the scan never waits on the broker
+(docs/design.md "Publishing"):
+
+1. the scan's side (``on_scan``): takes the scan's batch of changes (a copy, made at scan
+   end: ``supervisor.publish.changes``) and appends it to a queue; returns at once. A queue
+   that grows past ``queue_max_changes`` (the thread stalls) is folded into one batch with
+   the latest change of each tag: the births stay right, the intermediate values are lost
+   and counted in ``sparkplug.dropped``;
+2. the edge node's thread (``_run``): keeps each published tag's latest state (what a
+   birth carries), sends one NDATA and one DDATA per changed device for what the queue held
+   (every change, each with its acquisition time: at most one message per device per
+   scan), the births after each connection and on a rebirth request, and nothing while
+   disconnected (the births of the next session carry the values; store-and-forward is
+   for later: docs/sparkplug.md).
+
+``bdSeq`` survives restarts (``BdSeqStore``: the bench's retained-state store): each
+CONNECT carries the next one in its will (the NDEATH), so a host application can tell a
+late will of the previous run from the death of this one.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+from google.protobuf.message import DecodeError
+
+from supervisor.core.clock import Clock
+from supervisor.core.gate import ScanGate
+from supervisor.core.threads import run_restarting
+from supervisor.publish.changes import ChangeBatch, ChangeSnapshots, ChangeSource, RawChange
+from supervisor.publish.retain import RetainStore
+from supervisor.publish.sparkplug.mqtt import PahoTransport, Transport
+from supervisor.publish.sparkplug.node import (
+    SEQ_MODULO,
+    Layout,
+    Message,
+    Metric,
+    Session,
+    is_rebirth,
+)
+from supervisor.publish.sparkplug.payload import decode
+from supervisor.tags import Tag, TagDB, TagSpec
+
+__all__ = [
+    "BD_SEQ_KEY",
+    "BdSeqStore",
+    "MemoryBdSeq",
+    "RetainedBdSeq",
+    "SparkplugPublisher",
+    "SparkplugSettings",
+]
+
+log = logging.getLogger(__name__)
+
+BD_SEQ_KEY = "sparkplug"
+"""The retained-state document holding the last CONNECT's bdSeq."""
+STATUS_PERIOD_S = 0.1
+RETRY_S = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class SparkplugSettings:
+    """What the edge node needs (``supervisor.app.sparkplug`` builds it from the I/O map)."""
+
+    host: str
+    port: int
+    group: str
+    edge_node: str
+    keepalive_s: int = 30
+    queue_max_changes: int = 200_000
+
+
+class BdSeqStore(Protocol):
+    def load(self) -> int | None:
+        """The bdSeq of the last CONNECT (None: never connected)."""
+        ...
+
+    def save(self, bd_seq: int) -> None:
+        """Keep ``bd_seq`` (on disk before the CONNECT that carries it)."""
+        ...
+
+
+class MemoryBdSeq:
+    """A bdSeq kept only by this process (a bench without retained state, the tests)."""
+
+    def __init__(self, last: int | None = None) -> None:
+        self.last = last
+
+    def load(self) -> int | None:
+        return self.last
+
+    def save(self, bd_seq: int) -> None:
+        self.last = bd_seq
+
+
+class RetainedBdSeq:
+    """The bdSeq in the bench's retained-state store (``<state_dir>/state.sqlite``)."""
+
+    def __init__(self, store: RetainStore, flush_s: float = 2.0) -> None:
+        self.store = store
+        self.flush_s = flush_s
+
+    def load(self) -> int | None:
+        doc = self.store.read().get(BD_SEQ_KEY) or {}
+        value = doc.get("bd_seq") if isinstance(doc, dict) else None
+        return value if isinstance(value, int) and 0 <= value < SEQ_MODULO else None
+
+    def save(self, bd_seq: int) -> None:
+        self.store.put(BD_SEQ_KEY, {"bd_seq": bd_seq})
+        if not self.store.flush(self.flush_s):  # a SIGKILL right after must not reuse it
+            log.warning("Sparkplug bdSeq %d not yet on disk (%s)", bd_seq, self.store.error)
+
+
+def _status_tags() -> list[TagSpec]:
+    return [
+        TagSpec("sparkplug.connected", "bool", description="Connected to the MQTT broker"),
+        TagSpec("sparkplug.bd_seq", "int", description="bdSeq of the current MQTT session"),
+        TagSpec("sparkplug.messages", "int", description="Sparkplug messages sent"),
+        TagSpec(
+            "sparkplug.dropped",
+            "int",
+            description="Changes not sent: broker unreachable, or the queue folded",
+        ),
+    ]
+
+
+class SparkplugPublisher:
+    """Publishes a bench's tags as a Sparkplug B edge node."""
+
+    name = "sparkplug"
+
+    def __init__(
+        self,
+        db: TagDB,
+        clock: Clock,
+        settings: SparkplugSettings,
+        *,
+        channels: Sequence[str],
+        devices: Sequence[str],
+        bd_seq: BdSeqStore | None = None,
+        changes: ChangeSource | None = None,
+        transport: Callable[[], Transport] | None = None,
+    ) -> None:
+        self.settings = settings
+        self.db = db
+        self.clock = clock
+        self.source: ChangeSource = changes if changes is not None else ChangeSnapshots(db, clock)
+        self.bd_seq_store: BdSeqStore = bd_seq or MemoryBdSeq()
+        self.session = Session(
+            settings.group, settings.edge_node, Layout(tuple(channels), tuple(devices))
+        )
+        self._make_transport = transport or self._paho
+        self.transport: Transport | None = None
+        self._cond = threading.Condition()
+        self._queue: deque[ChangeBatch] = deque()
+        self._queued = 0  # changes in the queue
+        self._idle = False
+        self._stopping = False
+        self._connected = False
+        self._need_birth = False
+        self._thread: threading.Thread | None = None
+        self.metrics: dict[str, Metric] = {}  # the thread's: each tag's latest state
+        self._primed = False  # the metrics hold every tag (the source's first batch came)
+        self.bd_seq = 0
+        self.sent = 0
+        self.dropped = 0
+        self._tags: dict[str, Tag] = {}
+        initial = {"int": 0, "bool": False}
+        for spec in _status_tags():
+            tag = self._tags[spec.name] = db.get(spec.name) or db.add(spec)
+            db.update(tag, initial[spec.dtype])
+        self._status_t = float("-inf")
+        self.gate: ScanGate | None = None
+        """Encode only while the scan is not running (``core/gate.py``; set by the bench)."""
+
+    def _paho(self) -> Transport:
+        s = self.settings
+        return PahoTransport(
+            s.host,
+            s.port,
+            client_id=f"{s.group}:{s.edge_node}",
+            keepalive_s=s.keepalive_s,
+        )
+
+    # --- lifecycle --------------------------------------------------------------------
+    def start(self, *, threaded: bool = True) -> None:
+        """Take the next bdSeq (kept before connecting), connect in the background and
+        start the edge node's thread. Never raises for a broker that is away.
+        ``threaded=False``: no thread, the caller runs each round (``drain``)."""
+        if self.transport is not None:
+            return
+        self._next_bd_seq()
+        self._stopping = False
+        self._queue_every_tag()
+        if threaded:
+            self._thread = threading.Thread(target=self._thread_main, name="sparkplug", daemon=True)
+            self._thread.start()
+        self.transport = self._make_transport()
+        self.transport.start(self._will(), self.session.ncmd_topic, self)
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Send what is queued, publish the NDEATH (a clean stop) and disconnect."""
+        if self.transport is None:
+            return
+        with self._cond:
+            self._stopping = True
+            self._cond.notify_all()
+        thread = self._thread
+        if thread is not None:
+            thread.join(timeout_s)
+            self._thread = None
+        else:
+            self.drain()
+        if self.transport is not None:
+            self.transport.stop(self._will())
+            self.transport = None
+        self._connected = False
+
+    def _queue_every_tag(self) -> None:
+        """Every tag as it is now, as the first batch: what the births carry, whatever
+        scans ran before the start (their batches were not kept)."""
+        clock = self.clock
+        every = [(t, t.value, t.quality, t.reason, t.source_t, t.server_t) for t in self.db]
+        batch = ChangeBatch(every, clock.now(), clock.to_wall(0.0), True)
+        with self._cond:
+            self._queue.clear()
+            self._queue.append(batch)
+            self._queued = len(every)
+
+    def _next_bd_seq(self) -> None:
+        last = self.bd_seq_store.load()
+        self.bd_seq = 0 if last is None else (last + 1) % SEQ_MODULO
+        self.bd_seq_store.save(self.bd_seq)
+
+    def _will(self) -> Message:
+        return self.session.death(self.bd_seq, self._now_ms())
+
+    def _now_ms(self) -> int:
+        return round(self.clock.wall() * 1000)
+
+    # --- the transport's callbacks (its thread) ---------------------------------------
+    def connected(self) -> None:
+        with self._cond:
+            self._connected = True
+            self._need_birth = True
+            self._cond.notify_all()
+
+    def disconnected(self) -> None:
+        with self._cond:
+            self._connected = False
+            stopping = self._stopping
+        if stopping:
+            return
+        # The next CONNECT (paho reconnects by itself) carries the next bdSeq in its will.
+        self._next_bd_seq()
+        if self.transport is not None:
+            self.transport.set_will(self._will())
+
+    def command(self, payload: bytes) -> None:
+        try:
+            ncmd = decode(payload)
+        except DecodeError as exc:
+            log.warning("Sparkplug NCMD on %s: not a payload (%s)", self.session.ncmd_topic, exc)
+            return
+        if is_rebirth(ncmd):
+            log.info("Sparkplug: rebirth requested on %s", self.session.ncmd_topic)
+            with self._cond:
+                self._need_birth = True
+                self._cond.notify_all()
+
+    # --- the scan's side --------------------------------------------------------------
+    def on_scan(self, db: TagDB, t: float) -> None:
+        """At scan end: this scan's changes to the queue; the status tags."""
+        batches = self.source.batches()  # taken in any case: a shared feed keeps them else
+        if self.transport is None:
+            return  # not started (or stopped): ``start`` queues every tag
+        for batch in batches:
+            if not batch.changes and not batch.first:
+                continue
+            with self._cond:
+                self._queue.append(batch)
+                self._queued += len(batch.changes)
+                if self._queued > self.settings.queue_max_changes:
+                    self._fold()
+                if self._idle:
+                    self._cond.notify_all()
+        if self.clock.virtual or t - self._status_t > STATUS_PERIOD_S - 1e-9 or t < self._status_t:
+            self._status_t = t
+            self._publish_status(db)
+
+    def _fold(self) -> None:
+        """The queue as one batch: each tag's latest change (under the lock)."""
+        latest: dict[int, RawChange] = {}
+        first = False
+        for b in self._queue:
+            first = first or b.first
+            for change in b.changes:
+                latest[change[0].index] = change
+        last = self._queue[-1]
+        self.dropped += self._queued - len(latest)
+        self._queue.clear()
+        self._queue.append(ChangeBatch(list(latest.values()), last.now, last.wall_offset, first))
+        self._queued = len(latest)
+
+    def _publish_status(self, db: TagDB) -> None:
+        tags = self._tags
+        db.update(tags["sparkplug.connected"], self._connected)
+        db.update(tags["sparkplug.bd_seq"], self.bd_seq)
+        db.update(tags["sparkplug.messages"], self.sent)
+        db.update(tags["sparkplug.dropped"], self.dropped)
+
+    # --- the edge node's thread -------------------------------------------------------
+    def _thread_main(self) -> None:
+        run_restarting(
+            f"Sparkplug edge node {self.session.edge_node}",
+            self._run,
+            self._crashed,
+            lambda: self._stopping,
+            self._sleep,
+            RETRY_S,
+        )
+
+    def _crashed(self, exc: Exception) -> None:
+        with self._cond:
+            self._need_birth = True  # what the failed round held is in no message: resync
+
+    def _sleep(self, delay_s: float) -> None:
+        with self._cond:
+            if not self._stopping:
+                self._cond.wait(delay_s)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not (self._queue or self._need_birth or self._stopping):
+                    self._idle = True
+                    self._cond.wait()
+                self._idle = False
+                stopping = self._stopping
+            self.drain()
+            if stopping:
+                return
+
+    def drain(self) -> None:
+        """One round with what is queued now (the edge node's thread; a test or a tool
+        without the thread calls it itself)."""
+        with self._cond:
+            batches = list(self._queue)
+            self._queue.clear()
+            self._queued = 0
+        if self.gate is not None:
+            self.gate.wait()  # the scan first: encoding takes the interpreter lock
+        self.step(batches)
+
+    def step(self, batches: Sequence[ChangeBatch]) -> None:
+        """One round: the batches into the metrics, then the births or the data."""
+        changes = self._apply(batches)
+        with self._cond:
+            connected, birth = self._connected, self._need_birth
+        if not connected:
+            # A first batch is every tag (what the next births carry), not changes lost.
+            place = self.session.layout.place
+            self.dropped += sum(
+                place(c[0].spec.name) is not None for b in batches if not b.first for c in b.changes
+            )
+            return
+        if not self._primed:
+            return  # no first batch yet: a birth would announce nothing
+        if not birth and self.session.needs_birth(name for name, _ in changes):
+            birth = True  # a tag added since the births: announce it
+        now_ms = self._now_ms()
+        if birth:
+            with self._cond:
+                self._need_birth = False
+            self._send(self.session.births(self.bd_seq, self.metrics, now_ms))
+        elif changes:
+            self._send(self.session.data(changes, now_ms))
+
+    def _apply(self, batches: Sequence[ChangeBatch]) -> list[tuple[str, Metric]]:
+        metrics = self.metrics
+        place = self.session.layout.place
+        out: list[tuple[str, Metric]] = []
+        for b in batches:
+            if b.first:
+                metrics.clear()
+                self._primed = True
+            offset = b.wall_offset
+            for tag, value, quality, _, t, server_t in b.changes:
+                spec = tag.spec
+                if place(spec.name) is None:
+                    continue  # not published (the edge node's own status)
+                wall_ms = round(((t or server_t) + offset) * 1000)
+                m = Metric(spec.dtype, spec.unit, value, quality, wall_ms)
+                metrics[spec.name] = m
+                out.append((spec.name, m))
+        return out
+
+    def _send(self, messages: list[Message]) -> None:
+        transport = self.transport
+        for message in messages:
+            if transport is not None and transport.publish(message):
+                self.sent += 1
+            else:
+                self.dropped += 1
+                with self._cond:
+                    self._need_birth = self._connected  # a gap: the next round is a birth
+                return
