@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, NoReturn
 
 from supervisor.bench import args as bench_args
-from supervisor.cli import audit, ctl, modbus
+from supervisor.cli import audit, ctl, modbus, notify
 from supervisor.config.limits import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core.encoding import StorableFormatter
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
@@ -986,6 +986,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_record_parsers(sub)
     ctl.add_parser(sub)
     modbus.add_parser(sub)
+    notify.add_parser(sub, DEFAULT_IO_MAP)
 
     bench_args.add_parser(sub).set_defaults(func=cmd_bench)
     return p

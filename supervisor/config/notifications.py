@@ -110,7 +110,7 @@ class _Route(Strict):
         ["alarm", "test_end"], min_length=1, description="Which events: alarm, test_end."
     )
     min_priority: Priority = Field(
-        "low", description="Alarms below this priority are not sent (test ends are low)."
+        "low", description="Alarms below this priority are not sent (test ends pass by `kinds`)."
     )
     channels: list[str] | None = Field(
         None, description="Only events of these channels (and bench-wide ones); null: all."

@@ -20,7 +20,7 @@ from supervisor.notify.delivery import (
     sender_of,
     webhook_request,
 )
-from supervisor.notify.notifier import ALARM_FAILING, Notifier
+from supervisor.notify.notifier import ALARM_FAILING, Notifier, send_test
 from supervisor.notify.router import Notice, Outgoing, Router, message_key
 from supervisor.notify.store import NOTIFY_NAME, NotifyStore, notify_path
 
@@ -40,6 +40,7 @@ __all__ = [
     "message_key",
     "notify_path",
     "payload",
+    "send_test",
     "sender_of",
     "webhook_request",
 ]

@@ -27,12 +27,12 @@ from supervisor.config.notifications import NotificationsConfig
 from supervisor.core.clock import Clock
 from supervisor.core.records import ChainEvent
 from supervisor.notify.delivery import Sender, sender_of
-from supervisor.notify.router import Notice, Outgoing, Router
+from supervisor.notify.router import Notice, Outgoing, Router, message_key
 from supervisor.notify.store import Counts, NotifyStore, Queued, notify_path
 from supervisor.safety.alarms import Alarm, AlarmEvent, AlarmManager, Severity, Transition
 from supervisor.tags import Tag, TagDB, TagSpec
 
-__all__ = ["ALARM_FAILING", "POLL_S", "Notifier"]
+__all__ = ["ALARM_FAILING", "POLL_S", "Notifier", "send_test"]
 
 log = logging.getLogger(__name__)
 
@@ -292,3 +292,29 @@ class Notifier:
         if text and not self.status.failing:
             log.error("%s (%d waiting)", text, self.status.counts.queued)
         self.status.failing = text
+
+
+async def send_test(cfg: NotificationsConfig, bench: str, wall: float) -> dict[str, str | None]:
+    """``supervisor notify test``: one test message through every route, now, without the
+    queue; per route None (delivered) or why not."""
+    results: dict[str, str | None] = {}
+    async with aiohttp.ClientSession() as session:
+        for r in cfg.routes:
+            n = Notice(wall, "test", "notify.test", "", "low", "test message")
+            m = Outgoing(
+                r.name,
+                message_key(bench, r.name, "test", [n]),
+                "test",
+                "low",
+                f"[{bench}] test message of route {r.name}",
+                f"A test of the notification route {r.name} of bench {bench}: if you read"
+                " this, it works.",
+                (n,),
+            )
+            try:
+                await sender_of(r, bench, lambda: session)(m)
+            except Exception as exc:
+                results[r.name] = str(exc) or type(exc).__name__
+            else:
+                results[r.name] = None
+    return results
