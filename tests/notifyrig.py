@@ -118,7 +118,7 @@ class SmtpReceiver:
         self.logins.append((mechanism, user, session.ssl is not None))
         return AuthResult(success=ok, handled=False)  # False: the server says 535
 
-    async def handle_DATA(self, server: Any, session: Any, envelope: Any) -> str:  # noqa: N802
+    async def handle_DATA(self, server: Any, session: Any, envelope: Any) -> str:
         msg = email.message_from_bytes(envelope.content, policy=email.policy.default)
         key = str(msg["Message-ID"]).strip("<>").split("@")[0]
         self.taken.add(key, msg)
