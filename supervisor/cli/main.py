@@ -824,13 +824,15 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _add_record_parsers(sub: Any) -> None:
-    """Register what checks the records: ``supervisor results verify DIR…`` and
-    ``supervisor audit verify|export`` (cli/audit.py)."""
+    """Register what checks the records: ``supervisor results verify DIR…``,
+    ``supervisor audit verify|export`` (cli/audit.py) and ``supervisor notify test``
+    (cli/notify.py: it records its outcome in the audit trail)."""
     rs = sub.add_parser("results", help="result folders: verify DIR (complete and unmodified)")
     rs.add_argument("action", choices=["verify"])
     rs.add_argument("folders", nargs="+", metavar="DIR", help="a test's result folder")
     rs.set_defaults(func=cmd_results)
     audit.add_parser(sub, DEFAULT_IO_MAP)
+    notify.add_parser(sub, DEFAULT_IO_MAP)
 
 
 def _add_opcua_parser(sub: Any) -> None:
@@ -986,7 +988,6 @@ def build_parser() -> argparse.ArgumentParser:
     _add_record_parsers(sub)
     ctl.add_parser(sub)
     modbus.add_parser(sub)
-    notify.add_parser(sub, DEFAULT_IO_MAP)
 
     bench_args.add_parser(sub).set_defaults(func=cmd_bench)
     return p

@@ -18,6 +18,7 @@ import sqlite3
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
@@ -84,6 +85,72 @@ def _quiet(pred: Callable[[], bool], seconds: float) -> None:
         time.sleep(0.1)
 
 
+@dataclass
+class Outage:
+    """What part (b) saw."""
+
+    down_s: float = 0.0
+    queued_at_kill: int = 0
+    failed_at_kill: int = 0
+    queued_after_restart: int = 0
+    drained_s: float = 0.0
+    last_error: str = ""
+
+
+def _estop_is_one_message_per_route(url: str, smtp: SmtpReceiver, hook: WebhookReceiver) -> None:
+    """(a): one summary per route within 5 s, naming the alarms; printed."""
+    _wait("start-up messages sent", lambda: _tag(url, "notify.queued") == 0)
+    time.sleep(SETTLE_S)  # whatever the start raised (none expected) delivered first
+    before = _counts(smtp, hook)
+    one_more = (before[0] + 1, before[1] + 1)
+    pressed = time.monotonic()
+    _http("PUT", f"{url}/sim/estop", {"pressed": True})
+    _wait("one message per route", lambda: _counts(smtp, hook) == one_more, SUMMARY_WITHIN_S)
+    took_s = time.monotonic() - pressed
+    _quiet(lambda: _counts(smtp, hook) == one_more, SETTLE_S)
+    mail = list(smtp.taken.bodies.values())[-1]
+    posted = list(hook.taken.bodies.values())[-1]["body"]
+    alarms = [e["source"] for e in posted["events"]]
+    assert "estop" in alarms, posted
+    body = mail.get_content()
+    assert all(a in body for a in alarms), body
+    _say(
+        f"(a) e-stop → 1 message per route in {took_s:.2f} s (bound {SUMMARY_WITHIN_S:g} s);"
+        f" {len(alarms)} alarms listed: {', '.join(alarms)}; subject {posted['subject']!r}"
+    )
+    _http("PUT", f"{url}/sim/estop", {"pressed": False})
+    _wait("e-stop released", lambda: _tag(url, "estop.ok") is True)
+
+
+def _outage_with_a_kill(
+    p: _Process, url: str, exe: list[str], tmp: Path, smtp: SmtpReceiver, hook: WebhookReceiver
+) -> tuple[_Process, Outage]:
+    """(b): receivers down DOWN_S, the e-stop again, SIGKILL, restart, receivers back,
+    everything drained. Returns the running process (restarted) and what it saw."""
+    seen = Outage()
+    smtp.stop()
+    hook.stop()
+    down_at = time.monotonic()
+    _http("PUT", f"{url}/sim/estop", {"pressed": True})  # a new activation while down
+    _wait("a failed attempt on each route", lambda: int(_tag(url, "notify.retrying")) >= 2)
+    seen.queued_at_kill = int(_tag(url, "notify.queued"))
+    seen.failed_at_kill = int(_tag(url, "notify.failed"))
+    p.kill()
+    p.stop()
+    p, url = _start(exe, tmp)
+    _wait("the queue retried", lambda: int(_tag(url, "notify.retrying")) >= 2)
+    seen.queued_after_restart = int(_tag(url, "notify.queued"))
+    time.sleep(max(0.0, DOWN_S - (time.monotonic() - down_at)))
+    seen.down_s = time.monotonic() - down_at
+    seen.last_error = str(_tag(url, "notify.last_error"))
+    smtp.start()
+    hook.start()
+    back_at = time.monotonic()
+    _wait("every queued message delivered", lambda: _tag(url, "notify.queued") == 0)
+    seen.drained_s = time.monotonic() - back_at
+    return p, seen
+
+
 @pytest.mark.timeout(600)
 def test_estop_summary_per_route_and_a_kill_while_receivers_are_down_loses_none(
     tmp_path: Path,
@@ -91,66 +158,13 @@ def test_estop_summary_per_route_and_a_kill_while_receivers_are_down_loses_none(
     smtp, hook = SmtpReceiver(tmp_path), WebhookReceiver()
     smtp.start()
     hook.start()
-    exe = [
-        sys.executable,
-        "-m",
-        "supervisor.cli.main",
-        "run",
-        str(_bench_map(tmp_path, smtp, hook)),
-    ]
+    bench_map = _bench_map(tmp_path, smtp, hook)
+    exe = [sys.executable, "-m", "supervisor.cli.main", "run", str(bench_map)]
     p: _Process | None = None
     try:
         p, url = _start(exe, tmp_path)
-        # Whatever the start raised (none expected) is delivered before the e-stop.
-        _wait("start-up messages sent", lambda: _tag(url, "notify.queued") == 0)
-        time.sleep(SETTLE_S)
-        before = _counts(smtp, hook)
-
-        # (a) the e-stop: one summary per route, within 5 s, naming the alarms
-        pressed = time.monotonic()
-        _http("PUT", f"{url}/sim/estop", {"pressed": True})
-        _wait(
-            "one message per route",
-            lambda: _counts(smtp, hook) == (before[0] + 1, before[1] + 1),
-            limit_s=SUMMARY_WITHIN_S,
-        )
-        took_s = time.monotonic() - pressed
-        _quiet(lambda: _counts(smtp, hook) == (before[0] + 1, before[1] + 1), SETTLE_S)
-        mail = list(smtp.taken.bodies.values())[-1]
-        posted = list(hook.taken.bodies.values())[-1]["body"]
-        alarms = [e["source"] for e in posted["events"]]
-        assert "estop" in alarms, posted
-        body = mail.get_content()
-        assert all(a in body for a in alarms), body
-        _say(
-            f"(a) e-stop → 1 message per route in {took_s:.2f} s (bound {SUMMARY_WITHIN_S:g} s);"
-            f" {len(alarms)} alarms listed: {', '.join(alarms)}; subject {posted['subject']!r}"
-        )
-        _http("PUT", f"{url}/sim/estop", {"pressed": False})
-        _wait("e-stop released", lambda: _tag(url, "estop.ok") is True)
-
-        # (b) receivers down, alarms raised, the supervisor SIGKILLed and restarted
-        delivered_before = _counts(smtp, hook)
-        smtp.stop()
-        hook.stop()
-        down_at = time.monotonic()
-        _http("PUT", f"{url}/sim/estop", {"pressed": True})  # the e-stop again: new activation
-        _wait("a failed attempt on each route", lambda: int(_tag(url, "notify.retrying")) >= 2)
-        queued_at_kill = int(_tag(url, "notify.queued"))
-        failed_at_kill = int(_tag(url, "notify.failed"))
-        p.kill()
-        p.stop()
-        p, url = _start(exe, tmp_path)
-        _wait("the failing alarm", lambda: int(_tag(url, "notify.retrying")) >= 2)
-        queued_after_restart = int(_tag(url, "notify.queued"))
-        time.sleep(max(0.0, DOWN_S - (time.monotonic() - down_at)))
-        down_s = time.monotonic() - down_at
-        failing = _http("GET", f"{url}/tags/notify.last_error")["value"]
-        smtp.start()
-        hook.start()
-        back_at = time.monotonic()
-        _wait("every queued message delivered", lambda: _tag(url, "notify.queued") == 0)
-        drained_s = time.monotonic() - back_at
+        _estop_is_one_message_per_route(url, smtp, hook)
+        p, seen = _outage_with_a_kill(p, url, exe, tmp_path, smtp, hook)
         p.stop()
         p = None
     finally:
@@ -166,15 +180,14 @@ def test_estop_summary_per_route_and_a_kill_while_receivers_are_down_loses_none(
     assert set(smtp.taken.counts) == stored["mail"]  # every message delivered …
     assert set(hook.taken.counts) == stored["hook"]
     assert smtp.taken.duplicates == 0 and hook.taken.duplicates == 0  # … none twice
-    after = _counts(smtp, hook)
     _say(
-        f"(b) receivers down {down_s:.1f} s, SIGKILL with {queued_at_kill} queued"
-        f" ({failed_at_kill} failed attempts), {queued_after_restart} queued after the restart;"
-        f" back: all delivered in {drained_s:.1f} s; delivered since the receivers stopped:"
-        f" mail {after[0] - delivered_before[0]}, webhook {after[1] - delivered_before[1]};"
-        f" total messages {len(rows)} (mail {after[0]}, webhook {after[1]});"
-        f" duplicates by key: mail {smtp.taken.duplicates}, webhook {hook.taken.duplicates};"
-        f" retried attempts {sum(a - 1 for *_, a in rows)}; last error while down: {failing}"
+        f"(b) receivers down {seen.down_s:.1f} s; SIGKILL with {seen.queued_at_kill} queued"
+        f" ({seen.failed_at_kill} failed attempts); {seen.queued_after_restart} queued after"
+        f" the restart; receivers back: all delivered in {seen.drained_s:.1f} s;"
+        f" messages in all {len(rows)} (mail {smtp.taken.unique}, webhook {hook.taken.unique}),"
+        f" all sent; duplicates by key: mail {smtp.taken.duplicates}, webhook"
+        f" {hook.taken.duplicates}; failed attempts retried {sum(a - 1 for *_, a in rows)};"
+        f" last error while down: {seen.last_error}"
     )
     for posted in hook.taken.bodies.values():
         _say(f"    webhook: {posted['body']['subject']}")
