@@ -94,6 +94,8 @@ class Notifier:
             if r.name not in self.senders:
                 self.senders[r.name] = sender_of(r, bench, self._http)
         self.inbox: deque[Notice] = deque()
+        self._kept: set[str] = set()
+        """The identities of the events the queue keeps for the router (``store.keep``)."""
         self.health = {r.name: _RouteHealth() for r in cfg.routes}
         self.status = _Status()
         self._shown: tuple[object, ...] = ()
@@ -152,6 +154,12 @@ class Notifier:
         await asyncio.to_thread(self.store.open)
         counts = await asyncio.to_thread(self.store.counts)
         self.status.counts = counts
+        kept = await asyncio.to_thread(self.store.kept)
+        for n in kept:  # an open window, quiet hours, escalations: as they were
+            self.router.offer(n)
+        self._kept = {n.identity() for n in kept}
+        if kept:
+            log.info("notifications: %d events of the last run routed again", len(kept))
         if counts.queued:
             log.info(
                 "notifications %s: %d messages waiting from the last run; sending them",
@@ -198,19 +206,28 @@ class Notifier:
     ) -> None:
         """Route the inbox, queue what is due (with ``flush``: every open window), deliver
         what the queue holds that is due at ``wall``."""
+        new: list[Notice] = []
         while self.inbox:
-            self.router.offer(self.inbox.popleft())
+            new.append(self.inbox.popleft())
+        kept = [n for n in new if n.kind != "ack"]
+        if kept:
+            await asyncio.to_thread(self.store.keep, kept)  # before routing: a kill loses none
+            self._kept.update(n.identity() for n in kept)
+        for n in new:
+            self.router.offer(n)
         out = self.router.flush() if flush else self.router.due(wall)
-        if out:
-            await self._enqueue(out, wall)
+        released = self._kept - self.router.held()
+        if out or released:
+            await self._enqueue(out, wall, released)
+            self._kept -= released
         due = await asyncio.to_thread(self.store.due, wall)
         if due:
             await self._deliver(due, wall, budget_s)
         self.status.counts = await asyncio.to_thread(self.store.counts)
         self._check_failing(wall)
 
-    async def _enqueue(self, out: list[Outgoing], wall: float) -> None:
-        new = await asyncio.to_thread(self.store.enqueue, out, wall)
+    async def _enqueue(self, out: list[Outgoing], wall: float, released: set[str]) -> None:
+        new = await asyncio.to_thread(self.store.enqueue, out, wall, released)
         for m in out:
             log.info(
                 "notification %s queued on route %s: %s (%d events, %s)",

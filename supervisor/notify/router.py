@@ -183,6 +183,16 @@ class Router:
             st.window, st.window_end, st.night = [], None, []
         return out
 
+    def held(self) -> set[str]:
+        """The identities of the notices still waiting here (in a window, for the end of
+        quiet hours, for an escalation): what the queue must keep across a restart."""
+        ids: set[str] = set()
+        for st in self.routes.values():
+            ids.update(n.identity() for n in st.window)
+            ids.update(n.identity() for n in st.night)
+            ids.update(n.identity() for n in st.escalations.values())
+        return ids
+
     def next_due(self) -> float | None:
         """The earliest wall time at which ``due`` has something (None: nothing waits but
         quiet hours' notices, which ``due`` checks each time)."""

@@ -17,6 +17,7 @@ import contextlib
 import json
 import sqlite3
 import threading
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -36,6 +37,11 @@ _SCHEMA: Final = (
     " attempts INTEGER NOT NULL DEFAULT 0, next_at REAL NOT NULL,"
     " last_error TEXT NOT NULL DEFAULT '', sent_at REAL)",
     "CREATE INDEX IF NOT EXISTS messages_due ON messages (state, next_at)",
+    # Events routed but not yet in a message (an open flood window, quiet hours, an
+    # escalation's wait): kept so that a SIGKILL loses none of them either.
+    "CREATE TABLE IF NOT EXISTS notices ("
+    " id TEXT PRIMARY KEY, wall REAL NOT NULL, kind TEXT NOT NULL, source TEXT NOT NULL,"
+    " channel TEXT NOT NULL, priority TEXT NOT NULL, text TEXT NOT NULL)",
 )
 
 
@@ -131,26 +137,41 @@ class NotifyStore:
         return self._conn
 
     # --- writes -----------------------------------------------------------------------
-    def enqueue(self, messages: list[Outgoing], now: float) -> int:
-        """Commit ``messages`` (one transaction); how many were new (a key already stored
-        is the same message: kept once)."""
+    def keep(self, notices: list[Notice]) -> None:
+        """Commit events the router now holds (before they are in a message)."""
+        rows = [
+            (n.identity(), n.wall, n.kind, n.source, n.channel, n.priority, n.text) for n in notices
+        ]
+        with self._lock, self._transaction() as db:
+            db.executemany("INSERT OR IGNORE INTO notices VALUES (?, ?, ?, ?, ?, ?, ?)", rows)
+
+    def enqueue(self, messages: list[Outgoing], now: float, released: Iterable[str] = ()) -> int:
+        """Commit ``messages`` and forget the kept events ``released`` (their identities:
+        now in a message, or no longer waited for), in one transaction; how many messages
+        were new (a key already stored is the same message: kept once)."""
         rows = [(m.key, m.route, now, _encode(m), now) for m in messages]
-        with self._lock:
-            db = self._db()
+        with self._lock, self._transaction() as db:
             before = db.total_changes
-            db.execute("BEGIN IMMEDIATE")
-            try:
-                db.executemany(
-                    "INSERT OR IGNORE INTO messages (key, route, created, message, next_at)"
-                    " VALUES (?, ?, ?, ?, ?)",
-                    rows,
-                )
-                db.execute("COMMIT")
-            except BaseException:
-                with contextlib.suppress(sqlite3.Error):
-                    db.execute("ROLLBACK")
-                raise
-            return db.total_changes - before
+            db.executemany(
+                "INSERT OR IGNORE INTO messages (key, route, created, message, next_at)"
+                " VALUES (?, ?, ?, ?, ?)",
+                rows,
+            )
+            new = db.total_changes - before
+            db.executemany("DELETE FROM notices WHERE id = ?", [(i,) for i in released])
+            return new
+
+    @contextlib.contextmanager
+    def _transaction(self) -> Iterator[sqlite3.Connection]:
+        db = self._db()
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            yield db
+            db.execute("COMMIT")
+        except BaseException:
+            with contextlib.suppress(sqlite3.Error):
+                db.execute("ROLLBACK")
+            raise
 
     def sent(self, key: str, now: float) -> None:
         with self._lock:
@@ -173,6 +194,19 @@ class NotifyStore:
             return int(row[0]) if row else 0
 
     # --- reads ------------------------------------------------------------------------
+    def kept(self) -> list[Notice]:
+        """The events kept by the last run, oldest first (a start offers them again)."""
+        with self._lock:
+            rows = (
+                self._db()
+                .execute(
+                    "SELECT wall, kind, source, channel, priority, text FROM notices"
+                    " ORDER BY wall, id"
+                )
+                .fetchall()
+            )
+        return [Notice(float(r[0]), r[1], r[2], r[3], r[4], r[5]) for r in rows]
+
     def due(self, now: float, limit: int = 100) -> list[Queued]:
         """Waiting messages whose next attempt is due, oldest first."""
         with self._lock:

@@ -415,6 +415,33 @@ async def test_on_a_bench_a_test_end_is_one_message_and_an_estop_one_more(
         await bench.shutdown()
 
 
+async def test_a_kill_inside_the_flood_window_loses_no_event_nor_a_pending_escalation(
+    tmp_path: Path,
+) -> None:
+    clock, rx = VirtualClock(), FakeReceiver()
+    cfg = routes_cfg(hook(escalate_after_s=60))
+    n = Notifier(cfg, "sim", clock, tmp_path, senders={"hook": rx})
+    await n.start()
+    n.inbox.append(alarm(clock.wall() - T0, "ch1.overvoltage"))
+    n.inbox.append(alarm(clock.wall() - T0 + 0.5, "ch2.overvoltage"))
+    await n.pump(clock.wall())  # inside the 2 s window: nothing sent yet
+    assert rx.keys == [] and n.store.rows() == []
+    n.store.close()  # a SIGKILL: no stop, the window never closed in this process
+    clock.advance(3.0)
+    again = Notifier(cfg, "sim", clock, tmp_path, senders={"hook": rx})
+    await again.start()
+    await again.pump(clock.wall())
+    (summary,) = again.store.rows()
+    assert rx.keys == [summary["key"]]
+    events = [alarm(0, "ch1.overvoltage"), alarm(0.5, "ch2.overvoltage")]
+    assert summary["key"] == message_key("sim", "hook", "summary", events)  # as unkilled
+    clock.advance(60.0)
+    await again.pump(clock.wall())  # the escalations waited across the kill
+    assert len(rx.keys) == 3
+    assert NotifyStore(notify_path(tmp_path)).open().kept() == []  # nothing left waiting
+    await again.stop()
+
+
 # --- what goes on the wire -----------------------------------------------------------------
 def one_message() -> Outgoing:
     notices = (alarm(0, "ch1.overvoltage", "critical", "ch1"), alarm(0.2, "estop", "critical"))
