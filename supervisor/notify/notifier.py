@@ -95,6 +95,8 @@ class Notifier:
                 self.senders[r.name] = sender_of(r, bench, self._http)
         self.inbox: deque[Notice] = deque()
         self._kept: set[str] = set()
+        self._due_at: float | None = None
+        """When the queue's next message is due (None: nothing waits)."""
         """The identities of the events the queue keeps for the router (``store.keep``)."""
         self.health = {r.name: _RouteHealth() for r in cfg.routes}
         self.status = _Status()
@@ -154,6 +156,7 @@ class Notifier:
         await asyncio.to_thread(self.store.open)
         counts = await asyncio.to_thread(self.store.counts)
         self.status.counts = counts
+        self._due_at = await asyncio.to_thread(self.store.next_at)
         kept = await asyncio.to_thread(self.store.kept)
         for n in kept:  # an open window, quiet hours, escalations: as they were
             self.router.offer(n)
@@ -220,10 +223,15 @@ class Notifier:
         if out or released:
             await self._enqueue(out, wall, released)
             self._kept -= released
-        due = await asyncio.to_thread(self.store.due, wall)
-        if due:
-            await self._deliver(due, wall, budget_s)
-        self.status.counts = await asyncio.to_thread(self.store.counts)
+            if out:
+                self._due_at = wall
+        # The queue is read only when something in it is due (idle: no disk at all).
+        if budget_s is not None or (self._due_at is not None and wall >= self._due_at):
+            due = await asyncio.to_thread(self.store.due, wall)
+            if due:
+                await self._deliver(due, wall, budget_s)
+            self._due_at = await asyncio.to_thread(self.store.next_at)
+            self.status.counts = await asyncio.to_thread(self.store.counts)
         self._check_failing(wall)
 
     async def _enqueue(self, out: list[Outgoing], wall: float, released: set[str]) -> None:
@@ -288,7 +296,7 @@ class Notifier:
         health.error = why
         self.status.failed += 1
         self.status.last_error = f"{route}: {why}"
-        await asyncio.to_thread(self.store.failed, q.message.key, why, wall + wait_s)
+        await asyncio.to_thread(self.store.failed, q.message, why, wall + wait_s)
         log.warning(
             "notification %s on route %s not delivered (attempt %d): %s; next in %g s",
             q.message.key,

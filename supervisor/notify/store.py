@@ -181,16 +181,20 @@ class NotifyStore:
                 (now, key),
             )
 
-    def failed(self, key: str, error: str, next_at: float) -> int:
-        """One more failed attempt; the attempts so far."""
-        with self._lock:
-            db = self._db()
+    def failed(self, m: Outgoing, error: str, next_at: float) -> int:
+        """One more failed attempt of ``m``; its route's waiting messages not before
+        ``next_at`` (the route's backoff); the attempts of ``m`` so far."""
+        with self._lock, self._transaction() as db:
             db.execute(
-                "UPDATE messages SET attempts = attempts + 1, last_error = ?, next_at = ?"
-                " WHERE key = ?",
-                (error[:1000], next_at, key),
+                "UPDATE messages SET attempts = attempts + 1, last_error = ? WHERE key = ?",
+                (error[:1000], m.key),
             )
-            row = db.execute("SELECT attempts FROM messages WHERE key = ?", (key,)).fetchone()
+            db.execute(
+                "UPDATE messages SET next_at = max(next_at, ?)"
+                " WHERE route = ? AND state = 'queued'",
+                (next_at, m.route),
+            )
+            row = db.execute("SELECT attempts FROM messages WHERE key = ?", (m.key,)).fetchone()
             return int(row[0]) if row else 0
 
     # --- reads ------------------------------------------------------------------------
