@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import sqlite3
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
@@ -95,9 +96,12 @@ class Notifier:
                 self.senders[r.name] = sender_of(r, bench, self._http)
         self.inbox: deque[Notice] = deque()
         self._kept: set[str] = set()
+        """The identities of the events the queue keeps for the router (``store.keep``)."""
         self._due_at: float | None = None
         """When the queue's next message is due (None: nothing waits)."""
-        """The identities of the events the queue keeps for the router (``store.keep``)."""
+        self._unqueued: list[Outgoing] = []
+        self._queue_error = ""
+        """Messages the queue could not take yet (a disk error): tried again each round."""
         self.health = {r.name: _RouteHealth() for r in cfg.routes}
         self.status = _Status()
         self._shown: tuple[object, ...] = ()
@@ -212,19 +216,13 @@ class Notifier:
         new: list[Notice] = []
         while self.inbox:
             new.append(self.inbox.popleft())
-        kept = [n for n in new if n.kind != "ack"]
-        if kept:
-            await asyncio.to_thread(self.store.keep, kept)  # before routing: a kill loses none
-            self._kept.update(n.identity() for n in kept)
+        await self._keep([n for n in new if n.kind != "ack"])  # before routing: a kill loses none
         for n in new:
             self.router.offer(n)
-        out = self.router.flush() if flush else self.router.due(wall)
+        out = self._unqueued + (self.router.flush() if flush else self.router.due(wall))
         released = self._kept - self.router.held()
         if out or released:
             await self._enqueue(out, wall, released)
-            self._kept -= released
-            if out:
-                self._due_at = wall
         # The queue is read only when something in it is due (idle: no disk at all).
         if budget_s is not None or (self._due_at is not None and wall >= self._due_at):
             due = await asyncio.to_thread(self.store.due, wall)
@@ -234,8 +232,27 @@ class Notifier:
             self.status.counts = await asyncio.to_thread(self.store.counts)
         self._check_failing(wall)
 
+    async def _keep(self, notices: list[Notice]) -> None:
+        if not notices:
+            return
+        try:
+            await asyncio.to_thread(self.store.keep, notices)
+        except sqlite3.Error as exc:  # routed all the same; only a kill would lose them
+            self._queue_failed(f"events not kept: {exc}")
+            return
+        self._kept.update(n.identity() for n in notices)
+
     async def _enqueue(self, out: list[Outgoing], wall: float, released: set[str]) -> None:
-        new = await asyncio.to_thread(self.store.enqueue, out, wall, released)
+        try:
+            new = await asyncio.to_thread(self.store.enqueue, out, wall, released)
+        except sqlite3.Error as exc:  # kept in memory, tried again next round: never dropped
+            self._unqueued = out
+            self._queue_failed(f"{len(out)} messages not queued: {exc}")
+            return
+        self._unqueued = []
+        self._kept -= released
+        if out:
+            self._due_at = wall
         for m in out:
             log.info(
                 "notification %s queued on route %s: %s (%d events, %s)",
@@ -306,6 +323,13 @@ class Notifier:
             wait_s,
         )
 
+    def _queue_failed(self, why: str) -> None:
+        text = f"notification queue {self.store.path}: {why}"
+        if self.status.last_error != text:
+            log.error("%s; retrying", text)
+        self.status.last_error = text
+        self._queue_error = text
+
     def _check_failing(self, wall: float) -> None:
         failing = [
             f"{name} ({h.failures} attempts: {h.error})"
@@ -313,6 +337,10 @@ class Notifier:
             if h.failures >= self.cfg.failing_after_attempts
             or (h.since is not None and wall - h.since >= self.cfg.failing_after_s)
         ]
+        if self._queue_error and not self._unqueued:
+            self._queue_error = ""  # written again
+        if self._queue_error:
+            failing.append(self._queue_error)
         text = ("Notifications not delivered: " + "; ".join(failing)) if failing else ""
         if text and not self.status.failing:
             log.error("%s (%d waiting)", text, self.status.counts.queued)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import datetime
 import itertools
 import json
+import sqlite3
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -440,6 +441,31 @@ async def test_a_kill_inside_the_flood_window_loses_no_event_nor_a_pending_escal
     assert len(rx.keys) == 3
     assert NotifyStore(notify_path(tmp_path)).open().kept() == []  # nothing left waiting
     await again.stop()
+
+
+async def test_a_queue_that_cannot_be_written_keeps_the_message_alarms_and_catches_up(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    clock, rx = VirtualClock(), FakeReceiver()
+    n, db, alarms = notifier(tmp_path, clock, rx)
+    await n.start()
+    real_enqueue = n.store.enqueue
+
+    def disk_full(*args: object) -> int:
+        raise sqlite3.OperationalError("database or disk is full")
+
+    monkeypatch.setattr(n.store, "enqueue", disk_full)
+    alarms.set(alarms.declare("ch1.overvoltage"), True, "over")
+    await steps(n, clock, db, 5)
+    assert rx.keys == [] and alarms[ALARM_FAILING].active
+    assert "disk is full" in alarms[ALARM_FAILING].message
+    monkeypatch.setattr(n.store, "enqueue", real_enqueue)
+    await steps(n, clock, db, 1)
+    # Both kept in memory meanwhile: the alarm's message, and notify.failing's own
+    assert len(rx.keys) == 2 and not alarms[ALARM_FAILING].active
+    stored = {r["key"] for r in n.store.rows() if r["state"] == "sent"}
+    assert stored == set(rx.keys)
+    await n.stop()
 
 
 # --- what goes on the wire -----------------------------------------------------------------
