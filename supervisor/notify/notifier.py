@@ -26,6 +26,7 @@ import aiohttp
 from supervisor.chains.states import FINAL
 from supervisor.config.notifications import NotificationsConfig
 from supervisor.core.clock import Clock
+from supervisor.core.driver import Value
 from supervisor.core.records import ChainEvent
 from supervisor.notify.delivery import Sender, sender_of
 from supervisor.notify.router import Notice, Outgoing, Router, message_key
@@ -52,6 +53,20 @@ _STATUS_TAGS: Final = (
 )
 
 
+_INITIAL: Final[dict[str, Value]] = {"int": 0, "bool": False, "str": ""}
+
+
+def _route_tags(routes: list[str]) -> list[TagSpec]:
+    """Per route: its waiting messages and whether it is failing (``notify.failing``'s rule)."""
+    specs: list[TagSpec] = []
+    for r in routes:
+        specs.append(TagSpec(f"notify.route.{r}.queued", "int", description=f"Waiting on {r}"))
+        specs.append(
+            TagSpec(f"notify.route.{r}.failing", "bool", description=f"Route {r} keeps failing")
+        )
+    return specs
+
+
 @dataclass
 class _RouteHealth:
     failures: int = 0  # consecutive failed attempts
@@ -66,6 +81,7 @@ class _Status:
     failed: int = 0
     last_error: str = ""
     failing: str = ""  # the alarm's message; "" when no route is failing
+    failing_routes: frozenset[str] = frozenset()
 
 
 class Notifier:
@@ -107,9 +123,9 @@ class Notifier:
         self._shown: tuple[object, ...] = ()
         self._tags: dict[str, Tag] = {}
         if db is not None:
-            for spec in _STATUS_TAGS:
+            for spec in (*_STATUS_TAGS, *_route_tags([r.name for r in cfg.routes])):
                 tag = self._tags[spec.name] = db.get(spec.name) or db.add(spec)
-                db.update(tag, "" if spec.dtype == "str" else 0)
+                db.update(tag, _INITIAL[spec.dtype])  # never None, before the first scan too
         self._alarms = alarms
         self._failing: Alarm | None = None
         if alarms is not None:
@@ -141,16 +157,21 @@ class Notifier:
     def on_scan(self, db: TagDB, t: float) -> None:
         """At scan end: the counts into the tags, the alarm raised or cleared."""
         s = self.status
-        shown = (s.counts, s.failed, s.last_error, s.failing)
+        shown = (s.counts, s.failed, s.last_error, s.failing, s.failing_routes)
         if shown == self._shown:
             return
         self._shown = shown
         if self._tags:
-            db.update(self._tags["notify.queued"], s.counts.queued)
-            db.update(self._tags["notify.retrying"], s.counts.retrying)
-            db.update(self._tags["notify.sent"], s.counts.sent)
-            db.update(self._tags["notify.failed"], s.failed)
-            db.update(self._tags["notify.last_error"], s.last_error)
+            tags = self._tags
+            db.update(tags["notify.queued"], s.counts.queued)
+            db.update(tags["notify.retrying"], s.counts.retrying)
+            db.update(tags["notify.sent"], s.counts.sent)
+            db.update(tags["notify.failed"], s.failed)
+            db.update(tags["notify.last_error"], s.last_error)
+            queued = dict(s.counts.queued_by_route)
+            for r in self.cfg.routes:
+                db.update(tags[f"notify.route.{r.name}.queued"], queued.get(r.name, 0))
+                db.update(tags[f"notify.route.{r.name}.failing"], r.name in s.failing_routes)
         if self._alarms is not None and self._failing is not None:
             self._alarms.set(self._failing, bool(s.failing), s.failing)
 
@@ -331,11 +352,17 @@ class Notifier:
         self._queue_error = text
 
     def _check_failing(self, wall: float) -> None:
-        failing = [
-            f"{name} ({h.failures} attempts: {h.error})"
+        routes = frozenset(
+            name
             for name, h in self.health.items()
             if h.failures >= self.cfg.failing_after_attempts
             or (h.since is not None and wall - h.since >= self.cfg.failing_after_s)
+        )
+        self.status.failing_routes = routes
+        failing = [
+            f"{name} ({h.failures} attempts: {h.error})"
+            for name, h in self.health.items()
+            if name in routes
         ]
         if self._queue_error and not self._unqueued:
             self._queue_error = ""  # written again

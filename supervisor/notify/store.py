@@ -66,6 +66,7 @@ class Counts:
     retrying: int  # waiting after at least one failed attempt
     sent: int  # delivered (the file's total)
     oldest_wait_created: float | None  # when the oldest waiting message was enqueued
+    queued_by_route: tuple[tuple[str, int], ...] = ()  # (route, waiting) for routes with any
 
 
 def _encode(m: Outgoing) -> str:
@@ -248,7 +249,12 @@ class NotifyStore:
                 )
                 .fetchone()
             )
-        return Counts(int(row[0]), int(row[1]), int(row[2]), row[3])
+            by_route = self._db().execute(
+                "SELECT route, count(*) FROM messages WHERE state = 'queued'"
+                " GROUP BY route ORDER BY route"
+            )
+            routes = tuple((str(r), int(n)) for r, n in by_route)
+        return Counts(int(row[0]), int(row[1]), int(row[2]), row[3], routes)
 
     def rows(self) -> list[dict[str, Any]]:
         """Every message with its state (tests, diagnostics)."""

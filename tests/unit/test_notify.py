@@ -311,6 +311,8 @@ async def test_failed_deliveries_back_off_are_counted_alarmed_and_delivered_once
     row = n.store.rows()[0]
     assert row["state"] == "queued" and row["attempts"] == 1
     assert db["notify.queued"].value == 1 and db["notify.retrying"].value == 1
+    assert db["notify.route.hook.queued"].value == 1
+    assert db["notify.route.hook.failing"].value is False  # one attempt only
     attempt_times: list[float] = []
     while rx.attempts < 6:
         before = rx.attempts
@@ -321,6 +323,7 @@ async def test_failed_deliveries_back_off_are_counted_alarmed_and_delivered_once
     gaps = [round(b - a, 1) for a, b in itertools.pairwise(attempt_times)]
     assert gaps == [2.0, 4.0, 8.0, 8.0]  # doubled each time, capped at retry_max_s
     assert alarms[ALARM_FAILING].active  # 3 attempts
+    assert db["notify.route.hook.failing"].value is True
     assert "hook (" in alarms[ALARM_FAILING].message
     assert db["notify.failed"].value == 6
     assert "connection refused" in str(db["notify.last_error"].value)
@@ -328,6 +331,8 @@ async def test_failed_deliveries_back_off_are_counted_alarmed_and_delivered_once
     await steps(n, clock, db, 10)
     assert len(rx.keys) >= 1 and len(rx.keys) == len(set(rx.keys))  # none twice
     assert db["notify.queued"].value == 0 and db["notify.sent"].value == len(rx.keys)
+    assert db["notify.route.hook.queued"].value == 0
+    assert db["notify.route.hook.failing"].value is False
     assert not alarms[ALARM_FAILING].active
     await n.stop()
 
