@@ -206,10 +206,14 @@ def build_supervisor(
     bench: Bench | None = None
     try:
         bench = build_bench(cfg, clock or RealClock(), simulate=simulate)
+        # Its notify.* tags and alarm exist before the history, the retained state and
+        # the servers list the bench's tags and alarms.
+        notifier = build_notifier(bench)
         bench.audit = open_audit(bench)  # before any command: the I/O map's load first
         restored = bench.retain()
         bench.record_history()
         sup = _serve_bench(cfg, bench, restored, http_port)
+        sup.notifier = notifier
     except BaseException:
         if bench is not None and bench.retention is not None:
             bench.retention.close()
@@ -261,9 +265,7 @@ def _serve_bench(
         from supervisor.app.modbus import build_modbus
 
         modbus = build_modbus(bench)
-    return Supervisor(
-        bench, api, screens, opcua, recipes, restored, modbus=modbus, notifier=build_notifier(bench)
-    )
+    return Supervisor(bench, api, screens, opcua, recipes, restored, modbus=modbus)
 
 
 def _recipes_config(cfg: BenchConfig, bench: Bench) -> RecipesConfig:
