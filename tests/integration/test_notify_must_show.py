@@ -26,7 +26,14 @@ import pytest
 import yaml
 from notifyrig import PASSWORD, SmtpReceiver, WebhookReceiver, routes
 
-from supervisor.bench.killrestart import _connected, _http, _Process, _wait, kill_restart_map
+from supervisor.bench.killrestart import (
+    _connected,
+    _http,
+    _in_state,
+    _Process,
+    _wait,
+    kill_restart_map,
+)
 from supervisor.notify import NOTIFY_NAME
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -36,6 +43,8 @@ DOWN_S = 60.0
 """How long the receivers are down (the issue's figure)."""
 SUMMARY_WITHIN_S = 5.0
 """The issue's bound for the e-stop's summary (the flood window is 2 s)."""
+RECIPE = "recipe: rest\nsteps:\n  - {id: rest, rest: 10 min}\n"
+"""A test for the e-stop to abort (its end is one more event of the summary)."""
 SETTLE_S = 3.0
 """After the summary: long enough for a second message to show up if there were one."""
 
@@ -97,8 +106,16 @@ class Outage:
     last_error: str = ""
 
 
-def _estop_is_one_message_per_route(url: str, smtp: SmtpReceiver, hook: WebhookReceiver) -> None:
-    """(a): one summary per route within 5 s, naming the alarms; printed."""
+def _estop_is_one_message_per_route(
+    url: str, tmp: Path, smtp: SmtpReceiver, hook: WebhookReceiver
+) -> None:
+    """(a): a test running on ch4, the e-stop pressed: it trips and aborts the test; one
+    summary per route within 5 s, naming the alarm and the test's end; printed."""
+    recipe = tmp / "rest.yaml"
+    recipe.write_text(RECIPE, encoding="utf-8")
+    _http("PUT", f"{url}/channels/ch4/recipe", {"file": str(recipe)})
+    _http("PUT", f"{url}/tags/ch4.command", {"value": "start"})
+    _wait("Running", partial(_in_state, url, ("Running",)))
     _wait("start-up messages sent", lambda: _tag(url, "notify.queued") == 0)
     time.sleep(SETTLE_S)  # whatever the start raised (none expected) delivered first
     before = _counts(smtp, hook)
@@ -110,13 +127,14 @@ def _estop_is_one_message_per_route(url: str, smtp: SmtpReceiver, hook: WebhookR
     _quiet(lambda: _counts(smtp, hook) == one_more, SETTLE_S)
     mail = list(smtp.taken.bodies.values())[-1]
     posted = list(hook.taken.bodies.values())[-1]["body"]
-    alarms = [e["source"] for e in posted["events"]]
-    assert "estop" in alarms, posted
+    events = [f"{e['kind']} {e['source']}" for e in posted["events"]]
+    assert posted["kind"] == "summary" and "alarm estop" in events, posted
+    assert "test_end ch4" in events, posted  # the e-stop aborted the test
     body = mail.get_content()
-    assert all(a in body for a in alarms), body
+    assert all(e["text"] in body for e in posted["events"]), body
     _say(
         f"(a) e-stop → 1 message per route in {took_s:.2f} s (bound {SUMMARY_WITHIN_S:g} s);"
-        f" {len(alarms)} alarms listed: {', '.join(alarms)}; subject {posted['subject']!r}"
+        f" {len(events)} events listed: {', '.join(events)}; subject {posted['subject']!r}"
     )
     _http("PUT", f"{url}/sim/estop", {"pressed": False})
     _wait("e-stop released", lambda: _tag(url, "estop.ok") is True)
@@ -163,7 +181,7 @@ def test_estop_summary_per_route_and_a_kill_while_receivers_are_down_loses_none(
     p: _Process | None = None
     try:
         p, url = _start(exe, tmp_path)
-        _estop_is_one_message_per_route(url, smtp, hook)
+        _estop_is_one_message_per_route(url, tmp_path, smtp, hook)
         p, seen = _outage_with_a_kill(p, url, exe, tmp_path, smtp, hook)
         p.stop()
         p = None
