@@ -28,6 +28,7 @@ from supervisor.app.bench import Bench, build_bench
 from supervisor.app.descriptors import http_limits
 from supervisor.app.hmi import build_screens
 from supervisor.app.lock import BenchLock, BenchLockFailed
+from supervisor.app.notify import build_notifier
 from supervisor.app.preview import previews_of
 from supervisor.commands import Command, Result, Verb
 from supervisor.config.models import BenchConfig
@@ -40,6 +41,7 @@ from supervisor.hmi.screens import Screens
 from supervisor.hmi.tests_api import TestsConfig
 
 if TYPE_CHECKING:
+    from supervisor.notify import Notifier
     from supervisor.publish.modbus.server import ModbusServer
     from supervisor.publish.opcua import OpcUaProcess, OpcUaServer
 
@@ -75,6 +77,8 @@ class Supervisor:
     _starter: asyncio.Task[None] | None = field(default=None, repr=False)
     modbus: ModbusServer | None = None
     """When the I/O map has a ``modbus_server:`` section (app/modbus.py, ADR 0032)."""
+    notifier: Notifier | None = None
+    """When the I/O map has a ``notifications:`` section (app/notify.py)."""
 
     async def load(
         self, channel: str, recipe: str, parameters: dict[str, str] | None = None
@@ -100,6 +104,8 @@ class Supervisor:
             if modbus is not None:
                 await modbus.start()
             await bench.start()
+            if self.notifier is not None:
+                await self.notifier.start()  # the queue left by the last run is sent first
         except OSError:
             await bench.shutdown()
             if modbus is not None:
@@ -142,6 +148,9 @@ class Supervisor:
         if self.modbus is not None:
             self.modbus.closing()
         unconfirmed = await bench.shutdown()
+        if self.notifier is not None:
+            # After the outputs are safe: the stop's own alarms are queued, not lost.
+            await self.notifier.stop()
         if opcua is not None:
             await opcua.stop()
         if self.modbus is not None:
@@ -197,10 +206,14 @@ def build_supervisor(
     bench: Bench | None = None
     try:
         bench = build_bench(cfg, clock or RealClock(), simulate=simulate)
+        # Its notify.* tags and alarm exist before the history, the retained state and
+        # the servers list the bench's tags and alarms.
+        notifier = build_notifier(bench)
         bench.audit = open_audit(bench)  # before any command: the I/O map's load first
         restored = bench.retain()
         bench.record_history()
         sup = _serve_bench(cfg, bench, restored, http_port)
+        sup.notifier = notifier
     except BaseException:
         if bench is not None and bench.retention is not None:
             bench.retention.close()

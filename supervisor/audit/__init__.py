@@ -8,7 +8,8 @@ entries (``Query``) for the export and the HTTP API.
 
 Kinds recorded (``KINDS``): ``command.<verb>`` (every command of the command path,
 accepted or refused), ``login``, ``login.failed``, ``login.refused``, ``logout``,
-``recipe.save``, ``io_map.load``, ``calibration.write``, ``user.add``, ``user.remove``.
+``recipe.save``, ``io_map.load``, ``calibration.write``, ``user.add``, ``user.remove``,
+``notify.test``.
 """
 
 from supervisor.audit.chain import GENESIS, Broken, Entry, canonical_json, utc_of_iso, utc_text
@@ -36,6 +37,7 @@ KINDS = (
     "calibration.write",
     "user.add",
     "user.remove",
+    "notify.test",
 )
 """The kinds (and kind families: ``command`` is ``command.<verb>``) the product records."""
 

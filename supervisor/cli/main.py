@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, NoReturn
 
 from supervisor.bench import args as bench_args
-from supervisor.cli import audit, ctl, modbus
+from supervisor.cli import audit, ctl, modbus, notify
 from supervisor.config.limits import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core.encoding import StorableFormatter
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
@@ -824,13 +824,15 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _add_record_parsers(sub: Any) -> None:
-    """Register what checks the records: ``supervisor results verify DIR…`` and
-    ``supervisor audit verify|export`` (cli/audit.py)."""
+    """Register what checks the records: ``supervisor results verify DIR…``,
+    ``supervisor audit verify|export`` (cli/audit.py) and ``supervisor notify test``
+    (cli/notify.py: it records its outcome in the audit trail)."""
     rs = sub.add_parser("results", help="result folders: verify DIR (complete and unmodified)")
     rs.add_argument("action", choices=["verify"])
     rs.add_argument("folders", nargs="+", metavar="DIR", help="a test's result folder")
     rs.set_defaults(func=cmd_results)
     audit.add_parser(sub, DEFAULT_IO_MAP)
+    notify.add_parser(sub, DEFAULT_IO_MAP)
 
 
 def _add_opcua_parser(sub: Any) -> None:

@@ -39,6 +39,8 @@ from supervisor.config.limits import (
     RECIPE_CHECK_WORKERS,
     RECIPE_COMPILE_TIMEOUT_S,
 )
+from supervisor.config.notifications import NotificationsConfig
+from supervisor.config.secrets import read_secret_file
 from supervisor.core.driver import PointInfo
 
 NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
@@ -977,24 +979,7 @@ class InfluxConfig(Strict):
 
 
 def _read_token_file(path: str) -> str:
-    try:
-        with open(path, "rb") as f:  # noqa: PTH123 - bounded read below
-            data = f.read(INFLUX_TOKEN_CHARS + 1)
-    except FileNotFoundError:
-        raise ValueError(f"token file {path!r} not found") from None
-    except OSError as exc:
-        raise ValueError(f"token file {path!r} cannot be read: {exc.strerror or exc}") from None
-    if len(data) > INFLUX_TOKEN_CHARS:
-        raise ValueError(f"token file {path!r} is longer than {INFLUX_TOKEN_CHARS} bytes")
-    try:
-        text = data.decode("utf-8").strip()
-    except UnicodeDecodeError:
-        raise ValueError(f"token file {path!r} is not UTF-8 text") from None
-    if not text:
-        raise ValueError(f"token file {path!r} is empty")
-    if any(c in text for c in "\r\n"):
-        raise ValueError(f"token file {path!r} holds more than one line")
-    return text
+    return read_secret_file(path, "token file")
 
 
 SPARKPLUG_ID_PATTERN: Final = r"^[^/+#\s]+$"
@@ -1120,6 +1105,10 @@ class BenchConfig(Strict):
     sparkplug: SparkplugConfig | None = Field(
         None, description="Publish as a Sparkplug B edge node over MQTT (off when absent)."
     )
+    notifications: NotificationsConfig | None = Field(
+        None,
+        description="Alarms and test ends sent by e-mail and webhooks (docs/notifications.md).",
+    )
 
     device_kinds: ClassVar[tuple[type[DeviceConfig], ...]] = ()
     """The device models this bench model accepts (set by ``bench_model``)."""
@@ -1151,6 +1140,20 @@ class BenchConfig(Strict):
                 f"opcua.recipes_dir {old!r} and recipes.folders {self.recipes.folders} disagree:"
                 " keep recipes.folders only"
             )
+        return self
+
+    @model_validator(mode="after")
+    def _notified_channels(self) -> BenchConfig:
+        if self.notifications is None:
+            return self
+        known = {c.name for c in self.channels}
+        for route in self.notifications.routes:
+            unknown = sorted(set(route.channels or ()) - known)
+            if unknown:
+                raise ValueError(
+                    f"notifications route {route.name}: no channel named {', '.join(unknown)}"
+                    f" (channels: {', '.join(sorted(known)) or 'none'})"
+                )
         return self
 
     @property
