@@ -1,0 +1,123 @@
+// The Alarms screen's journal (issue 34): every transition of the alarm model searched by
+// time, channel, alarm, actor and transition (GET /api/alarms/journal, docs/alarms.md), the
+// newest first on screen, and the same search as a CSV download (format=csv).
+import { get } from "../api.js";
+import { esc, fmtTime } from "../dom.js";
+import { t, tValue } from "../i18n.js";
+import { priorityIcon, priorityOf } from "../priority.js";
+
+const TRANSITIONS = ["activated", "cleared", "acknowledged", "reset", "shelved", "unshelved", "silenced"];
+const DAY_S = 86400;
+export const BENCH_CHANNEL = "-"; // the select's value for the bench's own alarms (channel=)
+const SEVERITY = { low: 1, medium: 2, high: 3, critical: 4 }; // Severity's numbers
+
+/** A time as an <input type="datetime-local"> holds it (local time, seconds). */
+export function localInput(unixS) {
+  const d = new Date(unixS * 1000);
+  const p = (n) => String(n).padStart(2, "0");
+  return `${d.getFullYear()}-${p(d.getMonth() + 1)}-${p(d.getDate())}T${p(d.getHours())}:${p(d.getMinutes())}:${p(d.getSeconds())}`;
+}
+
+/** An <input type="datetime-local">'s value as Unix seconds (its time is local), or "". */
+export function unixOfInput(value) {
+  if (!value) return "";
+  const ms = new Date(value).getTime();
+  return Number.isFinite(ms) ? String(Math.floor(ms / 1000)) : "";
+}
+
+export function journalHtml(app) {
+  const tx = (k, p) => esc(t(k, p));
+  const channels = (app.bench?.channels || []).map((c) => `<option value="${esc(c.name)}">${esc(c.name)}</option>`).join("");
+  const transitions = TRANSITIONS.map((v) => `<option value="${v}">${esc(tValue("transition", v))}</option>`).join("");
+  const alarms = Array.from(new Set((app.live.alarms || []).map((a) => a.id)))
+    .sort()
+    .map((id) => `<option value="${esc(id)}"></option>`)
+    .join("");
+  return `<section class="panel journal" id="alarm-journal" aria-labelledby="alarm-journal-title">
+    <h2 id="alarm-journal-title">${tx("journal.title")}</h2>
+    <form id="journal-form" class="filters">
+      <label>${tx("journal.since")} <input type="datetime-local" step="1" id="journal-since" name="since"></label>
+      <label>${tx("journal.until")} <input type="datetime-local" step="1" id="journal-until" name="until"></label>
+      <label>${tx("journal.channel")} <select id="journal-channel" name="channel">
+        <option value="">${tx("journal.anyChannel")}</option><option value="${BENCH_CHANNEL}">${tx("alarms.bench")}</option>${channels}</select></label>
+      <label>${tx("journal.alarm")} <input id="journal-alarm" name="alarm" list="journal-alarm-ids" autocomplete="off" size="14" translate="no"></label>
+      <datalist id="journal-alarm-ids">${alarms}</datalist>
+      <label>${tx("journal.actor")} <input id="journal-actor" name="actor" autocomplete="off" size="14" placeholder="hmi:…" translate="no"></label>
+      <label>${tx("journal.transition")} <select id="journal-transition" name="transition"><option value="">${tx("journal.anyTransition")}</option>${transitions}</select></label>
+      <span class="filter-actions"><button type="submit" id="journal-search" class="primary">${tx("journal.search")}</button>
+      <a id="journal-export" class="button-link" href="/api/alarms/journal?format=csv" download="alarm-journal.csv">${tx("journal.export")}</a></span>
+    </form>
+    <p id="journal-count" class="muted" role="status" aria-live="polite"></p>
+    <div id="journal-results"></div></section>`;
+}
+
+/** The journal's query string of the form's filters (without format). */
+export function journalQuery(form) {
+  const q = new URLSearchParams();
+  const v = (name) => form.elements[name].value.trim();
+  const since = unixOfInput(v("since"));
+  const until = unixOfInput(v("until"));
+  if (since) q.set("since", since);
+  if (until) q.set("until", until);
+  const channel = v("channel");
+  if (channel) q.set("channel", channel === BENCH_CHANNEL ? "" : channel);
+  for (const name of ["alarm", "actor", "transition"]) if (v(name)) q.set(name, v(name));
+  return q;
+}
+
+function row(e) {
+  const severity = SEVERITY[e.priority] ?? 0;
+  const name = severity ? priorityOf(severity).name : e.priority;
+  return `<tr data-alarm="${esc(e.alarm)}" data-transition="${esc(e.transition)}">
+    <td class="time">${esc(fmtTime(e.time))}</td>
+    <td class="prio-cell">${severity ? priorityIcon(severity) : ""} <span class="prio-name">${esc(tValue("priority", name))}</span></td>
+    <td><span class="alarm-id" translate="no">${esc(e.alarm).replace(/([._])/g, "$1<wbr>")}</span><div class="muted">${esc(e.channel || t("alarms.bench"))}</div></td>
+    <td>${esc(tValue("transition", e.transition))}</td>
+    <td class="wrap">${esc(e.message)}</td>
+    <td translate="no">${esc(e.actor)}</td></tr>`;
+}
+
+function table(entries) {
+  const cols = ["time", "priority", "alarm", "transition", "message", "by"];
+  const head = cols.map((c) => `<th scope="col">${esc(t(`alarms.col.${c}`))}</th>`).join("");
+  const rows = entries.slice().reverse().map(row).join("");
+  return `<table class="grid alarms" id="journal-table"><caption class="sr-only">${esc(t("journal.title"))}</caption><thead><tr>${head}</tr></thead><tbody>${rows}</tbody></table>`;
+}
+
+/** Wire the form: a search on submit (and one now, the last 24 h); the export link is
+ * always the search on screen, as CSV. */
+export function bindJournal(root, app) {
+  const form = root.querySelector("#journal-form");
+  const out = root.querySelector("#journal-results");
+  const status = root.querySelector("#journal-count");
+  const link = root.querySelector("#journal-export");
+  form.elements.since.value = localInput(Math.floor(Date.now() / 1000) - DAY_S);
+  let gen = 0;
+  const search = async () => {
+    const q = journalQuery(form);
+    const mine = ++gen;
+    root.querySelector("#alarm-journal").setAttribute("aria-busy", "true");
+    const answer = await get(`/api/alarms/journal?${q}`);
+    if (mine !== gen) return;
+    root.querySelector("#alarm-journal").removeAttribute("aria-busy");
+    q.set("format", "csv");
+    link.href = `/api/alarms/journal?${q}`;
+    if (!answer.ok) {
+      status.className = "refused";
+      status.textContent = t("journal.refused", { reason: answer.data?.reason || `HTTP ${answer.status}` });
+      out.innerHTML = "";
+      return;
+    }
+    const d = answer.data;
+    status.className = "muted";
+    status.textContent = `${t("journal.count", { n: d.count, count: d.count })}${d.truncated ? ` ${t("journal.truncated")}` : ""}`;
+    root.querySelector("#alarm-journal").dataset.searched = String(mine);
+    out.innerHTML = d.entries.length ? table(d.entries) : `<p class="muted" id="journal-none">${esc(t("journal.none"))}</p>`;
+  };
+  form.addEventListener("submit", (ev) => {
+    ev.preventDefault();
+    search();
+  });
+  search();
+  return { search };
+}
