@@ -4,12 +4,11 @@
 import { get } from "../api.js";
 import { esc, fmtTime } from "../dom.js";
 import { t, tValue } from "../i18n.js";
-import { priorityIcon, priorityOf } from "../priority.js";
+import { PRIORITIES, priorityIcon } from "../priority.js";
 
 const TRANSITIONS = ["activated", "cleared", "acknowledged", "reset", "shelved", "unshelved", "silenced"];
 const DAY_S = 86400;
 export const BENCH_CHANNEL = "-"; // the select's value for the bench's own alarms (channel=)
-const SEVERITY = { low: 1, medium: 2, high: 3, critical: 4 }; // Severity's numbers
 
 /** A time as an <input type="datetime-local"> holds it (local time, seconds). */
 export function localInput(unixS) {
@@ -66,11 +65,11 @@ export function journalQuery(form) {
 }
 
 function row(e) {
-  const severity = SEVERITY[e.priority] ?? 0;
-  const name = severity ? priorityOf(severity).name : e.priority;
-  return `<tr data-alarm="${esc(e.alarm)}" data-transition="${esc(e.transition)}">
+  // (the journal names the priority: "critical", or a number the supervisor has no name for)
+  const known = PRIORITIES.some((p) => p.name === e.priority);
+  return `<tr data-alarm="${esc(e.alarm)}" data-transition="${esc(e.transition)}" data-priority="${esc(e.priority)}">
     <td class="time">${esc(fmtTime(e.time))}</td>
-    <td class="prio-cell">${severity ? priorityIcon(severity) : ""} <span class="prio-name">${esc(tValue("priority", name))}</span></td>
+    <td class="prio-cell">${known ? priorityIcon(e.priority) : ""} <span class="prio-name">${esc(tValue("priority", e.priority))}</span></td>
     <td><span class="alarm-id" translate="no">${esc(e.alarm).replace(/([._])/g, "$1<wbr>")}</span><div class="muted">${esc(e.channel || t("alarms.bench"))}</div></td>
     <td>${esc(tValue("transition", e.transition))}</td>
     <td class="wrap">${esc(e.message)}</td>
