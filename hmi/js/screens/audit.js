@@ -30,10 +30,16 @@ const timeOf = (iso) => {
   return Number.isFinite(ms) ? fmtTime(ms / 1000) : iso;
 };
 
+const MAX_DETAILS = 300; // characters shown (a recipe's diff is in the export, whole)
+
+/** An entry's details for the eye: "name: value" pairs (a value that is no text as
+ * JSON), cut past MAX_DETAILS; the export keeps them exact. */
 function details(value) {
   if (value === null || value === undefined || value === "") return "";
-  const text = typeof value === "string" ? value : JSON.stringify(value);
-  return text.length > 300 ? `${text.slice(0, 300)}…` : text;
+  const json = (v) => (typeof v === "string" ? v : JSON.stringify(v));
+  const isObject = typeof value === "object" && !Array.isArray(value);
+  const text = isObject ? Object.entries(value).map(([k, v]) => `${k}: ${json(v)}`).join(" · ") : json(value);
+  return text.length > MAX_DETAILS ? `${text.slice(0, MAX_DETAILS)}…` : text;
 }
 
 function row(e) {
