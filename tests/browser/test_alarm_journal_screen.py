@@ -184,3 +184,24 @@ def test_the_journal_and_the_panel_fit_an_800_px_tablet(
     for sel in ("#journal-form", "#journal-table", "#kpi-figures", "#kpi-top-table"):
         box = page.locator(sel).bounding_box()
         assert box["x"] >= 0 and box["x"] + box["width"] <= TABLET["width"], (sel, box)
+
+
+def test_a_french_journal_says_the_alarms_text_in_french(
+    browser: Any, acknowledged: Supervisor
+) -> None:
+    ctx = browser.new_context(locale="fr-FR")
+    ctx.set_default_timeout(15_000)
+    try:
+        page = ctx.new_page()
+        login(page, acknowledged, "operator", "#/alarms")
+        page.wait_for_selector("#journal-table tr[data-alarm='estop']")
+        assert page.text_content("#alarm-journal h2") == "Journal"
+        assert page.text_content("#journal-export") == "Exporter en CSV"
+        cell = "#journal-table tr[data-alarm='estop'][data-transition='acknowledged'] td.wrap"
+        # The journal carries the supervisor's English text; the alarm the page knows by
+        # its code says it in French.
+        assert (page.text_content(cell) or "").startswith("Arrêt d'urgence enfoncé")
+        transition = "#journal-table tr[data-transition='acknowledged'] td:nth-child(4)"
+        assert page.text_content(transition) == "acquittement"
+    finally:
+        ctx.close()

@@ -2,8 +2,8 @@
 // time, channel, alarm, actor and transition (GET /api/alarms/journal, docs/alarms.md), the
 // newest first on screen, and the same search as a CSV download (format=csv).
 import { get } from "../api.js";
-import { esc, fmtTime } from "../dom.js";
-import { t, tValue } from "../i18n.js";
+import { alarmText, esc, fmtTime } from "../dom.js";
+import { lang, t, tValue } from "../i18n.js";
 import { PRIORITIES, priorityIcon } from "../priority.js";
 
 const TRANSITIONS = ["activated", "cleared", "acknowledged", "reset", "shelved", "unshelved", "silenced"];
@@ -64,27 +64,38 @@ export function journalQuery(form) {
   return q;
 }
 
-function row(e) {
+/** The message in the screens' language where it can be: the journal carries the
+ * supervisor's English text only, so a message that is the very text of an alarm the page
+ * knows (with its code and params) reads as that alarm's; any other is marked English. */
+function messageCell(e, alarms) {
+  const same = alarms.find((a) => a.id === e.alarm && a.message === e.message && a.code);
+  if (lang() === "en" || same) return `<td class="wrap">${esc(same ? alarmText(same) : e.message)}</td>`;
+  return `<td class="wrap" lang="en">${esc(e.message)}</td>`;
+}
+
+function row(e, alarms) {
   // (the journal names the priority: "critical", or a number the supervisor has no name for)
   const known = PRIORITIES.some((p) => p.name === e.priority);
+  const icon = known ? priorityIcon(e.priority) : "";
   return `<tr data-alarm="${esc(e.alarm)}" data-transition="${esc(e.transition)}" data-priority="${esc(e.priority)}">
     <td class="time">${esc(fmtTime(e.time))}</td>
-    <td class="prio-cell">${known ? priorityIcon(e.priority) : ""} <span class="prio-name">${esc(tValue("priority", e.priority))}</span></td>
+    <td class="prio-cell">${icon} <span class="prio-name">${esc(tValue("priority", e.priority))}</span></td>
     <td><span class="alarm-id" translate="no">${esc(e.alarm).replace(/([._])/g, "$1<wbr>")}</span><div class="muted">${esc(e.channel || t("alarms.bench"))}</div></td>
     <td>${esc(tValue("transition", e.transition))}</td>
-    <td class="wrap">${esc(e.message)}</td>
+    ${messageCell(e, alarms)}
     <td translate="no">${esc(e.actor)}</td></tr>`;
 }
 
-function table(entries) {
+function table(entries, alarms) {
   const cols = ["time", "priority", "alarm", "transition", "message", "by"];
   const head = cols.map((c) => `<th scope="col">${esc(t(`alarms.col.${c}`))}</th>`).join("");
-  const rows = entries.slice().reverse().map(row).join("");
+  const rows = entries.slice().reverse().map((e) => row(e, alarms)).join("");
   return `<table class="grid alarms" id="journal-table"><caption class="sr-only">${esc(t("journal.title"))}</caption><thead><tr>${head}</tr></thead><tbody>${rows}</tbody></table>`;
 }
 
 /** Wire the form: a search on submit (and one now, the last 24 h); the export link is
- * always the search on screen, as CSV. */
+ * always the search on screen, as CSV. ``paint()``: the rows again, with the alarms the
+ * page knows now. */
 export function bindJournal(root, app) {
   const form = root.querySelector("#journal-form");
   const out = root.querySelector("#journal-results");
@@ -92,6 +103,7 @@ export function bindJournal(root, app) {
   const link = root.querySelector("#journal-export");
   form.elements.since.value = localInput(Math.floor(Date.now() / 1000) - DAY_S);
   let gen = 0;
+  let shown = [];
   const search = async () => {
     const q = journalQuery(form);
     const mine = ++gen;
@@ -110,13 +122,19 @@ export function bindJournal(root, app) {
     const d = answer.data;
     status.className = "muted";
     status.textContent = `${t("journal.count", { n: d.count, count: d.count })}${d.truncated ? ` ${t("journal.truncated")}` : ""}`;
+    shown = d.entries;
+    paint();
     root.querySelector("#alarm-journal").dataset.searched = String(mine);
-    out.innerHTML = d.entries.length ? table(d.entries) : `<p class="muted" id="journal-none">${esc(t("journal.none"))}</p>`;
+  };
+  // The rows again (no new request) when the page learns the alarms' codes: the live
+  // connection's first alarms can come after the first search's answer.
+  const paint = () => {
+    out.innerHTML = shown.length ? table(shown, app.live.alarms || []) : `<p class="muted" id="journal-none">${esc(t("journal.none"))}</p>`;
   };
   form.addEventListener("submit", (ev) => {
     ev.preventDefault();
     search();
   });
   search();
-  return { search };
+  return { search, paint };
 }

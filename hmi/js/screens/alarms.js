@@ -107,7 +107,7 @@ export async function render({ root, app }) {
 
   paintActive();
   loadHistory();
-  bindJournal(root, app);
+  const journal = bindJournal(root, app);
   paintKpi(root, app.live);
   return {
     update(change) {
@@ -116,6 +116,7 @@ export async function render({ root, app }) {
         active = app.live.alarms;
         paintActive();
         loadHistory();
+        journal.paint();
       }
     },
   };
