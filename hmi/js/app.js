@@ -8,7 +8,8 @@ import { $, alarmText, esc } from "./dom.js";
 import { Sound } from "./sound.js";
 import { AlarmSound } from "./alarmsound.js";
 import { StaleDisplay } from "./stale.js";
-import { paintSummary } from "./summary.js";
+import { benchCounts, paintSummary } from "./summary.js";
+import { HeaderFit } from "./headerfit.js";
 import { priorityIcon } from "./priority.js";
 import * as i18n from "./i18n.js";
 import { lang, onLangChange, setLang, t, translateStatic } from "./i18n.js";
@@ -137,7 +138,11 @@ function paintHeader() {
   top.hidden = !s;
   if (!s) return;
   $("#bench-name").textContent = app.bench?.bench || "bench";
-  $("#who").textContent = s.login === false ? t("header.loginOff") : `${s.user} (${t(`role.${s.role}`)})`;
+  // The role in a part of its own: the header's fit may leave it to the tooltip.
+  const who = $("#who");
+  const role = s.login === false ? "" : ` (${t(`role.${s.role}`)})`;
+  who.innerHTML = s.login === false ? esc(t("header.loginOff")) : `<span translate="no">${esc(s.user)}</span><span class="role">${esc(role)}</span>`;
+  who.title = s.login === false ? "" : `${s.user}${role}`;
   $("#logout").hidden = s.login === false;
   const { path } = parseHash();
   const current = ROUTES.find(([re]) => re.test(path))?.[2];
@@ -158,7 +163,9 @@ function paintChannelNav(name) {
   if (!a) return;
   a.hidden = !name;
   if (!name) return;
-  a.textContent = t("nav.channel", { ch: name });
+  // Its words and, for the header's fit, the name alone (one of the two shown: hmi.css).
+  a.innerHTML = `<span class="nav-long">${esc(t("nav.channel", { ch: name }))}</span><span class="nav-short">${esc(name)}</span>`;
+  a.title = t("nav.channel", { ch: name });
   a.href = `#/channel/${encodeURIComponent(name)}`;
 }
 
@@ -168,13 +175,15 @@ function paintLink() {
   // An open connection that has gone silent is no longer "live" (stale.js).
   el.textContent = app.stale.silent ? t("link.noData") : labels[app.live.state] ? t(labels[app.live.state]) : app.live.state;
   el.classList.toggle("abn", app.live.state === "down" || app.stale.silent);
+  repaintSummary(); // its word is on the header's line too
 }
 
 /** The bench summary of the header (summary.js), on every screen but the login. */
+const headerFit = new HeaderFit($("#top"), (level) => paintSummary($("#summary"), app.bench, app.live, level));
 function repaintSummary() {
-  const el = $("#summary");
-  if (el && app.bench) paintSummary(el, app.bench, app.live);
+  if (app.bench) headerFit.fit(JSON.stringify(benchCounts(app.bench, app.live)));
 }
+window.addEventListener("resize", repaintSummary);
 
 function paintAlarmCount() {
   const active = app.live.alarms.filter((a) => a.state !== "normal" && !a.shelved);
@@ -258,8 +267,13 @@ async function route() {
   }
   if (app.screen?.destroy) app.screen.destroy();
   app.screen = null;
-  const root = $("#main");
-  root.innerHTML = "";
+  // Each screen gets a <main> of its own: an answer that arrives after the operator left
+  // lands in the old, detached tree (not in the next screen's, nor on null), and the
+  // listeners a screen put on its root leave with it (a second visit to a screen must not
+  // answer one click twice).
+  const old = $("#main");
+  const root = old.cloneNode(false);
+  old.replaceWith(root);
   root.className = `screen-${found[2]}`;
   paintHeader();
   paintAlarmCount();
@@ -352,6 +366,7 @@ onLangChange(() => {
   translateStatic();
   const el = $("#summary");
   if (el) delete el.dataset.key;
+  headerFit.reset();
   paintLink();
   app.stale.paint();
   route();

@@ -45,18 +45,39 @@ export function benchCounts(bench, live) {
 const item = (href, name, value, text, cls = "") =>
   `<a href="${href}" class="sum${cls ? ` ${cls}` : ""}" data-count="${name}" data-value="${value}">${text}</a>`;
 
-/** The summary bar's HTML for the counts. */
-export function summaryHtml(c) {
-  const unacked = c.unacknowledged ? `, ${t("summary.unacked", { n: c.unacknowledged })}` : "";
+/** A channels' count: its symbol and its words ("▶ 2 running"), or, compact, its symbol
+ * and its number with the words in its tooltip. */
+function channelsItem(name, sym, n, cls, compact) {
+  const words = t(`summary.${name}`, { n, count: n });
+  const text = compact ? `${n}` : words;
+  const title = compact ? ` title="${esc(words)}"` : "";
+  return item("#/", name, n, `<span class="sym" aria-hidden="true">${sym}</span> ${esc(text)}`, cls).replace("<a ", `<a${title} `);
+}
+
+/** The alarms' count: "12 alarms, 3 unack.", or, short, the count that asks for
+ * someone ("3 unack.", else "12 alarms") with the whole in its tooltip. */
+function alarmsItem(c, short) {
+  const all = t("summary.alarms", { n: c.alarms, count: c.alarms });
+  const unacked = c.unacknowledged ? t("summary.unacked", { n: c.unacknowledged }) : "";
+  const words = unacked ? `${all}, ${unacked}` : all;
+  const text = short ? unacked || all : words;
+  const title = short ? ` title="${esc(words)}"` : "";
+  return item("#/alarms", "alarms", c.alarms, esc(text), c.unacknowledged ? "abn" : "").replace("<a ", `<a${title} `);
+}
+
+/** The summary bar's HTML for the counts, at a level of the header's fit (headerfit.js):
+ * from 1 the channel counts without their words, from 3 the alarms' count short. */
+export function summaryHtml(c, level = 0) {
+  const compact = level >= 1;
   const parts = [
     // The channels' total: in the counts' tooltips and for the tests, not in the bar's width
     // (the header must stay one line at 1366 px).
     `<span hidden data-count="channels" data-value="${c.channels}"></span>`,
     `<span hidden data-count="unacknowledged" data-value="${c.unacknowledged}"></span>`,
-    item("#/", "running", c.running, `<span class="sym" aria-hidden="true">▶</span> ${t("summary.running", { n: c.running, count: c.running })}`),
-    item("#/", "held", c.held, `<span class="sym" aria-hidden="true">❚❚</span> ${t("summary.held", { n: c.held, count: c.held })}`, c.held ? "warn" : ""),
-    item("#/", "faulted", c.faulted, `<span class="sym" aria-hidden="true">✖</span> ${t("summary.faulted", { n: c.faulted, count: c.faulted })}`, c.faulted ? "abn" : ""),
-    item("#/alarms", "alarms", c.alarms, `${t("summary.alarms", { n: c.alarms, count: c.alarms })}${unacked}`, c.unacknowledged ? "abn" : ""),
+    channelsItem("running", "▶", c.running, "", compact),
+    channelsItem("held", "❚❚", c.held, c.held ? "warn" : "", compact),
+    channelsItem("faulted", "✖", c.faulted, c.faulted ? "abn" : "", compact),
+    alarmsItem(c, level >= 3),
   ];
   // Per priority, only those present: its icon and its count (shape, colour, number).
   for (const p of PRIORITIES) {
@@ -67,12 +88,12 @@ export function summaryHtml(c) {
 
 /** Repaint the summary element when its counts changed (the tags change many times a
  * second; the bar's HTML only when a count does). */
-export function paintSummary(el, bench, live) {
+export function paintSummary(el, bench, live, level = 0) {
   const c = benchCounts(bench, live);
-  const key = JSON.stringify(c);
+  const key = `${level} ${JSON.stringify(c)}`;
   if (el.dataset.key === key) return;
   el.dataset.key = key;
-  el.innerHTML = summaryHtml(c);
+  el.innerHTML = summaryHtml(c, level);
   el.title = t("summary.title", c);
   el.setAttribute("aria-label", t("summary.aria", c));
 }

@@ -4,11 +4,12 @@ alone. In Debian's Chromium against a real ``supervisor run`` of the simulated b
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import pytest
 from axe import audit, blocking
-from browserrig import SHORT_RECIPE, Supervisor, screenshot, wait_for
+from browserrig import SHORT_RECIPE, Supervisor, login, screenshot, wait_for
 
 from supervisor.safety.alarms import Severity
 
@@ -162,3 +163,89 @@ def test_the_summary_bar_counts_channels_and_alarms_on_every_screen(
         assert [str(v) for v in blocking(audit(page))] == []
     finally:
         bench.call("PUT", "/api/sim/estop", {"pressed": False})
+
+
+def made_up_alarms(per_priority: int) -> list[dict[str, Any]]:
+    """Unacknowledged alarms of every priority, as the supervisor sends them."""
+    return [
+        {
+            "id": f"made_up.{s.name.lower()}{i}",
+            "group": "",
+            "state": "active_unacknowledged",
+            "severity": int(s),
+            "severity_name": s.name.lower(),
+            "shelved": False,
+            "first_out": False,
+            "message": f"made up {s.name.lower()} alarm {i}",
+            "activated_time": 0,
+        }
+        for s in Severity
+        for i in range(per_priority)
+    ]
+
+
+def header_line(page: Any) -> list[float]:
+    """The vertical centres of the header's parts, left to right."""
+    return [
+        box["y"] + box["height"] / 2
+        for box in (
+            page.locator(s).bounding_box() for s in ("#bench-name", "#summary", "#link", "#logout")
+        )
+    ]
+
+
+@pytest.mark.parametrize("language", ["en", "fr"])
+def test_the_header_keeps_one_line_at_1366_px_in_its_widest_state(
+    page: Any, bench: Supervisor, language: str
+) -> None:
+    """Found by CI: on a loaded machine a scan stall (high) joined the e-stop (critical) and
+    the failed logins (medium), and "Log out" went onto a second line. Whatever the header
+    holds — every priority with two-digit counts, French, an engineer on a channel's screen
+    — it keeps one line, its counts all shown; the words give way first, and only then."""
+    phase = {"alarms": [], "ws": None}
+
+    def relay(ws: Any) -> None:
+        # Between the supervisor and the page: its alarm lists replaced by this test's.
+        phase["ws"] = ws
+        server = ws.connect_to_server()
+
+        def from_server(message: Any) -> None:
+            data = json.loads(message)
+            if data.get("type") == "alarms":
+                data["alarms"] = phase["alarms"]
+            ws.send(json.dumps(data))
+
+        server.on_message(from_server)
+
+    page.route_web_socket("**/api/ws", relay)
+    login(page, bench, "engineer", "#/channel/ch2")
+    page.wait_for_selector("#summary [data-count='running']")
+    if language == "fr":
+        page.click("#lang")
+        page.wait_for_function("() => document.documentElement.lang === 'fr'")
+        page.wait_for_selector("#summary [data-count='running']")
+    running = {"en": "running", "fr": "en cours"}[language]
+    if language == "en":
+        # Room enough in English without alarms: the counts with their words.
+        page.wait_for_function(
+            "(w) => document.querySelector(\"#summary [data-count='running']\")"
+            ".textContent.includes(w)",
+            arg=running,
+        )
+    centres = header_line(page)
+    assert max(centres) - min(centres) < 8, centres
+    phase["alarms"] = made_up_alarms(per_priority=3)
+    phase["ws"].send(json.dumps({"type": "alarms", "alarms": phase["alarms"]}))
+    wait_summary(page, alarms=12, critical=3, high=3, medium=3, low=3)
+    screenshot(page, f"header-widest-{language}")
+    centres = header_line(page)
+    assert max(centres) - min(centres) < 8, centres
+    for name in ("running", "held", "faulted", "alarms", "critical", "high", "medium", "low"):
+        item = page.locator(f"#summary [data-count='{name}']")
+        assert item.is_visible(), name
+        # (the alarms' count may give way to the unacknowledged one: 12 of 12 here)
+        assert item.get_attribute("data-value") in (item.text_content() or ""), name
+    # What gave way is still said, in the tooltips.
+    title = page.get_attribute("#summary [data-count='running']", "title") or ""
+    assert running in title, title
+    assert "(" in (page.get_attribute("#who", "title") or "")  # the role

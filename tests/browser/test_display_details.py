@@ -110,7 +110,7 @@ def test_a_channel_s_screen_highlights_the_channel_in_the_nav_not_the_overview(
     page.wait_for_selector("#ch-activity")
     current = (
         "() => Array.from(document.querySelectorAll('[data-nav][aria-current=page]'),"
-        " a => a.textContent.trim())"
+        " a => a.innerText.trim())"
     )
     page.wait_for_function(f"() => ({current})().length === 1")
     assert page.evaluate(current) == ["Channel ch2"]
