@@ -81,7 +81,7 @@ SCREENS: dict[str, tuple[str, str]] = {
     # performance panel's top ten; the audit trail with its chain checked.
     "alarm-journal": (
         "#/alarms",
-        "#alarm-journal:has(tr[data-alarm='estop']) ~ #alarm-kpi #kpi-top-table",
+        "#alarm-journal:has(tr[data-alarm-id='estop']) ~ #alarm-kpi #kpi-top-table",
     ),
     "audit": ("#/audit", "#audit-verify.accepted"),
 }

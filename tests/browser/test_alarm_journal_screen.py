@@ -61,7 +61,7 @@ def _search(page: Any, **fields: str) -> list[tuple[str, str, str]]:
         tuple(r)
         for r in page.eval_on_selector_all(
             "#journal-table tbody tr",
-            "rows => rows.map(r => [r.dataset.alarm, r.dataset.transition,"
+            "rows => rows.map(r => [r.dataset.alarmId, r.dataset.transition,"
             " r.cells[5].textContent])",
         )
     ]
@@ -194,10 +194,10 @@ def test_a_french_journal_says_the_alarms_text_in_french(
     try:
         page = ctx.new_page()
         login(page, acknowledged, "operator", "#/alarms")
-        page.wait_for_selector("#journal-table tr[data-alarm='estop']")
+        page.wait_for_selector("#journal-table tr[data-alarm-id='estop']")
         assert page.text_content("#alarm-journal h2") == "Journal"
         assert page.text_content("#journal-export") == "Exporter en CSV"
-        cell = "#journal-table tr[data-alarm='estop'][data-transition='acknowledged'] td.wrap"
+        cell = "#journal-table tr[data-alarm-id='estop'][data-transition='acknowledged'] td.wrap"
         # The journal carries the supervisor's English text; the alarm the page knows by
         # its code says it in French.
         assert (page.text_content(cell) or "").startswith("Arrêt d'urgence enfoncé")

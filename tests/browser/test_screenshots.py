@@ -49,7 +49,7 @@ SHOTS: dict[str, tuple[str, str, tuple[str, str] | None]] = {
     "test": ("#/tests/{test}", "#test-files a", None),
     "diagnostics": ("#/diagnostics", "#diag-devices-table", None),
     # issue 34: the Alarms screen's journal and performance panel; the audit trail.
-    "alarm-journal": ("#/alarms", "#journal-table tr[data-alarm='estop']", None),
+    "alarm-journal": ("#/alarms", "#journal-table tr[data-alarm-id='estop']", None),
     "audit": ("#/audit", "#audit-table tbody tr", None),
 }
 

@@ -73,11 +73,13 @@ function messageCell(e, alarms) {
   return `<td class="wrap" lang="en">${esc(e.message)}</td>`;
 }
 
+// (data-alarm-id, not data-alarm: that one marks the active alarms' rows, which the
+// screens and their tests look for anywhere on the page)
 function row(e, alarms) {
   // (the journal names the priority: "critical", or a number the supervisor has no name for)
   const known = PRIORITIES.some((p) => p.name === e.priority);
   const icon = known ? priorityIcon(e.priority) : "";
-  return `<tr data-alarm="${esc(e.alarm)}" data-transition="${esc(e.transition)}" data-priority="${esc(e.priority)}">
+  return `<tr data-alarm-id="${esc(e.alarm)}" data-transition="${esc(e.transition)}" data-priority="${esc(e.priority)}">
     <td class="time">${esc(fmtTime(e.time))}</td>
     <td class="prio-cell">${icon} <span class="prio-name">${esc(tValue("priority", e.priority))}</span></td>
     <td><span class="alarm-id" translate="no">${esc(e.alarm).replace(/([._])/g, "$1<wbr>")}</span><div class="muted">${esc(e.channel || t("alarms.bench"))}</div></td>
