@@ -205,3 +205,66 @@ def test_a_french_journal_says_the_alarms_text_in_french(
         assert page.text_content(transition) == "acquittement"
     finally:
         ctx.close()
+
+
+def _search_form(page: Any, channel: str, **times: str) -> list[str]:
+    """Search by the channel's choice (and ``since``/``until`` if given, as the inputs hold
+    them): the alarms shown."""
+    page.wait_for_selector("#alarm-journal[data-searched]")
+    before = page.get_attribute("#alarm-journal", "data-searched")
+    page.select_option("#journal-channel", channel)
+    for name, value in times.items():
+        page.fill(f"#journal-{name}", value)
+    page.click("#journal-search")
+    page.wait_for_function(
+        "(n) => document.querySelector('#alarm-journal').dataset.searched !== n", arg=before
+    )
+    return list(
+        page.eval_on_selector_all(
+            "#journal-table tbody tr", "rows => rows.map(r => r.dataset.alarmId)"
+        )
+    )
+
+
+def test_a_search_by_channel_and_time_keeps_to_them(page: Any, acknowledged: Supervisor) -> None:
+    login(page, acknowledged, "operator", "#/alarms")
+    # The e-stop is the bench's own alarm (channel=), no channel's.
+    assert "estop" in _search_form(page, "-")
+    assert "estop" not in _search_form(page, "ch0")
+    assert page.get_attribute("#journal-export", "href").endswith("channel=ch0&format=csv")
+    # Up to an hour ago (the browser's local time): before the e-stop, nothing.
+    earlier = page.evaluate(
+        "() => { const d = new Date(Date.now() - 3600000), p = (n) => String(n).padStart(2, '0');"
+        " return `${d.getFullYear()}-${p(d.getMonth() + 1)}-${p(d.getDate())}T"
+        "${p(d.getHours())}:${p(d.getMinutes())}:${p(d.getSeconds())}`; }"
+    )
+    assert _search_form(page, "", until=earlier) == []
+    assert page.text_content("#journal-none") == "No journal entry matches the search."
+    # A period the supervisor refuses (from after to): its reason, in words.
+    assert _search_form(page, "", since=earlier, until="2000-01-01T00:00:00") == []
+    assert page.text_content("#journal-count") == (
+        "The journal could not be read: since is after until"
+    )
+
+
+def test_the_performance_panel_follows_a_new_alarm_live(
+    page: Any, acknowledged: Supervisor
+) -> None:
+    """(last: it raises the e-stop again) The figures move on the open page, no reload."""
+    login(page, acknowledged, "operator", "#/alarms")
+    cell = "#kpi-figures [data-kpi='alarms.per_day']"
+    page.wait_for_function("(sel) => document.querySelector(sel).dataset.value !== ''", arg=cell)
+    before = int(page.get_attribute(cell, "data-value") or 0)
+    bench = acknowledged
+    status, body = bench.call("PUT", "/api/sim/estop", {"pressed": False})
+    assert status == 200, body
+    wait_for("the e-stop circuit closed", lambda: bench.tag("estop.ok") is True)
+    status, body = bench.call("POST", "/api/alarms/estop/reset", {})
+    assert status == 200, body
+    status, body = bench.call("PUT", "/api/sim/estop", {"pressed": True})
+    assert status == 200, body
+    page.wait_for_function(
+        "([sel, n]) => Number(document.querySelector(sel).dataset.value) > n",
+        arg=[cell, before],
+    )
+    assert int(page.get_attribute(cell, "data-value") or 0) == bench.tag("alarms.per_day")

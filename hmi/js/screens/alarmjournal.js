@@ -115,9 +115,11 @@ export function bindJournal(root, app) {
     root.querySelector("#alarm-journal").removeAttribute("aria-busy");
     q.set("format", "csv");
     link.href = `/api/alarms/journal?${q}`;
+    root.querySelector("#alarm-journal").dataset.searched = String(mine);
     if (!answer.ok) {
       status.className = "refused";
       status.textContent = t("journal.refused", { reason: answer.data?.reason || `HTTP ${answer.status}` });
+      shown = [];
       out.innerHTML = "";
       return;
     }
@@ -126,7 +128,6 @@ export function bindJournal(root, app) {
     status.textContent = `${t("journal.count", { n: d.count, count: d.count })}${d.truncated ? ` ${t("journal.truncated")}` : ""}`;
     shown = d.entries;
     paint();
-    root.querySelector("#alarm-journal").dataset.searched = String(mine);
   };
   // The rows again (no new request) when the page learns the alarms' codes: the live
   // connection's first alarms can come after the first search's answer.
