@@ -3,17 +3,21 @@ no link to it, and reaching it by its address reads the supervisor's refusal in 
 empty form); an engineer has the link, sees the chain checked whole (with the number of
 entries ``GET /api/audit/verify`` gives), finds the operator's acknowledgement of a
 scripted e-stop with the filters, downloads the same selection as CSV (the entries of
-``GET /api/audit``), and the screen fits a tablet's 800 px."""
+``GET /api/audit``), and the screen fits a tablet's 800 px; an entry edited in the file
+afterwards is named as the chain's first broken one."""
 
 from __future__ import annotations
 
 import csv
+import sqlite3
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 from browserrig import Supervisor, login, screenshot, wait_for
+
+from supervisor.audit import audit_path
 
 TABLET = {"width": 800, "height": 1180}
 
@@ -129,3 +133,27 @@ def test_the_audit_screen_fits_an_800_px_tablet(page: Any, audited: Supervisor) 
     assert width == 0
     box = page.locator("#audit-table").bounding_box()
     assert box["x"] >= 0 and box["x"] + box["width"] <= TABLET["width"], box
+
+
+def test_an_entry_edited_afterwards_is_named_as_the_first_broken_one(
+    page: Any, audited: Supervisor
+) -> None:
+    """(last: it breaks the module's chain) As someone who can write the state folder
+    would: the guard trigger dropped, entry 2's target rewritten."""
+    with sqlite3.connect(audit_path(audited.state_dir)) as db:
+        db.execute("DROP TRIGGER entries_no_update")
+        db.execute("UPDATE entries SET target = 'someone else' WHERE seq = 2")
+    db.close()
+    login(page, audited, "engineer", "#/audit")
+    page.wait_for_selector("#audit-verify[data-ok='false']")
+    broken = _api(audited, "/api/audit/verify")["first_broken"]
+    assert broken["seq"] == 2, broken
+    text = page.text_content("#audit-verify") or ""
+    assert text.startswith("Chain BROKEN at entry 2 (") and text.endswith(broken["problem"])
+    assert "refused" in (page.get_attribute("#audit-verify", "class") or "")
+    # The entry itself, in the table: marked in words and colour.
+    row = page.locator("#audit-table tbody tr[data-seq='2']")
+    assert row.locator(".broken-mark").text_content() == "broken here"
+    assert "abn" in (row.get_attribute("class") or "")
+    assert page.locator("#audit-table .broken-mark").count() == 1
+    screenshot(page, "audit-broken")

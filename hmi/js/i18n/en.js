@@ -505,6 +505,7 @@ export default {
   "audit.verifyOk_other": "Chain OK: {n} entries verified, head {head}.",
   "audit.verifyBroken": "Chain BROKEN at entry {seq} ({time}): {problem}",
   "audit.verifyAnchor": "Chain BROKEN: the anchor kept is no longer in the log.",
+  "audit.brokenHere": "broken here",
   "audit.entries": "Entries",
   "audit.kind": "kind",
   "audit.none": "No entry matches the search.",

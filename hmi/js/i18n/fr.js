@@ -508,6 +508,7 @@ export default {
   "audit.verifyOk_other": "Chaîne intègre : {n} entrées vérifiées, tête {head}.",
   "audit.verifyBroken": "Chaîne ROMPUE à l'entrée {seq} ({time}) : {problem}",
   "audit.verifyAnchor": "Chaîne ROMPUE : l'ancre conservée n'est plus dans le journal.",
+  "audit.brokenHere": "rompue ici",
   "audit.entries": "Entrées",
   "audit.kind": "type",
   "audit.none": "Aucune entrée ne correspond à la recherche.",

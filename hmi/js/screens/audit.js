@@ -115,6 +115,18 @@ export async function render({ root, app }) {
   form.elements.since.value = localInput(Math.floor(Date.now() / 1000) - DAY_S);
   let gen = 0;
   let before = null;
+  let brokenSeq = null; // the chain's first broken entry, marked in the table when shown
+
+  // (in words too, not the colour alone)
+  const markBroken = () => {
+    for (const tr of root.querySelectorAll("#audit-table tbody tr")) {
+      const here = brokenSeq !== null && Number(tr.dataset.seq) === brokenSeq;
+      tr.classList.toggle("abn", here);
+      const mark = tr.querySelector(".broken-mark");
+      if (here && !mark) tr.cells[0].insertAdjacentHTML("beforeend", `<div class="broken-mark">${esc(t("audit.brokenHere"))}</div>`);
+      if (!here && mark) mark.remove();
+    }
+  };
 
   const refuse = (answer) => {
     $("#audit-refused").hidden = false;
@@ -135,6 +147,8 @@ export async function render({ root, app }) {
       return;
     }
     el.dataset.ok = String(answer.data.ok);
+    brokenSeq = answer.data.first_broken ? answer.data.first_broken.seq : null;
+    markBroken();
     el.textContent = verifyText(answer.data);
     el.classList.add(answer.data.ok ? "accepted" : "refused");
   };
@@ -156,6 +170,7 @@ export async function render({ root, app }) {
       return;
     }
     body.insertAdjacentHTML("beforeend", answer.data.entries.map(row).join(""));
+    markBroken();
     before = answer.data.next_before;
     const shown = body.children.length;
     $("#audit-none").hidden = shown > 0;
