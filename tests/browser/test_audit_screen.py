@@ -135,6 +135,30 @@ def test_the_audit_screen_fits_an_800_px_tablet(page: Any, audited: Supervisor) 
     assert box["x"] >= 0 and box["x"] + box["width"] <= TABLET["width"], box
 
 
+def test_older_entries_come_a_page_at_a_time(page: Any, audited: Supervisor) -> None:
+    # The screen's pages of 100 made pages of 3 on their way (the server pages them).
+    page.route(
+        "**/api/audit?*",
+        lambda route: route.continue_(url=route.request.url.replace("limit=100", "limit=3")),
+    )
+    login(page, audited, "engineer", "#/audit")
+    page.wait_for_selector("#audit-table tbody tr")
+    every = [e["seq"] for e in _api(audited, "/api/audit?limit=1000")["entries"]]
+    assert len(every) > 3 and page.locator("#audit-table tbody tr").count() == 3
+    while page.locator("#audit-older").is_visible():
+        shown = page.locator("#audit-table tbody tr").count()
+        page.click("#audit-older")
+        page.wait_for_function(
+            "(n) => document.querySelectorAll('#audit-table tbody tr').length > n", arg=shown
+        )
+    seqs = page.eval_on_selector_all(
+        "#audit-table tbody tr", "rows => rows.map(r => Number(r.dataset.seq))"
+    )
+    # Every entry (reads add none), newest first, each once, down to the first.
+    assert seqs == every and seqs == sorted(set(seqs), reverse=True) and seqs[-1] == 1
+    assert page.text_content("#audit-count") == f"{len(seqs)} entries shown, newest first."
+
+
 def test_an_entry_edited_afterwards_is_named_as_the_first_broken_one(
     page: Any, audited: Supervisor
 ) -> None:
