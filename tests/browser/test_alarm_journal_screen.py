@@ -247,6 +247,23 @@ def test_a_search_by_channel_and_time_keeps_to_them(page: Any, acknowledged: Sup
     )
 
 
+def test_a_search_with_more_matches_than_shown_says_older_ones_were_left_out(
+    page: Any, acknowledged: Supervisor
+) -> None:
+    # The journal's limit (1000 on the screen's searches) made 1 on the way.
+    page.route(
+        "**/api/alarms/journal?*",
+        lambda route: route.continue_(url=route.request.url + "&limit=1"),
+    )
+    login(page, acknowledged, "operator", "#/alarms")
+    rows = _search(page, alarm="estop")
+    newest = _journal(acknowledged, alarm="estop")[-1]
+    assert rows == [(newest["alarm"], newest["transition"], newest["actor"])]
+    assert page.text_content("#journal-count") == (
+        "1 entry, newest first. Older entries were left out: search an earlier period."
+    )
+
+
 def test_the_performance_panel_follows_a_new_alarm_live(
     page: Any, acknowledged: Supervisor
 ) -> None:
