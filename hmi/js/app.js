@@ -1,5 +1,5 @@
 // The HMI's single page: hash routes (#/, #/channel/ch0, #/alarms, #/recipes,
-// #/recipes/NAME, #/tests, #/tests/ID, #/diagnostics, #/login?next=...), one live data
+// #/recipes/NAME, #/tests, #/tests/ID, #/diagnostics, #/audit, #/login?next=...), one live data
 // connection shared by every screen, and the session (a 401 anywhere -> login, then back
 // to the same hash).
 import { get, post, onUnauthorized } from "./api.js";
@@ -20,6 +20,7 @@ import * as alarms from "./screens/alarms.js";
 import * as recipes from "./screens/recipes.js";
 import * as tests from "./screens/tests.js";
 import * as diagnostics from "./screens/diagnostics.js";
+import * as audit from "./screens/audit.js";
 
 const ROUTES = [
   [/^\/login$/, login, "login"],
@@ -29,6 +30,7 @@ const ROUTES = [
   [/^\/recipes(?:\/(.+))?$/, recipes, "recipes"],
   [/^\/tests(?:\/(.+))?$/, tests, "tests"],
   [/^\/diagnostics$/, diagnostics, "diagnostics"],
+  [/^\/audit$/, audit, "audit"],
 ];
 
 // How long after its announced expiry the page checks its session.
@@ -149,6 +151,9 @@ function paintHeader() {
     else a.removeAttribute("aria-current");
   }
   paintChannelNav(current === "channel" ? decodeURIComponent(path.split("/")[2] || "") : "");
+  // The audit trail is an engineer's (without logins, loopback only: everyone's); nobody
+  // else gets its link (its address still answers them with the server's refusal).
+  $("#nav-audit").hidden = !(s.role === "engineer" || s.login === false);
 }
 
 /** On a channel's screen the nav names that channel, highlighted (not Overview, which it

@@ -5,6 +5,9 @@
   ``next_before`` is the ``before`` of the next (older) page, null after the last. Times
   are ISO 8601 (without a zone: UTC); ``kind`` is a kind or a family (``command``);
   ``channel`` selects the entries whose target or details name it.
+  ``format=csv``: every entry the filters select (``limit`` and ``before`` ignored), oldest
+  first, as ``supervisor audit export`` writes them (columns ``CSV_COLUMNS``, details as
+  canonical JSON, a formula-like text with a leading ``'``): the Audit screen's export.
 - ``GET /api/audit/verify``: the whole chain checked, ``{ok, entries, head,
   first_broken}`` (``first_broken``: ``{seq, time, problem}`` or null).
 
@@ -16,14 +19,18 @@ scan's loop. A missing or unreadable log: 503 with the reason.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable
+import csv
+import dataclasses
+import io
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, Final
 
 from aiohttp import web
 
-from supervisor.audit import AuditFileError, Query, read_entries, utc_of_iso, verify_file
+from supervisor.audit import AuditFileError, Entry, Query, read_entries, utc_of_iso, verify_file
 from supervisor.hmi.auth import refuse_unless
+from supervisor.hmi.journal_api import csv_cell
 from supervisor.hmi.server import json_dumps
 
 __all__ = ["DEFAULT_LIMIT", "MAX_LIMIT", "add_audit_routes"]
@@ -32,6 +39,8 @@ DEFAULT_LIMIT: Final = 100
 MAX_LIMIT: Final = 1000
 WHAT: Final = "read the audit log"
 MAX_FILTER_CHARS: Final = 256
+CSV_COLUMNS: Final = ("seq", "time", "actor", "kind", "target", "details", "prev_hash", "hash")
+"""As ``supervisor audit export`` (cli/audit.py, a layer above: not importable here)."""
 
 
 class _BadQuery(Exception):
@@ -91,6 +100,24 @@ def query_of(request: web.Request) -> Query:
     )
 
 
+def audit_csv(entries: Iterable[Entry]) -> str:
+    """The entries as CSV, a header row first, formula-like texts escaped."""
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\r\n")
+    w.writerow(CSV_COLUMNS)
+    for e in entries:
+        w.writerow([csv_cell(getattr(e, c)) for c in CSV_COLUMNS])
+    return out.getvalue()
+
+
+def _csv_answer(entries: list[Entry]) -> web.Response:
+    return web.Response(
+        text=audit_csv(entries),
+        content_type="text/csv",
+        headers={"Content-Disposition": 'attachment; filename="audit-trail.csv"'},
+    )
+
+
 def add_audit_routes(app: web.Application, path: Callable[[], Path] | Path) -> None:
     """``GET /api/audit`` and ``/api/audit/verify`` on the log at ``path`` (the bench's
     ``<state_dir>/audit.sqlite``; a callable: looked up at each request)."""
@@ -100,14 +127,21 @@ def add_audit_routes(app: web.Application, path: Callable[[], Path] | Path) -> N
         refused = refuse_unless(request, "engineer", WHAT)
         if refused is not None:
             return refused
+        fmt = request.query.get("format", "json")
         try:
+            if fmt not in ("json", "csv"):
+                raise _BadQuery("format: json or csv")
             query = query_of(request)
         except _BadQuery as exc:
             return _refused(400, "bad request", str(exc))
+        if fmt == "csv":  # the whole selection, oldest first (an export, not a page)
+            query = dataclasses.replace(query, before_seq=None, limit=None, newest_first=False)
         try:
             found = await asyncio.to_thread(read_entries, where(), query)
         except AuditFileError as exc:
             return _refused(503, "no audit log", str(exc))
+        if fmt == "csv":
+            return _csv_answer(found)
         more = query.limit is not None and len(found) == query.limit and found[-1].seq > 1
         return _answer(
             {

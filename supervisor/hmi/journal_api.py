@@ -137,7 +137,9 @@ def _from_history(query: HistoryQuery, f: _Filter) -> list[JournalRow]:
     return rows
 
 
-def _cell(value: object) -> object:
+def csv_cell(value: object) -> object:
+    """A text a spreadsheet would run as a formula, with a leading ``'`` (the audit
+    trail's CSV over HTTP uses it too)."""
     if isinstance(value, str) and value[:1] in FORMULA_STARTS:
         return "'" + value
     return value
@@ -149,7 +151,7 @@ def journal_csv(rows: Iterable[JournalRow]) -> str:
     w = csv.writer(out, lineterminator="\r\n")
     w.writerow(COLUMNS)
     for row in rows:
-        w.writerow([_cell(v) for v in asdict(row).values()])
+        w.writerow([csv_cell(v) for v in asdict(row).values()])
     return out.getvalue()
 
 

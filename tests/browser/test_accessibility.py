@@ -77,6 +77,13 @@ SCREENS: dict[str, tuple[str, str]] = {
     "tests": ("#/tests", "#test-table a"),
     "test": ("#/tests/{test}", "#test-files a"),
     "diagnostics": ("#/diagnostics", "#diag-devices-table"),
+    # issue 34: the Alarms screen's journal searched (the e-stop's activation) and its
+    # performance panel's top ten; the audit trail with its chain checked.
+    "alarm-journal": (
+        "#/alarms",
+        "#alarm-journal:has(tr[data-alarm-id='estop']) ~ #alarm-kpi #kpi-top-table",
+    ),
+    "audit": ("#/audit", "#audit-verify.accepted"),
 }
 THEN: dict[str, tuple[str, str]] = {
     # The e-stop's confirmation, open (never confirmed: the bench stays as it is).

@@ -1,7 +1,8 @@
 """Issue 33, "What to build": screenshots of every screen at both sizes in both languages,
 in tests/artifacts/screens/ as SCREEN-LANG-WxH.png (git-ignored): Login, Overview and its
 e-stop confirmation, a channel and its command confirmation, Alarms with an alarm, Recipes
-(the list, a recipe, its dry run), Tests (the list, a test), Diagnostics. Each page must have
+(the list, a recipe, its dry run), Tests (the list, a test), Diagnostics, the Alarms
+screen's journal and performance panel, Audit (issue 34). Each page must have
 rendered: no error on the page, its title set for the screen, its root not empty; the
 French ones are also checked by axe-core (the English ones are, by test_accessibility.py):
 no serious or critical violation.
@@ -47,6 +48,9 @@ SHOTS: dict[str, tuple[str, str, tuple[str, str] | None]] = {
     "tests": ("#/tests", "#test-table a", None),
     "test": ("#/tests/{test}", "#test-files a", None),
     "diagnostics": ("#/diagnostics", "#diag-devices-table", None),
+    # issue 34: the Alarms screen's journal and performance panel; the audit trail.
+    "alarm-journal": ("#/alarms", "#journal-table tr[data-alarm-id='estop']", None),
+    "audit": ("#/audit", "#audit-table tbody tr", None),
 }
 
 

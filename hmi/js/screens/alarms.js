@@ -1,10 +1,13 @@
 // Alarms (ISA-18.2): the annunciated ones (first-out first) with acknowledge, reset,
 // shelve and unshelve, and the latest transitions with their actor; each with its
-// priority's shape, colour and number (priority.js, ISA-101).
+// priority's shape, colour and number (priority.js, ISA-101). Below them the journal's
+// search and export (alarmjournal.js) and the alarm performance figures (alarmkpi.js).
 import { get, post } from "../api.js";
 import { alarmText, esc, fmtTime, showResult, $ } from "../dom.js";
 import { t, tValue } from "../i18n.js";
 import { priorityIcon, priorityOf } from "../priority.js";
+import { bindJournal, journalHtml } from "./alarmjournal.js";
+import { kpiChanged, kpiHtml, paintKpi } from "./alarmkpi.js";
 
 const SHELVE_S = [
   ["15 min", 900],
@@ -63,7 +66,9 @@ export async function render({ root, app }) {
     <h1>${tx("nav.alarms")}</h1>
     <p id="alarm-result" class="result" role="status" aria-live="polite" hidden></p>
     <section class="panel"><h2>${tx("alarms.active")}</h2><div id="alarm-active"></div></section>
-    <section class="panel"><h2>${tx("alarms.history")}</h2><div id="alarm-history"></div></section>`;
+    <section class="panel"><h2>${tx("alarms.history")}</h2><div id="alarm-history"></div></section>
+    ${journalHtml(app)}
+    ${kpiHtml()}`;
   const out = $("#alarm-result", root);
   let active = app.live.alarms;
 
@@ -102,12 +107,16 @@ export async function render({ root, app }) {
 
   paintActive();
   loadHistory();
+  const journal = bindJournal(root, app);
+  paintKpi(root, app.live);
   return {
     update(change) {
+      if (kpiChanged(change)) paintKpi(root, app.live);
       if (change.kind === "alarms") {
         active = app.live.alarms;
         paintActive();
         loadHistory();
+        journal.paint();
       }
     },
   };
