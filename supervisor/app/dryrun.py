@@ -86,10 +86,20 @@ class DryRunResult:
     max_hours: float = 0.0
     steps_omitted: int = 0
     """Step starts between the first and the last halves of ``step_sequence``."""
+    cpu_s: float = 0.0
+    """This process's CPU time over the same loop as ``wall_s`` (``time.process_time``):
+    what a loaded machine moves least (issue 29: at load average 10 the wall ratio of one
+    tree ranged 6,000–50,000×, its CPU-time ratio within about 5 %)."""
 
     @property
     def ratio(self) -> float:
         return self.simulated_s / self.wall_s if self.wall_s > 0 else float("inf")
+
+    @property
+    def cpu_ratio(self) -> float:
+        """Simulated time over ``cpu_s``: the speed a benchmark on a shared machine can
+        compare between two trees (docs/performance.md, issue 29)."""
+        return self.simulated_s / self.cpu_s if self.cpu_s > 0 else float("inf")
 
 
 def _epoch(start: str) -> float:
@@ -480,6 +490,7 @@ async def dry_run(
     bench.engine.yield_every_scans = DRY_RUN_YIELD_SCANS
     with settled_heap():
         t0 = time.perf_counter()
+        cpu0 = time.process_time()
         sim0 = clock.now()
         limit = sim0 + max_hours * 3600
         while runner.state not in TERMINAL and clock.now() < limit:
@@ -487,6 +498,7 @@ async def dry_run(
                 break
             await bench.engine.run_for(min(CHUNK_S, limit - clock.now()))
         wall = time.perf_counter() - t0
+        cpu = time.process_time() - cpu0
     finished = runner.state in TERMINAL
     runner.listeners.remove(steps)  # the shutdown's last scans are not part of the run
     end = _end_reason(bench, ch, runner)
@@ -512,6 +524,7 @@ async def dry_run(
         finished=finished,
         max_hours=max_hours,
         steps_omitted=sequence.omitted,
+        cpu_s=cpu,
     )
 
 
