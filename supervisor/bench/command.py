@@ -138,7 +138,7 @@ def _dry_run(args: argparse.Namespace) -> int:
     ratios: list[float] = []
     walls: list[float] = []
     # The CPU-time ratio beside the wall one: on a shared machine (issue 29, load average
-    # 10) the wall ratio moved by several times, the CPU-time ratio by a few per cent.
+    # 3-12) the wall ratio moved threefold, the CPU-time ratio by about a tenth (ADR 0046).
     cpu_ratios: list[float] = []
     for k in range(args.runs):
         res = asyncio.run(dry_run(args.recipe, soc=0.0))
