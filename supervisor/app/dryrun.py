@@ -86,10 +86,20 @@ class DryRunResult:
     max_hours: float = 0.0
     steps_omitted: int = 0
     """Step starts between the first and the last halves of ``step_sequence``."""
+    cpu_s: float = 0.0
+    """This process's CPU time over the same loop as ``wall_s`` (``time.process_time``):
+    what a loaded machine moves least (issue 29: at load average 3–12 one tree's wall ratio
+    ranged 17,300–53,700×, its CPU-time ratio 48,500–54,000× in the same runs)."""
 
     @property
     def ratio(self) -> float:
         return self.simulated_s / self.wall_s if self.wall_s > 0 else float("inf")
+
+    @property
+    def cpu_ratio(self) -> float:
+        """Simulated time over ``cpu_s``: the speed a benchmark on a shared machine can
+        compare between two trees (docs/performance.md, issue 29)."""
+        return self.simulated_s / self.cpu_s if self.cpu_s > 0 else float("inf")
 
 
 def _epoch(start: str) -> float:
@@ -486,15 +496,7 @@ async def dry_run(
     runner.command("start", actor="dry-run")
     # Nothing else runs on this loop during a chunk (should_stop is asked between chunks).
     bench.engine.yield_every_scans = DRY_RUN_YIELD_SCANS
-    with settled_heap():
-        t0 = time.perf_counter()
-        sim0 = clock.now()
-        limit = sim0 + max_hours * 3600
-        while runner.state not in TERMINAL and clock.now() < limit:
-            if should_stop is not None and should_stop():
-                break
-            await bench.engine.run_for(min(CHUNK_S, limit - clock.now()))
-        wall = time.perf_counter() - t0
+    wall, cpu, sim0 = await _timed_run(bench, runner, clock, max_hours, should_stop)
     finished = runner.state in TERMINAL
     runner.listeners.remove(steps)  # the shutdown's last scans are not part of the run
     end = _end_reason(bench, ch, runner)
@@ -520,7 +522,30 @@ async def dry_run(
         finished=finished,
         max_hours=max_hours,
         steps_omitted=sequence.omitted,
+        cpu_s=cpu,
     )
+
+
+async def _timed_run(
+    bench: Bench,
+    runner: ChainRunner,
+    clock: VirtualClock,
+    max_hours: float,
+    should_stop: Callable[[], bool] | None,
+) -> tuple[float, float, float]:
+    """The measured part of a dry run: chunks of virtual time until the chain ends, the
+    ``max_hours`` cap or ``should_stop``; its wall and CPU seconds (``DryRunResult.wall_s``,
+    ``cpu_s``) and the virtual time it began at."""
+    with settled_heap():
+        t0 = time.perf_counter()
+        cpu0 = time.process_time()
+        sim0 = clock.now()
+        limit = sim0 + max_hours * 3600
+        while runner.state not in TERMINAL and clock.now() < limit:
+            if should_stop is not None and should_stop():
+                break
+            await bench.engine.run_for(min(CHUNK_S, limit - clock.now()))
+        return time.perf_counter() - t0, time.process_time() - cpu0, sim0
 
 
 def _collector(

@@ -137,17 +137,25 @@ def _dry_run(args: argparse.Namespace) -> int:
     # machine), the median of five much less.
     ratios: list[float] = []
     walls: list[float] = []
+    # The CPU-time ratio beside the wall one: on a shared machine (issue 29, load average
+    # 3-12) the wall ratio moved threefold, the CPU-time ratio by about a tenth (ADR 0046).
+    cpu_ratios: list[float] = []
     for k in range(args.runs):
         res = asyncio.run(dry_run(args.recipe, soc=0.0))
         ratios.append(res.ratio)
         walls.append(res.wall_s)
-        _out(f"run {k + 1} of {args.runs}: {format_report(res)[-1]}")
+        cpu_ratios.append(res.cpu_ratio)
+        _out(
+            f"run {k + 1} of {args.runs}: {format_report(res)[-1]} (CPU time {res.cpu_ratio:,.0f}x)"
+        )
     for line in format_report(res)[-3:-1]:
         _out(line)
     median = statistics.median(ratios)
+    cpu_median = statistics.median(cpu_ratios)
     _out(
         f"median of {args.runs} runs: {median:,.0f}x"
-        f" (min–max {min(ratios):,.0f}–{max(ratios):,.0f}x)"
+        f" (min–max {min(ratios):,.0f}–{max(ratios):,.0f}x);"
+        f" CPU-time ratio median {cpu_median:,.0f}x"
     )
     from supervisor.bench import report
 
@@ -158,7 +166,7 @@ def _dry_run(args: argparse.Namespace) -> int:
         ">= 30000",
         f"median of {args.runs} runs, min–max {min(ratios):,.0f}–{max(ratios):,.0f}×,"
         f" {res.simulated_s / 3600:.1f} simulated h in {statistics.median(walls):.2f} s"
-        " wall (median)",
+        f" wall (median), CPU-time ratio median {cpu_median:,.0f}×",
         f"supervisor bench dry-run --recipe {args.recipe} --runs {args.runs}",
     )
     return 0

@@ -4,6 +4,7 @@ printed, never asserted: only that they run and write their results)."""
 
 from __future__ import annotations
 
+import asyncio
 import dataclasses
 import json
 import os
@@ -347,6 +348,19 @@ def test_bench_dry_run_records_the_median_of_its_runs_with_their_spread(
     for k, ratio in enumerate(["1,000x", "3,000x", "2,000x"], start=1):
         assert f"run {k} of 3: " in out and f"ratio {ratio}" in out
     assert "median of 3 runs: 2,000x" in out
+    # The CPU-time ratio beside it (the figure a shared machine moves least, issue 29).
+    assert "CPU-time ratio median " in out and "CPU-time ratio median " in figure.reference
+
+
+def test_a_dry_runs_cpu_time_ratio_is_its_simulated_time_over_the_loops_cpu_time(
+    tmp_path: Path,
+) -> None:
+    recipe = tmp_path / "short.yaml"
+    recipe.write_text(SHORT_NIMH, encoding="utf-8")
+    res = asyncio.run(dryrun.dry_run(str(recipe), soc=0.0))
+    assert res.cpu_s > 0.0
+    assert res.cpu_ratio == res.simulated_s / res.cpu_s
+    assert dataclasses.replace(res, cpu_s=0.0).cpu_ratio == float("inf")
 
 
 def test_bench_dry_run_runs_five_times_unless_told() -> None:
