@@ -264,8 +264,13 @@ class SummaryWriter(ThreadWriter):
 
     def __init__(self, name: str = "results") -> None:
         super().__init__(name)
-        self._pending: dict[Path, tuple[str, dict[str, Any]]] = {}
-        self._io = threading.Lock()  # one file write at a time: the newest is written last
+        self._pending: dict[Path, tuple[str, dict[str, Any], int]] = {}
+        self._io = threading.Lock()  # one file write at a time
+        # Each summary handed over for a file gets the next number of that file: a write
+        # whose number is no longer the file's latest is skipped. The thread may have taken
+        # an older summary and be waiting for the disk when the test's last one is written
+        # at once; the lock alone would let it overwrite the last one (found under load).
+        self._generation: dict[Path, int] = {}
         self._writing = 0
         self.written = 0
 
@@ -274,7 +279,7 @@ class SummaryWriter(ThreadWriter):
         with self._cond:
             stopped = self._stopping
             if not stopped:
-                self._pending[path] = (channel, summary)
+                self._pending[path] = (channel, summary, self._next_generation(path))
                 self._start_thread()
         if stopped:
             self.write_now(path, channel, summary)  # stopped: on the caller's thread
@@ -282,12 +287,26 @@ class SummaryWriter(ThreadWriter):
             self._wake()
 
     def write_now(self, path: Path, channel: str, summary: dict[str, Any]) -> None:
-        """Write ``summary`` now (the older one waiting for ``path`` is dropped)."""
+        """Write ``summary`` now (an older one for ``path``, waiting or taken by the thread,
+        is not written after it)."""
         with self._cond:
             self._pending.pop(path, None)
+            generation = self._next_generation(path)
+        self._write(path, channel, summary, generation)
+
+    def _next_generation(self, path: Path) -> int:
+        """(Under ``_cond``.)"""
+        n = self._generation.get(path, 0) + 1
+        self._generation[path] = n
+        return n
+
+    def _write(self, path: Path, channel: str, summary: dict[str, Any], generation: int) -> None:
         with self._io:
-            write_summary(path, channel, summary)
-            self.written += 1
+            with self._cond:
+                latest = self._generation.get(path) == generation
+            if latest:
+                write_summary(path, channel, summary)
+                self.written += 1
 
     def _busy(self) -> bool:
         return bool(self._pending or self._writing)
@@ -302,12 +321,10 @@ class SummaryWriter(ThreadWriter):
                 if not self._pending:
                     return
                 path = next(iter(self._pending))
-                channel, summary = self._pending.pop(path)
+                channel, summary, generation = self._pending.pop(path)
                 self._writing += 1
             try:
-                with self._io:
-                    write_summary(path, channel, summary)
-                    self.written += 1
+                self._write(path, channel, summary, generation)
             finally:
                 with self._cond:
                     self._writing -= 1

@@ -4,7 +4,9 @@ summary over and returns; the file always ends up holding the newest summary."""
 from __future__ import annotations
 
 import json
+import threading
 from pathlib import Path
+from typing import Any
 
 from supervisor.core.records import ChainEvent
 from supervisor.publish.results import ResultCollector, SummaryWriter
@@ -51,6 +53,46 @@ def test_the_last_summary_written_at_once_is_not_overwritten_by_an_older_checkpo
     try:
         with writer._io:
             writer.put(path, "ch0", {"final": False})
+        writer.write_now(path, "ch0", {"final": True})
+        assert writer.flush(10.0)
+        assert _read(path) == {"final": True}
+    finally:
+        writer.stop()
+
+
+class WriterLast:
+    """The writer's file lock, fake in one respect: its own thread gets it only after the
+    caller's thread has had it once — the order a loaded machine may choose (found flaky
+    under load: the thread held an older summary when the last one was written)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._caller_done = threading.Event()
+        self.writer_waiting = threading.Event()
+        self.caller = threading.current_thread()
+
+    def __enter__(self) -> None:
+        if threading.current_thread() is not self.caller:
+            self.writer_waiting.set()
+            self._caller_done.wait(10.0)
+        self._lock.acquire()
+
+    def __exit__(self, *exc: Any) -> None:
+        self._lock.release()
+        if threading.current_thread() is self.caller:
+            self._caller_done.set()
+
+
+def test_an_older_checkpoint_already_taken_by_the_thread_does_not_overwrite_the_last_summary(
+    tmp_path: Path,
+) -> None:
+    writer = SummaryWriter("test")
+    lock = WriterLast()
+    writer._io = lock  # type: ignore[assignment]
+    path = tmp_path / "summary.json"
+    try:
+        writer.put(path, "ch0", {"final": False})
+        assert lock.writer_waiting.wait(10.0)  # the thread holds the older one
         writer.write_now(path, "ch0", {"final": True})
         assert writer.flush(10.0)
         assert _read(path) == {"final": True}
