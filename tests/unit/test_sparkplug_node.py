@@ -115,9 +115,7 @@ class Rig:
         self.pub = SparkplugPublisher(
             self.db,
             self.clock,
-            SparkplugSettings(
-                "127.0.0.1", 1883, "Lab", "bench7", queue_max_changes=50, **settings
-            ),
+            SparkplugSettings("127.0.0.1", 1883, "Lab", "bench7", queue_max_changes=50, **settings),
             channels=["ch1", "ch2"],
             devices=["psu"],
             bd_seq=bd_seq,

@@ -260,6 +260,7 @@ class SparkplugPublisher:
             self.spool.open()  # what a previous run left is replayed after the births
         self._next_bd_seq()
         self._stopping = False
+        self._down_since = self.clock.now()  # until the first connection
         self._queue_every_tag()
         if threaded:
             self._thread = threading.Thread(target=self._thread_main, name="sparkplug", daemon=True)
@@ -314,12 +315,15 @@ class SparkplugPublisher:
         with self._cond:
             self._connected = True
             self._need_birth = True
+            self._down_since = None
             self._cond.notify_all()
 
     def disconnected(self) -> None:
         with self._cond:
             self._connected = False
             stopping = self._stopping
+            if self._down_since is None:
+                self._down_since = self.clock.now()
         if stopping:
             return
         # The next CONNECT (paho reconnects by itself) carries the next bdSeq in its will.
@@ -390,22 +394,17 @@ class SparkplugPublisher:
         """``sparkplug.disconnected`` once the broker has been away ``disconnected_alarm_s``
         (since the start, for a broker never reached); ``sparkplug.spool_full`` while the
         bound drops samples (until the spool is back under 90 %)."""
-        if self._connected:
-            self._down_since = None
-        elif self._down_since is None:
-            self._down_since = t
         s = self.settings
-        down_s = 0.0 if self._down_since is None else t - self._down_since
+        down_since = self._down_since
         active = {
             ALARM_DISCONNECTED: (
-                self._down_since is not None and down_s >= s.disconnected_alarm_s,
+                down_since is not None and t - down_since >= s.disconnected_alarm_s,
                 f"MQTT broker {s.host}:{s.port} unreachable for {s.disconnected_alarm_s:g} s:"
                 " Sparkplug data is spooled",
             ),
             ALARM_SPOOL_FULL: (
                 self.spool is not None and self.spool.overflowing,
-                f"Sparkplug spool full ({s.spool_max_bytes} bytes): the oldest samples are"
-                " dropped",
+                f"Sparkplug spool full ({s.spool_max_bytes} bytes): the oldest samples are dropped",
             ),
         }
         assert self.alarm is not None

@@ -96,7 +96,9 @@ class SampleSpool:
                 self.moved_to,
             )
             self._conn = self._connect()
-        n, size = self._conn.execute("SELECT COUNT(*), COALESCE(SUM(bytes), 0) FROM sample").fetchone()
+        n, size = self._conn.execute(
+            "SELECT COUNT(*), COALESCE(SUM(bytes), 0) FROM sample"
+        ).fetchone()
         self.waiting, self.waiting_bytes = int(n), int(size)
         if self.waiting:
             log.info("Sparkplug spool %s: %d samples wait from a previous run", self.path, n)
