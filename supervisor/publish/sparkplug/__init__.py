@@ -5,8 +5,8 @@ bench-level tags) and DDATA (one Sparkplug device per channel and per device), s
 own thread over MQTT (``PahoTransport``), after the NBIRTH and DBIRTHs of each connection
 and of each rebirth request; what could not be sent waits on disk (``SampleSpool``) and is
 replayed after the next births, flagged historical; the NDEATH is the will of each CONNECT,
-its ``bdSeq`` kept across restarts (``RetainedBdSeq``). The composition root (``supervisor.app.sparkplug``)
-builds it from the I/O map's ``sparkplug:`` section.
+its ``bdSeq`` kept across restarts (``RetainedBdSeq``). The composition root
+(``supervisor.app.sparkplug``) builds it from the I/O map's ``sparkplug:`` section.
 """
 
 from supervisor.publish.sparkplug.mqtt import PahoTransport, Transport
