@@ -249,3 +249,17 @@ def test_an_unreadable_spool_is_moved_aside_and_a_new_one_started(tmp_path: Path
     spool.append([("x", Metric("int", "", 1, Quality.GOOD, 1))])
     assert spool.waiting == 1
     spool.close()
+
+
+def test_a_spool_that_cannot_be_opened_leaves_the_node_publishing_without_one(
+    tmp_path: Path,
+) -> None:
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where the state folder should be")
+    rig = Rig(spool_path=blocker / "sparkplug-spool.sqlite")
+    births = rig.start()
+    assert rig.pub.spool is None and len(births) == 4
+    go_offline(rig)
+    rig.set("ch1.voltage", 3.9)
+    rig.scan()
+    assert rig.pub.dropped == 1  # counted, as without store and forward

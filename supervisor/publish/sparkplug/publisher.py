@@ -26,6 +26,7 @@ late will of the previous run from the death of this one.
 from __future__ import annotations
 
 import logging
+import sqlite3
 import threading
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -257,7 +258,12 @@ class SparkplugPublisher:
         if self.transport is not None:
             return
         if self.spool is not None:
-            self.spool.open()  # what a previous run left is replayed after the births
+            try:
+                self.spool.open()  # what a previous run left is replayed after the births
+            except (OSError, sqlite3.Error) as exc:
+                # A state folder that cannot be written: publish anyway, without a spool.
+                log.error("Sparkplug spool %s cannot be opened (%s): none", self.spool.path, exc)
+                self.spool = None
         self._next_bd_seq()
         self._stopping = False
         self._down_since = self.clock.now()  # until the first connection
