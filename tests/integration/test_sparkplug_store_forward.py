@@ -74,6 +74,8 @@ def broker_outage(tmp_path: Path) -> Outage:
         time.sleep(OUTAGE_S)
         before.close()  # else it reconnects to the new broker too
         broker.start()  # the same port
+        # Subscribed before the node is back: paho retries 1, 3, 7, 15, 31, 61 s after the
+        # loss (its back-off doubling to 30 s), so about 1 s after this restart.
         after = SparkplugConsumer(broker.port, GROUP)
         restarted_at = time.monotonic()
         after.wait_for(births_done("sim"), "the new births", RECONNECT_LIMIT_S)
