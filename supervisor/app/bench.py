@@ -687,7 +687,7 @@ def build_bench(
     # the same rule: one feed, filtered once per scan.
     changes = SharedChanges(db, clock)
     influx = build_influx(cfg, db, clock, alarms, changes)
-    sparkplug = build_sparkplug(cfg, db, clock, changes)
+    sparkplug = build_sparkplug(cfg, db, clock, changes, alarms)
     phases = ScanPhases(
         derived=[LogicPhase(f"derive:{n}", ch.derive) for n, ch in channels.items()],
         safety=[LogicPhase("safety", safety.run)],

@@ -3,12 +3,14 @@ publisher (``supervisor.publish.sparkplug``); its bdSeq in the bench's retained 
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from supervisor.config.models import BenchConfig
 from supervisor.core.clock import Clock
 from supervisor.publish.changes import SharedChanges
 from supervisor.publish.retain import RetainStore
+from supervisor.safety import AlarmManager, Severity
 from supervisor.tags import TagDB
 
 if TYPE_CHECKING:  # imported when a bench has the section: paho-mqtt and protobuf cost
@@ -19,13 +21,33 @@ __all__ = ["build_sparkplug", "keep_bd_seq"]
 
 
 def build_sparkplug(
-    cfg: BenchConfig, db: TagDB, clock: Clock, changes: SharedChanges | None = None
+    cfg: BenchConfig,
+    db: TagDB,
+    clock: Clock,
+    changes: SharedChanges | None = None,
+    alarms: AlarmManager | None = None,
 ) -> SparkplugPublisher | None:
-    """The edge node for ``cfg.sparkplug`` (None when the I/O map has none); not started."""
+    """The edge node for ``cfg.sparkplug`` (None when the I/O map has none); not started.
+    Its spool in ``<state_dir>``, its alarms on ``alarms``."""
     sp = cfg.sparkplug
     if sp is None:
         return None
-    from supervisor.publish.sparkplug import SparkplugPublisher, SparkplugSettings
+    from supervisor.publish.sparkplug import (
+        ALARMS,
+        SPOOL_NAME,
+        SparkplugPublisher,
+        SparkplugSettings,
+    )
+
+    hook = None
+    if alarms is not None:
+        declared = {
+            spec.id: alarms.declare(spec.id, severity=Severity.named(spec.severity))
+            for spec in ALARMS
+        }
+
+        def hook(alarm_id: str, active: bool, message: str) -> None:
+            alarms.set(declared[alarm_id], active, message)
 
     settings = SparkplugSettings(
         host=sp.host,
@@ -33,6 +55,9 @@ def build_sparkplug(
         group=sp.group,
         edge_node=sp.edge_node or cfg.bench,
         keepalive_s=sp.keepalive_s,
+        spool_path=Path(cfg.state_dir) / SPOOL_NAME,
+        spool_max_bytes=sp.spool_max_mb * 1024 * 1024,
+        disconnected_alarm_s=sp.disconnected_alarm_s,
     )
     return SparkplugPublisher(
         db,
@@ -41,6 +66,7 @@ def build_sparkplug(
         channels=[c.name for c in cfg.channels],
         devices=list(cfg.devices),
         changes=changes.reader() if changes is not None else None,
+        alarm=hook,
     )
 
 

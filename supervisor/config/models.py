@@ -1010,6 +1010,22 @@ class SparkplugConfig(Strict):
         description="MQTT keep-alive: a bench that stops answering is declared dead"
         " (its NDEATH published by the broker) about 1.5 times this after its last packet.",
     )
+    spool_max_mb: int = Field(
+        64,
+        ge=0,
+        le=100_000,
+        description="Store and forward: the samples not sent while the broker is"
+        " unreachable wait in <state_dir>/sparkplug-spool.sqlite, at most this many MB"
+        " (the oldest dropped past it, counted and alarmed); replayed after the next births"
+        " with is_historical. 0: no spool (changes while disconnected are dropped).",
+    )
+    disconnected_alarm_s: float = Field(
+        30.0,
+        ge=0,
+        le=86_400,
+        description="Raise sparkplug.disconnected (low) once the broker has been"
+        " unreachable this long.",
+    )
 
     @field_validator("broker")
     @classmethod

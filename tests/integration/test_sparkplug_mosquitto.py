@@ -196,7 +196,7 @@ def test_a_broker_restart_is_a_new_session_with_the_next_bdseq(
 ) -> None:
     """The broker goes away and comes back on the same port: paho reconnects by itself, the
     next CONNECT's will carries the next bdSeq and the births follow; nothing is sent in
-    between (store-and-forward is the next step: docs/sparkplug.md)."""
+    between (what changed is replayed after the births: test_sparkplug_store_forward.py)."""
     db = TagDB()
     voltage = db.add(TagSpec("ch1.voltage", "float", unit="V"))
     db.update(voltage, 3.7)

@@ -7,6 +7,7 @@ quality (properties) at the sample's time; then NDATA/DDATA with the changes onl
 message per device per scan; seq 0-255 and round; the NDEATH is the will (QoS 1) with a
 bdSeq that the retained-state store keeps across restarts; a rebirth request births again
 with the same bdSeq; nothing is sent while disconnected, and the scan never waits.
+(Store and forward: test_sparkplug_spool.py.)
 """
 
 from __future__ import annotations
@@ -95,7 +96,7 @@ def properties(m: Message) -> dict[str, dict[str, Any]]:
 
 
 class Rig:
-    def __init__(self, bd_seq: Any = None) -> None:
+    def __init__(self, bd_seq: Any = None, alarm: Any = None, **settings: Any) -> None:
         self.clock = VirtualClock()
         self.db = TagDB()
         self.tags = {
@@ -114,11 +115,12 @@ class Rig:
         self.pub = SparkplugPublisher(
             self.db,
             self.clock,
-            SparkplugSettings("127.0.0.1", 1883, "Lab", "bench7", queue_max_changes=50),
+            SparkplugSettings("127.0.0.1", 1883, "Lab", "bench7", queue_max_changes=50, **settings),
             channels=["ch1", "ch2"],
             devices=["psu"],
             bd_seq=bd_seq,
             transport=lambda: self.transport,
+            alarm=alarm,
         )
 
     def set(self, name: str, value: Any, quality: Quality = Quality.GOOD) -> None:
@@ -267,7 +269,7 @@ def test_bdseq_survives_restarts_in_the_retained_state(tmp_path: Path) -> None:
 
 
 def test_a_reconnection_takes_the_next_bdseq_and_nothing_is_sent_offline() -> None:
-    rig = Rig(MemoryBdSeq(last=41))
+    rig = Rig(MemoryBdSeq(last=41), spool_max_bytes=0)  # no store and forward
     rig.start()
     assert rig.pub.bd_seq == 42
     rig.transport.connected = False
@@ -366,7 +368,7 @@ def test_scans_before_the_start_are_not_kept_the_births_carry_the_values_at_the_
 
 
 def test_while_connecting_the_starts_snapshot_is_kept_not_counted_as_dropped() -> None:
-    rig = Rig()
+    rig = Rig(spool_max_bytes=0)  # no store and forward
     rig.set("ch1.voltage", 3.7)
     rig.pub.start(threaded=False)  # not connected yet
     assert rig.scan() == []

@@ -158,23 +158,39 @@ class Session:
     def data(self, changes: Sequence[tuple[str, Metric]], now_ms: int) -> list[Message]:
         """NDATA and one DDATA per device that changed: every change in ``changes`` (in
         order: a tag that changed twice is in twice, each with its own timestamp)."""
-        node: list[MetricValue] = []
-        devices: dict[str, list[MetricValue]] = {}
+        return [message for message, _ in self.data_parts(changes, now_ms)]
+
+    def data_parts(
+        self, changes: Sequence[tuple[str, Metric]], now_ms: int, *, historical: bool = False
+    ) -> list[tuple[Message, list[tuple[str, Metric]]]]:
+        """``data``, each message with the changes it carries (what to keep when it cannot
+        be sent). ``historical``: each metric flagged ``is_historical`` (Sparkplug 3.0: data
+        that is not the current value, a store-and-forward replay)."""
+        node: list[tuple[str, Metric]] = []
+        devices: dict[str, list[tuple[str, Metric]]] = {}
         place = self.layout.place
         for tag, m in changes:
             where = place(tag)
             if where is None:
                 continue
-            device, name = where
-            target = node if device is None else devices.setdefault(device, [])
-            target.append(_metric(name, m, unit=False))
-        out: list[Message] = []
-        if node:
-            out.append(Message(self.topic("NDATA"), encode(now_ms, node, self._next_seq()), 0))
-        for device, device_metrics in devices.items():
-            payload = encode(now_ms, device_metrics, self._next_seq())
-            out.append(Message(self.topic("DDATA", device), payload, 0))
+            device = where[0]
+            (node if device is None else devices.setdefault(device, [])).append((tag, m))
+        groups: list[tuple[str | None, list[tuple[str, Metric]]]] = [(None, node)] if node else []
+        groups.extend(devices.items())
+        out: list[tuple[Message, list[tuple[str, Metric]]]] = []
+        for device, group in groups:
+            metrics = [
+                _metric(self._name(tag), m, unit=False, historical=historical) for tag, m in group
+            ]
+            payload = encode(now_ms, metrics, self._next_seq())
+            verb = "NDATA" if device is None else "DDATA"
+            out.append((Message(self.topic(verb, device), payload, 0), group))
         return out
+
+    def _name(self, tag: str) -> str:
+        where = self.layout.place(tag)
+        assert where is not None
+        return where[1]
 
 
 def is_rebirth(payload: Any) -> bool:

@@ -11,9 +11,12 @@ Two threads of control besides the network's, so that the scan never waits on th
 2. the edge node's thread (``_run``): keeps each published tag's latest state (what a
    birth carries), sends one NDATA and one DDATA per changed device for what the queue held
    (every change, each with its acquisition time: at most one message per device per
-   scan), the births after each connection and on a rebirth request, and nothing while
-   disconnected (the births of the next session carry the values; store-and-forward is
-   for later: docs/sparkplug.md).
+   scan), the births after each connection and on a rebirth request. While disconnected
+   (or when a message cannot be handed over), the changes go to the spool on disk
+   (``SampleSpool``, bounded: the oldest dropped past it, counted in
+   ``sparkplug.spool_dropped`` and alarmed as ``sparkplug.spool_full``); after the births
+   of the next session they are replayed, oldest first, each metric flagged
+   ``is_historical`` with its own timestamp, before any live data.
 
 ``bdSeq`` survives restarts (``BdSeqStore``: the bench's retained-state store): each
 CONNECT carries the next one in its will (the NDEATH), so a host application can tell a
@@ -23,11 +26,13 @@ late will of the previous run from the death of this one.
 from __future__ import annotations
 
 import logging
+import sqlite3
 import threading
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from pathlib import Path
+from typing import Final, NamedTuple, Protocol
 
 from google.protobuf.message import DecodeError
 
@@ -46,10 +51,16 @@ from supervisor.publish.sparkplug.node import (
     is_rebirth,
 )
 from supervisor.publish.sparkplug.payload import decode
+from supervisor.publish.sparkplug.spool import SampleSpool
 from supervisor.tags import Tag, TagDB, TagSpec
 
 __all__ = [
+    "ALARMS",
+    "ALARM_DISCONNECTED",
+    "ALARM_SPOOL_FULL",
     "BD_SEQ_KEY",
+    "AlarmHook",
+    "AlarmSpec",
     "BdSeqStore",
     "MemoryBdSeq",
     "RetainedBdSeq",
@@ -63,6 +74,34 @@ BD_SEQ_KEY = "sparkplug"
 """The retained-state document holding the last CONNECT's bdSeq."""
 STATUS_PERIOD_S = 0.1
 RETRY_S = 1.0
+REPLAY_CHUNK: Final = 2000
+"""Spooled samples per replayed round of messages (one NDATA/DDATA per device each): the
+scan gets the interpreter between two rounds."""
+
+AlarmHook = Callable[[str, bool, str], None]
+"""``(alarm id, active, message)``: the composition root puts it on the alarm model."""
+
+
+class AlarmSpec(NamedTuple):
+    id: str
+    severity: str  # the alarm model's names: "low" | "medium" | "high" | "critical"
+    description: str
+
+
+ALARM_DISCONNECTED: Final = "sparkplug.disconnected"
+ALARM_SPOOL_FULL: Final = "sparkplug.spool_full"
+ALARMS: Final = (
+    AlarmSpec(
+        ALARM_DISCONNECTED,
+        "low",
+        "The MQTT broker has been unreachable for disconnected_alarm_s: data is spooled",
+    ),
+    AlarmSpec(
+        ALARM_SPOOL_FULL,
+        "medium",
+        "The Sparkplug spool is full: its oldest samples are dropped",
+    ),
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,6 +114,11 @@ class SparkplugSettings:
     edge_node: str
     keepalive_s: int = 30
     queue_max_changes: int = 200_000
+    spool_path: Path | None = None
+    """The store-and-forward file (None: in memory, lost with the process)."""
+    spool_max_bytes: int = 64 * 1024 * 1024
+    """0: no store and forward (changes while disconnected are dropped and counted)."""
+    disconnected_alarm_s: float = 30.0
 
 
 class BdSeqStore(Protocol):
@@ -126,8 +170,15 @@ def _status_tags() -> list[TagSpec]:
         TagSpec(
             "sparkplug.dropped",
             "int",
-            description="Changes not sent: broker unreachable, or the queue folded",
+            description="Changes not sent: the queue folded, or no spool",
         ),
+        TagSpec("sparkplug.spool_depth", "int", description="Samples waiting in the spool"),
+        TagSpec(
+            "sparkplug.spool_dropped",
+            "int",
+            description="Samples dropped by the spool's bound (the oldest)",
+        ),
+        TagSpec("sparkplug.replayed", "int", description="Spooled samples sent (historical)"),
     ]
 
 
@@ -147,8 +198,18 @@ class SparkplugPublisher:
         bd_seq: BdSeqStore | None = None,
         changes: ChangeSource | None = None,
         transport: Callable[[], Transport] | None = None,
+        alarm: AlarmHook | None = None,
     ) -> None:
         self.settings = settings
+        self.alarm = alarm
+        self.spool: SampleSpool | None = (
+            SampleSpool(settings.spool_path, settings.spool_max_bytes)
+            if settings.spool_max_bytes > 0
+            else None
+        )
+        self.replayed = 0
+        self._down_since: float | None = None
+        self._alarms: dict[str, bool] = {}
         self.db = db
         self.clock = clock
         self.source: ChangeSource = changes if changes is not None else ChangeSnapshots(db, clock)
@@ -196,8 +257,16 @@ class SparkplugPublisher:
         ``threaded=False``: no thread, the caller runs each round (``drain``)."""
         if self.transport is not None:
             return
+        if self.spool is not None:
+            try:
+                self.spool.open()  # what a previous run left is replayed after the births
+            except (OSError, sqlite3.Error) as exc:
+                # A state folder that cannot be written: publish anyway, without a spool.
+                log.error("Sparkplug spool %s cannot be opened (%s): none", self.spool.path, exc)
+                self.spool = None
         self._next_bd_seq()
         self._stopping = False
+        self._down_since = self.clock.now()  # until the first connection
         self._queue_every_tag()
         if threaded:
             self._thread = threading.Thread(target=self._thread_main, name="sparkplug", daemon=True)
@@ -222,6 +291,8 @@ class SparkplugPublisher:
             self.transport.stop(self._will())
             self.transport = None
         self._connected = False
+        if self.spool is not None:
+            self.spool.close()  # what it holds waits for the next run
 
     def _queue_every_tag(self) -> None:
         """Every tag as it is now, as the first batch: what the births carry, whatever
@@ -250,12 +321,15 @@ class SparkplugPublisher:
         with self._cond:
             self._connected = True
             self._need_birth = True
+            self._down_since = None
             self._cond.notify_all()
 
     def disconnected(self) -> None:
         with self._cond:
             self._connected = False
             stopping = self._stopping
+            if self._down_since is None:
+                self._down_since = self.clock.now()
         if stopping:
             return
         # The next CONNECT (paho reconnects by itself) carries the next bdSeq in its will.
@@ -315,6 +389,39 @@ class SparkplugPublisher:
         db.update(tags["sparkplug.bd_seq"], self.bd_seq)
         db.update(tags["sparkplug.messages"], self.sent)
         db.update(tags["sparkplug.dropped"], self.dropped)
+        spool = self.spool
+        db.update(tags["sparkplug.spool_depth"], spool.waiting if spool else 0)
+        db.update(tags["sparkplug.spool_dropped"], spool.dropped if spool else 0)
+        db.update(tags["sparkplug.replayed"], self.replayed)
+        if self.alarm is not None:
+            self._publish_alarms(self.clock.now())
+
+    def _publish_alarms(self, t: float) -> None:
+        """``sparkplug.disconnected`` once the broker has been away ``disconnected_alarm_s``
+        (since the start, for a broker never reached); ``sparkplug.spool_full`` while the
+        bound drops samples (until the spool is back under 90 %)."""
+        s = self.settings
+        down_since = self._down_since
+        active = {
+            ALARM_DISCONNECTED: (
+                down_since is not None and t - down_since >= s.disconnected_alarm_s,
+                f"MQTT broker {s.host}:{s.port} unreachable for {s.disconnected_alarm_s:g} s:"
+                " Sparkplug data is spooled",
+            ),
+            ALARM_SPOOL_FULL: (
+                self.spool is not None and self.spool.overflowing,
+                f"Sparkplug spool full ({s.spool_max_bytes} bytes): the oldest samples are dropped",
+            ),
+        }
+        assert self.alarm is not None
+        for alarm_id, (on, message) in active.items():
+            if self._alarms.get(alarm_id, False) == on:
+                continue
+            self._alarms[alarm_id] = on
+            try:
+                self.alarm(alarm_id, on, message)
+            except Exception:  # the alarm model's fault must not stop the publisher
+                log.exception("Sparkplug: alarm %s could not be set", alarm_id)
 
     # --- the edge node's thread -------------------------------------------------------
     def _thread_main(self) -> None:
@@ -360,33 +467,41 @@ class SparkplugPublisher:
         self.step(batches)
 
     def step(self, batches: Sequence[ChangeBatch]) -> None:
-        """One round: the batches into the metrics, then the births or the data."""
-        changes = self._apply(batches)
+        """One round: the batches into the metrics, then the births (and the spool's
+        replay after them) or the data; what cannot be sent goes to the spool."""
+        changes, fresh = self._apply(batches)
         with self._cond:
             connected, birth = self._connected, self._need_birth
         if not connected:
-            # A first batch is every tag (what the next births carry), not changes lost.
-            place = self.session.layout.place
-            self.dropped += sum(
-                place(c[0].spec.name) is not None for b in batches if not b.first for c in b.changes
-            )
+            self._keep(fresh)  # a first batch is every tag: what the next births carry
             return
         if not self._primed:
             return  # no first batch yet: a birth would announce nothing
         if not birth and self.session.needs_birth(name for name, _ in changes):
             birth = True  # a tag added since the births: announce it
-        now_ms = self._now_ms()
-        if birth:
-            with self._cond:
-                self._need_birth = False
-            self._send(self.session.births(self.bd_seq, self.metrics, now_ms))
-        elif changes:
-            self._send(self.session.data(changes, now_ms))
+        if not birth:
+            if changes:
+                self._send_data(changes)
+            return
+        with self._cond:
+            self._need_birth = False
+        if not self._send(self.session.births(self.bd_seq, self.metrics, self._now_ms())):
+            self._keep(fresh)
+            return
+        # A change of this round that a later one superseded is not in the births: it
+        # is history, replayed after what waited before it.
+        metrics = self.metrics
+        self._keep([(name, m) for name, m in fresh if metrics.get(name) is not m])
+        self._replay()
 
-    def _apply(self, batches: Sequence[ChangeBatch]) -> list[tuple[str, Metric]]:
+    def _apply(
+        self, batches: Sequence[ChangeBatch]
+    ) -> tuple[list[tuple[str, Metric]], list[tuple[str, Metric]]]:
+        """Every change (into the metrics), and those that are not a first batch's."""
         metrics = self.metrics
         place = self.session.layout.place
         out: list[tuple[str, Metric]] = []
+        fresh: list[tuple[str, Metric]] = []
         for b in batches:
             if b.first:
                 metrics.clear()
@@ -400,15 +515,58 @@ class SparkplugPublisher:
                 m = Metric(spec.dtype, spec.unit, value, quality, wall_ms)
                 metrics[spec.name] = m
                 out.append((spec.name, m))
-        return out
+                if not b.first:
+                    fresh.append((spec.name, m))
+        return out, fresh
 
-    def _send(self, messages: list[Message]) -> None:
+    def _keep(self, changes: Sequence[tuple[str, Metric]]) -> None:
+        """Changes not sent: to the spool (dropped and counted without one)."""
+        if not changes:
+            return
+        if self.spool is None:
+            self.dropped += len(changes)
+            return
+        try:
+            self.spool.append(changes)
+        except Exception:  # a disk that fails: the changes are lost, the node goes on
+            log.exception("Sparkplug spool %s: %d samples lost", self.spool.path, len(changes))
+            self.dropped += len(changes)
+
+    def _replay(self) -> None:
+        """The spool, oldest first, flagged historical, after the births (same session)."""
+        spool = self.spool
+        while spool is not None and spool.waiting:
+            rows = spool.oldest(REPLAY_CHUNK)
+            if not rows:
+                return
+            if self.gate is not None:
+                self.gate.wait()
+            samples = [(tag, m) for _, tag, m in rows]
+            parts = self.session.data_parts(samples, self._now_ms(), historical=True)
+            if not self._send([message for message, _ in parts]):
+                # Not removed: replayed again after the next births (a device's message
+                # that went out before the failure may then come twice).
+                return
+            spool.remove(rows[-1][0])
+            self.replayed += len(rows)
+            log.info("Sparkplug: %d spooled samples replayed, %d wait", len(rows), spool.waiting)
+
+    def _send_data(self, changes: Sequence[tuple[str, Metric]]) -> None:
+        parts = self.session.data_parts(changes, self._now_ms())
+        for k, (message, _) in enumerate(parts):
+            if not self._send([message]):
+                self._keep([c for _, group in parts[k:] for c in group])
+                return
+
+    def _send(self, messages: list[Message]) -> bool:
+        """Hand ``messages`` over in order; False at the first that cannot be (a gap: the
+        next round is a birth)."""
         transport = self.transport
         for message in messages:
             if transport is not None and transport.publish(message):
                 self.sent += 1
             else:
-                self.dropped += 1
                 with self._cond:
-                    self._need_birth = self._connected  # a gap: the next round is a birth
-                return
+                    self._need_birth = self._connected
+                return False
+        return True
