@@ -51,7 +51,9 @@ def mosquitto_binary() -> Path:
 class Mosquitto:
     """Debian's mosquitto on 127.0.0.1:<free port>, its configuration and log under ``root``."""
 
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, persistent: bool = False) -> None:
+        """``persistent``: the broker keeps its clients' sessions across a restart, QoS 0
+        messages included (queued for a session whose client is away)."""
         self.binary = mosquitto_binary()
         root.mkdir(parents=True, exist_ok=True)
         self.root = root
@@ -62,8 +64,13 @@ class Mosquitto:
         self.config.write_text(
             f"listener {self.port} 127.0.0.1\n"
             "allow_anonymous true\n"
-            "persistence false\n"
-            f"log_dest file {self.log}\n"
+            + (
+                f"persistence true\npersistence_location {root}/\n"
+                "queue_qos0_messages true\nmax_queued_messages 0\n"
+                if persistent
+                else "persistence false\n"
+            )
+            + f"log_dest file {self.log}\n"
             "log_type error\nlog_type warning\nlog_type notice\n",
             encoding="utf-8",
         )
@@ -149,11 +156,17 @@ class Received:
 class SparkplugConsumer:
     """Every message of ``spBv1.0/<group>/#``, decoded by pysparkplug."""
 
-    def __init__(self, port: int, group: str) -> None:
+    def __init__(self, port: int, group: str, session: str | None = None) -> None:
+        """``session``: a client id whose session the broker keeps while it is away (and,
+        on a persistent broker, across a restart): what is published meanwhile waits."""
         self.group = group
         self.messages: list[Received] = []
         self._lock = threading.Condition()
-        self._client = paho.Client(client_id=f"test-consumer-{os.getpid()}-{id(self)}")
+        self._client = paho.Client(
+            client_id=session or f"test-consumer-{os.getpid()}-{id(self)}",
+            clean_session=session is None,
+        )
+        self._client.reconnect_delay_set(min_delay=1, max_delay=1)
         self._client.on_message = self._on_message
         subscribed = threading.Event()
         self._client.on_subscribe = lambda *_: subscribed.set()

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -61,7 +62,7 @@ class Outage:
 def broker_outage(tmp_path: Path) -> Outage:
     """``supervisor run`` publishing; the broker stopped OUTAGE_S and started again on
     the same port; a consumer before and one after, until live data has resumed."""
-    broker = Mosquitto(tmp_path / "mosquitto")
+    broker = Mosquitto(tmp_path / "mosquitto", persistent=True)
     broker.start()
     before = SparkplugConsumer(broker.port, GROUP)
     after: SparkplugConsumer | None = None
@@ -69,29 +70,43 @@ def broker_outage(tmp_path: Path) -> Outage:
     try:
         before.wait_for(births_done("sim"), "births", LIMIT_S)
         before.wait_for(lambda ms: len([m for m in ms if m.verb == "NDATA"]) >= 20, "NDATA")
+        # The consumer of after the outage has a session the broker keeps across its
+        # restart: whatever the node sends once back waits for it, whichever of the two
+        # reconnects first (paho's back-off picks the node's moment; it was a race).
+        after = SparkplugConsumer(broker.port, GROUP, session=f"after-{tmp_path.name}")
         broker.stop()
-        stopped_at = time.monotonic()
-        time.sleep(OUTAGE_S)
+        stopped_at = time.time()
         before.close()  # else it reconnects to the new broker too
-        broker.start()  # the same port
-        # Subscribed before the node is back: paho retries 1, 3, 7, 15, 31, 61 s after the
-        # loss (its back-off doubling to 30 s), so about 1 s after this restart.
-        after = SparkplugConsumer(broker.port, GROUP)
-        restarted_at = time.monotonic()
-        after.wait_for(births_done("sim"), "the new births", RECONNECT_LIMIT_S)
+        time.sleep(OUTAGE_S)
+        broker.start()  # the same port, the same sessions
+        restarted_at = time.time()
+        after.wait_for(new_births_done("sim"), "the new births", RECONNECT_LIMIT_S)
         after.wait_for(
-            lambda ms: any(v[0] == "NDATA" and not v[2] for v in node_values(ms)),
+            lambda ms: any(v[0] == "NDATA" and not v[2] for v in node_values(new_session(ms))),
             "live data after the replay",
             LIMIT_S,
         )
         time.sleep(1.0)  # a few live scans more
-        born_at = after.of("NBIRTH")[0].at
-        return Outage(before.messages, after.messages, born_at - restarted_at, born_at - stopped_at)
+        second = new_session(after.messages)
+        born_at = second[0].payload.timestamp / 1000  # the node's own time of its birth
+        return Outage(before.messages, second, born_at - restarted_at, born_at - stopped_at)
     finally:
         assert sup.stop() == 0
         broker.stop()
         if after is not None:
             after.close()
+
+
+def new_session(messages: list[Received]) -> list[Received]:
+    """The messages from the node's new birth on (the consumer of after the outage was
+    subscribed a moment before it, and got the last live messages of the old session)."""
+    births = [k for k, m in enumerate(messages) if m.verb == "NBIRTH"]
+    return messages[births[0] :] if births else []
+
+
+def new_births_done(node: str) -> Callable[[list[Received]], bool]:
+    done = births_done(node)
+    return lambda ms: done(new_session(ms))
 
 
 def replayed_in_order(second: list[tuple[str, int, bool]]) -> list[int]:
