@@ -36,7 +36,7 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument(
         "--users",
-        help="users file (a bench's: supervisor opcua add-user); without it, loopback only and no login",
+        help="users file (a bench's: supervisor opcua add-user); without: loopback, no login",
     )
     p.add_argument("--keepalive-s", type=int, default=30, help="the fleet's MQTT keep-alive")
     p.add_argument("--log-level", default="INFO")

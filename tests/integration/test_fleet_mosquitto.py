@@ -190,6 +190,21 @@ def test_two_benches_online_one_killed_goes_offline_and_comes_back_with_a_new_bd
             child.stop()
 
 
+def test_a_fleet_started_after_the_bench_asks_its_rebirth_and_sees_it(
+    tmp_path: Path, broker: Mosquitto
+) -> None:
+    """The bench's births went out before the fleet subscribed: its next data (seq without
+    a birth) makes the fleet ask a rebirth, whose births carry every value."""
+    a = run_bench(tmp_path, broker, "bench-a")
+    fleet, base = run_fleet(tmp_path, broker)
+    try:
+        wait_until(online_with_channels(base, "bench-a"), "bench-a online after a rebirth")
+        assert nodes(base)["bench-a"]["rebirths_asked"] >= 1
+    finally:
+        for child in (a, fleet):
+            child.stop()
+
+
 def test_the_fleet_page_and_api_follow_the_hmis_login_rules(
     tmp_path: Path, broker: Mosquitto
 ) -> None:
@@ -201,6 +216,7 @@ def test_the_fleet_page_and_api_follow_the_hmis_login_rules(
         with pytest.raises(urllib.error.HTTPError) as refused:
             get_json(base + "api/fleet")
         assert refused.value.code == 401
+        refused.value.close()  # its socket (an unclosed one is a ResourceWarning)
         with urllib.request.urlopen(base, timeout=10) as page:  # the page itself loads
             assert b"fleet.js" in page.read()
         opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(CookieJar()))
