@@ -74,6 +74,8 @@ class Node:
     """When a rebirth was asked and no NBIRTH came since (None: none outstanding)."""
     rebirths: int = 0
     seq_gaps: int = 0
+    born: bool = True
+    """False for a node heard of only by its data (a rebirth asked, no NBIRTH seen yet)."""
 
 
 def _value(metric: Any, datatype: int | None) -> Any:
@@ -193,7 +195,7 @@ class Fleet:
         log.info("fleet: %s dead (bdSeq %s)", edge, bd_seq)
 
     def _ask_rebirth(self, edge: str, now_ms: int) -> list[str]:
-        node = self.nodes.setdefault(edge, Node(False, now_ms))
+        node = self.nodes.setdefault(edge, Node(False, now_ms, born=False))
         asked = node.rebirth_asked_ms
         if asked is not None and now_ms - asked < REBIRTH_RETRY_MS:
             return []

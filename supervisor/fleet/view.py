@@ -53,6 +53,7 @@ def _node_json(name: str, node: Node) -> dict[str, Any]:
         "since_ms": node.since_ms,
         "bd_seq": node.bd_seq,
         "in_sync": node.online and node.next_seq is not None,
+        "born": node.born,
         "rebirths_asked": node.rebirths,
         "seq_gaps": node.seq_gaps,
         "url": url if isinstance(url, str) and url.startswith(("http://", "https://")) else None,
@@ -70,11 +71,12 @@ def fleet_json(fleet: Fleet, *, connected: bool, now_ms: int) -> dict[str, Any]:
     with fleet.lock:
         nodes = [_node_json(n, fleet.nodes[n]) for n in sorted(fleet.nodes)]
     online = sum(1 for n in nodes if n["online"])
+    offline = sum(1 for n in nodes if n["born"] and not n["online"])
     return {
         "group": fleet.group,
         "broker_connected": connected,
         "now_ms": now_ms,
         "online": online,
-        "offline": len(nodes) - online,
+        "offline": offline,
         "nodes": nodes,
     }

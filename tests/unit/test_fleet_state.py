@@ -173,7 +173,11 @@ def test_data_of_a_node_never_born_here_asks_its_rebirth() -> None:
     s.births(3, bench_metrics(), T0)  # before the fleet started
     fleet = Fleet(GROUP)
     assert feed(fleet, s.data([("ch0.voltage", metric("float", 3.8, "V"))], T0)) == ["bench-a"]
-    assert node_json(fleet)["online"] is False
+    assert node_json(fleet)["online"] is False and node_json(fleet)["born"] is False
+    body = fleet_json(fleet, connected=True, now_ms=T0)
+    assert (body["online"], body["offline"]) == (0, 0)  # waiting, not a bench that died
+    feed(fleet, s.births(3, bench_metrics(), T0))
+    assert node_json(fleet)["online"] is True and node_json(fleet)["born"] is True
 
 
 def test_a_metric_the_birth_did_not_announce_asks_a_rebirth() -> None:

@@ -526,6 +526,7 @@ export default {
   "fleet.online": "online",
   "fleet.offline": "OFFLINE",
   "fleet.resync": "online, waiting for its rebirth",
+  "fleet.unborn": "waiting for its birth",
   "fleet.since": "since {at}",
   "fleet.openBench": "Open this bench's screens",
   "fleet.alarms_one": "{n} active alarm",

@@ -529,6 +529,7 @@ export default {
   "fleet.online": "en ligne",
   "fleet.offline": "HORS LIGNE",
   "fleet.resync": "en ligne, en attente de sa renaissance",
+  "fleet.unborn": "en attente de sa naissance",
   "fleet.since": "depuis {at}",
   "fleet.openBench": "Ouvrir les écrans de ce banc",
   "fleet.alarms_one": "{n} alarme active",

@@ -22,8 +22,11 @@ function channelRow(c) {
 }
 
 function benchTile(n) {
-  const status = n.online ? (n.in_sync ? t("fleet.online") : t("fleet.resync")) : t("fleet.offline");
-  const cls = n.online ? (n.in_sync ? "" : " warn") : " abn";
+  // (a bench heard of only by its data waits for the births the fleet asked: not a fault)
+  let status = t("fleet.offline");
+  let cls = " abn";
+  if (n.online) [status, cls] = n.in_sync ? [t("fleet.online"), ""] : [t("fleet.resync"), " warn"];
+  else if (!n.born) [status, cls] = [t("fleet.unborn"), " warn"];
   const name = n.url
     ? `<a href="${esc(n.url)}" translate="no" title="${esc(t("fleet.openBench"))}">${esc(n.id)}</a>`
     : `<span class="tile-name" translate="no">${esc(n.id)}</span>`;
