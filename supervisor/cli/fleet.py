@@ -1,6 +1,6 @@
 """``supervisor fleet --broker mqtt://HOST:PORT --group NAME [--listen HOST:PORT]
-[--users FILE]``: the fleet overview, a Sparkplug B host application over a lab's benches
-(issue 35; docs/fleet.md).
+[--users FILE] [--host-id ID]``: the fleet overview, a Sparkplug B host application over a
+lab's benches (issue 35; docs/fleet.md).
 
 Prints ``fleet: http://HOST:PORT/`` once it listens (port 0: the one the system chose),
 then runs until Ctrl-C or SIGTERM. Exit 2 for a usage error (a broker URL or group that is
@@ -39,6 +39,10 @@ def add_parser(sub: Any) -> None:
         help="users file (a bench's: supervisor opcua add-user); without: loopback, no login",
     )
     p.add_argument("--keepalive-s", type=int, default=30, help="the fleet's MQTT keep-alive")
+    p.add_argument(
+        "--host-id",
+        help="publish the Sparkplug host application STATE as this host id (spBv1.0/STATE/ID)",
+    )
     p.add_argument("--log-level", default="INFO")
     p.set_defaults(func=cmd_fleet)
 
@@ -67,7 +71,7 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     from supervisor.config.users import UserStore
 
     try:
-        cfg = SparkplugConfig(broker=args.broker, group=args.group)
+        cfg = SparkplugConfig(broker=args.broker, group=args.group, edge_node=args.host_id)
         host, port = _listen(args.listen)
     except (ValidationError, ValueError) as exc:
         _err(f"supervisor fleet: {exc}")
@@ -82,22 +86,18 @@ def cmd_fleet(args: argparse.Namespace) -> int:
         )
         return EXIT_USAGE
     _setup_logging(args.log_level)
-    return asyncio.run(_serve(cfg.host, cfg.port, cfg.group, host, port, users, args.keepalive_s))
+    mqtt = (cfg.host, cfg.port, cfg.group, args.keepalive_s, cfg.edge_node)
+    return asyncio.run(_serve(mqtt, host, port, users))
 
 
 async def _serve(
-    broker_host: str,
-    broker_port: int,
-    group: str,
-    host: str,
-    port: int,
-    users: Any,
-    keepalive_s: int,
+    broker: tuple[str, int, str, int, str | None], host: str, port: int, users: Any
 ) -> int:
     from supervisor.fleet import Fleet, FleetHost, FleetServer
 
+    broker_host, broker_port, group, keepalive_s, host_id = broker
     fleet = Fleet(group)
-    mqtt = FleetHost(fleet, broker_host, broker_port, keepalive_s=keepalive_s)
+    mqtt = FleetHost(fleet, broker_host, broker_port, keepalive_s=keepalive_s, host_id=host_id)
     server = FleetServer(fleet, lambda: mqtt.connected, users=users, host=host, port=port)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()

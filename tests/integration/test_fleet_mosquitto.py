@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -20,6 +21,7 @@ from http.cookiejar import CookieJar
 from pathlib import Path
 from typing import Any
 
+import paho.mqtt.client as paho
 import pytest
 import yaml
 from mqttrig import Mosquitto
@@ -230,6 +232,39 @@ def test_the_fleet_page_and_api_follow_the_hmis_login_rules(
             assert json.loads(resp.read())["role"] == "viewer"
         assert get_json(base + "api/fleet", opener)["group"] == GROUP
     finally:
+        fleet.stop()
+
+
+def test_with_a_host_id_the_fleet_publishes_its_state_and_its_death_as_the_will(
+    tmp_path: Path, broker: Mosquitto
+) -> None:
+    """Sparkplug 3.0 host application: STATE online (retained) after its CONNECT; the will
+    says offline with the same timestamp when the fleet is SIGKILLed."""
+    fleet, _ = run_fleet(tmp_path, broker, "--host-id", "fleet1")
+    states: list[dict[str, Any]] = []
+    got = threading.Condition()
+
+    def on_message(client: Any, userdata: Any, msg: Any) -> None:
+        with got:
+            states.append(json.loads(msg.payload))
+            got.notify_all()
+
+    watcher = paho.Client(client_id="state-watcher")
+    watcher.on_message = on_message
+    watcher.connect("127.0.0.1", broker.port, keepalive=10)
+    watcher.subscribe("spBv1.0/STATE/fleet1", qos=1)
+    watcher.loop_start()
+    try:
+        with got:
+            assert got.wait_for(lambda: any(s["online"] for s in states), LIMIT_S)
+        birth = next(s for s in states if s["online"])
+        fleet.kill()
+        with got:
+            assert got.wait_for(lambda: not states[-1]["online"], LIMIT_S)
+        assert states[-1] == {"online": False, "timestamp": birth["timestamp"]}
+    finally:
+        watcher.disconnect()
+        watcher.loop_stop()
         fleet.stop()
 
 
