@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import ipaddress
+import re
 import signal
 import sys
 from pathlib import Path
@@ -67,10 +68,12 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
     from supervisor.cli.main import _setup_logging
-    from supervisor.config.models import SparkplugConfig
+    from supervisor.config.models import SPARKPLUG_ID_PATTERN, SparkplugConfig
     from supervisor.config.users import UserStore
 
     try:
+        if args.host_id is not None and not re.match(SPARKPLUG_ID_PATTERN, args.host_id):
+            raise ValueError(f"--host-id {args.host_id!r}: one topic level, no '/', '+', '#'")
         cfg = SparkplugConfig(broker=args.broker, group=args.group, edge_node=args.host_id)
         host, port = _listen(args.listen)
     except (ValidationError, ValueError) as exc:
