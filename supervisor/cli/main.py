@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, NoReturn
 
 from supervisor.bench import args as bench_args
-from supervisor.cli import audit, ctl, modbus, notify
+from supervisor.cli import audit, ctl, fleet, modbus, notify
 from supervisor.config.limits import MAX_SCAN_PERIOD_S, MIN_SCAN_PERIOD_S
 from supervisor.core.encoding import StorableFormatter
 from supervisor.core.errors import ConfigError, ConfigErrors, SupervisorError
@@ -833,6 +833,7 @@ def _add_record_parsers(sub: Any) -> None:
     rs.set_defaults(func=cmd_results)
     audit.add_parser(sub, DEFAULT_IO_MAP)
     notify.add_parser(sub, DEFAULT_IO_MAP)
+    fleet.add_parser(sub)
 
 
 def _add_opcua_parser(sub: Any) -> None:

@@ -78,8 +78,10 @@ def _unavailable(what: str) -> web.Response:
 
 
 class StaticFiles:
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, index: str = "index.html") -> None:
         self.root = root
+        self.index = index
+        """The page ``GET /`` answers (the fleet's is ``fleet.html``: supervisor.fleet)."""
         self.uplot = root / "node_modules" / "uplot" / "dist"
         self.packed: dict[Path, Packed] = {}
         """Each text file's gzip as last served (bounded by the files under the roots)."""
@@ -94,14 +96,14 @@ class StaticFiles:
         )
 
     async def _index(self, request: web.Request) -> web.StreamResponse:
-        index = self.root / "index.html"
+        index = self.root / self.index
         if not index.is_file():
             return _unavailable(f"{index}")
         return await self._send(request, index)
 
     async def _static(self, request: web.Request) -> web.StreamResponse:
-        if not (self.root / "index.html").is_file():
-            return _unavailable(f"{self.root / 'index.html'}")
+        if not (self.root / self.index).is_file():
+            return _unavailable(f"{self.root / self.index}")
         return await self._send(request, self._file(self.root, request.match_info["path"]))
 
     async def _uplot(self, request: web.Request) -> web.StreamResponse:
