@@ -11,15 +11,16 @@ __all__ = ["WHAT", "add_parser"]
 WHAT: Final = (
     "scan", "manual", "seed002", "dry-run", "faults", "estop", "kill-restart", "historian",
     "influx", "opcua", "http", "load", "memory", "pi-budget", "report", "flood",
-    "validate-attack", "cli",
+    "validate-attack", "cli", "fleet",
 )  # fmt: skip
 """The benchmarks, as ``supervisor bench WHAT`` names them."""
 
 NUMBERS: Final[tuple[tuple[str, type, float | int | None, str], ...]] = (
-    ("--tags", int, 1000, "scan, historian: number of tags"),
+    ("--tags", int, 1000, "scan, historian: number of tags; fleet: tags per bench (100)"),
+    ("--benches", int, 100, "fleet: simulated benches (edge nodes)"),
     ("--period-ms", float, 10.0, "scan, estop, historian: period in ms"),
     ("--presses", int, 100, "estop: e-stop presses"),
-    ("--seconds", float, 10.0, "scan, historian: wall seconds to run"),
+    ("--seconds", float, 10.0, "scan, historian, fleet: wall seconds to run (measured)"),
     ("--hours", float, 10.0, "manual: simulated hours"),
     ("--iterations", int, 20, "kill-restart: kills"),
     ("--seed", int, 1, "kill-restart: seed of the kill times"),

@@ -102,6 +102,12 @@ def run_bench(args: argparse.Namespace, default_io_map: Path) -> int:
         from supervisor.bench.validate import validate_attack_benchmark
 
         return validate_attack_benchmark()
+    if args.what == "fleet":
+        from supervisor.bench.fleet import fleet_benchmark
+
+        # --tags defaults to the scan's 1000: a bench of the fleet has 100 (issue 35).
+        tags = 100 if args.tags == 1000 else args.tags
+        return fleet_benchmark(args.benches, tags, args.seconds, _out)
     if args.what == "cli":
         from supervisor.bench.cli import cli_benchmark
 

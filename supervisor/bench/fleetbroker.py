@@ -1,0 +1,90 @@
+"""Debian's Mosquitto on a free loopback port, for ``supervisor bench fleet`` (and the tests'
+rig could use the same): a configuration of its own (anonymous, no persistence), stopped by
+its pid, never a service of the machine (``make mosquitto`` installs the package)."""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import subprocess
+import time
+from pathlib import Path
+from typing import Final
+
+from supervisor.bench.ports import LOOPBACK, free_port
+from supervisor.bench.processes import stop_with_parent
+
+__all__ = ["Broker", "mosquitto_binary"]
+
+START_TIMEOUT_S: Final = 15.0
+DEBIAN_MOSQUITTO: Final = Path("/usr/sbin/mosquitto")
+
+
+def mosquitto_binary() -> Path:
+    found = shutil.which("mosquitto") or (
+        str(DEBIAN_MOSQUITTO) if DEBIAN_MOSQUITTO.exists() else None
+    )
+    if found is None:
+        raise RuntimeError("mosquitto is not installed: `make mosquitto` (Debian package)")
+    return Path(found)
+
+
+class Broker:
+    """One Mosquitto on 127.0.0.1:<free port>, its configuration and log under ``root``."""
+
+    def __init__(self, root: Path) -> None:
+        root.mkdir(parents=True, exist_ok=True)
+        self.binary = mosquitto_binary()
+        self.port = free_port()
+        self.log = root / "mosquitto.log"
+        self.config = root / "mosquitto.conf"
+        # max_queued_messages 0: no limit, so a burst of a hundred nodes' births is not cut
+        # at the default 1000 queued messages of a slow subscriber (the fleet).
+        self.config.write_text(
+            f"listener {self.port} {LOOPBACK}\nallow_anonymous true\npersistence false\n"
+            f"max_queued_messages 0\nlog_dest file {self.log}\n"
+            "log_type error\nlog_type warning\n",
+            encoding="utf-8",
+        )
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    @property
+    def pid(self) -> int:
+        assert self.proc is not None
+        return self.proc.pid
+
+    def start(self) -> None:
+        self.proc = subprocess.Popen(
+            [str(self.binary), "-c", str(self.config)],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            stdin=subprocess.DEVNULL,
+            preexec_fn=stop_with_parent(),  # no broker left behind by a killed run
+        )
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while not self._accepts():
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"mosquitto exited with {self.proc.returncode}: {self.log}")
+            if time.monotonic() > deadline:
+                self.stop()
+                raise RuntimeError(f"mosquitto did not listen in {START_TIMEOUT_S:g} s")
+            time.sleep(0.05)
+
+    def _accepts(self) -> bool:
+        try:
+            with socket.create_connection((LOOPBACK, self.port), timeout=1):
+                return True
+        except OSError:
+            return False
+
+    def stop(self) -> None:
+        """SIGTERM by pid, SIGKILL when it does not stop in 10 s."""
+        proc, self.proc = self.proc, None
+        if proc is None or proc.poll() is not None:
+            return
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
