@@ -16,9 +16,11 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import signal
 import sys
 import threading
+import time
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -42,6 +44,7 @@ class MeasuredFleet(Fleet):
         self.messages = 0
         self.samples = 0
         self.latency_ms: Counter[int] = Counter()
+        self.window = (math.nan, math.nan)  # monotonic begin, end
 
     def _apply(self, verb: str, edge: str, device: str | None, p: Any, now_ms: int) -> bool:
         if self.measuring:
@@ -58,11 +61,18 @@ class MeasuredFleet(Fleet):
             self.messages = self.samples = 0
             self.latency_ms.clear()
             self.measuring = True
+            self.window = (time.monotonic(), math.nan)
+
+    def end(self) -> None:
+        """The window ends now (a signal handler: no lock, one assignment each)."""
+        self.measuring = False
+        self.window = (self.window[0], time.monotonic())
 
     def result(self) -> dict[str, Any]:
         with self.lock:
             self.measuring = False
             return {
+                "window_s": self.window[1] - self.window[0],
                 "messages": self.messages,
                 "samples": self.samples,
                 "latency_ms": sorted(self.latency_ms.items()),
@@ -110,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     stop = threading.Event()
     ended = threading.Event()
     signal.signal(signal.SIGUSR1, lambda *_: fleet.begin())
-    signal.signal(signal.SIGUSR2, lambda *_: ended.set())
+    signal.signal(signal.SIGUSR2, lambda *_: (fleet.end(), ended.set()))
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     host.start()
     while not stop.is_set():
