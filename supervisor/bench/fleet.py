@@ -1,5 +1,6 @@
 """``supervisor bench fleet --benches N [--tags T] [--seconds S]``: a lab of N benches
-through one Mosquitto into the fleet (issue 35; docs/performance.md "Fleet").
+through one Mosquitto into the fleet (issue 35; docs/performance.md "Issue 35: a hundred
+benches through one Mosquitto"; ADR 0053).
 
 Started here, each stopped by its pid: Debian's Mosquitto on a free loopback port
 (``fleetbroker``); the fleet's state code subscribed to the group in a process of its own
