@@ -16,7 +16,7 @@ WHAT: Final = (
 """The benchmarks, as ``supervisor bench WHAT`` names them."""
 
 NUMBERS: Final[tuple[tuple[str, type, float | int | None, str], ...]] = (
-    ("--tags", int, 1000, "scan, historian: number of tags; fleet: tags per bench (100)"),
+    ("--tags", int, None, "scan, historian, http: number of tags (1000); fleet: a bench's (100)"),
     ("--benches", int, 100, "fleet: simulated benches (edge nodes)"),
     ("--period-ms", float, 10.0, "scan, estop, historian: period in ms"),
     ("--presses", int, 100, "estop: e-stop presses"),

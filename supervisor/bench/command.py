@@ -43,10 +43,11 @@ def run_bench(args: argparse.Namespace, default_io_map: Path) -> int:
     of those that run on the simulated seed 002 bench (``seed002``, ``estop``)."""
     from supervisor.bench import benchmarks
 
+    tags = _tags(args, 1000)
     if args.what == "scan":
         return asyncio.run(
             benchmarks.scan_benchmark(
-                args.tags,
+                tags,
                 args.period_ms / 1000,
                 args.seconds,
                 recipes=args.recipes,
@@ -55,7 +56,7 @@ def run_bench(args: argparse.Namespace, default_io_map: Path) -> int:
         )
     if args.what == "historian":
         return asyncio.run(
-            benchmarks.historian_benchmark(args.tags, args.period_ms / 1000, args.seconds)
+            benchmarks.historian_benchmark(tags, args.period_ms / 1000, args.seconds)
         )
     if args.what == "seed002":
         return asyncio.run(benchmarks.seed002_benchmark(str(default_io_map)))
@@ -83,7 +84,7 @@ def run_bench(args: argparse.Namespace, default_io_map: Path) -> int:
 
         return asyncio.run(
             http_benchmark(
-                args.tags, args.period_ms / 1000, args.seconds, args.http_clients, args.ws_clients
+                tags, args.period_ms / 1000, args.seconds, args.http_clients, args.ws_clients
             )
         )
     if args.what == "opcua":
@@ -102,16 +103,8 @@ def run_bench(args: argparse.Namespace, default_io_map: Path) -> int:
         from supervisor.bench.validate import validate_attack_benchmark
 
         return validate_attack_benchmark()
-    if args.what == "fleet":
-        from supervisor.bench.fleet import fleet_benchmark
-
-        # --tags defaults to the scan's 1000: a bench of the fleet has 100 (issue 35).
-        tags = 100 if args.tags == 1000 else args.tags
-        return fleet_benchmark(args.benches, tags, args.seconds, _out)
-    if args.what == "cli":
-        from supervisor.bench.cli import cli_benchmark
-
-        return cli_benchmark(args.runs)
+    if args.what in _BY_NAME:
+        return _BY_NAME[args.what](args)
     if args.what in ("load", "memory", "pi-budget", "report"):
         from supervisor.bench import suite
 
@@ -119,6 +112,28 @@ def run_bench(args: argparse.Namespace, default_io_map: Path) -> int:
     if args.what == "dry-run":
         return _dry_run(args)
     return asyncio.run(benchmarks.manual_charge_benchmark(args.hours))
+
+
+def _tags(args: argparse.Namespace, default: int) -> int:
+    """``--tags``, or the benchmark's own default (a bench of the fleet has 100, the scan's
+    and the historian's load 1000)."""
+    return default if args.tags is None else int(args.tags)
+
+
+def _cli(args: argparse.Namespace) -> int:
+    from supervisor.bench.cli import cli_benchmark
+
+    return cli_benchmark(args.runs)
+
+
+def _fleet(args: argparse.Namespace) -> int:
+    from supervisor.bench.fleet import fleet_benchmark
+
+    return fleet_benchmark(args.benches, _tags(args, 100), args.seconds, _out)
+
+
+_BY_NAME: dict[str, Callable[[argparse.Namespace], int]] = {"cli": _cli, "fleet": _fleet}
+"""The benchmarks that take only their arguments (imported when run)."""
 
 
 def _dry_run(args: argparse.Namespace) -> int:

@@ -120,7 +120,12 @@ def main(argv: list[str] | None = None) -> int:
     stop = threading.Event()
     ended = threading.Event()
     signal.signal(signal.SIGUSR1, lambda *_: fleet.begin())
-    signal.signal(signal.SIGUSR2, lambda *_: (fleet.end(), ended.set()))
+
+    def end_window(*_: object) -> None:
+        fleet.end()
+        ended.set()
+
+    signal.signal(signal.SIGUSR2, end_window)
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     host.start()
     while not stop.is_set():
