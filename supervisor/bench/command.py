@@ -117,7 +117,8 @@ def run_bench(args: argparse.Namespace, default_io_map: Path) -> int:
 def _tags(args: argparse.Namespace, default: int) -> int:
     """``--tags``, or the benchmark's own default (a bench of the fleet has 100, the scan's
     and the historian's load 1000)."""
-    return default if args.tags is None else int(args.tags)
+    given = getattr(args, "tags", None)  # a namespace built by hand may have none
+    return default if given is None else int(given)
 
 
 def _cli(args: argparse.Namespace) -> int:
