@@ -1,8 +1,9 @@
 """A real MQTT broker and a Sparkplug consumer that is not the project's code, for the tests.
 
 ``Mosquitto`` is Debian's broker (``make mosquitto``; ``make test`` installs it) started on
-a free loopback port with a configuration of the test's own (anonymous, no persistence),
-stopped by its pid; a missing binary is an error, not a skip, so CI never passes without it.
+a free loopback port with a configuration of the test's own (anonymous, no persistence
+unless asked), stopped by its pid — the lab's ``Broker`` (supervisor/bench/fleetbroker.py);
+a missing binary is an error, not a skip, so CI never passes without it.
 
 ``SparkplugConsumer`` subscribes to a group with paho-mqtt and decodes every message with
 pysparkplug (ADR 0051: the other library, with its own protobuf module generated from the
@@ -14,109 +15,22 @@ its protobuf message. It sends a rebirth request the way a host application does
 from __future__ import annotations
 
 import os
-import shutil
-import socket
-import subprocess
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import paho.mqtt.client as paho
 import pysparkplug as ps
 from pysparkplug._protobuf import Payload as PbPayload  # the properties (not in ps.Metric)
 
-from supervisor.bench.processes import stop_with_parent
-from supervisor.testing import free_tcp_port
+from supervisor.bench.fleetbroker import Broker, mosquitto_binary
 
 __all__ = ["Mosquitto", "Received", "SparkplugConsumer", "mosquitto_binary"]
 
-START_TIMEOUT_S = 15.0
-DEBIAN_MOSQUITTO = Path("/usr/sbin/mosquitto")
-
-
-def mosquitto_binary() -> Path:
-    found = shutil.which("mosquitto") or (
-        str(DEBIAN_MOSQUITTO) if DEBIAN_MOSQUITTO.exists() else None
-    )
-    if found is None:
-        raise RuntimeError(
-            "mosquitto is not installed: `make mosquitto` (Debian package mosquitto)"
-        )
-    return Path(found)
-
-
-class Mosquitto:
-    """Debian's mosquitto on 127.0.0.1:<free port>, its configuration and log under ``root``."""
-
-    def __init__(self, root: Path, persistent: bool = False) -> None:
-        """``persistent``: the broker keeps its clients' sessions across a restart, QoS 0
-        messages included (queued for a session whose client is away)."""
-        self.binary = mosquitto_binary()
-        root.mkdir(parents=True, exist_ok=True)
-        self.root = root
-        self.port = free_tcp_port()
-        self.url = f"mqtt://127.0.0.1:{self.port}"
-        self.log = root / "mosquitto.log"
-        self.config = root / "mosquitto.conf"
-        self.config.write_text(
-            f"listener {self.port} 127.0.0.1\n"
-            "allow_anonymous true\n"
-            + (
-                f"persistence true\npersistence_location {root}/\n"
-                "queue_qos0_messages true\nmax_queued_messages 0\n"
-                if persistent
-                else "persistence false\n"
-            )
-            + f"log_dest file {self.log}\n"
-            "log_type error\nlog_type warning\nlog_type notice\n",
-            encoding="utf-8",
-        )
-        self._proc: subprocess.Popen[bytes] | None = None
-
-    @property
-    def running(self) -> bool:
-        return self._proc is not None and self._proc.poll() is None
-
-    def start(self) -> None:
-        if self.running:
-            return
-        self._proc = subprocess.Popen(
-            [str(self.binary), "-c", str(self.config)],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            stdin=subprocess.DEVNULL,
-            preexec_fn=stop_with_parent(),  # no broker left behind by a killed run
-        )
-        deadline = time.monotonic() + START_TIMEOUT_S
-        while not self._accepts():
-            if self._proc.poll() is not None:
-                raise RuntimeError(f"mosquitto exited with {self._proc.returncode}: {self.log}")
-            if time.monotonic() > deadline:
-                self.stop()
-                raise RuntimeError(f"mosquitto did not listen in {START_TIMEOUT_S:g} s")
-            time.sleep(0.05)
-
-    def _accepts(self) -> bool:
-        try:
-            with socket.create_connection(("127.0.0.1", self.port), timeout=1):
-                return True
-        except OSError:
-            return False
-
-    def stop(self) -> None:
-        """Stop the broker by its pid: SIGTERM, SIGKILL when it does not stop in 10 s."""
-        proc, self._proc = self._proc, None
-        if proc is None or proc.poll() is not None:
-            return
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+Mosquitto = Broker
+"""The broker of the tests: the lab's own (supervisor/bench/fleetbroker.py)."""
 
 
 @dataclass(frozen=True)

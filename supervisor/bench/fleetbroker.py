@@ -1,6 +1,7 @@
-"""Debian's Mosquitto on a free loopback port, for ``supervisor bench fleet`` (and the tests'
-rig could use the same): a configuration of its own (anonymous, no persistence), stopped by
-its pid, never a service of the machine (``make mosquitto`` installs the package)."""
+"""Debian's Mosquitto on a free loopback port, for ``supervisor bench fleet`` and the tests'
+rig (tests/mqttrig.py): a configuration of its own (anonymous; no persistence unless asked),
+stopped by its pid, never a service of the machine (``make mosquitto`` installs the
+package)."""
 
 from __future__ import annotations
 
@@ -32,21 +33,34 @@ def mosquitto_binary() -> Path:
 class Broker:
     """One Mosquitto on 127.0.0.1:<free port>, its configuration and log under ``root``."""
 
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, persistent: bool = False) -> None:
+        """``persistent``: the broker keeps its clients' sessions across a restart, QoS 0
+        messages included (queued for a session whose client is away)."""
         root.mkdir(parents=True, exist_ok=True)
         self.binary = mosquitto_binary()
+        self.root = root
         self.port = free_port()
+        self.url = f"mqtt://{LOOPBACK}:{self.port}"
         self.log = root / "mosquitto.log"
         self.config = root / "mosquitto.conf"
+        keep = (
+            f"persistence true\npersistence_location {root}/\nqueue_qos0_messages true\n"
+            if persistent
+            else "persistence false\n"
+        )
         # max_queued_messages 0: no limit, so a burst of a hundred nodes' births is not cut
         # at the default 1000 queued messages of a slow subscriber (the fleet).
         self.config.write_text(
-            f"listener {self.port} {LOOPBACK}\nallow_anonymous true\npersistence false\n"
+            f"listener {self.port} {LOOPBACK}\nallow_anonymous true\n{keep}"
             f"max_queued_messages 0\nlog_dest file {self.log}\n"
-            "log_type error\nlog_type warning\n",
+            "log_type error\nlog_type warning\nlog_type notice\n",
             encoding="utf-8",
         )
         self.proc: subprocess.Popen[bytes] | None = None
+
+    @property
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
 
     @property
     def pid(self) -> int:
@@ -54,6 +68,9 @@ class Broker:
         return self.proc.pid
 
     def start(self) -> None:
+        """Start it (again, on the same port and configuration after a stop)."""
+        if self.running:
+            return
         self.proc = subprocess.Popen(
             [str(self.binary), "-c", str(self.config)],
             stdout=subprocess.DEVNULL,
