@@ -620,10 +620,7 @@ class SparkplugPublisher:
                     self._idle = True
                     self._cond.wait()
                 self._idle = False
-                stopping, cycle = self._stopping, self._cycle and not self._stopping
-                self._cycle = False
-            if cycle:
-                self._end_session()
+                stopping = self._stopping
             self.drain()
             if stopping:
                 return
@@ -635,6 +632,9 @@ class SparkplugPublisher:
             batches = list(self._queue)
             self._queue.clear()
             self._queued = 0
+            cycle, self._cycle = self._cycle and not self._stopping, False
+        if cycle:
+            self._end_session()
         if self.gate is not None:
             self.gate.wait()  # the scan first: encoding takes the interpreter lock
         self.step(batches)
