@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import socket
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -20,7 +21,7 @@ if TYPE_CHECKING:  # imported when a bench has the section: paho-mqtt and protob
     # about 0.1 s of every command's start-up (``supervisor check``) otherwise.
     from supervisor.publish.sparkplug import CommandHandler, Reply, SparkplugPublisher
 
-__all__ = ["build_sparkplug", "command_handler", "keep_bd_seq"]
+__all__ = ["build_sparkplug", "command_handler", "keep_bd_seq", "screens_url"]
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +75,7 @@ def build_sparkplug(
         devices=list(cfg.devices),
         changes=changes.reader() if changes is not None else None,
         alarm=hook,
+        active_alarms=(lambda: len(alarms.in_alarm())) if alarms is not None else None,
     )
 
 
@@ -104,3 +106,13 @@ def command_handler(path: CommandPath, loop: asyncio.AbstractEventLoop) -> Comma
         asyncio.run_coroutine_threadsafe(run(), loop)
 
     return handle
+
+
+def screens_url(host: str, port: int) -> str:
+    """The HMI's URL as another machine reaches it (``hmi.url``): an address that listens
+    on every interface is this host's name."""
+    if host in ("", "0.0.0.0", "::"):
+        host = socket.getfqdn()
+    if ":" in host:
+        host = f"[{host}]"
+    return f"http://{host}:{port}/"

@@ -5,7 +5,8 @@ and pysparkplug: its retained STATE, its DCMD).
 
 The edge node waits for the host's STATE online before its NBIRTH; a DCMD
 ``Command/start`` = true on ch0 starts the chain (its DDATA says Running), answered by
-``Command/last_result``; the audit trail has the command with the actor
+``Command/last_result``; the NBIRTH carries ``hmi.url`` (the screens' address) and
+``alarms.active`` for the fleet; the audit trail has the command with the actor
 ``sparkplug:scada``. The host's STATE offline: the node publishes its NDEATH and
 reconnects, and a DCMD is refused (logged with the reason).
 
@@ -140,7 +141,9 @@ def test_a_dcmd_of_the_primary_host_starts_a_channel_and_is_audited_offline_is_r
                 env=dict(os.environ, PYTHONUNBUFFERED="1"),
             )
         assert proc.stdout is not None
+        screens = ""
         for line in proc.stdout:
+            screens = line.split()[2] if line.startswith("operator screens:") else screens
             if line.startswith("Ctrl-C"):
                 break
         time.sleep(1.0)  # not a timing claim: a margin for a birth that should not come
@@ -148,6 +151,10 @@ def test_a_dcmd_of_the_primary_host_starts_a_channel_and_is_audited_offline_is_r
 
         host.state(True)
         consumer.wait_for(count("DBIRTH")(2), "births after the STATE online", LIMIT_S)
+        (nbirth,) = consumer.of("NBIRTH")
+        assert screens.startswith("http://127.0.0.1:")  # what the fleet links to
+        assert nbirth.metrics()["hmi.url"].value == screens
+        assert nbirth.metrics()["alarms.active"].value >= 0
         (ch0_birth,) = consumer.of("DBIRTH", "ch0")
         assert ch0_birth.metrics()["Command/start"].value is False
         assert ch0_birth.metrics()["chain.state"].value == "Idle"

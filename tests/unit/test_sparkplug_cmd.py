@@ -17,12 +17,13 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import socket
 from typing import Any
 
 import pysparkplug as ps
 import pytest
 
-from supervisor.app.sparkplug import command_handler
+from supervisor.app.sparkplug import command_handler, screens_url
 from supervisor.commands import CommandPath
 from supervisor.core.clock import VirtualClock
 from supervisor.core.quality import Quality
@@ -300,3 +301,61 @@ def _rebirth() -> bytes:
     now = ps.get_current_timestamp()
     metric = ps.Metric(now, "Node Control/Rebirth", ps.DataType.BOOLEAN, value=True)
     return ps.NCmd(timestamp=now, metrics=(metric,)).encode(include_dtypes=True)
+
+
+def test_the_node_publishes_its_screens_url_and_its_active_alarms() -> None:
+    """What the fleet reads (supervisor/fleet): ``hmi.url`` and ``alarms.active``."""
+    active = [0]
+    clock = VirtualClock()
+    db = TagDB()
+    transport = FakeTransport()
+    pub = SparkplugPublisher(
+        db,
+        clock,
+        SparkplugSettings("127.0.0.1", 1883, "Lab", "bench7"),
+        channels=[],
+        devices=[],
+        transport=lambda: transport,
+        active_alarms=lambda: active[0],
+    )
+    pub.hmi_url = "http://bench7.lab:8080/"
+    pub.start(threaded=False)
+    pub.connected()
+    pub.on_scan(db, clock.now())
+    pub.drain()
+    nbirth = {m.name: m for m in decoded(transport.sent[0]).metrics}
+    assert nbirth["hmi.url"].datatype is ps.DataType.STRING
+    assert nbirth["hmi.url"].value == "http://bench7.lab:8080/"
+    assert nbirth["alarms.active"].datatype is ps.DataType.INT64
+    assert nbirth["alarms.active"].value == 0
+
+    active[0] = 2
+    for _ in range(2):  # the count is taken at a scan's end, published by the next round
+        clock.advance(0.1)
+        db.set_scan_time(clock.now())
+        pub.on_scan(db, clock.now())
+        pub.drain()
+    ndata = [m for m in transport.sent if "/NDATA/" in m.topic]
+    assert metrics(ndata[-1])["alarms.active"] == 2
+
+
+def test_without_the_hmi_there_is_no_screens_url() -> None:
+    rig = Rig(None)
+    births = rig.connect()
+    assert "hmi.url" not in metrics(births[0])
+
+
+@pytest.mark.parametrize(
+    ("host", "url"),
+    [
+        ("127.0.0.1", "http://127.0.0.1:8080/"),
+        ("bench7.lab", "http://bench7.lab:8080/"),
+        ("::1", "http://[::1]:8080/"),
+    ],
+)
+def test_the_screens_url_is_the_hmis_listen_address(host: str, url: str) -> None:
+    assert screens_url(host, 8080) == url
+
+
+def test_an_hmi_on_every_interface_is_linked_by_the_hosts_name() -> None:
+    assert screens_url("0.0.0.0", 8080) == f"http://{socket.getfqdn()}:8080/"

@@ -68,9 +68,11 @@ from supervisor.tags import Tag, TagDB, TagSpec
 
 __all__ = [
     "ALARMS",
+    "ALARMS_ACTIVE",
     "ALARM_DISCONNECTED",
     "ALARM_SPOOL_FULL",
     "BD_SEQ_KEY",
+    "HMI_URL",
     "AlarmHook",
     "AlarmSpec",
     "BdSeqStore",
@@ -84,6 +86,10 @@ log = logging.getLogger(__name__)
 
 BD_SEQ_KEY = "sparkplug"
 """The retained-state document holding the last CONNECT's bdSeq."""
+HMI_URL: Final = "hmi.url"
+ALARMS_ACTIVE: Final = "alarms.active"
+"""Node metrics a host application (``supervisor fleet``) reads: the bench's screens and
+its annunciated alarms (bench-level tags: ADR 0052)."""
 STATUS_PERIOD_S = 0.1
 RETRY_S = 1.0
 REPLAY_CHUNK: Final = 2000
@@ -229,8 +235,13 @@ class SparkplugPublisher:
         changes: ChangeSource | None = None,
         transport: Callable[[], Transport] | None = None,
         alarm: AlarmHook | None = None,
+        active_alarms: Callable[[], int] | None = None,
     ) -> None:
         self.settings = settings
+        self.active_alarms = active_alarms
+        """The bench's annunciated alarms, counted on the scan's side (``alarms.active``)."""
+        self.hmi_url: str | None = None
+        """The bench's own screens (``hmi.url``): set before ``start`` when the HMI runs."""
         self.alarm = alarm
         self.spool: SampleSpool | None = (
             SampleSpool(settings.spool_path, settings.spool_max_bytes)
@@ -284,6 +295,11 @@ class SparkplugPublisher:
         for spec in _status_tags():
             tag = self._tags[spec.name] = db.get(spec.name) or db.add(spec)
             db.update(tag, initial[spec.dtype])
+        if active_alarms is not None:
+            self._tags[ALARMS_ACTIVE] = db.get(ALARMS_ACTIVE) or db.add(
+                TagSpec(ALARMS_ACTIVE, "int", description="Alarms annunciated now (not shelved)")
+            )
+            db.update(self._tags[ALARMS_ACTIVE], active_alarms())
         self._status_t = float("-inf")
         self.gate: ScanGate | None = None
         """Encode only while the scan is not running (``core/gate.py``; set by the bench)."""
@@ -311,6 +327,12 @@ class SparkplugPublisher:
                 # A state folder that cannot be written: publish anyway, without a spool.
                 log.error("Sparkplug spool %s cannot be opened (%s): none", self.spool.path, exc)
                 self.spool = None
+        if self.hmi_url:
+            # Before the scan runs (``Bench.start``): a node metric the fleet links to.
+            tag = self.db.get(HMI_URL) or self.db.add(
+                TagSpec(HMI_URL, "str", description="The bench's operator screens (URL)")
+            )
+            self.db.update(tag, self.hmi_url)
         self._next_bd_seq()
         self._stopping = False
         self._down_since = self.clock.now()  # until the first connection
@@ -557,6 +579,8 @@ class SparkplugPublisher:
         db.update(tags["sparkplug.host_online"], self.host is not None and self.host.online)
         db.update(tags["sparkplug.commands_accepted"], self.commands_accepted)
         db.update(tags["sparkplug.commands_refused"], self.commands_refused)
+        if self.active_alarms is not None:
+            db.update(tags[ALARMS_ACTIVE], self.active_alarms())
         if self.alarm is not None:
             self._publish_alarms(self.clock.now())
 
