@@ -129,23 +129,7 @@ def test_a_dcmd_of_the_primary_host_starts_a_channel_and_is_audited_offline_is_r
     log_path = tmp_path / "supervisor.log"
     proc = None
     try:
-        file = recipe(tmp_path, DISCHARGE)
-        cli = [sys.executable, "-m", "supervisor.cli.main", "run", bench_map(tmp_path, broker)]
-        with log_path.open("w", encoding="utf-8") as log_file:
-            proc = subprocess.Popen(
-                [*cli, "--recipe", f"ch0={file}"],
-                cwd=tmp_path,
-                stdout=subprocess.PIPE,
-                stderr=log_file,
-                text=True,
-                env=dict(os.environ, PYTHONUNBUFFERED="1"),
-            )
-        assert proc.stdout is not None
-        screens = ""
-        for line in proc.stdout:
-            screens = line.split()[2] if line.startswith("operator screens:") else screens
-            if line.startswith("Ctrl-C"):
-                break
+        proc, screens = run_supervisor(tmp_path, broker, log_path)
         time.sleep(1.0)  # not a timing claim: a margin for a birth that should not come
         assert consumer.of("NBIRTH") == []  # the host's STATE is not online yet
 
@@ -187,6 +171,31 @@ def test_a_dcmd_of_the_primary_host_starts_a_channel_and_is_audited_offline_is_r
     started = [e for e in entries if e["actor"] == f"sparkplug:{HOST}"]
     assert [(e["target"], "start" in e["details"]) for e in started] == [("ch0", True)]
     assert not any("hold" in e["details"] for e in started)  # refused before the path
+
+
+def run_supervisor(
+    tmp: Path, broker: Mosquitto, log_path: Path
+) -> tuple[subprocess.Popen[str], str]:
+    """``supervisor run`` with the recipe loaded on ch0, up: its process and the URL of its
+    screens (from its banner)."""
+    file = recipe(tmp, DISCHARGE)
+    cli = [sys.executable, "-m", "supervisor.cli.main", "run", bench_map(tmp, broker)]
+    with log_path.open("w", encoding="utf-8") as log_file:
+        proc = subprocess.Popen(
+            [*cli, "--recipe", f"ch0={file}"],
+            cwd=tmp,
+            stdout=subprocess.PIPE,
+            stderr=log_file,
+            text=True,
+            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        )
+    assert proc.stdout is not None
+    screens = ""
+    for line in proc.stdout:
+        screens = line.split()[2] if line.startswith("operator screens:") else screens
+        if line.startswith("Ctrl-C"):
+            break
+    return proc, screens
 
 
 def audit_entries(path: Path) -> list[dict[str, Any]]:

@@ -259,18 +259,7 @@ class SparkplugPublisher:
             settings.group, settings.edge_node, Layout(tuple(channels), tuple(devices))
         )
         self._make_transport = transport or self._paho
-        self.commander: CommandHandler | None = None
-        """Runs a DCMD's command through the one command path (set by the bench)."""
-        cmd = settings.commands
-        self.host: HostState | None = (
-            HostState(cmd.primary_host) if cmd is not None and cmd.primary_host else None
-        )
-        self.commands_accepted = 0
-        self.commands_refused = 0
-        self._results: list[tuple[str, Metric]] = []
-        self._born = False  # births sent on this connection
-        self._cycle = False  # the primary host went offline: NDEATH, reconnect
-        self._recycling = False
+        self._init_commands(settings.commands, channels)
         self.transport: Transport | None = None
         self._cond = threading.Condition()
         self._queue: deque[ChangeBatch] = deque()
@@ -281,28 +270,45 @@ class SparkplugPublisher:
         self._need_birth = False
         self._thread: threading.Thread | None = None
         self.metrics: dict[str, Metric] = {}  # the thread's: each tag's latest state
-        self._command_metrics: dict[str, Metric] = (
-            command_metrics(channels, round(clock.wall() * 1000))
-            if settings.commands is not None and settings.commands.enabled
-            else {}
-        )
         self._primed = False  # the metrics hold every tag (the source's first batch came)
         self.bd_seq = 0
         self.sent = 0
         self.dropped = 0
         self._tags: dict[str, Tag] = {}
+        self._add_tags(db)
+        self._status_t = float("-inf")
+        self.gate: ScanGate | None = None
+        """Encode only while the scan is not running (``core/gate.py``; set by the bench)."""
+
+    def _init_commands(self, cmd: CommandSettings | None, channels: Sequence[str]) -> None:
+        self.commander: CommandHandler | None = None
+        """Runs a DCMD's command through the one command path (set by the bench)."""
+        self.host: HostState | None = (
+            HostState(cmd.primary_host) if cmd is not None and cmd.primary_host else None
+        )
+        self.commands_accepted = 0
+        self.commands_refused = 0
+        self._results: list[tuple[str, Metric]] = []
+        self._born = False  # births sent on this connection
+        self._cycle = False  # the primary host went offline: NDEATH, reconnect
+        self._recycling = False
+        self._command_metrics: dict[str, Metric] = (
+            command_metrics(channels, round(self.clock.wall() * 1000))
+            if cmd is not None and cmd.enabled
+            else {}
+        )
+
+    def _add_tags(self, db: TagDB) -> None:
+        """The edge node's status tags, and ``alarms.active`` when it counts them."""
         initial = {"int": 0, "bool": False}
         for spec in _status_tags():
             tag = self._tags[spec.name] = db.get(spec.name) or db.add(spec)
             db.update(tag, initial[spec.dtype])
-        if active_alarms is not None:
+        if self.active_alarms is not None:
             self._tags[ALARMS_ACTIVE] = db.get(ALARMS_ACTIVE) or db.add(
                 TagSpec(ALARMS_ACTIVE, "int", description="Alarms annunciated now (not shelved)")
             )
-            db.update(self._tags[ALARMS_ACTIVE], active_alarms())
-        self._status_t = float("-inf")
-        self.gate: ScanGate | None = None
-        """Encode only while the scan is not running (``core/gate.py``; set by the bench)."""
+            db.update(self._tags[ALARMS_ACTIVE], self.active_alarms())
 
     def _paho(self) -> Transport:
         s = self.settings
