@@ -103,7 +103,10 @@ def command_handler(path: CommandPath, loop: asyncio.AbstractEventLoop) -> Comma
                 return
             reply(result.accepted, result.reason)
 
-        asyncio.run_coroutine_threadsafe(run(), loop)
+        try:
+            asyncio.run_coroutine_threadsafe(run(), loop)
+        except RuntimeError:  # the loop is closed: the bench is stopping
+            reply(False, "the bench is stopping")
 
     return handle
 

@@ -142,8 +142,12 @@ class PahoTransport:
             self._callbacks.command(bytes(msg.payload))
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
-        if self._callbacks is not None:
+        if self._callbacks is None:
+            return
+        try:
             self._callbacks.message(str(msg.topic), bytes(msg.payload))
+        except Exception:  # a bug must not end paho's thread (and the connection with it)
+            log.exception("Sparkplug: the message on %s could not be handled", msg.topic)
 
     def reconnect(self, last: Message, will: Message) -> None:
         # Not from paho's thread (loop_stop joins it): the edge node's thread calls this.
