@@ -16,7 +16,7 @@ from supervisor.app.history import attach_historian
 from supervisor.app.influx import build_influx
 from supervisor.app.retained import RecipeSource, Retention
 from supervisor.app.simulation import SimulatedBench, build_simulation
-from supervisor.app.sparkplug import build_sparkplug, keep_bd_seq
+from supervisor.app.sparkplug import build_sparkplug, command_handler, keep_bd_seq
 from supervisor.audit import AuditLog
 from supervisor.chains.compiler import CC_ONLY, WITH_CV, Target
 from supervisor.chains.engine import ChainRunner
@@ -450,6 +450,7 @@ class Bench:
             # Its bdSeq in the retained state (``retain`` came first), on disk before the
             # CONNECT that carries it: off the loop.
             keep_bd_seq(self.sparkplug, self.retention.store if self.retention else None)
+            self.sparkplug.commander = command_handler(self.commands, asyncio.get_running_loop())
             await asyncio.to_thread(self.sparkplug.start)
         self._started = True
 

@@ -30,6 +30,7 @@ from supervisor.app.hmi import build_screens
 from supervisor.app.lock import BenchLock, BenchLockFailed
 from supervisor.app.notify import build_notifier
 from supervisor.app.preview import previews_of
+from supervisor.app.sparkplug import screens_url
 from supervisor.commands import Command, Result, Verb
 from supervisor.config.models import BenchConfig
 from supervisor.core.clock import Clock, RealClock
@@ -103,6 +104,8 @@ class Supervisor:
                 await opcua.start()
             if modbus is not None:
                 await modbus.start()
+            if bench.sparkplug is not None:  # the fleet's link to this bench's screens
+                bench.sparkplug.hmi_url = screens_url(api.host, api.port)
             await bench.start()
             if self.notifier is not None:
                 await self.notifier.start()  # the queue left by the last run is sent first

@@ -986,6 +986,31 @@ SPARKPLUG_ID_PATTERN: Final = r"^[^/+#\s]+$"
 """A Sparkplug group or edge node id: one topic level, no MQTT wildcard (chapter 4)."""
 
 
+class SparkplugCommandsConfig(Strict):
+    """Commands over Sparkplug (docs/sparkplug.md "Commands"): off by default."""
+
+    enabled: bool = Field(
+        False,
+        description="Take channel commands (start, hold, resume, stop, abort, reset,"
+        " acknowledge) from DCMD messages of the primary host application, through the one"
+        " command path with the actor sparkplug:<primary_host>.",
+    )
+    primary_host: str | None = Field(
+        None,
+        pattern=SPARKPLUG_ID_PATTERN,
+        max_length=128,
+        description="The primary host application's id: the edge node waits for its STATE"
+        " (spBv1.0/STATE/<id>) online before its NBIRTH, ends its session when it goes"
+        " offline, and takes commands only while it is online.",
+    )
+
+    @model_validator(mode="after")
+    def _host_of_commands(self) -> SparkplugCommandsConfig:
+        if self.enabled and not self.primary_host:
+            raise ValueError("enabled: true needs primary_host (the only host that commands)")
+        return self
+
+
 class SparkplugConfig(Strict):
     """Publish the bench as a Sparkplug B edge node over MQTT (docs/sparkplug.md): NBIRTH
     with the bench-level tags, one device per channel and per device (DBIRTH, DDATA), the
@@ -1025,6 +1050,10 @@ class SparkplugConfig(Strict):
         le=86_400,
         description="Raise sparkplug.disconnected (low) once the broker has been"
         " unreachable this long.",
+    )
+    commands: SparkplugCommandsConfig = Field(
+        default_factory=SparkplugCommandsConfig,
+        description="Commands over Sparkplug and the primary host application.",
     )
 
     @field_validator("broker")

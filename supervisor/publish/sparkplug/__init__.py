@@ -9,6 +9,11 @@ its ``bdSeq`` kept across restarts (``RetainedBdSeq``). The composition root
 (``supervisor.app.sparkplug``) builds it from the I/O map's ``sparkplug:`` section.
 """
 
+from supervisor.publish.sparkplug.commands import (
+    CommandHandler,
+    CommandSettings,
+    Reply,
+)
 from supervisor.publish.sparkplug.mqtt import PahoTransport, Transport
 from supervisor.publish.sparkplug.node import BD_SEQ, NAMESPACE, REBIRTH, Layout, Message, Session
 from supervisor.publish.sparkplug.payload import MetricValue, decode, encode, quality_code
@@ -39,11 +44,14 @@ __all__ = [
     "AlarmHook",
     "AlarmSpec",
     "BdSeqStore",
+    "CommandHandler",
+    "CommandSettings",
     "Layout",
     "MemoryBdSeq",
     "Message",
     "MetricValue",
     "PahoTransport",
+    "Reply",
     "RetainedBdSeq",
     "SampleSpool",
     "Session",

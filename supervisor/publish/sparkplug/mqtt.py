@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 import paho.mqtt.client as paho
@@ -34,9 +34,21 @@ class Callbacks(Protocol):
 
     def command(self, payload: bytes) -> None: ...
 
+    def message(self, topic: str, payload: bytes) -> None:
+        """A message on one of the ``also`` topics (a DCMD, a STATE)."""
+        ...
+
 
 class Transport(Protocol):
-    def start(self, will: Message, ncmd_topic: str, callbacks: Callbacks) -> None: ...
+    def start(
+        self, will: Message, ncmd_topic: str, callbacks: Callbacks, *, also: Sequence[str] = ()
+    ) -> None:
+        """Connect; subscribe to ``ncmd_topic`` and to ``also`` on every connection."""
+        ...
+
+    def reconnect(self, last: Message, will: Message) -> None:
+        """Publish ``last`` (an NDEATH), disconnect, connect again with ``will``."""
+        ...
 
     def set_will(self, will: Message) -> None:
         """The will of the next CONNECT (a reconnection)."""
@@ -74,16 +86,22 @@ class PahoTransport:
         # before its births, so what waits here is a birth sequence at most (bounded anyway).
         self._client.max_queued_messages_set(10_000)
         self._ncmd = ""
+        self._also: tuple[str, ...] = ()
         self._callbacks: Callbacks | None = None
         self._lock = threading.Lock()
 
-    def start(self, will: Message, ncmd_topic: str, callbacks: Callbacks) -> None:
+    def start(
+        self, will: Message, ncmd_topic: str, callbacks: Callbacks, *, also: Sequence[str] = ()
+    ) -> None:
         self._ncmd = ncmd_topic
+        self._also = tuple(also)
         self._callbacks = callbacks
         client = self._client
         client.on_connect = self._on_connect
         client.on_disconnect = self._on_disconnect
         client.message_callback_add(ncmd_topic, self._on_ncmd)
+        for topic in self._also:
+            client.message_callback_add(topic, self._on_message)
         self.set_will(will)
         client.connect_async(self.host, self.port, keepalive=self.keepalive_s)
         client.loop_start()  # retries the first connection too
@@ -103,7 +121,7 @@ class PahoTransport:
             return
         # Before any birth (chapter 5): the broker handles the SUBSCRIBE before the
         # PUBLISHes that follow it on this connection.
-        client.subscribe(self._ncmd, qos=1)
+        client.subscribe([(topic, 1) for topic in (self._ncmd, *self._also)])
         log.info("MQTT broker %s:%d connected", self.host, self.port)
         if self._callbacks is not None:
             self._callbacks.connected()
@@ -123,6 +141,33 @@ class PahoTransport:
         if self._callbacks is not None:
             self._callbacks.command(bytes(msg.payload))
 
+    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        if self._callbacks is None:
+            return
+        try:
+            self._callbacks.message(str(msg.topic), bytes(msg.payload))
+        except Exception:  # a bug must not end paho's thread (and the connection with it)
+            log.exception("Sparkplug: the message on %s could not be handled", msg.topic)
+
+    def reconnect(self, last: Message, will: Message) -> None:
+        # Not from paho's thread (loop_stop joins it): the edge node's thread calls this.
+        client = self._client
+        self._publish_last(last)
+        client.disconnect()
+        client.loop_stop()
+        self.set_will(will)
+        client.connect_async(self.host, self.port, keepalive=self.keepalive_s)
+        client.loop_start()
+
+    def _publish_last(self, last: Message) -> None:
+        client = self._client
+        if client.is_connected():
+            info = client.publish(last.topic, last.payload, qos=last.qos)
+            if info.rc == paho.MQTT_ERR_SUCCESS:
+                # RuntimeError/ValueError: the connection went meanwhile.
+                with contextlib.suppress(RuntimeError, ValueError):
+                    info.wait_for_publish(timeout=2.0)
+
     def publish(self, message: Message) -> bool:
         if not self._client.is_connected():
             return False
@@ -131,12 +176,8 @@ class PahoTransport:
 
     def stop(self, last: Message | None) -> None:
         client = self._client
-        if last is not None and client.is_connected():
-            info = client.publish(last.topic, last.payload, qos=last.qos)
-            if info.rc == paho.MQTT_ERR_SUCCESS:
-                # RuntimeError/ValueError: the connection went meanwhile.
-                with contextlib.suppress(RuntimeError, ValueError):
-                    info.wait_for_publish(timeout=2.0)
+        if last is not None:
+            self._publish_last(last)
         client.disconnect()  # a clean DISCONNECT: the broker drops the will
         client.loop_stop()
 

@@ -38,9 +38,21 @@ from google.protobuf.message import DecodeError
 
 from supervisor.core.clock import Clock
 from supervisor.core.gate import ScanGate
+from supervisor.core.quality import Quality
 from supervisor.core.threads import run_restarting
 from supervisor.publish.changes import ChangeBatch, ChangeSnapshots, ChangeSource, RawChange
 from supervisor.publish.retain import RetainStore
+from supervisor.publish.sparkplug.commands import (
+    ACTOR_PREFIX,
+    COMMAND_PREFIX,
+    LAST_RESULT,
+    CommandHandler,
+    CommandSettings,
+    HostState,
+    command_metrics,
+    requested,
+    state_topic,
+)
 from supervisor.publish.sparkplug.mqtt import PahoTransport, Transport
 from supervisor.publish.sparkplug.node import (
     SEQ_MODULO,
@@ -56,9 +68,11 @@ from supervisor.tags import Tag, TagDB, TagSpec
 
 __all__ = [
     "ALARMS",
+    "ALARMS_ACTIVE",
     "ALARM_DISCONNECTED",
     "ALARM_SPOOL_FULL",
     "BD_SEQ_KEY",
+    "HMI_URL",
     "AlarmHook",
     "AlarmSpec",
     "BdSeqStore",
@@ -72,6 +86,10 @@ log = logging.getLogger(__name__)
 
 BD_SEQ_KEY = "sparkplug"
 """The retained-state document holding the last CONNECT's bdSeq."""
+HMI_URL: Final = "hmi.url"
+ALARMS_ACTIVE: Final = "alarms.active"
+"""Node metrics a host application (``supervisor fleet``) reads: the bench's screens and
+its annunciated alarms (bench-level tags: ADR 0052)."""
 STATUS_PERIOD_S = 0.1
 RETRY_S = 1.0
 REPLAY_CHUNK: Final = 2000
@@ -119,6 +137,8 @@ class SparkplugSettings:
     spool_max_bytes: int = 64 * 1024 * 1024
     """0: no store and forward (changes while disconnected are dropped and counted)."""
     disconnected_alarm_s: float = 30.0
+    commands: CommandSettings | None = None
+    """Commands over Sparkplug and the primary host (None: no DCMD nor STATE subscribed)."""
 
 
 class BdSeqStore(Protocol):
@@ -179,6 +199,22 @@ def _status_tags() -> list[TagSpec]:
             description="Samples dropped by the spool's bound (the oldest)",
         ),
         TagSpec("sparkplug.replayed", "int", description="Spooled samples sent (historical)"),
+        TagSpec(
+            "sparkplug.host_online",
+            "bool",
+            description="The primary host application's STATE says online",
+        ),
+        TagSpec(
+            "sparkplug.commands_accepted",
+            "int",
+            description="DCMD commands the command path accepted",
+        ),
+        TagSpec(
+            "sparkplug.commands_refused",
+            "int",
+            description="DCMD commands refused (disabled, host not online, unknown, or by"
+            " the command path)",
+        ),
     ]
 
 
@@ -199,8 +235,13 @@ class SparkplugPublisher:
         changes: ChangeSource | None = None,
         transport: Callable[[], Transport] | None = None,
         alarm: AlarmHook | None = None,
+        active_alarms: Callable[[], int] | None = None,
     ) -> None:
         self.settings = settings
+        self.active_alarms = active_alarms
+        """The bench's annunciated alarms, counted on the scan's side (``alarms.active``)."""
+        self.hmi_url: str | None = None
+        """The bench's own screens (``hmi.url``): set before ``start`` when the HMI runs."""
         self.alarm = alarm
         self.spool: SampleSpool | None = (
             SampleSpool(settings.spool_path, settings.spool_max_bytes)
@@ -218,6 +259,7 @@ class SparkplugPublisher:
             settings.group, settings.edge_node, Layout(tuple(channels), tuple(devices))
         )
         self._make_transport = transport or self._paho
+        self._init_commands(settings.commands, channels)
         self.transport: Transport | None = None
         self._cond = threading.Condition()
         self._queue: deque[ChangeBatch] = deque()
@@ -233,13 +275,40 @@ class SparkplugPublisher:
         self.sent = 0
         self.dropped = 0
         self._tags: dict[str, Tag] = {}
+        self._add_tags(db)
+        self._status_t = float("-inf")
+        self.gate: ScanGate | None = None
+        """Encode only while the scan is not running (``core/gate.py``; set by the bench)."""
+
+    def _init_commands(self, cmd: CommandSettings | None, channels: Sequence[str]) -> None:
+        self.commander: CommandHandler | None = None
+        """Runs a DCMD's command through the one command path (set by the bench)."""
+        self.host: HostState | None = (
+            HostState(cmd.primary_host) if cmd is not None and cmd.primary_host else None
+        )
+        self.commands_accepted = 0
+        self.commands_refused = 0
+        self._results: list[tuple[str, Metric]] = []
+        self._born = False  # births sent on this connection
+        self._cycle = False  # the primary host went offline: NDEATH, reconnect
+        self._recycling = False
+        self._command_metrics: dict[str, Metric] = (
+            command_metrics(channels, round(self.clock.wall() * 1000))
+            if cmd is not None and cmd.enabled
+            else {}
+        )
+
+    def _add_tags(self, db: TagDB) -> None:
+        """The edge node's status tags, and ``alarms.active`` when it counts them."""
         initial = {"int": 0, "bool": False}
         for spec in _status_tags():
             tag = self._tags[spec.name] = db.get(spec.name) or db.add(spec)
             db.update(tag, initial[spec.dtype])
-        self._status_t = float("-inf")
-        self.gate: ScanGate | None = None
-        """Encode only while the scan is not running (``core/gate.py``; set by the bench)."""
+        if self.active_alarms is not None:
+            self._tags[ALARMS_ACTIVE] = db.get(ALARMS_ACTIVE) or db.add(
+                TagSpec(ALARMS_ACTIVE, "int", description="Alarms annunciated now (not shelved)")
+            )
+            db.update(self._tags[ALARMS_ACTIVE], self.active_alarms())
 
     def _paho(self) -> Transport:
         s = self.settings
@@ -264,6 +333,12 @@ class SparkplugPublisher:
                 # A state folder that cannot be written: publish anyway, without a spool.
                 log.error("Sparkplug spool %s cannot be opened (%s): none", self.spool.path, exc)
                 self.spool = None
+        if self.hmi_url:
+            # Before the scan runs (``Bench.start``): a node metric the fleet links to.
+            tag = self.db.get(HMI_URL) or self.db.add(
+                TagSpec(HMI_URL, "str", description="The bench's operator screens (URL)")
+            )
+            self.db.update(tag, self.hmi_url)
         self._next_bd_seq()
         self._stopping = False
         self._down_since = self.clock.now()  # until the first connection
@@ -272,7 +347,14 @@ class SparkplugPublisher:
             self._thread = threading.Thread(target=self._thread_main, name="sparkplug", daemon=True)
             self._thread.start()
         self.transport = self._make_transport()
-        self.transport.start(self._will(), self.session.ncmd_topic, self)
+        cmd = self.settings.commands
+        if cmd is None:
+            self.transport.start(self._will(), self.session.ncmd_topic, self)
+            return
+        also = [self.session.topic("DCMD") + "/+"]
+        if cmd.primary_host:
+            also.append(state_topic(cmd.primary_host))
+        self.transport.start(self._will(), self.session.ncmd_topic, self, also=also)
 
     def close(self, timeout_s: float = 5.0) -> None:
         """Send what is queued, publish the NDEATH (a clean stop) and disconnect."""
@@ -305,6 +387,31 @@ class SparkplugPublisher:
             self._queue.append(batch)
             self._queued = len(every)
 
+    def _host_ready(self) -> bool:
+        """No primary host, or its STATE says online (under the lock)."""
+        return self.host is None or self.host.online
+
+    def _end_session(self) -> None:
+        """The primary host went offline (Sparkplug 3.0, "Edge Node Session Establishment"):
+        publish the NDEATH, disconnect, connect again (next bdSeq) and wait for its STATE
+        online before the next births. The edge node's thread: the scan never waits."""
+        transport = self.transport
+        if transport is None:
+            return
+        log.warning("Sparkplug: primary host offline: NDEATH, reconnecting")
+        with self._cond:
+            self._connected = False
+            self._recycling = True
+            if self._down_since is None:
+                self._down_since = self.clock.now()
+        try:
+            death = self._will()
+            self._next_bd_seq()
+            transport.reconnect(death, self._will())
+        finally:
+            with self._cond:
+                self._recycling = False
+
     def _next_bd_seq(self) -> None:
         last = self.bd_seq_store.load()
         self.bd_seq = 0 if last is None else (last + 1) % SEQ_MODULO
@@ -322,12 +429,15 @@ class SparkplugPublisher:
             self._connected = True
             self._need_birth = True
             self._down_since = None
+            self._born = False
+            if self.host is not None:
+                self.host.online = False  # its retained STATE comes after the SUBSCRIBE
             self._cond.notify_all()
 
     def disconnected(self) -> None:
         with self._cond:
             self._connected = False
-            stopping = self._stopping
+            stopping = self._stopping or self._recycling
             if self._down_since is None:
                 self._down_since = self.clock.now()
         if stopping:
@@ -348,6 +458,85 @@ class SparkplugPublisher:
             with self._cond:
                 self._need_birth = True
                 self._cond.notify_all()
+
+    def message(self, topic: str, payload: bytes) -> None:
+        """A DCMD (``.../DCMD/<edge node>/<device>``) or the primary host's STATE."""
+        if self.host is not None and topic == state_topic(self.host.host_id):
+            self.state(payload)
+        elif topic.startswith(self.session.topic("DCMD") + "/"):
+            self.device_command(topic.rsplit("/", 1)[1], payload)
+
+    def state(self, payload: bytes) -> None:
+        """The primary host's STATE: online lets the births go (and commands in); offline
+        after the births of this connection ends the session (Sparkplug 3.0: NDEATH,
+        disconnect, connect again and wait for online)."""
+        host = self.host
+        if host is None:
+            return
+        with self._cond:
+            online = host.update(payload)
+            if online is None:
+                return
+            log.info("Sparkplug: primary host %s online: %s", host.host_id, online)
+            if not online and self._born and self._connected:
+                self._cycle = True
+            self._cond.notify_all()
+
+    def device_command(self, device: str, payload: bytes) -> None:
+        """A DCMD: each ``Command/<verb>`` set to true → the command path (or refused)."""
+        try:
+            dcmd = decode(payload)
+        except DecodeError as exc:
+            self._refuse(device, "?", f"not a Sparkplug payload ({exc})")
+            return
+        for name, verb in requested(dcmd):
+            why = self._refusal(device, verb)
+            if why:
+                self._refuse(device, verb or name, why)
+                continue
+            assert verb is not None and self.commander is not None and self.host is not None
+            actor = ACTOR_PREFIX + self.host.host_id
+            log.info("Sparkplug DCMD %s on %s by %s", verb, device, actor)
+            self.commander(device, verb, actor, self._replier(device, verb))
+
+    def _refusal(self, device: str, verb: str | None) -> str:
+        cmd = self.settings.commands
+        if cmd is None or not cmd.enabled or self.commander is None:
+            return "commands over Sparkplug are disabled (sparkplug.commands.enabled)"
+        if device not in self.session.layout.channels:
+            return f"{device} is not a channel"
+        if verb is None:
+            return "unknown command"
+        host = self.host
+        if host is None or not host.online:
+            return f"the primary host application {cmd.primary_host} is not online (its STATE)"
+        return ""
+
+    def _refuse(self, device: str, what: str, why: str) -> None:
+        log.warning("Sparkplug DCMD %s on %s refused: %s", what, device, why)
+        self._answer(device, what.removeprefix(COMMAND_PREFIX), False, why)
+
+    def _replier(self, device: str, verb: str) -> Callable[[bool, str], None]:
+        def reply(accepted: bool, reason: str) -> None:
+            if not accepted:
+                log.warning("Sparkplug DCMD %s on %s refused: %s", verb, device, reason)
+            self._answer(device, verb, accepted, reason)
+
+        return reply
+
+    def _answer(self, device: str, what: str, accepted: bool, reason: str) -> None:
+        """Count the answer; publish it as the channel's ``Command/last_result``."""
+        text = f"{what}: accepted" if accepted else f"{what}: refused: {reason}"
+        cmd = self.settings.commands
+        with self._cond:
+            if accepted:
+                self.commands_accepted += 1
+            else:
+                self.commands_refused += 1
+            if cmd is not None and cmd.enabled and device in self.session.layout.channels:
+                m = Metric("str", "", text, Quality.GOOD, self._now_ms())
+                self._results.append((f"{device}.{LAST_RESULT}", m))
+            self._cond.notify_all()
 
     # --- the scan's side --------------------------------------------------------------
     def on_scan(self, db: TagDB, t: float) -> None:
@@ -393,6 +582,11 @@ class SparkplugPublisher:
         db.update(tags["sparkplug.spool_depth"], spool.waiting if spool else 0)
         db.update(tags["sparkplug.spool_dropped"], spool.dropped if spool else 0)
         db.update(tags["sparkplug.replayed"], self.replayed)
+        db.update(tags["sparkplug.host_online"], self.host is not None and self.host.online)
+        db.update(tags["sparkplug.commands_accepted"], self.commands_accepted)
+        db.update(tags["sparkplug.commands_refused"], self.commands_refused)
+        if self.active_alarms is not None:
+            db.update(tags[ALARMS_ACTIVE], self.active_alarms())
         if self.alarm is not None:
             self._publish_alarms(self.clock.now())
 
@@ -446,7 +640,13 @@ class SparkplugPublisher:
     def _run(self) -> None:
         while True:
             with self._cond:
-                while not (self._queue or self._need_birth or self._stopping):
+                while not (
+                    self._queue
+                    or (self._need_birth and self._host_ready())
+                    or self._results
+                    or self._cycle
+                    or self._stopping
+                ):
                     self._idle = True
                     self._cond.wait()
                 self._idle = False
@@ -462,6 +662,9 @@ class SparkplugPublisher:
             batches = list(self._queue)
             self._queue.clear()
             self._queued = 0
+            cycle, self._cycle = self._cycle and not self._stopping, False
+        if cycle:
+            self._end_session()
         if self.gate is not None:
             self.gate.wait()  # the scan first: encoding takes the interpreter lock
         self.step(batches)
@@ -471,10 +674,14 @@ class SparkplugPublisher:
         replay after them) or the data; what cannot be sent goes to the spool."""
         changes, fresh = self._apply(batches)
         with self._cond:
-            connected, birth = self._connected, self._need_birth
+            connected, birth = self._connected and self._host_ready(), self._need_birth
+            results, self._results = self._results, []
+        for name, m in results:
+            self._command_metrics[name] = m  # what the next births carry
         if not connected:
             self._keep(fresh)  # a first batch is every tag: what the next births carry
             return
+        changes.extend(results)
         if not self._primed:
             return  # no first batch yet: a birth would announce nothing
         if not birth and self.session.needs_birth(name for name, _ in changes):
@@ -485,9 +692,14 @@ class SparkplugPublisher:
             return
         with self._cond:
             self._need_birth = False
-        if not self._send(self.session.births(self.bd_seq, self.metrics, self._now_ms())):
+        births = self.session.births(
+            self.bd_seq, {**self.metrics, **self._command_metrics}, self._now_ms()
+        )
+        if not self._send(births):
             self._keep(fresh)
             return
+        with self._cond:
+            self._born = True
         # A change of this round that a later one superseded is not in the births: it
         # is history, replayed after what waited before it.
         metrics = self.metrics
