@@ -15,22 +15,122 @@ its protobuf message. It sends a rebirth request the way a host application does
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
+import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import paho.mqtt.client as paho
 import pysparkplug as ps
+import yaml
 from pysparkplug._protobuf import Payload as PbPayload  # the properties (not in ps.Metric)
 
 from supervisor.bench.fleetbroker import Broker, mosquitto_binary
+from supervisor.testing import free_tcp_port
 
-__all__ = ["Mosquitto", "Received", "SparkplugConsumer", "mosquitto_binary"]
+__all__ = [
+    "GROUP",
+    "KEEPALIVE_S",
+    "Child",
+    "Mosquitto",
+    "Received",
+    "SparkplugConsumer",
+    "mosquitto_binary",
+    "running_broker",
+    "sim_map",
+]
+
+ROOT = Path(__file__).resolve().parents[1]
+GROUP = "Lab"
+KEEPALIVE_S = 5
 
 Mosquitto = Broker
 """The broker of the tests: the lab's own (supervisor/bench/fleetbroker.py)."""
+
+
+@contextmanager
+def running_broker(root: Path, persistent: bool = False) -> Iterator[Mosquitto]:
+    server = Mosquitto(root, persistent=persistent)
+    server.start()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+def sim_map(tmp: Path, broker: Mosquitto, edge: str | None = None, **sparkplug: Any) -> Path:
+    """io_maps/sim.yaml on free loopback ports, no login, its state under ``tmp`` (or
+    ``tmp/edge``), an edge node of group ``Lab`` (edge node id ``edge``, else the bench
+    name ``sim``) with the further ``sparkplug`` keys."""
+    data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
+    for dev in data["devices"].values():
+        if "port" in dev:
+            dev["port"] = free_tcp_port()
+    data["hmi"]["port"] = 0
+    data["hmi"]["login"] = False
+    data.pop("modbus_server", None)
+    data.pop("influxdb", None)
+    data["opcua"] = {**data.get("opcua", {}), "enabled": False}
+    data["state_dir"] = str((tmp / edge if edge else tmp) / "var")
+    section = {"broker": broker.url, "group": GROUP, "keepalive_s": KEEPALIVE_S}
+    data["sparkplug"] = {**section, **({"edge_node": edge} if edge else {}), **sparkplug}
+    path = tmp / f"{edge or 'sim-sparkplug'}.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    return path
+
+
+class Child:
+    """A ``supervisor`` command as a child process, ready once it printed ``ready``'s line;
+    stopped by its pid."""
+
+    def __init__(self, args: list[str], log_path: Path, ready: str) -> None:
+        self._log = log_path.open("a", encoding="utf-8")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "supervisor.cli.main", *args],
+            stdout=subprocess.PIPE,
+            stderr=self._log,
+            text=True,
+            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        )
+        assert self.proc.stdout is not None
+        self.lines: list[str] = []
+        for line in self.proc.stdout:
+            self.lines.append(line)
+            if line.startswith(ready):
+                break
+        else:
+            raise RuntimeError(f"{args[0]} ended before saying {ready!r} (log: {log_path})")
+
+    def kill(self) -> float:
+        """SIGKILL; the moment it was sent (time.monotonic())."""
+        os.kill(self.proc.pid, signal.SIGKILL)
+        t = time.monotonic()
+        self.proc.wait()
+        self._close()
+        return t
+
+    def stop(self) -> int:
+        """SIGTERM (SIGKILL after 60 s); its exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(60)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._close()
+        return self.proc.returncode
+
+    def _close(self) -> None:
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+        self._log.close()
 
 
 @dataclass(frozen=True)

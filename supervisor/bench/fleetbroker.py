@@ -5,6 +5,8 @@ package)."""
 
 from __future__ import annotations
 
+import os
+import pwd
 import shutil
 import socket
 import subprocess
@@ -50,7 +52,11 @@ class Broker:
         )
         # max_queued_messages 0: no limit, so a burst of a hundred nodes' births is not cut
         # at the default 1000 queued messages of a slow subscriber (the fleet).
+        # Run as whoever started it: Mosquitto started by root otherwise becomes the user
+        # "mosquitto", which cannot write its log and persistence file under ``root``
+        # (found when a persistent broker kept no session across its restart).
         self.config.write_text(
+            f"user {pwd.getpwuid(os.getuid()).pw_name}\n"
             f"listener {self.port} {LOOPBACK}\nallow_anonymous true\n{keep}"
             f"max_queued_messages 0\nlog_dest file {self.log}\n"
             "log_type error\nlog_type warning\nlog_type notice\n",

@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
-import signal
 import subprocess
 import sys
 import threading
@@ -24,88 +22,18 @@ from typing import Any
 import paho.mqtt.client as paho
 import pytest
 import yaml
-from mqttrig import Mosquitto
+from mqttrig import GROUP, KEEPALIVE_S, Child, Mosquitto, running_broker, sim_map
 
 from supervisor.config.users import hash_password
-from supervisor.testing import free_tcp_port
 
 pytestmark = pytest.mark.integration
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[2]
-GROUP = "Lab"
-KEEPALIVE_S = 5
 LIMIT_S = 60.0  # a bound for a loaded machine, not a timing claim
 
 
-def bench_map(tmp: Path, broker: Mosquitto, edge: str) -> Path:
-    """io_maps/sim.yaml on free loopback ports, its state under ``tmp/edge``, the edge node
-    ``edge`` of group ``Lab``."""
-    data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
-    for dev in data["devices"].values():
-        if "port" in dev:
-            dev["port"] = free_tcp_port()
-    data["hmi"]["port"] = 0
-    data["hmi"]["login"] = False
-    data.pop("modbus_server", None)
-    data.pop("influxdb", None)
-    data["opcua"] = {**data.get("opcua", {}), "enabled": False}
-    data["state_dir"] = str(tmp / edge / "var")
-    data["sparkplug"] = {
-        "broker": broker.url,
-        "group": GROUP,
-        "edge_node": edge,
-        "keepalive_s": KEEPALIVE_S,
-    }
-    path = tmp / f"{edge}.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
-    return path
-
-
-class Child:
-    """A ``supervisor`` command as a child process, ready once it printed ``ready``'s line;
-    stopped by its pid."""
-
-    def __init__(self, args: list[str], log_path: Path, ready: str) -> None:
-        self._log = log_path.open("a", encoding="utf-8")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "supervisor.cli.main", *args],
-            stdout=subprocess.PIPE,
-            stderr=self._log,
-            text=True,
-            env=dict(os.environ, PYTHONUNBUFFERED="1"),
-        )
-        assert self.proc.stdout is not None
-        self.lines: list[str] = []
-        for line in self.proc.stdout:
-            self.lines.append(line)
-            if line.startswith(ready):
-                break
-        else:
-            raise RuntimeError(f"{args[0]} ended before saying {ready!r} (log: {log_path})")
-
-    def kill(self) -> None:
-        os.kill(self.proc.pid, signal.SIGKILL)
-        self.proc.wait()
-        self._close()
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(60)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self._close()
-
-    def _close(self) -> None:
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
-        self._log.close()
-
-
 def run_bench(tmp: Path, broker: Mosquitto, edge: str) -> Child:
-    io_map = bench_map(tmp, broker, edge)
+    io_map = sim_map(tmp, broker, edge)
     return Child(["run", str(io_map)], tmp / f"{edge}.log", "Ctrl-C")
 
 
@@ -120,12 +48,8 @@ def run_fleet(tmp: Path, broker: Mosquitto, *extra: str) -> tuple[Child, str]:
 
 @pytest.fixture
 def broker(tmp_path: Path) -> Iterator[Mosquitto]:
-    server = Mosquitto(tmp_path / "mosquitto")
-    server.start()
-    try:
+    with running_broker(tmp_path / "mosquitto") as server:
         yield server
-    finally:
-        server.stop()
 
 
 def get_json(url: str, opener: urllib.request.OpenerDirector | None = None) -> Any:

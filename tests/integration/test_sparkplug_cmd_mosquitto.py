@@ -30,7 +30,7 @@ import pysparkplug as ps
 import pytest
 import yaml
 from commandrig import DISCHARGE, chadeche_map, recipe
-from mqttrig import Mosquitto, Received, SparkplugConsumer
+from mqttrig import Mosquitto, Received, SparkplugConsumer, running_broker
 
 pytestmark = pytest.mark.integration
 GROUP = "Lab"
@@ -40,12 +40,8 @@ LIMIT_S = 60.0  # a bound for a loaded machine, not a timing claim
 
 @pytest.fixture
 def broker(tmp_path: Path) -> Iterator[Mosquitto]:
-    server = Mosquitto(tmp_path / "mosquitto")
-    server.start()
-    try:
+    with running_broker(tmp_path / "mosquitto") as server:
         yield server
-    finally:
-        server.stop()
 
 
 class HostApplication:

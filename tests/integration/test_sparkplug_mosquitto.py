@@ -11,38 +11,37 @@ import itertools
 import logging
 import os
 import signal
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-import yaml
-from mqttrig import Mosquitto, Received, SparkplugConsumer
+from mqttrig import (
+    GROUP,
+    KEEPALIVE_S,
+    Child,
+    Mosquitto,
+    Received,
+    SparkplugConsumer,
+    running_broker,
+    sim_map,
+)
 
 from supervisor.core.clock import RealClock
 from supervisor.publish.sparkplug import MemoryBdSeq, SparkplugPublisher, SparkplugSettings
 from supervisor.tags import TagDB, TagSpec
-from supervisor.testing import free_tcp_port
 
 pytestmark = pytest.mark.integration
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[2]
-GROUP = "Lab"
-KEEPALIVE_S = 5
 LIMIT_S = 60.0  # a bound for a loaded machine, not a timing claim
 
 
 @pytest.fixture
 def broker(tmp_path: Path) -> Iterator[Mosquitto]:
-    server = Mosquitto(tmp_path / "mosquitto")
-    server.start()
-    try:
+    with running_broker(tmp_path / "mosquitto") as server:
         yield server
-    finally:
-        server.stop()
 
 
 @pytest.fixture
@@ -54,66 +53,11 @@ def consumer(broker: Mosquitto) -> Iterator[SparkplugConsumer]:
         c.close()
 
 
-def sim_map(tmp: Path, broker: Mosquitto) -> Path:
-    """io_maps/sim.yaml on free loopback ports, its state under ``tmp``, an edge node of
-    group ``Lab`` (edge node id: the bench name, ``sim``)."""
-    data = yaml.safe_load((ROOT / "io_maps" / "sim.yaml").read_text(encoding="utf-8"))
-    for dev in data["devices"].values():
-        if "port" in dev:
-            dev["port"] = free_tcp_port()
-    data["hmi"]["port"] = 0
-    data["hmi"]["login"] = False
-    data.pop("modbus_server", None)
-    data.pop("influxdb", None)
-    data["opcua"] = {**data.get("opcua", {}), "enabled": False}
-    data["state_dir"] = str(tmp / "var")
-    data["sparkplug"] = {"broker": broker.url, "group": GROUP, "keepalive_s": KEEPALIVE_S}
-    path = tmp / "sim-sparkplug.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
-    return path
-
-
-class Supervisor:
-    """``supervisor run`` as a child process, stopped by its pid."""
+class Supervisor(Child):
+    """``supervisor run`` of an I/O map as a child process, stopped by its pid."""
 
     def __init__(self, io_map: Path, log_path: Path) -> None:
-        self._log = log_path.open("a", encoding="utf-8")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "supervisor.cli.main", "run", str(io_map)],
-            stdout=subprocess.PIPE,
-            stderr=self._log,
-            text=True,
-            env=dict(os.environ, PYTHONUNBUFFERED="1"),
-        )
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            if line.startswith("Ctrl-C"):
-                break
-        else:
-            raise RuntimeError(f"supervisor ended before its banner (log: {log_path})")
-
-    def kill(self) -> float:
-        os.kill(self.proc.pid, signal.SIGKILL)
-        t = time.monotonic()
-        self.proc.wait()
-        self._close()
-        return t
-
-    def stop(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(60)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self._close()
-        return self.proc.returncode
-
-    def _close(self) -> None:
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
-        self._log.close()
+        super().__init__(["run", str(io_map)], log_path, "Ctrl-C")
 
 
 def births_done(edge: str) -> Any:

@@ -96,6 +96,14 @@ REPLAY_CHUNK: Final = 2000
 """Spooled samples per replayed round of messages (one NDATA/DDATA per device each): the
 scan gets the interpreter between two rounds."""
 
+RESEND_KEEPALIVES: Final = 1.5
+"""How long, in keep-alives, data handed to MQTT is kept for a resend: MQTT's bound for
+noticing a silent connection (a broker that went away without closing it)."""
+
+RESEND_MAX_SAMPLES: Final = 200_000
+"""At most this many samples kept for a resend (a busy bench's memory stays bounded; the
+oldest, the likeliest delivered, go first)."""
+
 AlarmHook = Callable[[str, bool, str], None]
 """``(alarm id, active, message)``: the composition root puts it on the alarm model."""
 
@@ -218,6 +226,36 @@ def _status_tags() -> list[TagSpec]:
     ]
 
 
+class RecentlySent:
+    """Data handed to MQTT in the last ``horizon_s``. Data is QoS 0 (Sparkplug): what was
+    handed over just before a connection was found lost may never have reached the
+    broker, and nothing says which. What was sent within the time a loss can take to be
+    noticed (1.5 keep-alives, MQTT's bound for a silent connection) is kept and, on a
+    loss, spooled: replayed as history after the next births (a receiver may see some
+    twice, with the same timestamp)."""
+
+    def __init__(self, horizon_s: float, max_samples: int = RESEND_MAX_SAMPLES) -> None:
+        self.horizon_s = horizon_s
+        self.max_samples = max_samples
+        self._sent: deque[tuple[float, list[tuple[str, Metric]]]] = deque()
+        self._n = 0
+
+    def add(self, now: float, group: list[tuple[str, Metric]]) -> None:
+        sent = self._sent
+        sent.append((now, group))
+        self._n += len(group)
+        horizon = now - self.horizon_s
+        while sent and (sent[0][0] < horizon or self._n > self.max_samples):
+            self._n -= len(sent.popleft()[1])
+
+    def take(self) -> list[tuple[str, Metric]]:
+        """Everything kept, oldest first; none kept after."""
+        out = [c for _, group in self._sent for c in group]
+        self._sent.clear()
+        self._n = 0
+        return out
+
+
 class SparkplugPublisher:
     """Publishes a bench's tags as a Sparkplug B edge node."""
 
@@ -249,6 +287,8 @@ class SparkplugPublisher:
             else None
         )
         self.replayed = 0
+        self._recent = RecentlySent(RESEND_KEEPALIVES * settings.keepalive_s)
+        self._lost_session = False
         self._down_since: float | None = None
         self._alarms: dict[str, bool] = {}
         self.db = db
@@ -437,6 +477,7 @@ class SparkplugPublisher:
     def disconnected(self) -> None:
         with self._cond:
             self._connected = False
+            self._lost_session = True
             stopping = self._stopping or self._recycling
             if self._down_since is None:
                 self._down_since = self.clock.now()
@@ -676,6 +717,9 @@ class SparkplugPublisher:
         with self._cond:
             connected, birth = self._connected and self._host_ready(), self._need_birth
             results, self._results = self._results, []
+            lost, self._lost_session = self._lost_session, False
+        if lost:
+            self._keep_recent()
         for name, m in results:
             self._command_metrics[name] = m  # what the next births carry
         if not connected:
@@ -765,10 +809,15 @@ class SparkplugPublisher:
 
     def _send_data(self, changes: Sequence[tuple[str, Metric]]) -> None:
         parts = self.session.data_parts(changes, self._now_ms())
-        for k, (message, _) in enumerate(parts):
+        for k, (message, group) in enumerate(parts):
             if not self._send([message]):
                 self._keep([c for _, group in parts[k:] for c in group])
                 return
+            self._recent.add(self.clock.now(), list(group))
+
+    def _keep_recent(self) -> None:
+        """A connection lost: what was sent within its noticing time goes to the spool."""
+        self._keep(self._recent.take())
 
     def _send(self, messages: list[Message]) -> bool:
         """Hand ``messages`` over in order; False at the first that cannot be (a gap: the
